@@ -1,0 +1,306 @@
+"""OCamCalib (Scaramuzza) omnidirectional camera model.
+
+The model maps image pixels, given as ``(row, col)`` with 0-based integer pixel
+centres, to unit rays in the camera frame and back:
+
+* camera frame: x along image rows, y along image columns, z = x × y; for a
+  catadioptric camera z is the mirror's symmetry axis;
+* ``cam2world``: undo the affine sensor-to-image part around the centre, then
+  the ray is ``(xp, yp, pol(r))`` with ``r = hypot(xp, yp)``;
+* ``world2cam``: ``theta = atan2(z, hypot(x, y))``, ``rho = invpol(theta)``.
+
+Polynomials are stored lowest degree first, as in ``calib_results.txt``.
+This module is pure math: reading and writing calibration files lives in
+:mod:`ifmi.io.calib`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+__all__ = [
+    "OcamModel",
+    "rays_from_pixels",
+    "pixels_from_rays",
+    "elevation_from_radius",
+    "fit_inverse_polynomial",
+    "model_from_direct_polynomial",
+    "paracatadioptric_model",
+    "max_image_radius",
+    "radius_from_pixels",
+]
+
+
+@dataclass(frozen=True)
+class OcamModel:
+    """Calibrated OCamCalib camera.
+
+    Attributes
+    ----------
+    pol : tuple of float
+        Direct polynomial (cam2world) coefficients, lowest degree first;
+        ``z = pol(r)`` in sensor-plane pixel units.
+    invpol : tuple of float
+        Inverse polynomial (world2cam) coefficients, lowest degree first;
+        ``rho = invpol(theta)`` with ``theta`` in radians.
+    center : tuple of float
+        Distortion centre ``(xc, yc)`` = ``(row, col)`` in pixels, 0-based.
+    affine : tuple of float
+        Affine parameters ``(c, d, e)``; ``(1, 0, 0)`` is an ideal sensor.
+    size : tuple of int
+        Image ``(height, width)`` in pixels.
+    """
+
+    pol: tuple[float, ...]
+    invpol: tuple[float, ...]
+    center: tuple[float, float]
+    affine: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    size: tuple[int, int] = field(default=(0, 0))
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pol", tuple(float(v) for v in self.pol))
+        object.__setattr__(self, "invpol", tuple(float(v) for v in self.invpol))
+        object.__setattr__(self, "center", tuple(float(v) for v in self.center))
+        object.__setattr__(self, "affine", tuple(float(v) for v in self.affine))
+        object.__setattr__(self, "size", tuple(int(v) for v in self.size))
+        if len(self.pol) < 1 or len(self.invpol) < 1:
+            raise ValueError(
+                f"polynomials need at least one coefficient, got pol={len(self.pol)}, "
+                f"invpol={len(self.invpol)}"
+            )
+        if len(self.center) != 2 or len(self.affine) != 3 or len(self.size) != 2:
+            raise ValueError(
+                "expected center (row, col), affine (c, d, e), size (height, width); got "
+                f"{len(self.center)}, {len(self.affine)}, {len(self.size)} values"
+            )
+        c, d, e = self.affine
+        if abs(c - d * e) < 1e-12:
+            raise ValueError(f"affine matrix is singular: c - d*e = {c - d * e}")
+        if min(self.size) <= 0:
+            raise ValueError(f"image size must be positive, got {self.size}")
+
+    @property
+    def height(self) -> int:
+        return self.size[0]
+
+    @property
+    def width(self) -> int:
+        return self.size[1]
+
+    def scaled(self, factor: float) -> "OcamModel":
+        """Return the model of the same camera imaged at ``factor`` times the resolution.
+
+        Pixel centres follow the 0-based convention, so the centre maps as
+        ``(xc + 0.5) * factor - 0.5``.
+        """
+        if not factor > 0:
+            raise ValueError(f"scale factor must be positive, got {factor}")
+        pol = tuple(a * factor ** (1 - i) for i, a in enumerate(self.pol))
+        invpol = tuple(a * factor for a in self.invpol)
+        center = tuple((x + 0.5) * factor - 0.5 for x in self.center)
+        size = (int(round(self.height * factor)), int(round(self.width * factor)))
+        return replace(self, pol=pol, invpol=invpol, center=center, size=size)
+
+
+def _sensor_from_pixels(model: OcamModel, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    c, d, e = model.affine
+    dr = pixels[..., 0] - model.center[0]
+    dc = pixels[..., 1] - model.center[1]
+    inv_det = 1.0 / (c - d * e)
+    xp = (dr - d * dc) * inv_det
+    yp = (-e * dr + c * dc) * inv_det
+    return xp, yp
+
+
+def radius_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
+    """Sensor-plane radius of pixels, after removing the affine part.
+
+    Parameters
+    ----------
+    model : OcamModel
+    pixels : (..., 2) array_like
+        ``(row, col)`` pixel coordinates.
+
+    Returns
+    -------
+    (...,) ndarray
+        Radius ``r`` in pixels, the argument of the direct polynomial.
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
+    xp, yp = _sensor_from_pixels(model, pixels)
+    return np.hypot(xp, yp)
+
+
+def rays_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
+    """Lift pixels to unit rays (OCamCalib ``cam2world``).
+
+    Parameters
+    ----------
+    model : OcamModel
+    pixels : (..., 2) array_like
+        ``(row, col)`` coordinates, 0-based, pixel centres at integers.
+
+    Returns
+    -------
+    (..., 3) ndarray
+        Unit rays ``(x, y, z)`` in the camera frame.
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
+    if pixels.shape[-1:] != (2,):
+        raise ValueError(f"expected pixels of shape (..., 2), got {pixels.shape}")
+    xp, yp = _sensor_from_pixels(model, pixels)
+    r = np.hypot(xp, yp)
+    zp = np.polynomial.polynomial.polyval(r, model.pol)
+    rays = np.stack([xp, yp, zp], axis=-1)
+    return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
+
+def pixels_from_rays(model: OcamModel, rays: np.ndarray) -> np.ndarray:
+    """Project rays to pixels (OCamCalib ``world2cam``).
+
+    Parameters
+    ----------
+    model : OcamModel
+    rays : (..., 3) array_like
+        Directions in the camera frame; need not be normalised.
+
+    Returns
+    -------
+    (..., 2) ndarray
+        ``(row, col)`` pixel coordinates. Rays along the z axis land on the
+        centre.
+    """
+    rays = np.asarray(rays, dtype=np.float64)
+    if rays.shape[-1:] != (3,):
+        raise ValueError(f"expected rays of shape (..., 3), got {rays.shape}")
+    x, y, z = rays[..., 0], rays[..., 1], rays[..., 2]
+    norm = np.hypot(x, y)
+    theta = np.arctan2(z, norm)
+    rho = np.polynomial.polynomial.polyval(theta, model.invpol)
+    safe = np.where(norm > 0, norm, 1.0)
+    u = np.where(norm > 0, x / safe * rho, 0.0)
+    v = np.where(norm > 0, y / safe * rho, 0.0)
+    c, d, e = model.affine
+    row = u * c + v * d + model.center[0]
+    col = u * e + v + model.center[1]
+    return np.stack([row, col], axis=-1)
+
+
+def elevation_from_radius(pol: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """Angle ``theta = atan2(pol(r), r)`` of the ray at sensor radius ``r`` (radians)."""
+    radius = np.asarray(radius, dtype=np.float64)
+    return np.arctan2(np.polynomial.polynomial.polyval(radius, pol), radius)
+
+
+def max_image_radius(size: tuple[int, int], center: tuple[float, float],
+                     affine: tuple[float, float, float] = (1.0, 0.0, 0.0)) -> float:
+    """Largest sensor-plane radius of any image corner (pixels)."""
+    h, w = size
+    corners = np.array([[-0.5, -0.5], [-0.5, w - 0.5], [h - 0.5, -0.5], [h - 0.5, w - 0.5]])
+    probe = OcamModel(pol=(1.0,), invpol=(1.0,), center=center, affine=affine, size=size)
+    return float(radius_from_pixels(probe, corners).max())
+
+
+def fit_inverse_polynomial(pol, radius_max: float, *, tolerance_px: float = 1e-4,
+                           max_degree: int = 24, samples: int = 2000) -> tuple[float, ...]:
+    """Fit the world2cam polynomial ``rho = invpol(theta)`` to a direct polynomial.
+
+    As OCamCalib's ``findinvpoly`` does, the degree grows until the largest
+    radius error on ``[0, radius_max]`` falls under ``tolerance_px``. The range
+    is cut where ``theta(r)`` stops increasing, since no inverse exists beyond.
+
+    Parameters
+    ----------
+    pol : (K,) array_like
+        Direct polynomial, lowest degree first.
+    radius_max : float
+        Largest sensor radius (pixels) that must be inverted.
+    tolerance_px : float, keyword-only
+        Target largest radius error in pixels.
+    max_degree : int, keyword-only
+        Highest degree tried; the best fit found is returned if the target is
+        not reached.
+    samples : int, keyword-only
+        Number of radii sampled.
+
+    Returns
+    -------
+    tuple of float
+        Inverse polynomial coefficients, lowest degree first.
+    """
+    pol = np.asarray(pol, dtype=np.float64)
+    if not radius_max > 0:
+        raise ValueError(f"radius_max must be positive, got {radius_max}")
+    r = np.linspace(0.0, radius_max, samples)
+    theta = elevation_from_radius(pol, r)
+    increasing = np.diff(theta) > 0
+    if not increasing[0]:
+        raise ValueError("theta(r) must increase with r near the centre; check the sign of pol")
+    stop = np.argmin(increasing) + 1 if not increasing.all() else samples
+    r, theta = r[:stop], theta[:stop]
+    best, best_err = None, np.inf
+    for degree in range(2, max_degree + 1):
+        series = np.polynomial.Polynomial.fit(theta, r, degree)
+        err = np.abs(series(theta) - r).max()
+        if err < best_err:
+            best, best_err = series, err
+        if err < tolerance_px:
+            break
+    return tuple(float(v) for v in best.convert().coef)
+
+
+def model_from_direct_polynomial(pol, *, center: tuple[float, float], size: tuple[int, int],
+                                 affine: tuple[float, float, float] = (1.0, 0.0, 0.0),
+                                 tolerance_px: float = 1e-4) -> OcamModel:
+    """Build a complete model from the direct polynomial alone.
+
+    The inverse polynomial is fitted over every radius the image reaches.
+
+    Parameters
+    ----------
+    pol : (K,) array_like
+        Direct polynomial, lowest degree first.
+    center : (2,) tuple, keyword-only
+        ``(row, col)`` of the distortion centre in pixels.
+    size : (2,) tuple, keyword-only
+        Image ``(height, width)``.
+    affine : (3,) tuple, keyword-only
+        ``(c, d, e)``.
+    tolerance_px : float, keyword-only
+        Target round-trip accuracy of the fitted inverse, pixels.
+    """
+    radius = max_image_radius(size, center, affine)
+    invpol = fit_inverse_polynomial(pol, radius, tolerance_px=tolerance_px)
+    return OcamModel(pol=tuple(pol), invpol=invpol, center=center, affine=affine, size=size)
+
+
+def paracatadioptric_model(size: tuple[int, int], *, horizon_radius_px: float,
+                           center: tuple[float, float] | None = None,
+                           affine: tuple[float, float, float] = (1.0, 0.0, 0.0)) -> OcamModel:
+    """Exact OCamCalib model of a paraboloid mirror seen by an orthographic camera.
+
+    A paraboloid ``z = (r**2 - h**2) / (2 h)`` with its focus at the origin
+    reflects every ray through the focus into a ray parallel to its axis, so
+    ``pol(r) = -h/2 + r**2 / (2 h)`` holds exactly; ``h`` is the image radius
+    that sees the horizon (``z = 0``).
+
+    Parameters
+    ----------
+    size : (2,) tuple
+        Image ``(height, width)``.
+    horizon_radius_px : float, keyword-only
+        Radius ``h`` in pixels at which rays are horizontal.
+    center : (2,) tuple, optional, keyword-only
+        ``(row, col)``; default the image centre ``((H-1)/2, (W-1)/2)``.
+    affine : (3,) tuple, keyword-only
+        ``(c, d, e)``.
+    """
+    h = float(horizon_radius_px)
+    if not h > 0:
+        raise ValueError(f"horizon_radius_px must be positive, got {horizon_radius_px}")
+    if center is None:
+        center = ((size[0] - 1) / 2.0, (size[1] - 1) / 2.0)
+    pol = (-h / 2.0, 0.0, 1.0 / (2.0 * h))
+    return model_from_direct_polynomial(pol, center=center, size=size, affine=affine)

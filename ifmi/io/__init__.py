@@ -1,0 +1,1 @@
+"""File formats: calibration, TUM trajectories, dataset folders, results."""

@@ -1,0 +1,103 @@
+"""TUM trajectory text files: ``timestamp tx ty tz qx qy qz qw`` per line.
+
+Line k is the pose of camera k in camera 0's frame (``T_0k`` maps camera-k
+coordinates to camera-0 coordinates); ``#`` starts a comment line.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..rotations import matrix_from_quat_xyzw, quat_xyzw_from_matrix
+from .atomic import atomic_write_text
+
+__all__ = ["Trajectory", "read_tum", "write_tum", "format_tum"]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Poses ``T_0k`` of a sequence.
+
+    Attributes
+    ----------
+    timestamps : (N,) ndarray
+        Seconds, or frame indices when real times are unknown.
+    positions : (N, 3) ndarray
+        Camera-k origin in camera-0 coordinates (up to scale for estimates).
+    rotations : (N, 3, 3) ndarray
+        ``R_0k``: maps camera-k directions to camera-0 directions.
+    """
+
+    timestamps: np.ndarray
+    positions: np.ndarray
+    rotations: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.timestamps)
+        if self.positions.shape != (n, 3) or self.rotations.shape != (n, 3, 3):
+            raise ValueError(
+                f"expected positions ({n}, 3) and rotations ({n}, 3, 3), got "
+                f"{self.positions.shape} and {self.rotations.shape}"
+            )
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+
+def read_tum(path: str | os.PathLike) -> Trajectory:
+    """Read a TUM trajectory file.
+
+    Raises
+    ------
+    InputError
+        Missing file, a line without 8 numbers, a zero quaternion, or no poses.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except FileNotFoundError:
+        raise InputError(path, "trajectory file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot read trajectory file ({exc.__class__.__name__})") from None
+    rows = []
+    for number, line in enumerate(lines, start=1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        tokens = text.replace(",", " ").split()
+        if len(tokens) != 8:
+            raise InputError(path, f"line {number}: expected 8 values (t tx ty tz qx qy qz qw), got {len(tokens)}")
+        try:
+            values = [float(tok) for tok in tokens]
+        except ValueError:
+            raise InputError(path, f"line {number}: non-numeric value") from None
+        if not np.all(np.isfinite(values)):
+            raise InputError(path, f"line {number}: non-finite value")
+        if np.linalg.norm(values[4:]) < 1e-9:
+            raise InputError(path, f"line {number}: zero quaternion")
+        rows.append(values)
+    if not rows:
+        raise InputError(path, "no poses in trajectory file")
+    data = np.asarray(rows)
+    return Trajectory(timestamps=data[:, 0], positions=data[:, 1:4],
+                      rotations=matrix_from_quat_xyzw(data[:, 4:8]))
+
+
+def format_tum(trajectory: Trajectory, *, header: str = "") -> str:
+    """TUM text of ``trajectory``; ``header`` lines are written as ``#`` comments."""
+    q = quat_xyzw_from_matrix(trajectory.rotations)
+    out = [f"# {ln}" for ln in header.splitlines()]
+    out.append("# timestamp tx ty tz qx qy qz qw")
+    for t, p, qq in zip(trajectory.timestamps, trajectory.positions, q):
+        out.append(" ".join([f"{t:.6f}"] + [f"{v:.9f}" for v in p] + [f"{v:.12f}" for v in qq]))
+    return "\n".join(out) + "\n"
+
+
+def write_tum(path: str | os.PathLike, trajectory: Trajectory, *, header: str = "") -> None:
+    """Write ``trajectory`` atomically as a TUM file."""
+    atomic_write_text(path, format_tum(trajectory, header=header))
