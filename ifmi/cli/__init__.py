@@ -1,0 +1,54 @@
+"""Command line of ``ifmi``: parsing only; every subcommand calls library code.
+
+Each subcommand lives in its own module of this package and exposes
+``add_parser(subparsers)`` (which sets ``func`` on its parser) so that the
+entry point stays a thin dispatcher.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from ..errors import InputError
+
+__all__ = ["main"]
+
+# Subcommand modules, in the order ``ifmi --help`` lists them.
+_SUBCOMMANDS = ("estimate", "evaluate", "sweep", "report")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ifmi",
+        description="Rotation estimation between omni images with the extended iFMI, "
+                    "feature baselines, evaluation, sweeps and reports.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in _SUBCOMMANDS:
+        try:
+            module = importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"{__name__}.{name}":
+                continue
+            raise
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except InputError as exc:
+        print(f"ifmi {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"ifmi {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,108 @@
+"""Rotation conventions and TUM trajectory files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from ifmi.errors import InputError
+from ifmi.io.tum import Trajectory, read_tum, write_tum
+from ifmi.rotations import (
+    geodesic_angle,
+    matrix_from_quat_xyzw,
+    matrix_from_rpy,
+    project_to_rotation,
+    quat_xyzw_from_matrix,
+    rpy_from_matrix,
+    wrap_angle,
+)
+
+
+def test_rpy_is_scipy_zyx_read_as_yaw_pitch_roll():
+    rng = np.random.default_rng(3)
+    R = Rotation.random(50, random_state=rng).as_matrix()
+    ypr = Rotation.from_matrix(R).as_euler("ZYX")
+    np.testing.assert_allclose(rpy_from_matrix(R), ypr[:, ::-1], atol=1e-12)
+
+
+def test_rpy_axes():
+    """Yaw turns about z, pitch about y, roll about x."""
+    a = 0.3
+    np.testing.assert_allclose(matrix_from_rpy(np.array([0, 0, a])) @ [1, 0, 0],
+                               [np.cos(a), np.sin(a), 0], atol=1e-12)
+    np.testing.assert_allclose(matrix_from_rpy(np.array([0, a, 0])) @ [0, 0, 1],
+                               [np.sin(a), 0, np.cos(a)], atol=1e-12)
+    np.testing.assert_allclose(matrix_from_rpy(np.array([a, 0, 0])) @ [0, 1, 0],
+                               [0, np.cos(a), np.sin(a)], atol=1e-12)
+
+
+def test_rpy_round_trip():
+    rng = np.random.default_rng(4)
+    rpy = rng.uniform([-np.pi, -1.5, -np.pi], [np.pi, 1.5, np.pi], (100, 3))
+    np.testing.assert_allclose(rpy_from_matrix(matrix_from_rpy(rpy)), rpy, atol=1e-10)
+
+
+def test_quaternion_round_trip_and_sign():
+    rng = np.random.default_rng(5)
+    R = Rotation.random(30, random_state=rng).as_matrix()
+    q = quat_xyzw_from_matrix(R)
+    assert np.all(q[:, 3] >= 0)
+    np.testing.assert_allclose(matrix_from_quat_xyzw(q), R, atol=1e-12)
+
+
+def test_geodesic_angle_small_and_large():
+    for angle in (1e-9, 1e-4, 0.5, 3.0):
+        R = Rotation.from_rotvec([0.0, angle, 0.0]).as_matrix()
+        assert geodesic_angle(np.eye(3), R) == pytest.approx(angle, rel=1e-9, abs=1e-15)
+
+
+def test_wrap_angle():
+    np.testing.assert_allclose(wrap_angle(np.array([3 * np.pi / 2, -3 * np.pi / 2, 0.1])),
+                               [-np.pi / 2, np.pi / 2, 0.1])
+
+
+def test_project_to_rotation():
+    rng = np.random.default_rng(6)
+    R = Rotation.random(random_state=rng).as_matrix()
+    P = project_to_rotation(R + 1e-3 * rng.standard_normal((3, 3)))
+    np.testing.assert_allclose(P @ P.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(P) == pytest.approx(1.0)
+    assert geodesic_angle(R, P) < 1e-2
+
+
+def test_tum_round_trip(tmp_path):
+    rng = np.random.default_rng(8)
+    n = 12
+    traj = Trajectory(timestamps=np.arange(n, dtype=float), positions=rng.standard_normal((n, 3)),
+                      rotations=Rotation.random(n, random_state=rng).as_matrix())
+    path = tmp_path / "traj.txt"
+    write_tum(path, traj, header="made by a test\nsecond line")
+    back = read_tum(path)
+    np.testing.assert_allclose(back.timestamps, traj.timestamps)
+    np.testing.assert_allclose(back.positions, traj.positions, atol=1e-9)
+    np.testing.assert_allclose(back.rotations, traj.rotations, atol=1e-11)
+    assert path.read_text().startswith("# made by a test\n# second line\n")
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("0 0 0 0 0 0 0\n", "line 1: expected 8 values"),
+        ("# c\n0 0 0 0 0 0 0 x\n", "line 2: non-numeric value"),
+        ("0 0 0 0 0 0 0 0\n", "line 1: zero quaternion"),
+        ("0 0 0 nan 0 0 0 1\n", "line 1: non-finite value"),
+        ("# only a comment\n", "no poses"),
+    ],
+)
+def test_malformed_tum(tmp_path, content, message):
+    path = tmp_path / "bad.txt"
+    path.write_text(content)
+    with pytest.raises(InputError, match=message) as info:
+        read_tum(path)
+    assert str(path) in str(info.value)
+
+
+def test_missing_tum(tmp_path):
+    with pytest.raises(InputError, match="not found"):
+        read_tum(tmp_path / "missing.txt")
