@@ -1,0 +1,131 @@
+"""``ifmi estimate DATASET --method M --out estimate.txt``: orientation of every frame.
+
+Writes the TUM trajectory and, beside it, ``<stem>.frames.csv`` (per-frame
+success, reason, counts, time) and ``<stem>.config.json`` (method, full
+configuration, dataset, versions).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+from ..errors import InputError
+from ..pipeline import EstimateConfig, estimate_dataset, method_names
+
+__all__ = ["add_parser", "run", "config_from_args"]
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "estimate",
+        help="estimate the camera orientation of every frame of a dataset",
+        description="Estimate R_0k for every image of DATASET (calib_results.txt + images/) and "
+                    "write a TUM trajectory plus NAME.frames.csv and NAME.config.json beside it. "
+                    "A frame that fails keeps the previous orientation and is flagged.",
+    )
+    p.add_argument("dataset", metavar="DATASET", help="dataset folder")
+    p.add_argument("--method", default="ifmi", choices=method_names(), help="front end (default ifmi)")
+    p.add_argument("--out", required=True, metavar="ESTIMATE", help="TUM file to write")
+    p.add_argument("--config", metavar="JSON",
+                   help="start from this configuration (an estimate's NAME.config.json or a "
+                        "to_dict() JSON); the options below override it")
+    g = p.add_argument_group("panorama")
+    g.add_argument("--width", type=int,
+                   help="panorama width in pixels (default: the band's circumference, at most 1024)")
+    g.add_argument("--height", type=int, help="panorama height in pixels (default: square pixels)")
+    g.add_argument("--radius-min", type=float, metavar="PX", help="inner sensor radius of the band")
+    g.add_argument("--radius-max", type=float, metavar="PX", help="outer sensor radius of the band")
+    g = p.add_argument_group("tiles and iFMI")
+    g.add_argument("--tile-size", type=float, metavar="N",
+                   help="tile side: pixels if >= 1, else a fraction of the panorama width "
+                        "(default: width / 16 within 32..64 px)")
+    g.add_argument("--overlap", type=float, help="tile overlap fraction in [0, 1)")
+    g.add_argument("--th-pr", type=float, help="smallest accepted peak ratio")
+    g.add_argument("--th-pnr", type=float, help="smallest accepted peak-to-noise ratio")
+    g.add_argument("--points-per-tile", type=int, choices=(1, 5, 9), help="flow points per tile")
+    g.add_argument("--refine-passes", type=int,
+                   help="iFMI refinement passes (default 1; 0 is about 20%% faster)")
+    g.add_argument("--no-rotation-scale", action="store_true",
+                   help="measure tile translation only (no log-polar stage)")
+    g.add_argument("--no-prior", action="store_true",
+                   help="do not cut tiles where the predicted rotation moves them")
+    g = p.add_argument_group("relative pose")
+    g.add_argument("--ransac-threshold", type=float, metavar="RAD", help="RANSAC threshold, radians")
+    g.add_argument("--rotation-only", action="store_true", help="force the rotation-only model")
+    g.add_argument("--seed", type=int, help="RANSAC seed")
+    g = p.add_argument_group("keyframes")
+    g.add_argument("--keyframes", action="store_true", help="estimate against keyframes")
+    g.add_argument("--keyframe-min-inliers", type=int, metavar="N",
+                   help="switch keyframes below this inlier count")
+    g.add_argument("--keyframe-max-angle", type=float, metavar="RAD",
+                   help="switch keyframes past this rotation from the keyframe")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _load_config(path: str) -> EstimateConfig:
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(path, "configuration file not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(path, f"not a readable JSON configuration ({exc.__class__.__name__})") from None
+    if isinstance(data, dict) and isinstance(data.get("config"), dict):
+        data = data["config"]
+    try:
+        return EstimateConfig.from_dict(data)
+    except (TypeError, ValueError) as exc:
+        raise InputError(path, f"invalid configuration: {exc}") from None
+
+
+def _override(obj, **values):
+    values = {k: v for k, v in values.items() if v is not None}
+    return replace(obj, **values) if values else obj
+
+
+def config_from_args(args) -> EstimateConfig:
+    """EstimateConfig from parsed arguments (``--config`` file, then explicit options)."""
+    config = _load_config(args.config) if args.config else EstimateConfig()
+    ifmi = config.ifmi
+    try:
+        ifmi = replace(
+            ifmi,
+            panorama=_override(ifmi.panorama, width=args.width, height=args.height,
+                               radius_min_px=args.radius_min, radius_max_px=args.radius_max),
+            tiling=_override(ifmi.tiling, tile_size=args.tile_size, overlap=args.overlap),
+            registration=_override(ifmi.registration, th_pr=args.th_pr, th_pnr=args.th_pnr,
+                                   refine_passes=args.refine_passes,
+                                   estimate_rotation_scale=False if args.no_rotation_scale else None),
+        )
+        ifmi = _override(ifmi, points_per_tile=args.points_per_tile,
+                         use_prior=False if args.no_prior else None)
+        pose = _override(config.relative_pose, ransac_threshold_rad=args.ransac_threshold,
+                         rotation_only=True if args.rotation_only else None, seed=args.seed)
+        keyframe = _override(config.keyframe, enabled=True if args.keyframes else None,
+                             min_inliers=args.keyframe_min_inliers,
+                             max_angle_rad=args.keyframe_max_angle)
+    except ValueError as exc:
+        raise InputError("command line", str(exc)) from None
+    return replace(config, ifmi=ifmi, relative_pose=pose, keyframe=keyframe)
+
+
+def run(args) -> int:
+    from ..io.results import write_estimate_run
+
+    config = config_from_args(args)
+    out = Path(args.out)
+    if out.is_dir():
+        raise InputError(out, "output path is a folder; expected a TUM file name")
+    try:
+        estimate = estimate_dataset(args.dataset, method=args.method, config=config,
+                                    progress=not args.no_progress)
+    except ValueError as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(args.dataset, str(exc)) from None
+    write_estimate_run(out, estimate, dataset_dir=args.dataset)
+    failed = sum(not r.success for r in estimate.frames)
+    print(f"{out}: {len(estimate.frames)} frames, {failed} failed")
+    return 0

@@ -1,0 +1,35 @@
+"""``ifmi report``: Markdown + HTML report from evaluation and sweep folders."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+
+from ..report import build_report
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "report",
+        help="Markdown/HTML report of evaluations and sweeps",
+        description="Reads evaluation folders (ifmi evaluate) and sweep folders (ifmi sweep), "
+                    "or folders containing them, and writes README.md, index.html, report.json "
+                    "and figures/ into --out. Estimates are never recomputed.",
+    )
+    p.add_argument("results", nargs="+", metavar="RESULTS", help="evaluation or sweep folders")
+    p.add_argument("--out", required=True, metavar="DIR", help="report folder, e.g. reports/NAME")
+    p.add_argument("--title", default=None, help="report title")
+    p.add_argument("--command", default=None,
+                   help="command line that regenerates the report (printed in it); "
+                        "default: this invocation")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    command = args.command or "ifmi " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    kwargs = {"title": args.title} if args.title else {}
+    path = build_report(args.results, out_dir=args.out, command=command, **kwargs)
+    print(f"report written to {path} and {path.with_name('index.html')}")
+    return 0

@@ -1,0 +1,347 @@
+"""Feature front ends (ORB, AKAZE) for the comparison with iFMI.
+
+Keypoints are detected on the omni image inside the mirror's image band (the
+same radius band the iFMI front end unwarps), or optionally on the panorama
+of that band. Binary descriptors are matched with a brute-force Hamming
+matcher, two nearest neighbours and a ratio test (optionally mutual best
+matches only). Matched keypoints are lifted to rays with the camera model;
+the relative-pose back end and the odometry are those of every method
+(:mod:`ifmi.pipeline`), so a comparison isolates the front end.
+
+OpenCV reports keypoints as ``(x, y) = (col, row)``; everything leaving this
+module is ``(row, col)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+import cv2
+import numpy as np
+
+from .camera import OcamModel, radius_from_pixels, rays_from_pixels
+
+__all__ = [
+    "DETECTORS",
+    "FeatureConfig",
+    "FeatureFrame",
+    "FeatureFrontEnd",
+    "create_detector",
+    "match_descriptors",
+    "orb_front_end",
+    "akaze_front_end",
+]
+
+# Detector names accepted by FeatureFrontEnd.
+DETECTORS = ("orb", "akaze")
+# OpenCV's own default keypoint count of ORB, used when n_features is 0.
+ORB_DEFAULT_FEATURES = 500
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    """Options of the ORB and AKAZE front ends.
+
+    Defaults are OpenCV's standard settings with 2000 ORB features and Lowe's
+    ratio 0.8.
+
+    Attributes
+    ----------
+    n_features : int
+        ORB: number of keypoints kept by the detector (0: OpenCV's default,
+        500). AKAZE: keep the strongest ``n_features`` by response (0 keeps
+        all).
+    ratio : float
+        Lowe ratio test: keep a match when its Hamming distance is below
+        ``ratio`` times that of the second-best candidate; in (0, 1].
+    cross_check : bool
+        Also require the match to be the best one seen from frame b.
+    on_panorama : bool
+        Detect on the panorama of the mirror band instead of the omni image;
+        keypoints are mapped back to omni pixels before lifting to rays.
+    min_matches : int
+        Fewer matches than this flags the pair as failed.
+    orb_scale_factor, orb_levels, orb_edge_threshold, orb_patch_size, orb_fast_threshold
+        ``cv2.ORB_create`` options (pyramid ratio, levels, border in pixels,
+        descriptor patch in pixels, FAST threshold in gray levels).
+    akaze_threshold : float
+        ``cv2.AKAZE_create`` detector response threshold.
+    akaze_octaves, akaze_octave_layers : int
+        AKAZE scale space size.
+    radius_band : (2,) tuple of float or None
+        Override of the mirror band ``(inner, outer)`` radius in sensor
+        pixels; ``None`` uses the iFMI front end's default band for the
+        calibration and images.
+    """
+
+    n_features: int = 2000
+    ratio: float = 0.8
+    cross_check: bool = False
+    on_panorama: bool = False
+    min_matches: int = 8
+    orb_scale_factor: float = 1.2
+    orb_levels: int = 8
+    orb_edge_threshold: int = 31
+    orb_patch_size: int = 31
+    orb_fast_threshold: int = 20
+    akaze_threshold: float = 1e-3
+    akaze_octaves: int = 4
+    akaze_octave_layers: int = 4
+    radius_band: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.radius_band is not None:
+            band = tuple(float(v) for v in self.radius_band)
+            if len(band) != 2 or not 0 <= band[0] < band[1]:
+                raise ValueError(f"radius_band must be (inner, outer) with 0 <= inner < outer, "
+                                 f"got {self.radius_band}")
+            object.__setattr__(self, "radius_band", band)
+        if not 0 < self.ratio <= 1:
+            raise ValueError(f"ratio must be in (0, 1], got {self.ratio}")
+        if self.n_features < 0:
+            raise ValueError(f"n_features must be >= 0, got {self.n_features}")
+        if self.min_matches < 5:
+            raise ValueError(f"min_matches must be >= 5 (the 5-point solver), got {self.min_matches}")
+
+    def to_dict(self) -> dict:
+        return {f.name: (list(getattr(self, f.name)) if isinstance(getattr(self, f.name), tuple)
+                         else getattr(self, f.name)) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "FeatureConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown feature options {sorted(unknown)}; expected {sorted(known)}")
+        return cls(**data)
+
+
+@dataclass(frozen=True)
+class FeatureFrame:
+    """Per-frame state of a feature front end.
+
+    Attributes
+    ----------
+    pixels : (N, 2) ndarray
+        Keypoint positions, omni-image ``(row, col)``.
+    rays : (N, 3) ndarray
+        Unit rays of ``pixels``.
+    descriptors : (N, D) uint8 ndarray
+        Binary descriptors (ORB: 32 bytes, AKAZE MLDB: 61 bytes).
+    """
+
+    pixels: np.ndarray
+    rays: np.ndarray
+    descriptors: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.pixels)
+
+
+def create_detector(detector: str, config: FeatureConfig):
+    """OpenCV ORB or AKAZE detector configured from ``config``."""
+    if detector == "orb":
+        return cv2.ORB_create(nfeatures=config.n_features or ORB_DEFAULT_FEATURES,
+                              scaleFactor=config.orb_scale_factor, nlevels=config.orb_levels,
+                              edgeThreshold=config.orb_edge_threshold,
+                              patchSize=config.orb_patch_size,
+                              fastThreshold=config.orb_fast_threshold)
+    if detector == "akaze":
+        return cv2.AKAZE_create(threshold=config.akaze_threshold, nOctaves=config.akaze_octaves,
+                                nOctaveLayers=config.akaze_octave_layers)
+    raise ValueError(f"unknown detector {detector!r}; expected one of {DETECTORS}")
+
+
+def match_descriptors(desc_a: np.ndarray, desc_b: np.ndarray, *, ratio: float,
+                      cross_check: bool) -> np.ndarray:
+    """Match binary descriptors by Hamming distance with a ratio test.
+
+    Parameters
+    ----------
+    desc_a : (Na, D) uint8 ndarray
+    desc_b : (Nb, D) uint8 ndarray
+    ratio : float, keyword-only
+        Keep a match whose distance is below ``ratio`` times the second-best.
+    cross_check : bool, keyword-only
+        Keep only matches that are also the best from ``desc_b``'s side.
+
+    Returns
+    -------
+    (M, 2) ndarray of int
+        Index pairs ``(i_a, i_b)``.
+    """
+    if len(desc_a) < 2 or len(desc_b) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    knn = matcher.knnMatch(desc_a, desc_b, k=2)
+    pairs = [(m[0].queryIdx, m[0].trainIdx) for m in knn
+             if len(m) == 2 and m[0].distance < ratio * m[1].distance]
+    out = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    if cross_check and len(out):
+        back = matcher.match(desc_b, desc_a)
+        best_a_of_b = np.full(len(desc_b), -1, dtype=np.int64)
+        for m in back:
+            best_a_of_b[m.queryIdx] = m.trainIdx
+        out = out[best_a_of_b[out[:, 1]] == out[:, 0]]
+    return out
+
+
+class FeatureFrontEnd:
+    """ORB or AKAZE front end (see the module docstring).
+
+    Parameters
+    ----------
+    model : OcamModel
+        Calibration of the omni images.
+    detector : {"orb", "akaze"}
+    config : FeatureConfig, keyword-only
+    panorama : ifmi.unwarp.PanoramaConfig, optional, keyword-only
+        Band detection and panorama geometry, shared with the iFMI front end
+        so that every method sees the same part of the image.
+    """
+
+    def __init__(self, model: OcamModel, detector: str, *,
+                 config: FeatureConfig = FeatureConfig(), panorama=None) -> None:
+        from .unwarp import PanoramaConfig
+
+        if detector not in DETECTORS:
+            raise ValueError(f"unknown detector {detector!r}; expected one of {DETECTORS}")
+        self.model = model
+        self.detector_name = detector
+        self.config = config
+        self.panorama_config = panorama if panorama is not None else PanoramaConfig()
+        self._detector = create_detector(detector, config)
+        self._mask: np.ndarray | None = None
+        self._band: tuple[float, float] | None = config.radius_band
+        self._mapping = None
+
+    # -- mirror band ----------------------------------------------------------------------------
+    def band(self, image: np.ndarray) -> tuple[float, float]:
+        """``(inner, outer)`` sensor radius of the mirror band in pixels (fixed on first use).
+
+        Detected from the first image with :func:`ifmi.unwarp.radius_band`,
+        unless ``config.radius_band`` sets it.
+        """
+        if self._band is None:
+            from .unwarp import radius_band
+
+            self._band = tuple(float(v) for v in radius_band(self.model, image,
+                                                             config=self.panorama_config))
+        return self._band
+
+    def mask(self, image: np.ndarray) -> np.ndarray:
+        """``(H, W)`` uint8 detection mask: 255 inside the mirror band, 0 elsewhere."""
+        if self._mask is None:
+            inner, outer = self.band(image)
+            h, w = self.model.size
+            rows, cols = np.mgrid[0:h, 0:w]
+            r = radius_from_pixels(self.model, np.stack([rows, cols], axis=-1))
+            self._mask = np.where((r >= inner) & (r <= outer), 255, 0).astype(np.uint8)
+        return self._mask
+
+    # -- front-end protocol ---------------------------------------------------------------------
+    def prepare(self, image: np.ndarray) -> FeatureFrame:
+        """Detect keypoints and compute descriptors of one omni image.
+
+        Parameters
+        ----------
+        image : (H, W) or (H, W, 3) uint8 ndarray
+            Omni image of the calibration's size.
+
+        Returns
+        -------
+        FeatureFrame
+        """
+        from .unwarp import gray_from_image
+
+        gray = gray_from_image(image)
+        if gray.shape != tuple(self.model.size):
+            raise ValueError(f"expected an image of {self.model.size} (rows, cols), got {gray.shape}")
+        if gray.dtype != np.uint8:
+            gray = np.clip(gray, 0, 255).astype(np.uint8)
+        if self.config.on_panorama:
+            pixels, descriptors = self._detect_on_panorama(gray)
+        else:
+            pixels, descriptors = self._detect(gray, self.mask(gray))
+        rays = rays_from_pixels(self.model, pixels) if len(pixels) else np.zeros((0, 3))
+        return FeatureFrame(pixels=pixels, rays=rays, descriptors=descriptors)
+
+    def correspondences(self, state_a: FeatureFrame, state_b: FeatureFrame):
+        """Match frame a's keypoints against frame b's.
+
+        Returns
+        -------
+        ifmi.pipeline.Correspondences
+            Flagged as failed when fewer than ``config.min_matches`` survive.
+        """
+        from .pipeline import Correspondences
+
+        pairs = match_descriptors(state_a.descriptors, state_b.descriptors,
+                                  ratio=self.config.ratio, cross_check=self.config.cross_check)
+        diagnostics = {"n_keypoints_a": len(state_a), "n_keypoints_b": len(state_b),
+                       "n_matches": int(len(pairs))}
+        if len(pairs) < self.config.min_matches:
+            return Correspondences.failed(
+                f"too few matches ({len(pairs)} < {self.config.min_matches})", diagnostics)
+        ia, ib = pairs[:, 0], pairs[:, 1]
+        return Correspondences(pixels_a=state_a.pixels[ia], pixels_b=state_b.pixels[ib],
+                               rays_a=state_a.rays[ia], rays_b=state_b.rays[ib],
+                               diagnostics=diagnostics, success=True, reason="")
+
+    # -- detection ------------------------------------------------------------------------------
+    def _detect(self, gray: np.ndarray, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        keypoints, descriptors = self._detector.detectAndCompute(gray, mask)
+        if descriptors is None or not keypoints:
+            return np.zeros((0, 2)), np.zeros((0, 32), dtype=np.uint8)
+        xy = np.array([kp.pt for kp in keypoints], dtype=np.float64)
+        if (self.detector_name == "akaze" and self.config.n_features
+                and len(keypoints) > self.config.n_features):
+            response = np.array([kp.response for kp in keypoints])
+            keep = np.sort(np.argsort(-response, kind="stable")[: self.config.n_features])
+            xy, descriptors = xy[keep], descriptors[keep]
+        # OpenCV (x, y) = (col, row) -> (row, col).
+        return xy[:, ::-1].copy(), descriptors
+
+    def _detect_on_panorama(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        from dataclasses import replace
+
+        from .unwarp import omni_from_panorama, panorama_from_omni, panorama_mapping
+
+        if self._mapping is None:
+            inner, outer = self.band(gray)
+            band_config = replace(self.panorama_config, radius_min_px=inner, radius_max_px=outer)
+            self._mapping = panorama_mapping(self.model, gray, config=band_config)
+        panorama = np.clip(panorama_from_omni(gray, self._mapping) + 0.5, 0, 255).astype(np.uint8)
+        pano_pixels, descriptors = self._detect(panorama, None)
+        if not len(pano_pixels):
+            return pano_pixels, descriptors
+        return omni_from_panorama(self._mapping, pano_pixels), descriptors
+
+
+def _feature_config(config) -> FeatureConfig:
+    features = getattr(config, "features", None)
+    return FeatureConfig() if features is None else features
+
+
+def _panorama_config(config):
+    ifmi = getattr(config, "ifmi", None)
+    return None if ifmi is None else ifmi.panorama
+
+
+def orb_front_end(model: OcamModel, config) -> FeatureFrontEnd:
+    """Registry factory: ORB front end from an :class:`ifmi.pipeline.EstimateConfig`.
+
+    The mirror band comes from the same panorama settings as the iFMI front end's.
+    """
+    return FeatureFrontEnd(model, "orb", config=_feature_config(config),
+                           panorama=_panorama_config(config))
+
+
+def akaze_front_end(model: OcamModel, config) -> FeatureFrontEnd:
+    """Registry factory: AKAZE front end from an :class:`ifmi.pipeline.EstimateConfig`.
+
+    The mirror band comes from the same panorama settings as the iFMI front end's.
+    """
+    return FeatureFrontEnd(model, "akaze", config=_feature_config(config),
+                           panorama=_panorama_config(config))

@@ -1,0 +1,111 @@
+"""Motion flow: pixel pairs from tile motions, in the panorama and the omni image.
+
+For each kept tile the flow equation (:func:`ifmi.fourier_mellin.transform_points`)
+maps a few points ``q`` of tile b (its centre and points around it) to
+``M(q)`` in tile a; adding the tile's origin gives panorama ``(row, col)``
+pairs, which the panorama mapping turns into omni-image pixels and rays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .fourier_mellin import TileMotion, transform_points
+from .tiling import TileLayout
+from .unwarp import PanoramaMapping, omni_from_panorama, rays_from_panorama
+
+__all__ = ["FlowPairs", "flow_sample_points", "flow_from_tile_motion"]
+
+
+@dataclass(frozen=True)
+class FlowPairs:
+    """Corresponding points of two frames.
+
+    Attributes
+    ----------
+    panorama_a, panorama_b : (M, 2) ndarray
+        Panorama ``(row, col)`` in frame a and b (columns in ``[0, width)``).
+    pixels_a, pixels_b : (M, 2) ndarray
+        Omni-image ``(row, col)``.
+    rays_a, rays_b : (M, 3) ndarray
+        Unit rays.
+    tile_index : (M,) int ndarray
+        Tile each pair comes from.
+    """
+
+    panorama_a: np.ndarray
+    panorama_b: np.ndarray
+    pixels_a: np.ndarray
+    pixels_b: np.ndarray
+    rays_a: np.ndarray
+    rays_b: np.ndarray
+    tile_index: np.ndarray
+
+
+def flow_sample_points(tile_size: int, *, points_per_tile: int = 5, spread: float = 0.25) -> np.ndarray:
+    """Points of a tile at which the flow is sampled, tile ``(row, col)``.
+
+    Parameters
+    ----------
+    tile_size : int
+    points_per_tile : int, keyword-only
+        1 (centre), 5 (centre and four diagonal points) or 9 (3 x 3 grid).
+    spread : float, keyword-only
+        Offset of the outer points from the centre as a fraction of the tile size.
+
+    Returns
+    -------
+    (K, 2) ndarray
+    """
+    c = (tile_size - 1) / 2.0
+    delta = spread * tile_size
+    if points_per_tile == 1:
+        offsets = np.zeros((1, 2))
+    elif points_per_tile == 5:
+        offsets = np.array([[0, 0], [-1, -1], [-1, 1], [1, -1], [1, 1]], dtype=float) * delta
+    elif points_per_tile == 9:
+        g = np.array([-1.0, 0.0, 1.0]) * delta
+        offsets = np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
+    else:
+        raise ValueError(f"points_per_tile must be 1, 5 or 9, got {points_per_tile}")
+    return offsets + c
+
+
+def flow_from_tile_motion(motion: TileMotion, layout: TileLayout, mapping: PanoramaMapping, *,
+                          points_b: np.ndarray, origins_b: np.ndarray | None = None) -> FlowPairs:
+    """Pixel and ray pairs of the valid tiles.
+
+    Parameters
+    ----------
+    motion : TileMotion
+        Registration of frame b's tiles against frame a's.
+    layout : TileLayout
+    mapping : PanoramaMapping
+    points_b : (K, 2) ndarray, keyword-only
+        Tile-b points (tile ``(row, col)``) of :func:`flow_sample_points`.
+    origins_b : (T, 2) ndarray, optional, keyword-only
+        Panorama ``(row, col)`` of tile b's first pixel when tile b was cut
+        elsewhere than tile a (motion prediction); default the layout's.
+
+    Returns
+    -------
+    FlowPairs
+    """
+    keep = np.flatnonzero(motion.valid)
+    k = len(points_b)
+    origins = layout.origins[keep].astype(np.float64)
+    origins_b = origins if origins_b is None else np.asarray(origins_b, dtype=np.float64)[keep]
+    in_a = transform_points(points_b, motion.scale[keep], motion.angle_rad[keep],
+                            motion.translation[keep], layout.tile_size)
+    pano_a = (in_a + origins[:, None, :]).reshape(-1, 2)
+    pano_b = (np.broadcast_to(points_b, in_a.shape) + origins_b[:, None, :]).reshape(-1, 2)
+    width = mapping.width
+    pano_a[:, 1] = np.mod(pano_a[:, 1], width)
+    pano_b[:, 1] = np.mod(pano_b[:, 1], width)
+    return FlowPairs(
+        panorama_a=pano_a, panorama_b=pano_b,
+        pixels_a=omni_from_panorama(mapping, pano_a), pixels_b=omni_from_panorama(mapping, pano_b),
+        rays_a=rays_from_panorama(mapping, pano_a), rays_b=rays_from_panorama(mapping, pano_b),
+        tile_index=np.repeat(keep, k))

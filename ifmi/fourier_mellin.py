@@ -1,0 +1,448 @@
+"""Improved Fourier-Mellin invariant (iFMI) registration of tile pairs, batched.
+
+Motion model of a tile pair ``(a, b)`` of size ``N x N`` with centre
+``c = ((N - 1) / 2, (N - 1) / 2)``, coordinates ``(row, col)``::
+
+    b(q) = a(M(q)),   M(q) = s R(theta) (q - c) + c + t,
+    R(theta) = [[cos theta, -sin theta], [sin theta, cos theta]]
+
+so a point ``q`` of tile b shows the content of point ``M(q)`` of tile a.
+
+Per pair (all tiles of a frame at once, one FFT call per step):
+
+1. mean removal, Hann window, ``rfft2``; the magnitude of the half plane
+   (the spectrum of a real image is centrosymmetric), a high-pass emphasis,
+   and its resampling onto a log-polar grid over angles ``[0, pi)``;
+2. phase-only matched filter of the two log-polar magnitudes: the peak gives
+   ``theta`` (mod pi) along the angle axis and ``log s`` along the log-radius
+   axis, with a parabolic sub-pixel fit refined by a phase-plane fit
+   (:func:`ifmi.phase_correlation.refine_shift_phase_plane`); the log-polar
+   grid starts at a fraction of the largest radius, because the window blurs
+   the low frequencies by a fixed amount that would bias the scale;
+3. tile b is resampled from its source image at ``M(q)`` without the
+   translation (undoing ``theta`` and ``s``); the ``theta + pi`` candidate is
+   the point reflection of that tile, whose spectrum follows from the same
+   FFT. Phase correlation with tile a gives ``t`` for both candidates, and
+   the higher peak resolves the 180-degree ambiguity;
+4. sub-pixel translation from the parabolic peak refined by a phase-plane
+   fit; refinement passes (default one) resample b with the full motion
+   estimate and measure the small residual similarity (rotation, scale and
+   translation) the same way, which removes the bias that the window causes
+   at large motions, and compose it with the estimate.
+
+Quality figures of the translation correlation -- peak ratio (main peak over
+the highest value outside its lobe) and peak-to-noise ratio ((peak - mean) /
+std of the surface) -- reject bad tiles with the thresholds ``th_pr`` and
+``th_pnr``; textureless tiles are rejected before.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import scipy.fft
+
+from .phase_correlation import (correlation_surface, find_peaks, hann_window,
+                                normalized_cross_power, refine_shift_phase_plane)
+
+__all__ = [
+    "FourierMellinConfig",
+    "TileSpectra",
+    "TileMotion",
+    "FourierMellin",
+    "REJECT_REASONS",
+    "transform_points",
+]
+
+# Reason codes of TileMotion.reason (index into this tuple).
+REJECT_REASONS = ("ok", "textureless", "low peak ratio", "low peak-to-noise ratio")
+
+
+@dataclass(frozen=True)
+class FourierMellinConfig:
+    """Options of the tile registration.
+
+    Attributes
+    ----------
+    log_polar_angles : int or None
+        Angle samples over ``[0, pi)``; default the tile size.
+    log_polar_radii : int or None
+        Log-radius samples; default half the tile size.
+    min_radius_fraction : float
+        Smallest spectral radius of the log-polar grid as a fraction of the
+        largest (``N/2 - 1`` bins). The window blurs the spectrum by a few
+        bins, which does not scale with the image; low radii would bias the
+        scale estimate toward 1, so they are left out.
+    th_pr : float
+        Smallest accepted peak ratio of the translation correlation.
+    th_pnr : float
+        Smallest accepted peak-to-noise ratio of the translation correlation.
+    min_std : float
+        Tiles whose gray-level standard deviation is below this are textureless.
+    refine_passes : int
+        Extra passes that resample tile b with the full motion and fit the
+        residual translation.
+    estimate_rotation_scale : bool
+        Estimate ``s`` and ``theta``; when false they are 1 and 0 and only the
+        translation is measured (faster; for nearly rigid tile motion).
+    workers : int
+        FFT threads.
+    phase_plane_max_frequency : float
+        Largest frequency (cycles per pixel) of the phase-plane shift refinement.
+    phase_plane_weight_power : float
+        Exponent of the cross-spectrum magnitude weighting the phase-plane fit.
+    phase_plane_iterations : int
+        Iterations of the phase-plane fit. Frequencies dominated by noise
+        shrink each step toward zero, so a few iterations are needed to
+        converge on noisy tiles.
+    """
+
+    log_polar_angles: int | None = None
+    log_polar_radii: int | None = None
+    min_radius_fraction: float = 0.3
+    th_pr: float = 1.5
+    th_pnr: float = 8.0
+    min_std: float = 1.0
+    refine_passes: int = 1
+    estimate_rotation_scale: bool = True
+    workers: int = 1
+    phase_plane_max_frequency: float = 0.35
+    phase_plane_weight_power: float = 0.25
+    phase_plane_iterations: int = 3
+
+    def __post_init__(self) -> None:
+        for name in ("log_polar_angles", "log_polar_radii"):
+            value = getattr(self, name)
+            if value is not None and value < 8:
+                raise ValueError(f"{name} must be >= 8 or None, got {value}")
+        if not 0 < self.min_radius_fraction < 1 or self.th_pr < 0 or self.th_pnr < 0 or self.min_std < 0:
+            raise ValueError(
+                "expected 0 < min_radius_fraction < 1 and non-negative th_pr, th_pnr, min_std; got "
+                f"{self.min_radius_fraction}, {self.th_pr}, {self.th_pnr}, {self.min_std}")
+        if not 0 < self.phase_plane_max_frequency <= 0.5 or self.phase_plane_iterations < 1:
+            raise ValueError("expected 0 < phase_plane_max_frequency <= 0.5 and phase_plane_iterations >= 1, "
+                             f"got {self.phase_plane_max_frequency}, {self.phase_plane_iterations}")
+        if self.refine_passes < 0 or self.workers < 1:
+            raise ValueError(f"expected refine_passes >= 0 and workers >= 1, got "
+                             f"{self.refine_passes}, {self.workers}")
+
+
+@dataclass(frozen=True)
+class TileSpectra:
+    """Per-tile spectra of one frame, computed once and reused (keyframes).
+
+    Attributes
+    ----------
+    spectrum : (T, N, N//2+1) complex64 ndarray
+        ``rfft2`` of the windowed, mean-free tiles.
+    descriptor : (T, A, R//2+1) complex64 ndarray or None
+        ``rfft2`` of the log-polar magnitude (None without rotation/scale).
+    std : (T,) ndarray
+        Gray-level standard deviation of each tile.
+    """
+
+    spectrum: np.ndarray
+    descriptor: np.ndarray | None
+    std: np.ndarray
+
+
+@dataclass(frozen=True)
+class TileMotion:
+    """Registration of tile pairs (see the module docstring for the model).
+
+    Attributes
+    ----------
+    scale : (T,) ndarray
+        ``s``.
+    angle_rad : (T,) ndarray
+        ``theta`` in radians, in ``[-pi, pi)``.
+    translation : (T, 2) ndarray
+        ``t`` as ``(row, col)`` pixels.
+    peak_ratio, peak_to_noise, peak_value : (T,) ndarray
+        Quality of the translation correlation.
+    rotation_peak_ratio : (T,) ndarray
+        Peak ratio of the log-polar correlation (nan without rotation/scale).
+    valid : (T,) bool ndarray
+    reason : (T,) int ndarray
+        Index into :data:`REJECT_REASONS`.
+    """
+
+    scale: np.ndarray
+    angle_rad: np.ndarray
+    translation: np.ndarray
+    peak_ratio: np.ndarray
+    peak_to_noise: np.ndarray
+    peak_value: np.ndarray
+    rotation_peak_ratio: np.ndarray
+    valid: np.ndarray
+    reason: np.ndarray
+
+
+def transform_points(points_b: np.ndarray, scale: np.ndarray, angle_rad: np.ndarray,
+                     translation: np.ndarray, tile_size: int) -> np.ndarray:
+    """Flow equation: tile-a position ``M(q)`` of tile-b points ``q``.
+
+    Parameters
+    ----------
+    points_b : (T, K, 2) or (K, 2) ndarray
+        ``(row, col)`` in tile coordinates (0 at the tile's first pixel).
+    scale, angle_rad : (T,) ndarray
+    translation : (T, 2) ndarray
+    tile_size : int
+
+    Returns
+    -------
+    (T, K, 2) ndarray
+        ``s R(theta) (q - c) + c + t`` with ``c`` the tile centre.
+    """
+    c = (tile_size - 1) / 2.0
+    q = np.broadcast_to(points_b, (len(scale),) + np.shape(points_b)[-2:]) - c
+    alpha = (scale * np.cos(angle_rad))[:, None]
+    beta = (scale * np.sin(angle_rad))[:, None]
+    row = alpha * q[..., 0] - beta * q[..., 1] + c + translation[:, None, 0]
+    col = beta * q[..., 0] + alpha * q[..., 1] + c + translation[:, None, 1]
+    return np.stack([row, col], axis=-1)
+
+
+class FourierMellin:
+    """Precomputed windows, filters and log-polar maps for ``count`` tiles of size ``tile_size``.
+
+    Parameters
+    ----------
+    tile_size : int
+        ``N`` (even).
+    count : int
+        Number of tiles per frame ``T``.
+    config : FourierMellinConfig, keyword-only
+    """
+
+    def __init__(self, tile_size: int, count: int, *, config: FourierMellinConfig = FourierMellinConfig()):
+        n = int(tile_size)
+        if n < 8 or n % 2:
+            raise ValueError(f"tile size must be even and >= 8, got {tile_size}")
+        if count < 1:
+            raise ValueError(f"tile count must be >= 1, got {count}")
+        self.tile_size = n
+        self.count = int(count)
+        self.config = config
+        self.window = hann_window((n, n))
+        self.n_angles = int(config.log_polar_angles or n)
+        self.n_radii = int(config.log_polar_radii or n // 2)
+        r_max = n / 2.0 - 1.0
+        r_min = max(1.0, config.min_radius_fraction * r_max)
+        if not r_min < r_max:
+            raise ValueError(f"log-polar radii {r_min}..{r_max} are empty for {n} px tiles")
+        self.log_radius_step = np.log(r_max / r_min) / (self.n_radii - 1)
+        # High-pass emphasis on the half plane, rows in fftshift order.
+        fr = np.fft.fftshift(np.fft.fftfreq(n))[:, None]
+        fc = np.fft.rfftfreq(n)[None, :]
+        x = np.cos(np.pi * fr) * np.cos(np.pi * fc)
+        self.highpass = ((1.0 - x) * (2.0 - x)).astype(np.float32)
+        # Spectrum factor of a point reflection about the tile centre: f[N-1-i, N-1-j] has the
+        # rfft2 conj(F[k]) * exp(2 pi i (k_r + k_c) / N).
+        k_r = np.arange(n)[:, None]
+        k_c = np.arange(n // 2 + 1)[None, :]
+        self.flip_ramp = np.exp(2j * np.pi * (k_r + k_c) / n).astype(np.complex64)
+        # Log-polar sampling of the stacked half-plane magnitudes (T*N rows).
+        phi = np.arange(self.n_angles) * (np.pi / self.n_angles)
+        rho = r_min * np.exp(self.log_radius_step * np.arange(self.n_radii))
+        rows = n / 2.0 + rho[None, :] * np.cos(phi)[:, None]
+        cols = rho[None, :] * np.sin(phi)[:, None]
+        offsets = (np.arange(self.count) * n)[:, None, None]
+        self.lp_rows = (rows[None] + offsets).reshape(-1, self.n_radii).astype(np.float32)
+        self.lp_cols = np.broadcast_to(cols[None], (self.count,) + cols.shape).reshape(
+            -1, self.n_radii).astype(np.float32)
+        # Fixed-point form of the constant maps: remap skips converting them on every call.
+        self.lp_map1, self.lp_map2 = cv2.convertMaps(self.lp_cols, self.lp_rows, cv2.CV_16SC2)
+
+    # -- per frame ---------------------------------------------------------------------------
+    def _windowed_fft(self, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        tiles = tiles.astype(np.float32, copy=False)
+        mean = tiles.mean(axis=(1, 2), keepdims=True)
+        centred = tiles - mean
+        std = np.sqrt((centred ** 2).mean(axis=(1, 2)))
+        spectrum = scipy.fft.rfft2(centred * self.window, workers=self.config.workers)
+        return spectrum.astype(np.complex64, copy=False), std
+
+    def spectra(self, tiles: np.ndarray) -> TileSpectra:
+        """Spectra of one frame's tiles.
+
+        Parameters
+        ----------
+        tiles : (T, N, N) ndarray
+
+        Returns
+        -------
+        TileSpectra
+        """
+        if tiles.shape != (self.count, self.tile_size, self.tile_size):
+            raise ValueError(f"expected tiles of shape {(self.count, self.tile_size, self.tile_size)}, "
+                             f"got {tiles.shape}")
+        spectrum, std = self._windowed_fft(tiles)
+        descriptor = None
+        if self.config.estimate_rotation_scale:
+            magnitude = np.abs(np.fft.fftshift(spectrum, axes=1)) * self.highpass
+            stacked = np.ascontiguousarray(magnitude.reshape(-1, magnitude.shape[-1]), dtype=np.float32)
+            log_polar = cv2.remap(stacked, self.lp_map1, self.lp_map2, cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_REPLICATE)
+            log_polar = log_polar.reshape(self.count, self.n_angles, self.n_radii)
+            log_polar -= log_polar.mean(axis=(1, 2), keepdims=True)
+            descriptor = scipy.fft.rfft2(log_polar, workers=self.config.workers).astype(np.complex64)
+        return TileSpectra(spectrum=spectrum, descriptor=descriptor, std=std)
+
+    # -- per pair ----------------------------------------------------------------------------
+    def _refine(self, spectra_a, spectra_b, shift, shape):
+        c = self.config
+        return refine_shift_phase_plane(spectra_a, spectra_b, shift, shape,
+                                        max_frequency=c.phase_plane_max_frequency,
+                                        weight_power=c.phase_plane_weight_power,
+                                        iterations=c.phase_plane_iterations)
+
+    def resample(self, source: np.ndarray, origins: np.ndarray, scale: np.ndarray,
+                  angle: np.ndarray, translation: np.ndarray) -> np.ndarray:
+        """Tiles ``b'(p) = b(M^{-1}(p))`` sampled from ``source`` (bilinear, one remap call).
+
+        ``M^{-1}(p) = R(-theta) (p - c - t) / s + c`` is affine in the tile grid, so the maps
+        are built from per-tile coefficients and the separable grid in float32.
+
+        Parameters
+        ----------
+        source : (H, W) float32 ndarray
+        origins : (K, 2) ndarray
+            ``(row, col)`` in ``source`` of each tile's first pixel (sub-pixel allowed).
+        scale, angle : (K,) ndarray
+            ``s`` and ``theta`` (radians) of each tile's motion.
+        translation : (K, 2) ndarray
+            ``t`` of each tile's motion, ``(row, col)`` pixels.
+
+        Returns
+        -------
+        (K, N, N) float32 ndarray
+        """
+        n = self.tile_size
+        c = (n - 1) / 2.0
+        cos, sin = np.cos(angle) / scale, np.sin(angle) / scale
+        off_r = -(cos * translation[:, 0] + sin * translation[:, 1]) + c + origins[:, 0]
+        off_c = -(-sin * translation[:, 0] + cos * translation[:, 1]) + c + origins[:, 1]
+        g = (np.arange(n, dtype=np.float32) - np.float32(c))
+        f32 = np.float32
+        cos3 = cos.astype(f32)[:, None, None]
+        sin3 = sin.astype(f32)[:, None, None]
+        gr = g[None, :, None]
+        gc = g[None, None, :]
+        map_rows = (cos3 * gr + sin3 * gc + off_r.astype(f32)[:, None, None]).reshape(-1, n)
+        map_cols = (cos3 * gc - sin3 * gr + off_c.astype(f32)[:, None, None]).reshape(-1, n)
+        out = cv2.remap(source, map_cols, map_rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+        return out.reshape(len(scale), self.tile_size, self.tile_size)
+
+    def register(self, spectra_a: TileSpectra, spectra_b: TileSpectra | None, source_b: np.ndarray,
+                 origins_b: np.ndarray, *, prior_scale: np.ndarray | None = None,
+                 prior_angle: np.ndarray | None = None) -> TileMotion:
+        """Register all tile pairs of two frames.
+
+        With a predicted similarity per tile (``prior_scale``, ``prior_angle``)
+        the log-polar stage and the 180-degree test are skipped: tile b is
+        resampled with the prediction and the translation measured; the
+        refinement passes then measure the residual rotation and scale.
+
+        Parameters
+        ----------
+        spectra_a, spectra_b : TileSpectra
+            From :meth:`spectra` of the two frames' tiles (``spectra_b`` is not
+            needed with a prediction).
+        source_b : (H, W) float32 ndarray
+            Image that tile b was cut from, resampled for the re-rotated,
+            re-scaled tiles; pad it so that tiles do not leave it.
+        origins_b : (T, 2) ndarray
+            ``(row, col)`` in ``source_b`` of each tile's first pixel.
+        prior_scale, prior_angle : (T,) ndarray, optional, keyword-only
+            Predicted ``s`` and ``theta`` (radians) of each tile.
+
+        Returns
+        -------
+        TileMotion
+        """
+        n, t = self.tile_size, self.count
+        shape = (n, n)
+        workers = self.config.workers
+        source_b = np.ascontiguousarray(source_b, dtype=np.float32)
+        origins_b = np.asarray(origins_b, dtype=np.float64)
+        zeros2 = np.zeros((t, 2))
+        if prior_scale is not None:
+            scale = np.asarray(prior_scale, dtype=np.float64)
+            angle = np.asarray(prior_angle, dtype=np.float64)
+            rotation_ratio = np.full(t, np.nan)
+            fa = spectra_a.spectrum
+            fb, std_b = self._windowed_fft(self.resample(source_b, origins_b, scale, angle, zeros2))
+            peaks = find_peaks(correlation_surface(normalized_cross_power(fa, fb), shape, workers=workers))
+            shift, peak_value = peaks.shift, peaks.value
+            peak_ratio, pnr = peaks.peak_ratio, peaks.peak_to_noise
+        elif self.config.estimate_rotation_scale:
+            std_b = spectra_b.std
+            lp = correlation_surface(normalized_cross_power(spectra_a.descriptor, spectra_b.descriptor),
+                                     (self.n_angles, self.n_radii), workers=workers)
+            lp_peaks = find_peaks(lp)
+            lp_shift = self._refine(spectra_a.descriptor, spectra_b.descriptor, lp_peaks.shift,
+                                    (self.n_angles, self.n_radii))
+            angle = -lp_shift[:, 0] * (np.pi / self.n_angles)
+            scale = np.exp(lp_shift[:, 1] * self.log_radius_step)
+            rotation_ratio = lp_peaks.peak_ratio
+            # Both candidates of the 180-degree ambiguity: tile b re-rotated by theta, and the same
+            # tile turned by another 180 degrees about its centre, which is its point reflection
+            # (the window is symmetric), whose spectrum is conj(B) times a phase ramp.
+            fb1, _ = self._windowed_fft(self.resample(source_b, origins_b, scale, angle, zeros2))
+            fb2 = np.concatenate([fb1, np.conj(fb1) * self.flip_ramp])
+            fa2 = np.concatenate([spectra_a.spectrum, spectra_a.spectrum])
+            surface = correlation_surface(normalized_cross_power(fa2, fb2), shape, workers=workers)
+            peaks2 = find_peaks(surface)
+            pick = np.where(peaks2.value[t:] > peaks2.value[:t], 1, 0)
+            index = np.arange(t) + pick * t
+            angles2 = np.concatenate([angle, angle + np.pi])
+            angle = np.mod(angles2[index] + np.pi, 2 * np.pi) - np.pi
+            fb = fb2[index]
+            fa = spectra_a.spectrum
+            shift = peaks2.shift[index]
+            peak_value = peaks2.value[index]
+            peak_ratio = peaks2.peak_ratio[index]
+            pnr = peaks2.peak_to_noise[index]
+        else:
+            std_b = spectra_b.std
+            scale = np.ones(t)
+            angle = np.zeros(t)
+            rotation_ratio = np.full(t, np.nan)
+            fa = spectra_a.spectrum
+            fb = spectra_b.spectrum
+            peaks = find_peaks(correlation_surface(normalized_cross_power(fa, fb), shape, workers=workers))
+            shift, peak_value = peaks.shift, peaks.value
+            peak_ratio, pnr = peaks.peak_ratio, peaks.peak_to_noise
+        # b'(p) = a(p + t) means b' is a moved by d = -t.
+        translation = -self._refine(fa, fb, shift, shape)
+        for _ in range(self.config.refine_passes):
+            # b''(p) = b(M^{-1}(p)) = a(D(p)) with D a small residual similarity; compose M <- D o M.
+            residual_tiles = self.resample(source_b, origins_b, scale, angle, translation)
+            residual_spectra = self.spectra(residual_tiles)
+            d_shift = -self._refine(fa, residual_spectra.spectrum, zeros2, shape)
+            if self.config.estimate_rotation_scale:
+                lp_shift = self._refine(spectra_a.descriptor, residual_spectra.descriptor, zeros2,
+                                        (self.n_angles, self.n_radii))
+                d_angle = -lp_shift[:, 0] * (np.pi / self.n_angles)
+                d_scale = np.exp(lp_shift[:, 1] * self.log_radius_step)
+                cos, sin = np.cos(d_angle), np.sin(d_angle)
+                rotated = np.stack([cos * translation[:, 0] - sin * translation[:, 1],
+                                    sin * translation[:, 0] + cos * translation[:, 1]], axis=1)
+                translation = d_scale[:, None] * rotated + d_shift
+                scale = scale * d_scale
+                angle = np.mod(angle + d_angle + np.pi, 2 * np.pi) - np.pi
+            else:
+                translation = translation + d_shift
+
+        reason = np.zeros(t, dtype=np.int64)
+        reason[pnr < self.config.th_pnr] = 3
+        reason[peak_ratio < self.config.th_pr] = 2
+        textureless = (spectra_a.std < self.config.min_std) | (std_b < self.config.min_std)
+        reason[textureless] = 1
+        return TileMotion(scale=scale, angle_rad=angle, translation=translation, peak_ratio=peak_ratio,
+                          peak_to_noise=pnr, peak_value=peak_value, rotation_peak_ratio=rotation_ratio,
+                          valid=reason == 0, reason=reason)

@@ -1,0 +1,450 @@
+"""Files of estimate runs and evaluations.
+
+An estimate ``DIR/NAME.txt`` (TUM) has two side files written by
+``ifmi estimate``: ``NAME.frames.csv`` (one row per frame: frame,
+reference_frame, success, reason, n_correspondences, n_inliers, seconds,
+diagnostics...) and ``NAME.config.json`` (method, configuration, dataset,
+versions).
+
+An evaluation folder holds::
+
+    evaluation.json    summary statistics + where everything came from
+    per_frame.csv      per-frame errors (radians), one row per associated frame
+    per_frame.npz      the same arrays, lossless
+    config.json        copy of the estimate run's NAME.config.json (if any)
+    frames.csv         copy of the estimate run's NAME.frames.csv (if any)
+
+Reports read these files and never recompute estimates.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
+
+__all__ = [
+    "EVALUATION_KIND",
+    "FrameTable",
+    "EstimateSideFiles",
+    "EvaluationRecord",
+    "side_file_paths",
+    "read_frames_csv",
+    "read_run_config",
+    "read_estimate_side_files",
+    "write_evaluation",
+    "read_evaluation",
+    "is_evaluation_dir",
+    "jsonable",
+    "copy_file_atomic",
+    "frames_csv_text",
+    "write_estimate_run",
+    "write_motion_flow",
+    "read_motion_flow",
+]
+
+# Marker stored in evaluation.json so that folders can be recognised.
+EVALUATION_KIND = "ifmi-evaluation"
+# Columns every frames.csv must have (contract of ``ifmi estimate``).
+REQUIRED_FRAME_COLUMNS = ("frame", "success", "seconds")
+
+
+@dataclass(frozen=True)
+class FrameTable:
+    """Per-frame records of an estimate run.
+
+    Attributes
+    ----------
+    columns : dict of str -> (F,) ndarray
+        Every column of ``frames.csv``; numeric columns as float arrays,
+        ``success`` as bool, others as object (str) arrays.
+    """
+
+    columns: dict = field(default_factory=dict)
+
+    @property
+    def frame(self) -> np.ndarray:
+        return self.columns["frame"].astype(np.int64)
+
+    @property
+    def success(self) -> np.ndarray:
+        return self.columns["success"]
+
+    @property
+    def seconds(self) -> np.ndarray:
+        return self.columns["seconds"]
+
+    @property
+    def reference_frame(self) -> np.ndarray | None:
+        col = self.columns.get("reference_frame")
+        return None if col is None else col
+
+    def __len__(self) -> int:
+        return len(self.columns["frame"])
+
+
+@dataclass(frozen=True)
+class EstimateSideFiles:
+    """What ``ifmi estimate`` wrote beside a TUM file (each part optional)."""
+
+    frames: FrameTable | None
+    config: dict | None
+    frames_path: Path
+    config_path: Path
+
+
+@dataclass(frozen=True)
+class EvaluationRecord:
+    """An evaluation folder read back.
+
+    Attributes
+    ----------
+    path : Path
+        The folder.
+    meta : dict
+        Content of ``evaluation.json`` (``summary``, ``method``, ``dataset``, ...).
+    arrays : dict of str -> ndarray
+        Per-frame arrays from ``per_frame.npz``.
+    config : dict or None
+        The estimate run's configuration.
+    frames : FrameTable or None
+        The estimate run's per-frame records.
+    """
+
+    path: Path
+    meta: dict
+    arrays: dict
+    config: dict | None
+    frames: FrameTable | None
+
+    @property
+    def summary(self) -> dict:
+        return self.meta["summary"]
+
+    @property
+    def method(self) -> str:
+        return str(self.meta.get("method") or "unknown")
+
+    @property
+    def scene(self) -> str:
+        return str(self.meta.get("scene") or "unknown")
+
+
+def side_file_paths(estimate_path: str | os.PathLike) -> tuple[Path, Path]:
+    """``(NAME.frames.csv, NAME.config.json)`` beside ``DIR/NAME.txt``."""
+    p = Path(estimate_path)
+    stem = p.with_suffix("") if p.suffix else p
+    return stem.with_name(stem.name + ".frames.csv"), stem.with_name(stem.name + ".config.json")
+
+
+def _parse_bool(path, line: int, text: str) -> bool:
+    t = text.strip().lower()
+    if t in ("1", "true", "yes", "y", "ok"):
+        return True
+    if t in ("0", "false", "no", "n", "failed"):
+        return False
+    raise InputError(path, f"line {line}: column success: expected true/false or 1/0, got {text!r}")
+
+
+def read_frames_csv(path: str | os.PathLike) -> FrameTable:
+    """Read an estimate run's ``frames.csv``.
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, missing required column, a row of the
+        wrong length or a non-numeric frame/seconds value.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(path, "frames file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot read frames file ({exc.__class__.__name__})") from None
+    rows = list(csv.reader(line for line in io.StringIO(text) if not line.startswith("#")))
+    rows = [r for r in rows if r]
+    if not rows:
+        raise InputError(path, "empty frames file (expected a header line)")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in REQUIRED_FRAME_COLUMNS if c not in header]
+    if missing:
+        raise InputError(path, f"missing column(s) {', '.join(missing)}; got {', '.join(header)}")
+    body = rows[1:]
+    for number, row in enumerate(body, start=2):
+        if len(row) != len(header):
+            raise InputError(path, f"line {number}: expected {len(header)} fields, got {len(row)}")
+    columns: dict[str, np.ndarray] = {}
+    for j, name in enumerate(header):
+        values = [row[j] for row in body]
+        if name == "success":
+            columns[name] = np.array([_parse_bool(path, i + 2, v) for i, v in enumerate(values)],
+                                     dtype=bool)
+            continue
+        try:
+            columns[name] = np.array([float(v) if v.strip() != "" else np.nan for v in values],
+                                     dtype=np.float64)
+        except ValueError:
+            if name in ("frame", "seconds", "reference_frame"):
+                raise InputError(path, f"column {name}: non-numeric value") from None
+            columns[name] = np.array(values, dtype=object)
+    return FrameTable(columns=columns)
+
+
+def read_run_config(path: str | os.PathLike) -> dict:
+    """Read an estimate run's ``config.json``.
+
+    Raises
+    ------
+    InputError
+        Missing file, invalid JSON or a JSON value that is not an object.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(path, "config file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot read config file ({exc.__class__.__name__})") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"invalid JSON at line {exc.lineno}: {exc.msg}") from None
+    if not isinstance(data, dict):
+        raise InputError(path, f"expected a JSON object, got {type(data).__name__}")
+    return data
+
+
+def read_estimate_side_files(estimate_path: str | os.PathLike) -> EstimateSideFiles:
+    """Read the side files of an estimate where they exist (absent ones are None)."""
+    frames_path, config_path = side_file_paths(estimate_path)
+    frames = read_frames_csv(frames_path) if frames_path.exists() else None
+    config = read_run_config(config_path) if config_path.exists() else None
+    return EstimateSideFiles(frames=frames, config=config, frames_path=frames_path,
+                             config_path=config_path)
+
+
+def _csv_text(arrays: dict) -> str:
+    names = list(arrays)
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(names)
+    n = len(next(iter(arrays.values()))) if arrays else 0
+    for i in range(n):
+        row = []
+        for name in names:
+            v = arrays[name][i]
+            if isinstance(v, (np.integer, int)):
+                row.append(str(int(v)))
+            elif isinstance(v, (np.floating, float)):
+                row.append("" if not np.isfinite(v) else repr(float(v)))
+            else:
+                row.append(str(v))
+        writer.writerow(row)
+    return buf.getvalue()
+
+
+def _npz_bytes(arrays: dict) -> bytes:
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{k: np.asarray(v) for k, v in arrays.items()})
+    return buf.getvalue()
+
+
+def jsonable(obj):
+    """Replace non-finite floats by None so that the JSON is standard."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def write_evaluation(out_dir: str | os.PathLike, *, meta: dict, arrays: dict,
+                     side_files: EstimateSideFiles | None = None) -> Path:
+    """Write an evaluation folder (each file atomically).
+
+    Parameters
+    ----------
+    out_dir : path
+        Folder to create or update.
+    meta : dict, keyword-only
+        JSON-serialisable description with at least ``summary``;
+        ``kind`` is set here.
+    arrays : dict of str -> (N,) ndarray, keyword-only
+        Per-frame arrays, all the same length.
+    side_files : EstimateSideFiles, optional, keyword-only
+        Copied into the folder as ``config.json`` and ``frames.csv``.
+
+    Returns
+    -------
+    Path
+        ``out_dir/evaluation.json``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out / "per_frame.npz", _npz_bytes(arrays))
+    atomic_write_text(out / "per_frame.csv", _csv_text(arrays))
+    if side_files is not None:
+        if side_files.config is not None:
+            atomic_write_json(out / "config.json", side_files.config)
+        if side_files.frames is not None:
+            atomic_write_bytes(out / "frames.csv", side_files.frames_path.read_bytes())
+    document = jsonable(dict(meta, kind=EVALUATION_KIND))
+    atomic_write_json(out / "evaluation.json", document)
+    return out / "evaluation.json"
+
+
+def is_evaluation_dir(path: str | os.PathLike) -> bool:
+    """True when ``path`` is a folder holding an ``evaluation.json``."""
+    return (Path(path) / "evaluation.json").is_file()
+
+
+def read_evaluation(path: str | os.PathLike) -> EvaluationRecord:
+    """Read an evaluation folder written by :func:`write_evaluation`.
+
+    Raises
+    ------
+    InputError
+        Not an evaluation folder, or one of its files is missing or malformed.
+    """
+    folder = Path(path)
+    doc_path = folder / "evaluation.json"
+    meta = read_run_config(doc_path) if doc_path.exists() else None
+    if meta is None:
+        raise InputError(folder, "not an evaluation folder (no evaluation.json)")
+    if meta.get("kind") != EVALUATION_KIND or "summary" not in meta:
+        raise InputError(doc_path, f"not an evaluation file (kind {meta.get('kind')!r})")
+    npz_path = folder / "per_frame.npz"
+    try:
+        with np.load(npz_path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except FileNotFoundError:
+        raise InputError(npz_path, "per-frame arrays not found") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(npz_path, f"cannot read per-frame arrays ({exc.__class__.__name__})") from None
+    config = read_run_config(folder / "config.json") if (folder / "config.json").exists() else None
+    frames = read_frames_csv(folder / "frames.csv") if (folder / "frames.csv").exists() else None
+    return EvaluationRecord(path=folder, meta=meta, arrays=arrays, config=config, frames=frames)
+
+
+def copy_file_atomic(src: str | os.PathLike, dst: str | os.PathLike) -> None:
+    """Copy ``src`` to ``dst`` through a temporary file and a rename."""
+    dst = Path(dst)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dst.with_name(f".{dst.name}.copy.tmp")
+    shutil.copyfile(src, tmp)
+    os.replace(tmp, dst)
+
+
+def frames_csv_text(rows: list[dict]) -> str:
+    """CSV text of per-frame rows (dicts); the header is the union of keys in first-seen order."""
+    header: list[str] = []
+    for row in rows:
+        for key in row:
+            if key not in header:
+                header.append(key)
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(header)
+    for row in rows:
+        out = []
+        for key in header:
+            v = row.get(key, "")
+            if isinstance(v, (bool, np.bool_)):
+                out.append("true" if v else "false")
+            elif isinstance(v, (float, np.floating)):
+                out.append("" if not np.isfinite(v) else repr(float(v)))
+            else:
+                out.append(str(v))
+        writer.writerow(out)
+    return buf.getvalue()
+
+
+def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | os.PathLike | None,
+                       extra: dict | None = None) -> Path:
+    """Write an estimate as ``NAME.txt`` (TUM) with ``NAME.frames.csv`` and ``NAME.config.json``.
+
+    Parameters
+    ----------
+    path : path
+        The TUM file to write.
+    estimate : ifmi.pipeline.SequenceEstimate
+    dataset_dir : path or None, keyword-only
+        Dataset the estimate came from (recorded in the config file).
+    extra : dict, optional, keyword-only
+        More entries for the config file.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    from .tum import write_tum
+
+    path = Path(path)
+    frames_path, config_path = side_file_paths(path)
+    config = {
+        "method": estimate.method,
+        "config": estimate.config.to_dict(),
+        "dataset": None if dataset_dir is None else str(Path(dataset_dir).resolve()),
+        "calib": None if dataset_dir is None else str((Path(dataset_dir) / "calib_results.txt").resolve()),
+        "versions": _versions(),
+    }
+    config.update(extra or {})
+    atomic_write_json(config_path, jsonable(config))
+    atomic_write_text(frames_path, frames_csv_text([r.to_row() for r in estimate.frames]))
+    write_tum(path, estimate.trajectory, header=f"ifmi estimate, method {estimate.method}")
+    return path
+
+
+def _versions() -> dict:
+    from importlib import metadata
+
+    out = {}
+    for name in ("omnisim-ifmi", "numpy", "opencv-python-headless", "poselib", "scipy"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def write_motion_flow(path: str | os.PathLike, sample: dict) -> None:
+    """Write a motion-flow sample (dict of arrays) as ``.npz`` atomically."""
+    atomic_write_bytes(path, _npz_bytes(sample))
+
+
+def read_motion_flow(path: str | os.PathLike) -> dict:
+    """Read a motion-flow sample written by :func:`write_motion_flow`.
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, or a missing array.
+    """
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            sample = {k: data[k] for k in data.files}
+    except FileNotFoundError:
+        raise InputError(path, "motion-flow file not found") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(path, f"cannot read motion-flow file ({exc.__class__.__name__})") from None
+    needed = ("panorama_a", "panorama_b", "points_a", "points_b", "tile_centers", "tile_size")
+    missing = [k for k in needed if k not in sample]
+    if missing:
+        raise InputError(path, f"missing array(s) {', '.join(missing)}")
+    return sample

@@ -1,0 +1,345 @@
+"""Trajectory evaluation math: orientation and translation-direction errors.
+
+Pure functions on :class:`ifmi.io.tum.Trajectory` objects and arrays; reading
+and writing files lives in :mod:`ifmi.io.results`.
+
+Conventions
+-----------
+* Both trajectories hold ``R_0k`` (camera k to camera 0); frame 0 is the
+  identity in both, so no alignment is applied (as ``evo_ape`` without
+  ``--align``).
+* Per-axis error is the wrapped difference ``est - gt`` of roll, pitch and
+  yaw (:func:`ifmi.rotations.rpy_from_matrix`), in radians.
+* Geodesic error is the angle of ``R_gt^T R_est``; the relative error is the
+  geodesic error of the motion between consecutive associated frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .io.tum import Trajectory
+from .rotations import geodesic_angle, rpy_from_matrix, wrap_angle
+
+__all__ = [
+    "AXES",
+    "ErrorStats",
+    "TrajectoryErrors",
+    "associate_timestamps",
+    "error_stats",
+    "trajectory_errors",
+    "translation_direction_errors",
+    "summary_from_errors",
+]
+
+# Names of the per-axis angles, in the order rpy_from_matrix returns them.
+AXES = ("roll", "pitch", "yaw")
+
+# Translation lengths below this (in the ground truth's units) count as "no
+# translation": the direction of such a motion is undefined.
+MIN_TRANSLATION = 1e-9
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """Summary of a set of non-negative or signed errors (radians).
+
+    Attributes
+    ----------
+    rmse : float
+        Root mean square of the errors.
+    mean : float
+        Mean of the absolute errors.
+    std : float
+        Standard deviation of the absolute errors (population, ``ddof=0``).
+    median : float
+        Median of the absolute errors.
+    max : float
+        Largest absolute error.
+    count : int
+        Number of errors; all fields are NaN when it is zero.
+    """
+
+    rmse: float
+    mean: float
+    std: float
+    median: float
+    max: float
+    count: int
+
+    def to_dict(self) -> dict:
+        return {"rmse": self.rmse, "mean": self.mean, "std": self.std,
+                "median": self.median, "max": self.max, "count": self.count}
+
+
+def error_stats(errors: np.ndarray) -> ErrorStats:
+    """RMSE, mean, std, median and max of ``(N,)`` errors; NaN entries are ignored.
+
+    Parameters
+    ----------
+    errors : (N,) array_like
+        Signed or absolute errors in radians.
+
+    Returns
+    -------
+    ErrorStats
+    """
+    e = np.asarray(errors, dtype=np.float64).ravel()
+    e = e[np.isfinite(e)]
+    if e.size == 0:
+        nan = float("nan")
+        return ErrorStats(nan, nan, nan, nan, nan, 0)
+    a = np.abs(e)
+    return ErrorStats(rmse=float(np.sqrt(np.mean(e * e))), mean=float(a.mean()),
+                      std=float(a.std()), median=float(np.median(a)), max=float(a.max()),
+                      count=int(e.size))
+
+
+def associate_timestamps(t_gt: np.ndarray, t_est: np.ndarray, *,
+                         max_difference: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pair each estimate timestamp with the nearest ground-truth timestamp.
+
+    Parameters
+    ----------
+    t_gt : (M,) array_like
+        Ground-truth timestamps (any order, unique).
+    t_est : (N,) array_like
+        Estimate timestamps.
+    max_difference : float, keyword-only
+        Largest accepted ``|t_gt - t_est|``, same unit as the timestamps.
+
+    Returns
+    -------
+    index_gt, index_est : (K,) ndarray of int
+        Indices of associated pairs, sorted by estimate time; every index
+        appears at most once.
+    """
+    t_gt = np.asarray(t_gt, dtype=np.float64)
+    t_est = np.asarray(t_est, dtype=np.float64)
+    order = np.argsort(t_gt, kind="stable")
+    sorted_gt = t_gt[order]
+    pos = np.searchsorted(sorted_gt, t_est)
+    lo = np.clip(pos - 1, 0, len(sorted_gt) - 1)
+    hi = np.clip(pos, 0, len(sorted_gt) - 1)
+    pick = np.where(np.abs(sorted_gt[lo] - t_est) <= np.abs(sorted_gt[hi] - t_est), lo, hi)
+    diff = np.abs(sorted_gt[pick] - t_est)
+    index_est = np.flatnonzero(diff <= max_difference)
+    index_gt = order[pick[index_est]]
+    # Keep the first estimate for a ground-truth pose matched twice.
+    _, first = np.unique(index_gt, return_index=True)
+    keep = np.sort(first)
+    index_est = index_est[keep]
+    index_gt = index_gt[keep]
+    by_time = np.argsort(t_est[index_est], kind="stable")
+    return index_gt[by_time], index_est[by_time]
+
+
+def translation_direction_errors(gt: Trajectory, est: Trajectory,
+                                 reference: np.ndarray) -> np.ndarray:
+    """Angle between estimated and true translation direction of each frame pair.
+
+    The motion of frame k is taken against frame ``reference[k]`` (the frame
+    its relative pose was estimated against), expressed in the reference
+    camera's coordinates: ``R_0r^T (p_k - p_r)``.
+
+    Parameters
+    ----------
+    gt, est : Trajectory
+        Associated trajectories of equal length N (row k of each is frame k).
+    reference : (N,) array_like of int
+        Row index of each frame's reference frame; negative or equal to k
+        means "none".
+
+    Returns
+    -------
+    (N,) ndarray
+        Angles in radians; NaN where there is no reference, the true
+        translation is shorter than ``MIN_TRANSLATION`` or the estimated
+        translation is zero (unknown).
+    """
+    reference = np.asarray(reference, dtype=np.int64)
+    n = len(gt)
+    out = np.full(n, np.nan)
+    k = np.flatnonzero((reference >= 0) & (reference < n) & (reference != np.arange(n)))
+    if k.size == 0:
+        return out
+    r = reference[k]
+
+    def local(traj: Trajectory) -> np.ndarray:
+        d = traj.positions[k] - traj.positions[r]
+        return np.einsum("nji,nj->ni", traj.rotations[r], d)
+
+    t_gt = local(gt)
+    t_est = local(est)
+    n_gt = np.linalg.norm(t_gt, axis=1)
+    n_est = np.linalg.norm(t_est, axis=1)
+    scale = max(float(np.abs(gt.positions).max()), 1.0)
+    valid = (n_gt > MIN_TRANSLATION * scale) & (n_est > 0)
+    cos = np.einsum("ni,ni->n", t_gt[valid], t_est[valid]) / (n_gt[valid] * n_est[valid])
+    sin = np.linalg.norm(np.cross(t_gt[valid], t_est[valid]), axis=1) / (n_gt[valid] * n_est[valid])
+    out[k[valid]] = np.arctan2(sin, cos)
+    return out
+
+
+@dataclass(frozen=True)
+class TrajectoryErrors:
+    """Per-frame errors of an estimate against ground truth (radians).
+
+    Attributes
+    ----------
+    timestamps : (N,) ndarray
+        Estimate timestamps of the associated frames.
+    gt_index, est_index : (N,) ndarray of int
+        Rows of the associated poses in the input trajectories.
+    rpy_gt, rpy_est : (N, 3) ndarray
+        Roll, pitch, yaw of ground truth and estimate.
+    rpy_error : (N, 3) ndarray
+        Wrapped ``est - gt`` of roll, pitch, yaw.
+    geodesic : (N,) ndarray
+        Angle of ``R_gt^T R_est``.
+    relative_geodesic : (N,) ndarray
+        Error of the rotation from the previous associated frame to this
+        one; NaN on the first frame.
+    translation_direction : (N,) ndarray
+        Translation-direction angle error against each frame's reference
+        frame (see :func:`translation_direction_errors`); NaN where undefined.
+    """
+
+    timestamps: np.ndarray
+    gt_index: np.ndarray
+    est_index: np.ndarray
+    rpy_gt: np.ndarray
+    rpy_est: np.ndarray
+    rpy_error: np.ndarray
+    geodesic: np.ndarray
+    relative_geodesic: np.ndarray
+    translation_direction: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """All per-frame arrays by name (the rpy arrays split per axis)."""
+        out = {"timestamp": self.timestamps, "gt_index": self.gt_index,
+               "est_index": self.est_index}
+        for i, axis in enumerate(AXES):
+            out[f"{axis}_gt"] = self.rpy_gt[:, i]
+            out[f"{axis}_est"] = self.rpy_est[:, i]
+            out[f"{axis}_error"] = self.rpy_error[:, i]
+        out["geodesic_error"] = self.geodesic
+        out["relative_geodesic_error"] = self.relative_geodesic
+        out["translation_direction_error"] = self.translation_direction
+        return out
+
+
+def trajectory_errors(gt: Trajectory, est: Trajectory, *, max_time_difference: float = 1e-3,
+                      reference_timestamps: np.ndarray | None = None) -> TrajectoryErrors:
+    """Associate ``est`` with ``gt`` by timestamp and compute per-frame errors.
+
+    Parameters
+    ----------
+    gt, est : Trajectory
+        Ground truth and estimate, both ``R_0k`` with frame 0 the identity.
+    max_time_difference : float, keyword-only
+        Largest timestamp difference accepted when associating frames.
+    reference_timestamps : (len(est),) array_like, optional, keyword-only
+        Timestamp of the frame each estimate pose's relative pose was
+        estimated against (NaN for none); default: the previous frame.
+
+    Returns
+    -------
+    TrajectoryErrors
+
+    Raises
+    ------
+    ValueError
+        When no frame associates.
+    """
+    gi, ei = associate_timestamps(gt.timestamps, est.timestamps,
+                                  max_difference=max_time_difference)
+    if gi.size == 0:
+        raise ValueError(
+            f"no estimate timestamp is within {max_time_difference} of a ground-truth timestamp "
+            f"(ground truth {gt.timestamps.min():g}..{gt.timestamps.max():g}, "
+            f"estimate {est.timestamps.min():g}..{est.timestamps.max():g})"
+        )
+    R_gt = gt.rotations[gi]
+    R_est = est.rotations[ei]
+    rpy_gt = rpy_from_matrix(R_gt)
+    rpy_est = rpy_from_matrix(R_est)
+    rpy_error = wrap_angle(rpy_est - rpy_gt)
+    geodesic = geodesic_angle(R_gt, R_est)
+    relative = np.full(len(gi), np.nan)
+    if len(gi) > 1:
+        rel_gt = np.swapaxes(R_gt[:-1], -1, -2) @ R_gt[1:]
+        rel_est = np.swapaxes(R_est[:-1], -1, -2) @ R_est[1:]
+        relative[1:] = geodesic_angle(rel_gt, rel_est)
+    sub_gt = Trajectory(gt.timestamps[gi], gt.positions[gi], R_gt)
+    sub_est = Trajectory(est.timestamps[ei], est.positions[ei], R_est)
+    if reference_timestamps is None:
+        reference = np.arange(len(gi)) - 1
+    else:
+        ref_t = np.asarray(reference_timestamps, dtype=np.float64)[ei]
+        t_rows = sub_est.timestamps
+        reference = np.full(len(gi), -1)
+        finite = np.isfinite(ref_t)
+        if finite.any():
+            pos = np.searchsorted(t_rows, ref_t[finite])
+            pos = np.clip(pos, 0, len(t_rows) - 1)
+            hit = np.abs(t_rows[pos] - ref_t[finite]) <= max_time_difference
+            reference[np.flatnonzero(finite)[hit]] = pos[hit]
+    translation = translation_direction_errors(sub_gt, sub_est, reference)
+    return TrajectoryErrors(timestamps=est.timestamps[ei], gt_index=gi, est_index=ei,
+                            rpy_gt=rpy_gt, rpy_est=rpy_est, rpy_error=rpy_error,
+                            geodesic=geodesic, relative_geodesic=relative,
+                            translation_direction=translation)
+
+
+def summary_from_errors(errors: TrajectoryErrors, *, n_gt: int, n_est: int,
+                        frame_success: np.ndarray | None = None,
+                        frame_seconds: np.ndarray | None = None) -> dict:
+    """JSON-ready summary statistics of per-frame errors (Table-1 style).
+
+    Parameters
+    ----------
+    errors : TrajectoryErrors
+    n_gt, n_est : int, keyword-only
+        Number of poses in the ground-truth and estimate files.
+    frame_success : (F,) array_like of bool, optional, keyword-only
+        Per-frame success flags of the estimate run.
+    frame_seconds : (F,) array_like, optional, keyword-only
+        Per-frame wall time of the estimate run (seconds).
+
+    Returns
+    -------
+    dict
+        ``axes`` (roll/pitch/yaw :class:`ErrorStats` dicts), ``mean_rmse``
+        (mean of the three axis RMSEs), ``geodesic``, ``relative_geodesic``,
+        ``translation_direction``, ``frames`` (counts), ``failures`` and
+        ``time`` (seconds per frame), NaN/None where unknown.
+    """
+    axes = {axis: error_stats(errors.rpy_error[:, i]).to_dict() for i, axis in enumerate(AXES)}
+    summary = {
+        "axes": axes,
+        "mean_rmse": float(np.mean([axes[a]["rmse"] for a in AXES])),
+        "geodesic": error_stats(errors.geodesic).to_dict(),
+        "relative_geodesic": error_stats(errors.relative_geodesic).to_dict(),
+        "translation_direction": error_stats(errors.translation_direction).to_dict(),
+        "frames": {"ground_truth": int(n_gt), "estimate": int(n_est),
+                   "associated": int(len(errors))},
+    }
+    if frame_success is not None:
+        ok = np.asarray(frame_success, dtype=bool)
+        summary["failures"] = {"count": int((~ok).sum()), "frames": int(ok.size)}
+    else:
+        summary["failures"] = None
+    if frame_seconds is not None and len(frame_seconds) > 0:
+        s = np.asarray(frame_seconds, dtype=np.float64)
+        s = s[np.isfinite(s)]
+        summary["time"] = {"mean_s": float(s.mean()), "median_s": float(np.median(s)),
+                           "total_s": float(s.sum()), "frames": int(s.size)}
+    else:
+        summary["time"] = None
+    return summary

@@ -1,0 +1,254 @@
+"""Chaining relative rotations into a trajectory, frame to frame or against keyframes.
+
+Each frame ``k`` is estimated against a reference frame ``r`` whose pose is
+known, giving ``R_rk``; its pose is ``R_0k = R_0r @ R_rk``.
+
+* Frame-to-frame mode (default): the reference is the previous frame, so
+  every frame adds the error of one estimate.
+* Keyframe mode: the reference stays the same keyframe while the match
+  stays good (enough inliers, rotation from the keyframe below a bound);
+  otherwise the previous frame becomes the keyframe and the frame is
+  estimated again against it. Error then grows with the number of keyframes,
+  not of frames.
+
+Front ends that declare ``uses_prior_rotation`` receive a predicted
+``R_rk`` (constant angular velocity from the last two poses) and may use
+it to look for the motion near the prediction.
+
+A frame whose estimate fails keeps the previous frame's pose (flagged with a
+reason) and does not become a reference; after two failures in a row the
+current frame becomes the reference anyway, so one bad reference cannot
+stop the tracking.
+
+Positions chain the estimated translation directions as unit-length steps
+per frame: monocular translation is known only up to scale.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from .io.tum import Trajectory
+from .relative_pose import RelativePoseOptions, relative_pose_from_rays
+
+__all__ = ["KeyframeOptions", "FrameRecord", "track_sequence"]
+
+
+@dataclass(frozen=True)
+class KeyframeOptions:
+    """Keyframe policy of :func:`track_sequence`.
+
+    Attributes
+    ----------
+    enabled : bool
+        Estimate against keyframes instead of the previous frame.
+    min_inliers : int
+        Switch keyframes when an estimate against the keyframe has fewer inliers.
+    min_inlier_fraction : float
+        ... or when its inliers are fewer than this fraction of the inliers
+        the current keyframe had against its first partner frame.
+    max_angle_rad : float
+        ... or when the rotation from the keyframe exceeds this angle (radians).
+    """
+
+    enabled: bool = False
+    min_inliers: int = 40
+    min_inlier_fraction: float = 0.6
+    max_angle_rad: float = 0.25
+
+    def __post_init__(self) -> None:
+        if self.min_inliers < 0 or not 0 <= self.min_inlier_fraction <= 1 or not self.max_angle_rad > 0:
+            raise ValueError(
+                "expected min_inliers >= 0, 0 <= min_inlier_fraction <= 1, max_angle_rad > 0; got "
+                f"{self.min_inliers}, {self.min_inlier_fraction}, {self.max_angle_rad}")
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """Outcome of one frame.
+
+    Attributes
+    ----------
+    frame : int
+    reference_frame : int
+        Frame the estimate is relative to (frame 0 refers to itself).
+    success : bool
+    reason : str
+        Empty on success.
+    n_correspondences, n_inliers : int
+    seconds : float
+        Wall time of this frame's work: producing the image (e.g. reading
+        it), preparing it, matching and solving.
+    model : str
+        Relative-pose model used (``"5pt"``, ``"rotation"`` or ``""``).
+    rotation_rad : float
+        Rotation angle from the reference frame, radians.
+    diagnostics : dict
+        Front-end figures (JSON scalars).
+    """
+
+    frame: int
+    reference_frame: int
+    success: bool
+    reason: str
+    n_correspondences: int
+    n_inliers: int
+    seconds: float
+    model: str = ""
+    rotation_rad: float = 0.0
+    diagnostics: dict = field(default_factory=dict)
+
+    def to_row(self) -> dict:
+        """Flat dict for a CSV row: the fixed columns first, then the diagnostics."""
+        row = {
+            "frame": self.frame, "reference_frame": self.reference_frame,
+            "success": self.success, "reason": self.reason,
+            "n_correspondences": self.n_correspondences, "n_inliers": self.n_inliers,
+            "seconds": self.seconds, "model": self.model, "rotation_rad": self.rotation_rad,
+        }
+        for key, value in self.diagnostics.items():
+            row.setdefault(key, value)
+        return row
+
+
+@dataclass
+class _Reference:
+    frame: int
+    state: Any
+    rotation: np.ndarray
+    position: np.ndarray
+    first_inliers: int = -1
+
+
+def _angle(rotation: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def _solve(front_end, reference: _Reference, state, pose_options: RelativePoseOptions,
+           predicted: np.ndarray | None):
+    if predicted is not None and getattr(front_end, "uses_prior_rotation", False):
+        corr = front_end.correspondences(reference.state, state,
+                                         prior_rotation=reference.rotation.T @ predicted)
+    else:
+        corr = front_end.correspondences(reference.state, state)
+    if not corr.success:
+        return None, None, corr
+    pose, info = relative_pose_from_rays(corr.rays_a, corr.rays_b, options=pose_options)
+    return pose, info, corr
+
+
+def _predict(rotations: list) -> np.ndarray:
+    """Constant-velocity prediction of the next pose ``R_0k`` from the poses so far."""
+    if len(rotations) < 2:
+        return rotations[-1]
+    return rotations[-1] @ (rotations[-2].T @ rotations[-1])
+
+
+def _poor(info, pose, reference: _Reference, options: KeyframeOptions) -> bool:
+    if info is None or not info.success:
+        return True
+    if info.n_inliers < options.min_inliers or _angle(pose.rotation) > options.max_angle_rad:
+        return True
+    return reference.first_inliers > 0 and info.n_inliers < options.min_inlier_fraction * reference.first_inliers
+
+
+def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: RelativePoseOptions,
+                   keyframe: KeyframeOptions = KeyframeOptions(), progress: bool = False,
+                   total: int | None = None,
+                   timestamps: Sequence[float] | None = None) -> tuple[Trajectory, list[FrameRecord]]:
+    """Estimate every frame's pose ``T_0k`` with ``front_end`` and the relative-pose back end.
+
+    Parameters
+    ----------
+    images : iterable of (H, W) or (H, W, 3) uint8 ndarray
+    front_end : FrontEnd
+        Object with ``prepare`` and ``correspondences`` (:mod:`ifmi.pipeline`).
+    pose_options : RelativePoseOptions, keyword-only
+    keyframe : KeyframeOptions, keyword-only
+    progress : bool, keyword-only
+        Show a tqdm progress bar on stderr.
+    total : int, optional, keyword-only
+        Frame count for the progress bar.
+    timestamps : (N,) sequence, optional, keyword-only
+        Default: frame indices.
+
+    Returns
+    -------
+    trajectory : Trajectory
+    records : list of FrameRecord
+    """
+    rotations, positions, records = [], [], []
+    reference = previous = None
+    failures_in_row = 0
+    iterator = iter(images)
+    bar = tqdm(total=total, disable=not progress, file=sys.stderr, unit="frame", desc="estimate")
+    k = 0
+    while True:
+        start = time.perf_counter()
+        try:
+            image = next(iterator)
+        except StopIteration:
+            break
+        state = front_end.prepare(image)
+        if reference is None:
+            reference = _Reference(0, state, np.eye(3), np.zeros(3))
+            rotations.append(np.eye(3))
+            positions.append(np.zeros(3))
+            records.append(FrameRecord(0, 0, True, "", 0, 0, time.perf_counter() - start))
+            previous = reference
+            k += 1
+            bar.update(1)
+            continue
+
+        predicted = _predict(rotations)
+        pose, info, corr = _solve(front_end, reference, state, pose_options, predicted)
+        if keyframe.enabled and previous.frame != reference.frame and _poor(info, pose, reference, keyframe):
+            reference = previous
+            pose, info, corr = _solve(front_end, reference, state, pose_options, predicted)
+        used = reference
+        if info is not None and info.success:
+            rotation = used.rotation @ pose.rotation
+            position = used.position + (k - used.frame) * (used.rotation @ pose.translation_direction)
+            if used.first_inliers < 0:
+                used.first_inliers = info.n_inliers
+            current = _Reference(k, state, rotation, position)
+            if not keyframe.enabled:
+                reference = current
+            previous = current
+            failures_in_row = 0
+            record = FrameRecord(k, used.frame, True, "", info.n_correspondences, info.n_inliers,
+                                 0.0, info.model, _angle(pose.rotation), dict(corr.diagnostics))
+        else:
+            rotation, position = rotations[-1], positions[-1]
+            reason = corr.reason if info is None else f"relative pose: {info.reason}"
+            n_corr = len(corr.rays_a)
+            n_inl = 0 if info is None else info.n_inliers
+            failures_in_row += 1
+            current = _Reference(k, state, rotation, position)
+            if failures_in_row >= 2:
+                reference = previous = current
+            record = FrameRecord(k, used.frame, False, reason, n_corr, n_inl, 0.0,
+                                 "" if info is None else info.model, 0.0, dict(corr.diagnostics))
+        rotations.append(rotation)
+        positions.append(position)
+        seconds = time.perf_counter() - start
+        records.append(replace(record, seconds=seconds))
+        k += 1
+        bar.update(1)
+    bar.close()
+    n = len(rotations)
+    if timestamps is None:
+        stamps = np.arange(n, dtype=np.float64)
+    else:
+        stamps = np.asarray(timestamps, dtype=np.float64)
+        if stamps.shape != (n,):
+            raise ValueError(f"expected {n} timestamps, got {stamps.shape}")
+    trajectory = Trajectory(timestamps=stamps, positions=np.asarray(positions).reshape(n, 3),
+                            rotations=np.asarray(rotations).reshape(n, 3, 3))
+    return trajectory, records

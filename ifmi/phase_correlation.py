@@ -1,0 +1,254 @@
+"""Batched phase correlation with sub-pixel peaks and quality figures.
+
+Convention: for images related by ``b(x) = a(x - d)`` (the content of ``a``
+moved by ``d`` in ``b``), the phase-correlation surface of ``(a, b)`` peaks at
+``d``. Coordinates are ``(row, col)``; shifts are wrapped to
+``[-size/2, size/2)`` along each axis.
+
+All functions work on stacks ``(T, H, W)`` of equally sized images and their
+``rfft2`` spectra ``(T, H, W//2 + 1)``, with one FFT call per step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import scipy.fft
+
+__all__ = [
+    "hann_window",
+    "normalized_cross_power",
+    "correlation_surface",
+    "Peaks",
+    "find_peaks",
+    "refine_shift_phase_plane",
+    "phase_correlation",
+]
+
+# Relative floor of the cross-power magnitude; keeps textureless pairs finite.
+_POWER_FLOOR = 1e-12
+# Half size of the square around the main peak that is excluded when looking
+# for the second-highest peak (pixels); covers the main lobe of a windowed peak.
+_PEAK_EXCLUSION = 2
+
+
+def hann_window(shape: tuple[int, int]) -> np.ndarray:
+    """Separable 2D Hann window, float32, zero-free (periodic form shifted by half a sample).
+
+    Parameters
+    ----------
+    shape : (int, int)
+        ``(rows, cols)``.
+
+    Returns
+    -------
+    (rows, cols) float32 ndarray
+    """
+    rows = np.sin(np.pi * (np.arange(shape[0]) + 0.5) / shape[0]) ** 2
+    cols = np.sin(np.pi * (np.arange(shape[1]) + 0.5) / shape[1]) ** 2
+    return np.outer(rows, cols).astype(np.float32)
+
+
+def normalized_cross_power(spectra_a: np.ndarray, spectra_b: np.ndarray) -> np.ndarray:
+    """Phase-only cross-power spectrum ``conj(A) B / |A B|``.
+
+    Parameters
+    ----------
+    spectra_a, spectra_b : (T, H, W//2+1) complex ndarray
+        ``rfft2`` spectra.
+
+    Returns
+    -------
+    (T, H, W//2+1) complex ndarray
+    """
+    cross = np.conj(spectra_a) * spectra_b
+    magnitude = np.abs(cross)
+    floor = _POWER_FLOOR * magnitude.max(axis=(-2, -1), keepdims=True) + np.finfo(np.float32).tiny
+    return cross / np.maximum(magnitude, floor)
+
+
+def correlation_surface(cross_power: np.ndarray, shape: tuple[int, int], *, workers: int = 1) -> np.ndarray:
+    """Real correlation surfaces ``irfft2(cross_power)``, shape ``(T, H, W)``."""
+    return scipy.fft.irfft2(cross_power, s=shape, axes=(-2, -1), workers=workers)
+
+
+@dataclass(frozen=True)
+class Peaks:
+    """Highest peak of each correlation surface.
+
+    Attributes
+    ----------
+    shift : (T, 2) ndarray
+        Sub-pixel ``(row, col)`` position, wrapped to ``[-size/2, size/2)``.
+    value : (T,) ndarray
+        Surface value at the integer peak (1 for identical images).
+    peak_ratio : (T,) ndarray
+        Peak value over the highest value outside the peak's main lobe.
+    peak_to_noise : (T,) ndarray
+        ``(peak - mean) / std`` of the surface.
+    """
+
+    shift: np.ndarray
+    value: np.ndarray
+    peak_ratio: np.ndarray
+    peak_to_noise: np.ndarray
+
+
+def _wrap(index: np.ndarray, size: int) -> np.ndarray:
+    return (index + size // 2) % size - size // 2
+
+
+def find_peaks(surface: np.ndarray) -> Peaks:
+    """Locate the highest peak of each surface with a sub-pixel parabolic fit.
+
+    Parameters
+    ----------
+    surface : (T, H, W) ndarray
+        Correlation surfaces (circular).
+
+    Returns
+    -------
+    Peaks
+    """
+    t, h, w = surface.shape
+    flat = surface.reshape(t, -1)
+    arg = np.argmax(flat, axis=1)
+    r, c = np.divmod(arg, w)
+    tiles = np.arange(t)
+    value = flat[tiles, arg]
+
+    def neighbours(dr, dc):
+        return surface[tiles, (r + dr) % h, (c + dc) % w]
+
+    def vertex(minus, centre, plus):
+        denom = minus - 2.0 * centre + plus
+        safe = np.where(np.abs(denom) > 1e-12, denom, -1.0)
+        return np.clip(np.where(np.abs(denom) > 1e-12, 0.5 * (minus - plus) / safe, 0.0), -0.5, 0.5)
+
+    sub_r = vertex(neighbours(-1, 0), value, neighbours(1, 0))
+    sub_c = vertex(neighbours(0, -1), value, neighbours(0, 1))
+    shift = np.stack([_wrap(r, h) + sub_r, _wrap(c, w) + sub_c], axis=1)
+
+    masked = surface.copy()
+    offsets = np.arange(-_PEAK_EXCLUSION, _PEAK_EXCLUSION + 1)
+    rr = (r[:, None, None] + offsets[None, :, None]) % h
+    cc = (c[:, None, None] + offsets[None, None, :]) % w
+    masked[tiles[:, None, None], rr, cc] = -np.inf
+    second = masked.reshape(t, -1).max(axis=1)
+    mean = flat.mean(axis=1)
+    std = flat.std(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(second > 0, value / np.where(second > 0, second, 1.0), np.inf)
+        ratio = np.where(value > 0, ratio, 0.0)
+        pnr = np.where(std > 0, (value - mean) / np.where(std > 0, std, 1.0), 0.0)
+    return Peaks(shift=shift, value=value, peak_ratio=ratio, peak_to_noise=pnr)
+
+
+@lru_cache(maxsize=16)
+def _frequency_band(shape: tuple[int, int], max_frequency: float):
+    """Flat indices of the rfft2 half plane with 0 < |f| <= max_frequency, their frequencies
+    ``(B, 2)`` (cycles per pixel, ``(row, col)``) and the products ``(B, 3)`` of the normal equations."""
+    fr = scipy.fft.fftfreq(shape[0])[:, None]
+    fc = scipy.fft.rfftfreq(shape[1])[None, :]
+    radius = np.hypot(fr, fc)
+    band = np.flatnonzero((radius <= max_frequency) & (radius > 0))
+    f_r = np.broadcast_to(fr, radius.shape).ravel()[band]
+    f_c = np.broadcast_to(fc, radius.shape).ravel()[band]
+    freqs = np.stack([f_r, f_c], axis=1).astype(np.float32)
+    products = np.stack([f_r * f_r, f_r * f_c, f_c * f_c], axis=1).astype(np.float32)
+    return band, freqs, products
+
+
+def refine_shift_phase_plane(spectra_a: np.ndarray, spectra_b: np.ndarray, shift: np.ndarray,
+                             shape: tuple[int, int], *, max_frequency: float = 0.35,
+                             weight_power: float = 0.25, iterations: int = 2) -> np.ndarray:
+    """Refine shifts by a weighted least-squares fit of the cross-spectrum's phase plane.
+
+    For ``b(x) = a(x - d)`` the phase of ``conj(A) B`` is ``-2 pi f . d`` at
+    frequency ``f`` (cycles per pixel). After removing the current estimate
+    the residual phase is small and, weighted by ``|A B| ** weight_power``
+    over frequencies up to ``max_frequency``, gives the residual shift in
+    closed form. A small power keeps the strong low frequencies, whose phase
+    the window distorts most, from dominating the fit.
+
+    Parameters
+    ----------
+    spectra_a, spectra_b : (T, H, W//2+1) complex ndarray
+        ``rfft2`` spectra of the (windowed) images.
+    shift : (T, 2) ndarray
+        Initial ``(row, col)`` shifts, within half a pixel of the truth.
+    shape : (int, int)
+        ``(H, W)`` of the images.
+    max_frequency : float, keyword-only
+        Largest frequency used, cycles per pixel.
+    weight_power : float, keyword-only
+        Exponent of the cross-spectrum magnitude used as weight.
+    iterations : int, keyword-only
+
+    Returns
+    -------
+    (T, 2) ndarray
+        Refined shifts.
+    """
+    band, freqs, products = _frequency_band(tuple(shape), float(max_frequency))
+    cross = np.conj(spectra_a.reshape(len(spectra_a), -1)[:, band])
+    cross *= spectra_b.reshape(len(spectra_b), -1)[:, band]
+    weight = np.abs(cross)
+    weight **= weight_power
+    phase = np.angle(cross)
+    normal = (weight @ products).astype(np.float64)  # (T, 3): sums of w fr^2, w fr fc, w fc^2
+    a11, a12, a22 = normal[:, 0], normal[:, 1], normal[:, 2]
+    det = a11 * a22 - a12 * a12
+    ok = det > 1e-12 * np.maximum(a11 * a22, 1e-300)
+    safe = np.where(ok, det, 1.0)
+    shift = np.array(shift, dtype=np.float64)
+    two_pi = np.float32(2 * np.pi)
+    for _ in range(iterations):
+        # Residual phase after removing the current shift, wrapped to [-pi, pi): ~ -2 pi f . delta.
+        residual = phase + two_pi * (shift.astype(np.float32) @ freqs.T)
+        residual -= two_pi * np.round(residual / two_pi)
+        residual *= weight
+        rhs = -(residual @ freqs).astype(np.float64) / (2 * np.pi)  # (T, 2)
+        delta = np.stack([(a22 * rhs[:, 0] - a12 * rhs[:, 1]) / safe,
+                          (a11 * rhs[:, 1] - a12 * rhs[:, 0]) / safe], axis=1)
+        delta = np.where(ok[:, None], np.clip(delta, -1.0, 1.0), 0.0)
+        shift = shift + delta
+    return shift
+
+
+def phase_correlation(a: np.ndarray, b: np.ndarray, *, refine: bool = True,
+                      workers: int = 1) -> tuple[np.ndarray, Peaks]:
+    """Shift ``d`` with ``b(x) = a(x - d)`` of image pairs (mean removed, Hann window).
+
+    Parameters
+    ----------
+    a, b : (T, H, W) or (H, W) array_like
+    refine : bool, keyword-only
+        Refine the parabolic peak by the phase-plane fit.
+    workers : int, keyword-only
+        FFT threads.
+
+    Returns
+    -------
+    shift : (T, 2) or (2,) ndarray
+        ``(row, col)`` shift in pixels.
+    peaks : Peaks
+    """
+    a = np.asarray(a, dtype=np.float32)
+    b = np.asarray(b, dtype=np.float32)
+    single = a.ndim == 2
+    if single:
+        a, b = a[None], b[None]
+    if a.shape != b.shape or a.ndim != 3:
+        raise ValueError(f"expected two stacks of equal shape (T, H, W), got {a.shape} and {b.shape}")
+    shape = a.shape[1:]
+    window = hann_window(shape)
+    fa = scipy.fft.rfft2((a - a.mean(axis=(1, 2), keepdims=True)) * window, workers=workers)
+    fb = scipy.fft.rfft2((b - b.mean(axis=(1, 2), keepdims=True)) * window, workers=workers)
+    peaks = find_peaks(correlation_surface(normalized_cross_power(fa, fb), shape, workers=workers))
+    shift = peaks.shift
+    if refine:
+        shift = refine_shift_phase_plane(fa, fb, shift, shape)
+    return (shift[0] if single else shift), peaks

@@ -1,0 +1,142 @@
+"""Square sub-images (tiles) of a panorama, wrapping around the 360-degree seam.
+
+Tiles are ``N x N`` with ``N`` given in pixels or as a fraction of the
+panorama width. Neighbouring tiles overlap by ``overlap * N`` pixels. Along
+the azimuth the tiles are spread evenly around the full circle, so the last
+tile wraps over the seam into column 0; along the elevation they are centred
+in the panorama's height.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["TilingConfig", "TileLayout", "tile_layout", "tiles_from_panorama", "tile_size_px"]
+
+
+@dataclass(frozen=True)
+class TilingConfig:
+    """Tile size and overlap.
+
+    Attributes
+    ----------
+    tile_size : float or None
+        Tile side ``N``: pixels when >= 1 (rounded to an even number, which
+        suits the FFT), a fraction of the panorama width when < 1; ``None``
+        is a 16th of the width, kept within 32..64 pixels (64 at the usual
+        1024 px width: smaller tiles carry too little texture on noisy
+        images, larger ones move less rigidly).
+    overlap : float
+        Fraction of a tile shared with its neighbour, in ``[0, 1)``.
+    """
+
+    tile_size: float | None = None
+    overlap: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.tile_size is not None and not self.tile_size > 0:
+            raise ValueError(f"tile_size must be > 0 (pixels, or a fraction < 1), got {self.tile_size}")
+        if not 0 <= self.overlap < 1:
+            raise ValueError(f"overlap must be in [0, 1), got {self.overlap}")
+
+
+@dataclass(frozen=True)
+class TileLayout:
+    """Where the tiles of a panorama are.
+
+    Attributes
+    ----------
+    tile_size : int
+        Tile side ``N`` in pixels.
+    origins : (T, 2) int ndarray
+        Panorama ``(row, col)`` of each tile's top-left pixel; columns are in
+        ``[0, width)`` and the tile continues across the seam modulo ``width``.
+    panorama_shape : (int, int)
+        Panorama ``(height, width)``.
+    grid_shape : (int, int)
+        Number of tile rows and columns; tile ``t`` is at grid row
+        ``t // columns``, grid column ``t % columns``.
+    """
+
+    tile_size: int
+    origins: np.ndarray
+    panorama_shape: tuple
+    grid_shape: tuple
+
+    @property
+    def count(self) -> int:
+        """Number of tiles ``T``."""
+        return len(self.origins)
+
+    @property
+    def centers(self) -> np.ndarray:
+        """(T, 2) panorama ``(row, col)`` of each tile's centre ``(N - 1) / 2`` (columns wrapped)."""
+        c = (self.tile_size - 1) / 2.0
+        centres = self.origins + c
+        centres[:, 1] = np.mod(centres[:, 1], self.panorama_shape[1])
+        return centres
+
+
+# Range of the automatic tile side, pixels (see TilingConfig.tile_size).
+_AUTO_TILE_RANGE = (32, 64)
+
+
+def tile_size_px(tile_size: float | None, panorama_width: int) -> int:
+    """Tile side in pixels (even) from a size in pixels (>= 1), a width fraction (< 1) or None (auto)."""
+    if tile_size is None:
+        return int(np.clip(2 * round(panorama_width / 32), *_AUTO_TILE_RANGE))
+    size = tile_size * panorama_width if tile_size < 1 else tile_size
+    return max(4, 2 * int(round(size / 2.0)))
+
+
+def tile_layout(panorama_shape: tuple[int, int], *, config: TilingConfig = TilingConfig()) -> TileLayout:
+    """Tile layout of a panorama.
+
+    Parameters
+    ----------
+    panorama_shape : (int, int)
+        Panorama ``(height, width)`` in pixels.
+    config : TilingConfig, keyword-only
+
+    Returns
+    -------
+    TileLayout
+    """
+    height, width = (int(v) for v in panorama_shape)
+    n = tile_size_px(config.tile_size, width)
+    if n > height or n > width:
+        raise ValueError(f"tile size {n} px does not fit the {height}x{width} panorama; "
+                         f"expected at most {min(height, width)} px")
+    step = max(1, int(round(n * (1.0 - config.overlap))))
+    n_rows = 1 + (height - n) // step
+    top = (height - n - (n_rows - 1) * step) // 2
+    n_cols = max(1, int(round(width / step)))
+    col0 = np.round(np.arange(n_cols) * (width / n_cols)).astype(int)
+    row0 = top + step * np.arange(n_rows)
+    rows, cols = np.meshgrid(row0, col0, indexing="ij")
+    origins = np.stack([rows.ravel(), cols.ravel()], axis=1)
+    return TileLayout(tile_size=n, origins=origins, panorama_shape=(height, width),
+                      grid_shape=(n_rows, n_cols))
+
+
+def tiles_from_panorama(panorama: np.ndarray, layout: TileLayout) -> np.ndarray:
+    """Cut all tiles of a panorama into one array.
+
+    Parameters
+    ----------
+    panorama : (H, W) ndarray
+    layout : TileLayout
+
+    Returns
+    -------
+    (T, N, N) ndarray
+        Tile ``t`` is ``panorama[r:r+N, (c + arange(N)) % W]`` for origin ``(r, c)``.
+    """
+    if panorama.shape != tuple(layout.panorama_shape):
+        raise ValueError(f"expected a panorama of shape {layout.panorama_shape}, got {panorama.shape}")
+    n = layout.tile_size
+    padded = np.concatenate([panorama, panorama[:, :n]], axis=1)
+    windows = np.lib.stride_tricks.sliding_window_view(padded, (n, n))
+    return windows[layout.origins[:, 0], layout.origins[:, 1]]

@@ -1,0 +1,373 @@
+"""Panorama from an omni image, with the exact pixel mapping both ways.
+
+Instead of a plain polar unwarp around the image centre, the panorama samples
+the camera's rays on a regular (elevation, azimuth) grid and projects them
+with the calibration (``pixels_from_rays``):
+
+* column ``j`` is the azimuth ``phi = 2 pi j / W`` of the ray about the
+  mirror axis z (``phi = atan2(y, x)``, x along image rows);
+* row ``i`` is the elevation ``theta = theta_top - i * theta_step`` of the
+  ray above the x-y plane, row 0 the highest elevation of the band.
+
+This handles a non-identity affine part and an off-centre distortion centre
+exactly, and it makes the panorama an equirectangular image of the sphere
+band: a rotation about z is an exact horizontal shift, and a small tilt moves
+each small tile almost rigidly, unlike a plain polar unwarp whose radial
+scale follows the mirror's distortion.
+
+Pixel coordinates are ``(row, col)``, 0-based, pixel centres at integers, in
+both the omni image and the panorama.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .camera import OcamModel, elevation_from_radius, pixels_from_rays, rays_from_pixels
+
+__all__ = [
+    "PanoramaConfig",
+    "PanoramaMapping",
+    "radius_band",
+    "panorama_mapping",
+    "panorama_from_omni",
+    "rays_from_panorama",
+    "omni_from_panorama",
+    "panorama_from_omni_pixels",
+    "panorama_from_rays",
+    "gray_from_image",
+]
+
+# Azimuths and radii of the coarse polar profile used to find the imaged band.
+_PROFILE_AZIMUTHS = 256
+_PROFILE_RADII = 256
+
+
+@dataclass(frozen=True)
+class PanoramaConfig:
+    """Panorama geometry.
+
+    Attributes
+    ----------
+    width : int or None
+        Panorama width in pixels (360 degrees of azimuth). ``None``: the
+        circumference of the band's middle radius in the omni image, which
+        neither under- nor oversamples it (about 1024 for 512 x 512 images),
+        rounded to a multiple of 64 and capped at ``max_auto_width``.
+    max_auto_width : int
+        Cap of the automatic width: larger images are downsampled, which
+        keeps the time per frame bounded.
+    height : int or None
+        Panorama height in pixels; ``None`` makes pixels square at the band's
+        elevation closest to the horizon.
+    radius_min_px, radius_max_px : float or None
+        Sensor-radius band (pixels, after removing the affine part) to
+        unwarp; ``None`` detects it (see :func:`radius_band`).
+    min_radius_fraction : float
+        Detected inner radius is at least this fraction of the outer radius,
+        which keeps out the camera's own reflection and the strongly
+        oversampled centre.
+    dark_level : float
+        Gray level (0..255) under which a pixel counts as outside the mirror.
+    margin_px : float
+        Band shrink at both detected edges, pixels.
+    """
+
+    width: int | None = None
+    height: int | None = None
+    radius_min_px: float | None = None
+    radius_max_px: float | None = None
+    min_radius_fraction: float = 0.3
+    dark_level: float = 12.0
+    margin_px: float = 2.0
+    max_auto_width: int = 1024
+
+    def __post_init__(self) -> None:
+        if (self.width is not None and self.width < 8) or (self.height is not None and self.height < 8) \
+                or self.max_auto_width < 64:
+            raise ValueError(f"panorama size must be >= 8 px (max_auto_width >= 64), got width={self.width}, "
+                             f"height={self.height}, max_auto_width={self.max_auto_width}")
+        lo, hi = self.radius_min_px, self.radius_max_px
+        if (lo is not None and lo < 0) or (hi is not None and hi <= 0) or (
+                lo is not None and hi is not None and lo >= hi):
+            raise ValueError(f"expected 0 <= radius_min_px < radius_max_px, got {lo}, {hi}")
+        if not 0 <= self.min_radius_fraction < 1:
+            raise ValueError(f"min_radius_fraction must be in [0, 1), got {self.min_radius_fraction}")
+
+
+@dataclass(frozen=True)
+class PanoramaMapping:
+    """Sampling grid of a panorama.
+
+    Attributes
+    ----------
+    model : OcamModel
+    width, height : int
+        Panorama size in pixels.
+    elevation_top_rad : float
+        Elevation of row 0, radians.
+    elevation_step_rad : float
+        Elevation decrease per row, radians (> 0).
+    radius_band_px : (float, float)
+        Sensor radii of the band's inner and outer edge, pixels.
+    map_rows, map_cols : (height, width) float32 ndarray
+        Omni-image ``(row, col)`` sampled by each panorama pixel (remap maps).
+    fixed_maps : tuple of ndarray
+        The same maps in OpenCV's fixed-point form (faster remapping).
+    """
+
+    model: OcamModel
+    width: int
+    height: int
+    elevation_top_rad: float
+    elevation_step_rad: float
+    radius_band_px: tuple
+    map_rows: np.ndarray
+    map_cols: np.ndarray
+    fixed_maps: tuple = ()
+
+
+def gray_from_image(image: np.ndarray) -> np.ndarray:
+    """Gray uint8/float image of an (H, W) gray or (H, W, 3) RGB image (ITU-R 601 luma)."""
+    image = np.asarray(image)
+    if image.ndim == 2:
+        return image
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    if image.ndim == 3 and image.shape[2] == 1:
+        return image[..., 0]
+    raise ValueError(f"expected an image of shape (H, W) or (H, W, 3), got {image.shape}")
+
+
+def _inscribed_radius(model: OcamModel) -> float:
+    """Largest sensor radius whose whole circle lies inside the image."""
+    phi = np.linspace(0.0, 2 * np.pi, 1440, endpoint=False)
+    c, d, e = model.affine
+    u, v = np.cos(phi), np.sin(phi)
+    drow, dcol = u * c + v * d, u * e + v
+    radii = []
+    for delta, centre, size in ((drow, model.center[0], model.height), (dcol, model.center[1], model.width)):
+        with np.errstate(divide="ignore"):
+            upper = np.where(delta > 0, (size - 1 - centre) / delta, np.inf)
+            lower = np.where(delta < 0, (0 - centre) / delta, np.inf)
+        radii.append(np.minimum(upper, lower))
+    return float(max(0.0, np.min(np.minimum(*radii))))
+
+
+def _monotonic_radius(model: OcamModel, limit: float) -> float:
+    """Largest radius <= limit up to which elevation grows with radius."""
+    r = np.linspace(0.0, limit, 2048)
+    theta = elevation_from_radius(np.asarray(model.pol), r)
+    grows = np.diff(theta) > 0
+    if grows.all():
+        return limit
+    return float(r[int(np.argmin(grows))])
+
+
+def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
+                config: PanoramaConfig = PanoramaConfig()) -> tuple[float, float]:
+    """Sensor-radius band ``(r_min, r_max)`` in pixels that the mirror images.
+
+    The outer radius is the largest circle inside the image (and inside the
+    calibration's monotonic range); with an image, it shrinks to the last
+    radius whose ring is mostly brighter than ``config.dark_level`` (black
+    outside the mirror) and the inner radius grows past a dark central disk
+    (the camera's reflection). The inner radius is at least
+    ``config.min_radius_fraction`` of the outer one. Explicit radii in
+    ``config`` override the detection.
+
+    Parameters
+    ----------
+    model : OcamModel
+    image : (H, W) or (H, W, 3) ndarray, optional
+    config : PanoramaConfig, keyword-only
+
+    Returns
+    -------
+    (float, float)
+        Inner and outer sensor radius, pixels.
+    """
+    outer = _monotonic_radius(model, _inscribed_radius(model))
+    inner = 0.0
+    if image is not None:
+        gray = gray_from_image(image).astype(np.float32)
+        radii = np.linspace(0.0, outer, _PROFILE_RADII)
+        phi = np.linspace(0.0, 2 * np.pi, _PROFILE_AZIMUTHS, endpoint=False)
+        c, d, e = model.affine
+        u = radii[:, None] * np.cos(phi)[None]
+        v = radii[:, None] * np.sin(phi)[None]
+        rows = (u * c + v * d + model.center[0]).astype(np.float32)
+        cols = (u * e + v + model.center[1]).astype(np.float32)
+        ring = cv2.remap(gray, cols, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        lit = (ring > config.dark_level).mean(axis=1) >= 0.5
+        if lit.any():
+            first = int(np.argmax(lit))
+            last = int(len(lit) - 1 - np.argmax(lit[::-1]))
+            # The inner edge is the end of the dark disk around the centre, the outer edge
+            # the last lit ring that is connected to it.
+            dark_after = np.flatnonzero(~lit[first:])
+            if dark_after.size:
+                last = min(last, first + int(dark_after[0]) - 1)
+            inner = float(radii[first]) + config.margin_px if first > 0 else 0.0
+            if last < len(lit) - 1:
+                outer = float(radii[last]) - config.margin_px
+    inner = max(inner, config.min_radius_fraction * outer)
+    if config.radius_min_px is not None:
+        inner = float(config.radius_min_px)
+    if config.radius_max_px is not None:
+        outer = float(config.radius_max_px)
+    if not 0 <= inner < outer:
+        raise ValueError(f"empty radius band: inner {inner:.1f} px >= outer {outer:.1f} px")
+    return inner, outer
+
+
+def panorama_mapping(model: OcamModel, image: np.ndarray | None = None, *,
+                     config: PanoramaConfig = PanoramaConfig()) -> PanoramaMapping:
+    """Build the panorama's sampling grid (remap maps) for ``model``.
+
+    Parameters
+    ----------
+    model : OcamModel
+    image : (H, W) or (H, W, 3) ndarray, optional
+        A frame used to detect the imaged radius band.
+    config : PanoramaConfig, keyword-only
+
+    Returns
+    -------
+    PanoramaMapping
+    """
+    inner, outer = radius_band(model, image, config=config)
+    pol = np.asarray(model.pol)
+    theta_lo, theta_hi = (float(v) for v in elevation_from_radius(pol, np.array([inner, outer])))
+    if theta_hi < theta_lo:
+        theta_lo, theta_hi = theta_hi, theta_lo
+    if config.width is None:
+        # Sensor radius ~ image pixels (the affine part is close to the identity).
+        circumference = np.pi * (inner + outer)
+        width = int(min(config.max_auto_width, max(64, 64 * round(circumference / 64))))
+    else:
+        width = int(config.width)
+    if config.height is None:
+        closest = 0.0 if theta_lo <= 0 <= theta_hi else min(abs(theta_lo), abs(theta_hi))
+        span = theta_hi - theta_lo
+        height = int(round(width * span / (2 * np.pi * np.cos(closest))))
+        height = max(8, min(height, width))
+    else:
+        height = int(config.height)
+    # Row centres at integers: row 0 at theta_hi, row height-1 at theta_lo.
+    step = (theta_hi - theta_lo) / max(height - 1, 1)
+    rows = np.arange(height)
+    cols = np.arange(width)
+    theta = theta_hi - rows * step
+    phi = cols * (2 * np.pi / width)
+    rays = np.stack(np.broadcast_arrays(
+        np.cos(theta)[:, None] * np.cos(phi)[None],
+        np.cos(theta)[:, None] * np.sin(phi)[None],
+        np.sin(theta)[:, None]), axis=-1)
+    pixels = pixels_from_rays(model, rays)
+    map_rows = np.ascontiguousarray(pixels[..., 0], dtype=np.float32)
+    map_cols = np.ascontiguousarray(pixels[..., 1], dtype=np.float32)
+    return PanoramaMapping(
+        model=model, width=width, height=height, elevation_top_rad=theta_hi,
+        elevation_step_rad=step, radius_band_px=(inner, outer), map_rows=map_rows,
+        map_cols=map_cols, fixed_maps=cv2.convertMaps(map_cols, map_rows, cv2.CV_16SC2))
+
+
+def panorama_from_omni(image: np.ndarray, mapping: PanoramaMapping) -> np.ndarray:
+    """Resample an omni image into the panorama (bilinear, float32).
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) ndarray
+        Omni image of the size the mapping's calibration names; RGB is
+        converted to gray.
+    mapping : PanoramaMapping
+
+    Returns
+    -------
+    (height, width) float32 ndarray
+    """
+    gray = gray_from_image(image)
+    if gray.shape != mapping.model.size:
+        raise ValueError(f"expected an image of size {mapping.model.size}, got {gray.shape}")
+    if gray.dtype != np.uint8:
+        gray = gray.astype(np.float32)
+    map1, map2 = mapping.fixed_maps or (mapping.map_cols, mapping.map_rows)
+    pano = cv2.remap(gray, map1, map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return pano.astype(np.float32, copy=False)
+
+
+def rays_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.ndarray:
+    """Unit rays of panorama pixels (exact; columns wrap around 360 degrees).
+
+    Parameters
+    ----------
+    mapping : PanoramaMapping
+    pano_pixels : (..., 2) array_like
+        Panorama ``(row, col)``, sub-pixel allowed.
+
+    Returns
+    -------
+    (..., 3) ndarray
+    """
+    pano_pixels = np.asarray(pano_pixels, dtype=np.float64)
+    theta = mapping.elevation_top_rad - pano_pixels[..., 0] * mapping.elevation_step_rad
+    phi = pano_pixels[..., 1] * (2 * np.pi / mapping.width)
+    ct = np.cos(theta)
+    return np.stack([ct * np.cos(phi), ct * np.sin(phi), np.sin(theta)], axis=-1)
+
+
+def panorama_from_rays(mapping: PanoramaMapping, rays: np.ndarray) -> np.ndarray:
+    """Panorama ``(row, col)`` of rays; columns in ``[0, width)``.
+
+    Parameters
+    ----------
+    mapping : PanoramaMapping
+    rays : (..., 3) array_like
+        Directions in the camera frame (need not be normalised).
+
+    Returns
+    -------
+    (..., 2) ndarray
+        Rows outside ``[0, height - 1]`` are outside the band.
+    """
+    rays = np.asarray(rays, dtype=np.float64)
+    theta = np.arctan2(rays[..., 2], np.hypot(rays[..., 0], rays[..., 1]))
+    phi = np.mod(np.arctan2(rays[..., 1], rays[..., 0]), 2 * np.pi)
+    row = (mapping.elevation_top_rad - theta) / mapping.elevation_step_rad
+    col = np.mod(phi * mapping.width / (2 * np.pi), mapping.width)
+    return np.stack([row, col], axis=-1)
+
+
+def omni_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.ndarray:
+    """Omni-image ``(row, col)`` of panorama ``(row, col)`` (sub-pixel, exact).
+
+    Parameters
+    ----------
+    mapping : PanoramaMapping
+    pano_pixels : (..., 2) array_like
+
+    Returns
+    -------
+    (..., 2) ndarray
+    """
+    return pixels_from_rays(mapping.model, rays_from_panorama(mapping, pano_pixels))
+
+
+def panorama_from_omni_pixels(mapping: PanoramaMapping, omni_pixels: np.ndarray) -> np.ndarray:
+    """Panorama ``(row, col)`` of omni-image ``(row, col)``; columns in ``[0, width)``.
+
+    Parameters
+    ----------
+    mapping : PanoramaMapping
+    omni_pixels : (..., 2) array_like
+
+    Returns
+    -------
+    (..., 2) ndarray
+        Rows outside ``[0, height - 1]`` are outside the band.
+    """
+    return panorama_from_rays(mapping, rays_from_pixels(mapping.model, omni_pixels))

@@ -1,0 +1,177 @@
+"""Mitsuba sensor plugin ``omnicam``: the OCamCalib camera model, exactly.
+
+Each film sample is mapped to a ``(row, col)`` pixel coordinate (film x is the
+column, film y the row; pixel centres at integers, so the film position
+``x + 0.5`` is column ``x``), lifted to a camera-frame ray with the same
+``cam2world`` formula as :func:`ifmi.camera.rays_from_pixels`, and carried to
+the world by ``to_world``. The camera frame is the model's: x along image
+rows, y along image columns, z the mirror axis.
+
+Samples whose sensor-plane radius lies outside the mirror band
+``[radius_min, radius_max]`` (the camera's own reflection in the middle, the
+housing beyond the rim) carry zero weight and are not traced, so those pixels
+are black.
+
+Performance notes: ``sample2`` is normalised over the film's crop window; the
+calibration values are opaque JIT variables, so a new calibration (of the
+same polynomial length) reuses the compiled kernel; ``to_world`` and the
+calibration are exposed through ``traverse`` so a frame's pose is set with
+``mi.traverse(scene)`` and ``params.update()``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["PLUGIN_NAME", "register_omni_sensor", "sensor_dict", "to_world_matrix"]
+
+PLUGIN_NAME = "omnicam"
+
+# Polynomials are zero-padded to at least this many coefficients so that
+# calibrations of different degree share one compiled kernel.
+MIN_POLY_COEFFS = 8
+
+
+def _parse_floats(text: str) -> list[float]:
+    return [float(tok) for tok in str(text).replace(",", " ").split()]
+
+
+def to_world_matrix(rotation: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """4x4 camera-to-world matrix from a rotation ``R_wc`` (3,3) and a position (3,) in metres."""
+    m = np.eye(4)
+    m[:3, :3] = np.asarray(rotation, dtype=np.float64)
+    m[:3, 3] = np.asarray(position, dtype=np.float64)
+    return m
+
+
+def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: float,
+                spp: int, sampler: str = "multijitter", seed: int = 0, mi=None) -> dict:
+    """Mitsuba scene-dict entry of the omni sensor for an :class:`ifmi.camera.OcamModel`.
+
+    Parameters
+    ----------
+    model : OcamModel
+        Calibration; the film gets its ``size`` (height rows, width columns).
+    to_world : (4, 4) ndarray, keyword-only
+        Camera-to-world transform (camera frame of the model).
+    radius_min, radius_max : float, keyword-only
+        Mirror band in sensor-plane pixels; outside it pixels are black.
+    spp : int, keyword-only
+        Samples per pixel.
+    sampler : str, keyword-only
+        Mitsuba sampler plugin (a low-discrepancy one by default).
+    seed : int, keyword-only
+        Sampler seed.
+    mi : module
+        The imported ``mitsuba`` module (variant already set).
+    """
+    height, width = model.size
+    c, d, e = model.affine
+    sampler_dict = {"type": sampler, "sample_count": int(spp), "seed": int(seed)}
+    return {
+        "type": PLUGIN_NAME,
+        "pol": " ".join(repr(float(v)) for v in model.pol),
+        "center_row": float(model.center[0]),
+        "center_col": float(model.center[1]),
+        "affine_c": float(c), "affine_d": float(d), "affine_e": float(e),
+        "radius_min": float(radius_min),
+        "radius_max": float(radius_max),
+        "to_world": mi.ScalarTransform4f(np.asarray(to_world, dtype=np.float64).tolist()),
+        "film": {
+            "type": "hdrfilm", "width": int(width), "height": int(height),
+            "rfilter": {"type": "box"}, "pixel_format": "rgb",
+        },
+        "sampler": sampler_dict,
+    }
+
+
+def register_omni_sensor(mi) -> None:
+    """Register the ``omnicam`` sensor plugin with the imported Mitsuba module."""
+    import drjit as dr
+
+    class OmniSensor(mi.Sensor):
+        """OCamCalib catadioptric camera as a Mitsuba sensor."""
+
+        def __init__(self, props):
+            super().__init__(props)
+            # A pinhole-like viewpoint: no aperture sample is drawn (as Mitsuba's perspective camera).
+            self.m_needs_sample_3 = False
+            pol = _parse_floats(props.get("pol", "1"))
+            if len(pol) < 1:
+                raise ValueError("omnicam: 'pol' needs at least one coefficient")
+            self.n_coeffs = max(len(pol), MIN_POLY_COEFFS)
+            pol = pol + [0.0] * (self.n_coeffs - len(pol))
+            self.pol = mi.Float(pol)
+            self._coeffs = []
+            self.center = mi.Point2f(props.get("center_row", 0.0), props.get("center_col", 0.0))
+            self.affine = mi.Vector3f(props.get("affine_c", 1.0), props.get("affine_d", 0.0),
+                                      props.get("affine_e", 0.0))
+            self.band = mi.Vector2f(props.get("radius_min", 0.0),
+                                    props.get("radius_max", float("inf")))
+            matrix = np.eye(4, dtype=np.float32)
+            if "to_world" in props:
+                matrix = np.array(props["to_world"].matrix, dtype=np.float32)
+            self.to_world = mi.Transform4f(np.ascontiguousarray(matrix))
+            self._make_opaque()
+
+        def _make_opaque(self):
+            dr.make_opaque(self.pol, self.center, self.affine, self.band, self.to_world)
+            # One width-1 opaque variable per coefficient: a kernel parameter, not a per-lane gather.
+            self._coeffs = [dr.gather(mi.Float, self.pol, i) for i in range(self.n_coeffs)]
+            dr.make_opaque(*self._coeffs)
+
+        def traverse(self, callback):
+            callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
+            callback.put("pol", self.pol, mi.ParamFlags.NonDifferentiable)
+            callback.put("center", self.center, mi.ParamFlags.NonDifferentiable)
+            callback.put("affine", self.affine, mi.ParamFlags.NonDifferentiable)
+            callback.put("band", self.band, mi.ParamFlags.NonDifferentiable)
+
+        def parameters_changed(self, keys=None):
+            if dr.width(self.pol) != self.n_coeffs:
+                raise ValueError(f"omnicam: expected {self.n_coeffs} polynomial coefficients "
+                                 f"(zero-padded), got {dr.width(self.pol)}")
+            self._make_opaque()
+
+        def _camera_ray(self, sample2):
+            film = self.film()
+            crop_size = mi.ScalarVector2f(film.crop_size())
+            crop_offset = mi.ScalarVector2f(film.crop_offset())
+            # Film position in pixels; pixel centres sit at x + 0.5, hence the shift.
+            col = dr.fma(sample2.x, crop_size.x, crop_offset.x - 0.5)
+            row = dr.fma(sample2.y, crop_size.y, crop_offset.y - 0.5)
+            c, d, e = self.affine.x, self.affine.y, self.affine.z
+            inv_det = dr.rcp(c - d * e)
+            dr_ = row - self.center.x
+            dc_ = col - self.center.y
+            xp = (dr_ - d * dc_) * inv_det
+            yp = (c * dc_ - e * dr_) * inv_det
+            radius = dr.sqrt(dr.fma(xp, xp, yp * yp))
+            zp = self._coeffs[-1]
+            for coeff in self._coeffs[-2::-1]:
+                zp = dr.fma(zp, radius, coeff)
+            in_band = (radius >= self.band.x) & (radius <= self.band.y)
+            direction = dr.normalize(mi.Vector3f(xp, yp, zp))
+            return direction, in_band
+
+        def sample_ray(self, time, sample1, sample2, sample3, active=True):
+            wavelengths, wav_weight = self.sample_wavelengths(
+                dr.zeros(mi.SurfaceInteraction3f), sample1, active)
+            direction, in_band = self._camera_ray(sample2)
+            origin = self.to_world @ mi.Point3f(0.0, 0.0, 0.0)
+            world_dir = self.to_world @ direction
+            maxt = dr.select(in_band, dr.largest(mi.Float), 0.0)
+            ray = mi.Ray3f(origin, world_dir, maxt, time, wavelengths)
+            weight = dr.select(in_band, wav_weight, 0.0)
+            return ray, weight
+
+        def sample_ray_differential(self, time, sample1, sample2, sample3, active=True):
+            ray, weight = self.sample_ray(time, sample1, sample2, sample3, active)
+            ray_diff = mi.RayDifferential3f(ray)
+            ray_diff.has_differentials = False
+            return ray_diff, weight
+
+        def to_string(self):
+            return f"OmniSensor[n_coeffs={self.n_coeffs}]"
+
+    mi.register_sensor(PLUGIN_NAME, lambda props: OmniSensor(props))

@@ -1,0 +1,129 @@
+"""Texture images made offline: scikit-image's bundled photographs and seeded noise.
+
+Every function returns a float32 ``(H, W, 3)`` array with values in [0, 1]
+(linear RGB reflectance), ready to become a Mitsuba bitmap texture.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+__all__ = ["BUNDLED_PHOTOS", "photo_texture", "noise_texture", "texture_from_spec"]
+
+# Photographs shipped inside the scikit-image wheel (CC0 or public domain); the
+# package fetches others over the network, which is not available here.
+BUNDLED_PHOTOS = ("grass", "brick", "gravel", "camera", "astronaut", "coffee", "chelsea",
+                  "rocket", "moon", "page", "coins", "clock", "colorwheel", "hubble_deep_field",
+                  "immunohistochemistry", "text", "cat", "cell")
+
+
+def _as_rgb(image: np.ndarray) -> np.ndarray:
+    image = np.asarray(image)
+    if image.dtype == bool:
+        image = image.astype(np.float32)
+    elif np.issubdtype(image.dtype, np.integer):
+        image = image.astype(np.float32) / float(np.iinfo(image.dtype).max)
+    image = image.astype(np.float32)
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, axis=2)
+    return np.ascontiguousarray(image[..., :3])
+
+
+def _srgb_to_linear(image: np.ndarray) -> np.ndarray:
+    return np.where(image <= 0.04045, image / 12.92, ((image + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def photo_texture(name: str, *, tint=(1.0, 1.0, 1.0), brightness: float = 1.0) -> np.ndarray:
+    """A bundled scikit-image photograph as a linear-RGB texture.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`BUNDLED_PHOTOS`.
+    tint : (3,) sequence of float, keyword-only
+        Per-channel multiplier (e.g. green for grey grass).
+    brightness : float, keyword-only
+        Overall multiplier; values are clipped to [0, 1].
+
+    Returns
+    -------
+    (H, W, 3) float32 ndarray
+    """
+    import skimage.data
+
+    if name not in BUNDLED_PHOTOS:
+        raise ValueError(f"unknown photo texture {name!r}; expected one of {', '.join(BUNDLED_PHOTOS)}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        image = getattr(skimage.data, name)()
+    rgb = _srgb_to_linear(_as_rgb(image))
+    rgb = rgb * np.asarray(tint, dtype=np.float32)[None, None, :] * float(brightness)
+    return np.clip(rgb, 0.0, 1.0).astype(np.float32)
+
+
+def noise_texture(size: int, *, seed: int, octaves: int = 5, base_cells: int = 4,
+                  color_a=(0.2, 0.2, 0.2), color_b=(0.8, 0.8, 0.8)) -> np.ndarray:
+    """Seeded, tileable fractal value noise blended between two colours.
+
+    Parameters
+    ----------
+    size : int
+        Texture side in pixels (square).
+    seed : int, keyword-only
+        Random seed; the same seed gives the same texture.
+    octaves : int, keyword-only
+        Number of frequency doublings.
+    base_cells : int, keyword-only
+        Lattice cells across the texture at the lowest frequency.
+    color_a, color_b : (3,) sequence of float, keyword-only
+        Linear RGB colours at noise values 0 and 1.
+
+    Returns
+    -------
+    (size, size, 3) float32 ndarray
+    """
+    if size < 2 or octaves < 1 or base_cells < 1:
+        raise ValueError(f"expected size >= 2, octaves >= 1, base_cells >= 1; got {size}, {octaves}, {base_cells}")
+    rng = np.random.default_rng(seed)
+    coords = np.arange(size) / size
+    total = np.zeros((size, size), dtype=np.float64)
+    amplitude, weight = 1.0, 0.0
+    for octave in range(octaves):
+        cells = base_cells * 2 ** octave
+        lattice = rng.random((cells, cells))
+        t = coords * cells
+        i0 = np.floor(t).astype(int) % cells
+        i1 = (i0 + 1) % cells
+        f = t - np.floor(t)
+        f = f * f * (3.0 - 2.0 * f)  # smoothstep between lattice values
+        top = lattice[i0][:, i0] * (1 - f)[None, :] + lattice[i0][:, i1] * f[None, :]
+        bottom = lattice[i1][:, i0] * (1 - f)[None, :] + lattice[i1][:, i1] * f[None, :]
+        total += amplitude * (top * (1 - f)[:, None] + bottom * f[:, None])
+        weight += amplitude
+        amplitude *= 0.5
+    value = (total / weight)[..., None]
+    value = (value - value.min()) / max(value.max() - value.min(), 1e-9)
+    a = np.asarray(color_a, dtype=np.float64)[None, None, :]
+    b = np.asarray(color_b, dtype=np.float64)[None, None, :]
+    return (a * (1 - value) + b * value).astype(np.float32)
+
+
+def texture_from_spec(spec: dict, *, seed: int) -> np.ndarray:
+    """Texture image from a scene-file texture table.
+
+    ``{"source": "photo", "name": "grass", "tint": [...], "brightness": b}`` or
+    ``{"source": "noise", "size": 256, "octaves": 5, "cells": 4, "color_a": [...],
+    "color_b": [...], "seed": k}`` (the texture's own seed is offset by the scene seed).
+    """
+    source = spec.get("source")
+    if source == "photo":
+        return photo_texture(spec["name"], tint=spec.get("tint", (1.0, 1.0, 1.0)),
+                             brightness=float(spec.get("brightness", 1.0)))
+    if source == "noise":
+        return noise_texture(int(spec.get("size", 256)), seed=int(spec.get("seed", 0)) + seed,
+                             octaves=int(spec.get("octaves", 5)), base_cells=int(spec.get("cells", 4)),
+                             color_a=spec.get("color_a", (0.2, 0.2, 0.2)),
+                             color_b=spec.get("color_b", (0.8, 0.8, 0.8)))
+    raise ValueError(f"texture source must be 'photo' or 'noise', got {source!r}")

@@ -1,0 +1,139 @@
+"""``ifmi estimate`` on DATASET folders: outputs, side files, bad input."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from ifmi.camera import paracatadioptric_model
+from ifmi.cli import main
+from ifmi.io.dataset import read_dataset, read_image
+from ifmi.io.tum import read_tum
+from ifmi.rotations import geodesic_angle
+
+pytest.importorskip("skimage")
+from ifmi.synthetic import synthetic_sequence, write_synthetic_dataset  # noqa: E402
+
+MODEL = paracatadioptric_model((256, 256), horizon_radius_px=80.0, center=(127.2, 129.7),
+                               affine=(1.001, 0.002, -0.001))
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    seq = synthetic_sequence(MODEL, 6, seed=7, band_px=(30.0, 125.0), noise_std=1.0)
+    root = write_synthetic_dataset(tmp_path_factory.mktemp("data") / "synthetic", seq)
+    return root, seq
+
+
+def test_estimate_writes_trajectory_and_side_files(dataset, tmp_path, capsys):
+    root, seq = dataset
+    out = tmp_path / "run" / "estimate.txt"
+    code = main(["estimate", str(root), "--method", "ifmi", "--out", str(out), "--width", "512",
+                 "--tile-size", "64", "--no-progress"])
+    assert code == 0
+    traj = read_tum(out)
+    assert len(traj) == 6
+    # 512 px panorama (0.0123 rad/px), 5 chained estimates good to ~0.03 px (4e-4 rad) each.
+    assert geodesic_angle(seq.rotations, traj.rotations).max() < 4e-3
+    with open(tmp_path / "run" / "estimate.frames.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["frame"] for r in rows] == [str(k) for k in range(6)]
+    for key in ("reference_frame", "success", "reason", "n_correspondences", "n_inliers", "seconds"):
+        assert key in rows[0]
+    config = json.loads((tmp_path / "run" / "estimate.config.json").read_text())
+    assert config["method"] == "ifmi"
+    assert config["config"]["ifmi"]["panorama"]["width"] == 512
+    assert config["config"]["ifmi"]["tiling"]["tile_size"] == 64
+
+
+def test_estimate_without_groundtruth_and_with_rgb(dataset, tmp_path):
+    root, _ = dataset
+    copy = tmp_path / "rgb"
+    shutil.copytree(root, copy)
+    (copy / "groundtruth.txt").unlink()
+    for path in sorted((copy / "images").glob("*.png")):
+        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        cv2.imwrite(str(path.with_suffix(".jpg")), cv2.merge([gray, gray, gray]), [cv2.IMWRITE_JPEG_QUALITY, 92])
+        path.unlink()
+    out = tmp_path / "rgb.txt"
+    assert main(["estimate", str(copy), "--out", str(out), "--width", "512", "--keyframes", "--no-progress"]) == 0
+    assert len(read_tum(out)) == 6
+    assert read_image(next((copy / "images").iterdir()), gray=False).shape == (256, 256, 3)
+
+
+def test_wrong_image_size_names_the_file(dataset, tmp_path, capsys):
+    root, _ = dataset
+    copy = tmp_path / "bad"
+    shutil.copytree(root, copy)
+    bad = copy / "images" / "000003.png"
+    cv2.imwrite(str(bad), np.zeros((100, 120), np.uint8))
+    out = tmp_path / "bad.txt"
+    assert main(["estimate", str(copy), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "000003.png" in err and "100x120" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_unreadable_image_names_the_file(dataset, tmp_path, capsys):
+    root, _ = dataset
+    copy = tmp_path / "junk"
+    shutil.copytree(root, copy)
+    (copy / "images" / "000001.png").write_bytes(b"not a png")
+    assert main(["estimate", str(copy), "--out", str(tmp_path / "j.txt"), "--no-progress"]) == 2
+    assert "000001.png: not a readable PNG/JPEG image" in capsys.readouterr().err
+
+
+def test_missing_calibration(tmp_path, capsys):
+    (tmp_path / "images").mkdir()
+    assert main(["estimate", str(tmp_path), "--out", str(tmp_path / "e.txt")]) == 2
+    assert "calib_results.txt: calibration file not found" in capsys.readouterr().err
+
+
+def test_no_images(dataset, tmp_path, capsys):
+    root, _ = dataset
+    copy = tmp_path / "empty"
+    shutil.copytree(root, copy)
+    for p in (copy / "images").iterdir():
+        p.unlink()
+    assert main(["estimate", str(copy), "--out", str(tmp_path / "e.txt")]) == 2
+    assert "no images" in capsys.readouterr().err
+
+
+def test_bad_option_value_is_one_line(dataset, tmp_path, capsys):
+    root, _ = dataset
+    assert main(["estimate", str(root), "--out", str(tmp_path / "e.txt"), "--overlap", "1.5"]) == 2
+    assert "overlap must be in [0, 1)" in capsys.readouterr().err
+
+
+def test_dataset_reader_sorts_images(dataset):
+    root, _ = dataset
+    ds = read_dataset(root)
+    assert [p.name for p in ds.image_paths] == sorted(p.name for p in ds.image_paths)
+    assert ds.groundtruth_path is not None and len(ds) == 6
+
+
+def test_config_file_and_overrides(dataset, tmp_path):
+    root, _ = dataset
+    first = tmp_path / "first.txt"
+    assert main(["estimate", str(root), "--out", str(first), "--width", "512", "--no-prior",
+                 "--rotation-only", "--th-pr", "1.8", "--no-progress"]) == 0
+    second = tmp_path / "second.txt"
+    assert main(["estimate", str(root), "--out", str(second), "--config",
+                 str(tmp_path / "first.config.json"), "--overlap", "0.25", "--no-progress"]) == 0
+    config = json.loads((tmp_path / "second.config.json").read_text())["config"]
+    assert config["ifmi"]["use_prior"] is False and config["relative_pose"]["rotation_only"] is True
+    assert config["ifmi"]["registration"]["th_pr"] == 1.8 and config["ifmi"]["tiling"]["overlap"] == 0.25
+    assert config["ifmi"]["panorama"]["width"] == 512
+
+
+def test_unreadable_config_file(dataset, tmp_path, capsys):
+    root, _ = dataset
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    assert main(["estimate", str(root), "--out", str(tmp_path / "e.txt"), "--config", str(bad)]) == 2
+    assert "bad.json: not a readable JSON configuration" in capsys.readouterr().err

@@ -1,0 +1,176 @@
+"""ORB and AKAZE front ends on exact synthetic omni pairs."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from ifmi.camera import radius_from_pixels
+from ifmi.features import FeatureConfig, FeatureFrontEnd, match_descriptors
+from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays
+from ifmi.rotations import geodesic_angle, matrix_from_rpy
+
+from omni_synthetic import environment_texture, mirror_band, omni_model, render_omni
+
+# A pure rotation of about 4.6 degrees between the frames.
+R_AB = matrix_from_rpy(np.array([0.03, -0.04, 0.06]))
+
+
+@pytest.fixture(scope="module")
+def pair():
+    model = omni_model(384)
+    texture = environment_texture()
+    image_a = render_omni(model, np.eye(3), texture)
+    image_b = render_omni(model, R_AB, texture)
+    return model, image_a, image_b
+
+
+def test_akaze_exists_in_this_opencv():
+    assert hasattr(cv2, "AKAZE_create"), f"OpenCV {cv2.__version__} has no AKAZE"
+    detector = cv2.AKAZE_create()
+    image = environment_texture(128)[:, :256]
+    keypoints, descriptors = detector.detectAndCompute(image, None)
+    assert len(keypoints) > 10
+    assert descriptors.dtype == np.uint8 and descriptors.shape == (len(keypoints), 61)
+
+
+@pytest.mark.parametrize("detector", ["orb", "akaze"])
+def test_front_end_recovers_known_rotation(pair, detector):
+    model, image_a, image_b = pair
+    front = FeatureFrontEnd(model, detector, config=FeatureConfig(radius_band=mirror_band(model)))
+    state_a, state_b = front.prepare(image_a), front.prepare(np.dstack([image_b] * 3))
+    assert len(state_a) > 50 and len(state_b) > 50
+    corr = front.correspondences(state_a, state_b)
+    assert corr.success, corr.reason
+    # Matched pixels obey the true rotation, rays_a ~ R_ab @ rays_b, for most
+    # matches: one pixel is about 0.5 degrees near the horizon of this image and
+    # keypoints on coarse pyramid levels are located to a few pixels at most.
+    angle = np.arccos(np.clip(np.einsum("ij,ij->i", corr.rays_a, corr.rays_b @ R_AB.T), -1, 1))
+    assert np.mean(angle < np.deg2rad(2.0)) > 0.8
+    # Rotation-only solve with a 1-degree (about 2 px) inlier threshold: the
+    # keypoints' ~0.5-1 px localisation error averages over hundreds of inliers.
+    pose, info = relative_pose_from_rays(
+        corr.rays_a, corr.rays_b,
+        options=RelativePoseOptions(ransac_threshold_rad=np.deg2rad(1.0), seed=1,
+                                    rotation_only=True))
+    assert info.success, info.reason
+    assert info.n_inliers > 100
+    assert np.rad2deg(geodesic_angle(pose.rotation, R_AB)) < 0.2
+
+
+def test_keypoints_are_row_col_inside_the_band(pair):
+    model, image_a, _ = pair
+    band = mirror_band(model)
+    front = FeatureFrontEnd(model, "orb", config=FeatureConfig(radius_band=band))
+    state = front.prepare(image_a)
+    r = radius_from_pixels(model, state.pixels)
+    assert r.min() >= band[0] and r.max() <= band[1]
+    # (row, col): the keypoint's own ray reprojects to the image where OpenCV saw it.
+    detector = cv2.ORB_create(nfeatures=2000)
+    kps = detector.detect(image_a, front.mask(image_a))
+    xy = np.array([kp.pt for kp in kps])
+    np.testing.assert_allclose(np.sort(state.pixels[:, 0]), np.sort(xy[:, 1]))
+    np.testing.assert_allclose(np.sort(state.pixels[:, 1]), np.sort(xy[:, 0]))
+
+
+def test_asymmetric_image_row_col_order():
+    # A bright blob at (row 40, col 100) on a 128 x 160 image must come back as (40, 100).
+    from ifmi.camera import paracatadioptric_model
+
+    model = paracatadioptric_model((128, 160), horizon_radius_px=50)
+    image = np.zeros((128, 160), np.uint8)
+    cv2.rectangle(image, (95, 35), (105, 45), 255, -1)  # OpenCV points are (x=col, y=row)
+    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=(1.0, 90.0)))
+    state = front.prepare(image)
+    assert len(state) >= 1
+    near = np.linalg.norm(state.pixels - [40, 100], axis=1)
+    assert near.min() < 8
+
+
+def test_ratio_test_and_cross_check():
+    rng = np.random.default_rng(0)
+    desc_a = rng.integers(0, 256, size=(50, 32), dtype=np.uint8)
+    perm = rng.permutation(50)
+    desc_b = desc_a[perm].copy()
+    desc_b[:, 0] ^= 1  # one bit of noise everywhere
+    pairs = match_descriptors(desc_a, desc_b, ratio=0.8, cross_check=True)
+    assert len(pairs) == 50
+    np.testing.assert_array_equal(perm[pairs[:, 1]], pairs[:, 0])
+    # Two identical candidates in b: the ratio test rejects the ambiguous match.
+    desc_b2 = np.vstack([desc_b, desc_b[:1]])
+    pairs2 = match_descriptors(desc_a, desc_b2, ratio=0.8, cross_check=False)
+    assert perm[0] not in pairs2[:, 0] and len(pairs2) == 49
+
+
+def test_too_few_matches_is_flagged(pair):
+    model, image_a, _ = pair
+    front = FeatureFrontEnd(model, "orb", config=FeatureConfig(radius_band=mirror_band(model)))
+    state_a = front.prepare(image_a)
+    state_blank = front.prepare(np.zeros_like(image_a))
+    corr = front.correspondences(state_a, state_blank)
+    assert not corr.success and "too few matches" in corr.reason
+
+
+def test_config_round_trip_and_validation():
+    cfg = FeatureConfig(n_features=500, ratio=0.7, radius_band=(10, 100))
+    assert FeatureConfig.from_dict(cfg.to_dict()) == cfg
+    with pytest.raises(ValueError, match="ratio"):
+        FeatureConfig(ratio=1.5)
+    with pytest.raises(ValueError, match="radius_band"):
+        FeatureConfig(radius_band=(50, 10))
+    with pytest.raises(ValueError, match="unknown feature options"):
+        FeatureConfig.from_dict({"n_feature": 3})
+
+
+def test_registered_methods_track_a_synthetic_sequence():
+    from dataclasses import replace
+
+    from ifmi.pipeline import EstimateConfig, create_front_end, estimate_sequence
+    from omni_synthetic import rotation_sequence
+
+    model = omni_model(384)
+    texture = environment_texture()
+    truth = rotation_sequence(4, seed=5, step_rad=0.04)
+    images = [render_omni(model, R, texture) for R in truth]
+    base = EstimateConfig(features=FeatureConfig(radius_band=mirror_band(model)))
+    # Rotation-only back end with a 1-degree threshold (about 2 px here), as in
+    # the pair test above: the sequence is a pure rotation.
+    config = replace(base, relative_pose=replace(base.relative_pose, rotation_only=True,
+                                                 ransac_threshold_rad=np.deg2rad(1.0)))
+    for method in ("orb", "akaze"):
+        assert isinstance(create_front_end(method, model, config), FeatureFrontEnd)
+        result = estimate_sequence(images, model, method=method, config=config)
+        assert len(result.trajectory) == 4 and all(r.success for r in result.frames)
+        # Three steps of at most 0.2 degrees each (see the pair test).
+        err = np.rad2deg(geodesic_angle(truth, result.trajectory.rotations))
+        assert err.max() < 0.4, (method, err)
+
+
+def test_estimate_config_round_trip_with_features():
+    import json
+
+    from ifmi.pipeline import EstimateConfig
+
+    config = EstimateConfig(features=FeatureConfig(n_features=700, on_panorama=True,
+                                                   radius_band=(20.0, 90.0)))
+    again = EstimateConfig.from_dict(json.loads(json.dumps(config.to_dict())))
+    assert again == config
+
+
+def test_features_on_panorama_recover_rotation(pair):
+    model, image_a, image_b = pair
+    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=mirror_band(model),
+                                                                 on_panorama=True))
+    state_a, state_b = front.prepare(image_a), front.prepare(image_b)
+    # Keypoints come back as omni (row, col) inside the band.
+    r = radius_from_pixels(model, state_a.pixels)
+    band = mirror_band(model)
+    assert r.min() >= band[0] - 1 and r.max() <= band[1] + 1
+    corr = front.correspondences(state_a, state_b)
+    assert corr.success, corr.reason
+    pose, info = relative_pose_from_rays(
+        corr.rays_a, corr.rays_b,
+        options=RelativePoseOptions(ransac_threshold_rad=np.deg2rad(1.0), seed=1,
+                                    rotation_only=True))
+    assert info.success and np.rad2deg(geodesic_angle(pose.rotation, R_AB)) < 0.2

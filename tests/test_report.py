@@ -1,0 +1,132 @@
+"""``ifmi report``: tables, figures and provenance from evaluation and sweep folders."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ifmi.cli import main
+from ifmi.evaluation import evaluate_files
+from ifmi.io.atomic import atomic_write_json
+from ifmi.io.tum import Trajectory, write_tum
+from ifmi.report import average_table, find_results, scene_tables, target_ratios
+from ifmi.io.results import read_evaluation
+from ifmi.rotations import matrix_from_rpy
+
+# Yaw error (radians) and time per frame (seconds) given to each synthetic method.
+METHODS = {"ifmi": (0.002, 0.01), "orb": (0.02, 0.03), "akaze": (0.01, 0.2)}
+
+
+def _make_results(root, scenes=("office", "lawn"), n=15):
+    for s, scene in enumerate(scenes):
+        data = root / "data" / f"{scene}_20"
+        data.mkdir(parents=True)
+        (data / "meta.json").write_text(json.dumps({"scene": scene}))
+        rpy = np.zeros((n, 3))
+        rpy[:, 0] = 0.1 * np.sin(np.arange(n) / 3)
+        rpy[:, 2] = np.linspace(0, 0.4, n)
+        gt = Trajectory(np.arange(n, dtype=float), np.zeros((n, 3)), matrix_from_rpy(rpy))
+        write_tum(data / "groundtruth.txt", gt)
+        for method, (err, seconds) in METHODS.items():
+            est_rpy = rpy.copy()
+            est_rpy[1:, 2] += err * (1 + s)
+            est_dir = root / "runs" / scene
+            est_dir.mkdir(parents=True, exist_ok=True)
+            est = est_dir / f"{method}.txt"
+            write_tum(est, Trajectory(gt.timestamps, gt.positions, matrix_from_rpy(est_rpy)))
+            rows = ["frame,reference_frame,success,reason,n_correspondences,n_inliers,seconds"]
+            rows += [f"{k},{max(k - 1, 0)},true,,40,30,{seconds}" for k in range(n)]
+            (est_dir / f"{method}.frames.csv").write_text("\n".join(rows) + "\n")
+            (est_dir / f"{method}.config.json").write_text(
+                json.dumps({"method": method, "dataset": str(data), "config": {}}))
+            evaluate_files(data / "groundtruth.txt", est, out_dir=root / "eval" / scene / method)
+    # A motion-flow sample beside the iFMI evaluation of the first scene.
+    rng = np.random.default_rng(0)
+    pano = rng.integers(0, 255, size=(40, 200)).astype(np.float32)
+    pts = np.column_stack([rng.uniform(5, 35, 10), rng.uniform(0, 199, 10)])
+    np.savez(root / "eval" / scenes[0] / "ifmi" / "motion_flow.npz", panorama_a=pano,
+             panorama_b=np.roll(pano, 3, axis=1), points_a=pts, points_b=pts + [0, 3],
+             tile_centers=pts, tile_size=np.array(20), frames=np.array([0, 1]))
+    # A finished sweep with one failed cell.
+    sweep = root / "sweep"
+    atomic_write_json(sweep / "sweep.json", {"kind": "ifmi-sweep", "cells": []})
+    for i, (t, o) in enumerate([(32, 0.0), (32, 0.5), (64, 0.0), (64, 0.5)]):
+        rec = {"cell_id": f"c{i}", "dataset": "office_20", "method": "ifmi", "tile_size": t,
+               "overlap": o, "status": "ok", "error": "", "rmse_mean_rad": 0.001 * (i + 1),
+               "rmse_geodesic_rad": 0.002, "time_per_frame_s": 0.01 * (i + 1), "failures": 0}
+        if i == 3:
+            rec = {**{k: rec[k] for k in ("cell_id", "dataset", "method", "tile_size", "overlap")},
+                   "status": "failed", "error": "ValueError: tile larger than panorama"}
+        atomic_write_json(sweep / "cells" / f"c{i}.json", rec)
+    return root
+
+
+def test_tables_and_ratios(tmp_path):
+    root = _make_results(tmp_path)
+    found = find_results([root / "eval"])
+    assert len(found.evaluations) == 6 and not found.sweeps
+    tables = scene_tables([read_evaluation(p) for p in found.evaluations])
+    assert list(tables) == ["lawn", "office"]
+    assert list(tables["office"]) == ["ifmi", "orb", "akaze"]
+    n = 15
+    for s, scene in enumerate(("office", "lawn")):
+        for method, (err, seconds) in METHODS.items():
+            row = tables[scene][method]
+            assert row["yaw"]["rmse"] == pytest.approx(err * (1 + s) * np.sqrt((n - 1) / n), rel=1e-6)
+            assert row["time_per_frame_s"] == pytest.approx(seconds)
+    avg = average_table(tables)
+    yaw = [err * (1 + s) * np.sqrt(14 / 15) for s in range(2) for err in [METHODS["orb"][0]]]
+    assert avg["orb"]["yaw"]["mean"] == pytest.approx(np.mean(yaw), rel=1e-6)
+    assert avg["orb"]["yaw"]["std"] == pytest.approx(np.std(yaw), rel=1e-6)
+    ratios = target_ratios(tables)
+    assert ratios["office"]["rmse_ratio_to_best_baseline"] == pytest.approx(0.2, rel=1e-6)
+    assert ratios["office"]["time_ratio_akaze"] == pytest.approx(0.05)
+
+
+def test_report_cli_writes_markdown_html_figures(tmp_path, capsys):
+    root = _make_results(tmp_path)
+    out = tmp_path / "report"
+    assert main(["report", str(root / "eval"), str(root / "sweep"), "--out", str(out)]) == 0
+    md = (out / "README.md").read_text()
+    html = (out / "index.html").read_text()
+    assert "Table 1" in md and "| ifmi |" in md
+    assert "μ(ε)" in md and "<table>" in html
+    for scene in ("office", "lawn"):
+        assert (out / "figures" / f"rpy_{scene}.png").stat().st_size > 1000
+        assert f"figures/rpy_{scene}.png" in md and f"figures/rpy_{scene}.png" in html
+    assert (out / "figures" / "motion_flow_office.png").is_file()
+    assert "failed: ValueError: tile larger than panorama" in md
+    heatmaps = list((out / "figures").glob("heatmap_*.png"))
+    assert len(heatmaps) == 2
+    doc = json.loads((out / "report.json").read_text())
+    assert doc["machine"]["cores"] >= 1 and doc["versions"]["numpy"]
+    assert doc["scenes"]["office"]["ifmi"]["yaw"]["rmse"] == pytest.approx(
+        0.002 * np.sqrt(14 / 15), rel=1e-6)
+    assert len(doc["sweeps"][0]["cells"]) == 4
+    assert "Machine and versions" in md
+    assert "report written to" in capsys.readouterr().out
+    assert len(doc["series"]["lawn"]["orb"]["yaw_est"]) == 15
+    # The report carries its data: it rebuilds from its own data folder.
+    assert (out / "data" / "eval" / "office" / "ifmi" / "motion_flow.npz").is_file()
+    assert len(list((out / "data" / "sweep" / "sweep" / "cells").glob("*.json"))) == 4
+    rebuilt = tmp_path / "rebuilt"
+    assert main(["report", str(out / "data"), "--out", str(rebuilt)]) == 0
+    again = json.loads((rebuilt / "report.json").read_text())
+    assert again["scenes"]["office"]["orb"]["yaw"] == doc["scenes"]["office"]["orb"]["yaw"]
+    assert again["average"] == doc["average"]
+    assert (rebuilt / "figures" / "motion_flow_office.png").is_file()
+
+
+def test_report_of_missing_path_is_one_line_error(tmp_path, capsys):
+    code = main(["report", str(tmp_path / "nothing"), "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "results path not found" in err and len(err.splitlines()) == 1
+
+
+def test_report_of_folder_without_results_is_one_line_error(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    code = main(["report", str(tmp_path / "empty"), "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "no evaluation.json or sweep.json" in err

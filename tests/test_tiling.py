@@ -1,0 +1,60 @@
+"""Tile layout with overlap and wrap around the 360-degree seam."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ifmi.tiling import TilingConfig, tile_layout, tile_size_px, tiles_from_panorama
+
+
+def test_non_overlapping_tiles_cover_the_circle():
+    layout = tile_layout((100, 640), config=TilingConfig(tile_size=64))
+    assert layout.tile_size == 64
+    assert layout.grid_shape == (1, 10)
+    assert np.array_equal(layout.origins[:, 1], np.arange(10) * 64)
+    assert np.all(layout.origins[:, 0] == 18)  # centred: (100 - 64) // 2
+
+
+def test_overlap_halves_the_step_and_wraps():
+    layout = tile_layout((128, 512), config=TilingConfig(tile_size=64, overlap=0.5))
+    assert layout.grid_shape == (3, 16)
+    cols = layout.origins[:16, 1]
+    assert np.array_equal(np.diff(cols), np.full(15, 32))
+    # The last tile starts at 480 and continues over the seam into columns 0..31.
+    assert cols[-1] + layout.tile_size > 512
+    assert np.array_equal(np.unique(layout.origins[:, 0]), [0, 32, 64])
+
+
+def test_seam_tile_content_wraps():
+    pano = np.arange(64 * 300, dtype=np.float32).reshape(64, 300)
+    layout = tile_layout(pano.shape, config=TilingConfig(tile_size=64, overlap=0.25))
+    tiles = tiles_from_panorama(pano, layout)
+    for tile, (r, c) in zip(tiles, layout.origins):
+        expected = pano[r:r + 64][:, (c + np.arange(64)) % 300]
+        assert np.array_equal(tile, expected)
+    assert (layout.origins[:, 1] + 64 > 300).any()
+
+
+def test_fractional_tile_size():
+    assert tile_size_px(0.1, 1024) == 102
+    layout = tile_layout((128, 1024), config=TilingConfig(tile_size=0.1))
+    assert layout.tile_size == 102
+    assert np.allclose(layout.centers[:, 1], np.mod(layout.origins[:, 1] + 50.5, 1024))
+
+
+def test_tile_larger_than_panorama_is_rejected():
+    with pytest.raises(ValueError, match="does not fit"):
+        tile_layout((40, 512), config=TilingConfig(tile_size=64))
+
+
+def test_bad_overlap_is_rejected():
+    with pytest.raises(ValueError, match="overlap"):
+        TilingConfig(overlap=1.0)
+
+
+def test_automatic_tile_size_follows_the_width():
+    assert tile_size_px(None, 1024) == 64
+    assert tile_size_px(None, 768) == 48
+    assert tile_size_px(None, 256) == 32
+    assert tile_layout((200, 1024), config=TilingConfig()).tile_size == 64
