@@ -21,7 +21,7 @@ from .io.tum import read_tum
 from .metrics import AXES, summary_from_errors, trajectory_errors
 
 __all__ = ["EvaluateOptions", "default_evaluation_dir", "evaluate_files", "format_summary_table",
-           "dataset_label", "motion_flow_sample", "MOTION_FLOW_FILE"]
+           "dataset_label", "dataset_provenance", "motion_flow_sample", "MOTION_FLOW_FILE"]
 
 # File name of the motion-flow sample written beside an iFMI evaluation.
 MOTION_FLOW_FILE = "motion_flow.npz"

@@ -73,6 +73,11 @@ class FeatureConfig:
         Override of the mirror band ``(inner, outer)`` radius in sensor
         pixels; ``None`` uses the iFMI front end's default band for the
         calibration and images.
+    mask_margin_px : float
+        Keypoints are detected only this far (pixels) inside the band's
+        edges, so no descriptor window reaches the black border or the
+        camera's own reflection, which stay fixed in the image whatever the
+        motion; the default is half of ORB's 31-pixel descriptor patch.
     """
 
     n_features: int = 2000
@@ -88,6 +93,7 @@ class FeatureConfig:
     akaze_threshold: float = 1e-3
     akaze_octaves: int = 4
     akaze_octave_layers: int = 4
+    mask_margin_px: float = 16.0
     radius_band: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
@@ -103,6 +109,8 @@ class FeatureConfig:
             raise ValueError(f"n_features must be >= 0, got {self.n_features}")
         if self.min_matches < 5:
             raise ValueError(f"min_matches must be >= 5 (the 5-point solver), got {self.min_matches}")
+        if self.mask_margin_px < 0:
+            raise ValueError(f"mask_margin_px must be >= 0, got {self.mask_margin_px}")
 
     def to_dict(self) -> dict:
         return {f.name: (list(getattr(self, f.name)) if isinstance(getattr(self, f.name), tuple)
@@ -237,7 +245,9 @@ class FeatureFrontEnd:
             h, w = self.model.size
             rows, cols = np.mgrid[0:h, 0:w]
             r = radius_from_pixels(self.model, np.stack([rows, cols], axis=-1))
-            self._mask = np.where((r >= inner) & (r <= outer), 255, 0).astype(np.uint8)
+            margin = self.config.mask_margin_px
+            self._mask = np.where((r >= inner + margin) & (r <= outer - margin),
+                                  255, 0).astype(np.uint8)
         return self._mask
 
     # -- front-end protocol ---------------------------------------------------------------------

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .io.tum import Trajectory
+from .trajectory import Trajectory
 from .rotations import geodesic_angle, rpy_from_matrix, wrap_angle
 
 __all__ = [

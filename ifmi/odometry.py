@@ -34,7 +34,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from .io.tum import Trajectory
+from .trajectory import Trajectory
 from .relative_pose import RelativePoseOptions, relative_pose_from_rays
 
 __all__ = ["KeyframeOptions", "FrameRecord", "track_sequence"]

@@ -31,7 +31,7 @@ from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 import numpy as np
 
 from .camera import OcamModel
-from .io.tum import Trajectory
+from .trajectory import Trajectory
 from .odometry import FrameRecord, KeyframeOptions, track_sequence
 from .relative_pose import RelativePoseOptions
 from .spectral_front_end import IfmiConfig

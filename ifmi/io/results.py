@@ -327,14 +327,7 @@ def read_evaluation(path: str | os.PathLike) -> EvaluationRecord:
         raise InputError(folder, "not an evaluation folder (no evaluation.json)")
     if meta.get("kind") != EVALUATION_KIND or "summary" not in meta:
         raise InputError(doc_path, f"not an evaluation file (kind {meta.get('kind')!r})")
-    npz_path = folder / "per_frame.npz"
-    try:
-        with np.load(npz_path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except FileNotFoundError:
-        raise InputError(npz_path, "per-frame arrays not found") from None
-    except (OSError, ValueError) as exc:
-        raise InputError(npz_path, f"cannot read per-frame arrays ({exc.__class__.__name__})") from None
+    arrays = _read_npz(folder / "per_frame.npz", what="per-frame arrays")
     config = read_run_config(folder / "config.json") if (folder / "config.json").exists() else None
     frames = read_frames_csv(folder / "frames.csv") if (folder / "frames.csv").exists() else None
     return EvaluationRecord(path=folder, meta=meta, arrays=arrays, config=config, frames=frames)
@@ -436,15 +429,20 @@ def read_motion_flow(path: str | os.PathLike) -> dict:
         Missing or unreadable file, or a missing array.
     """
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            sample = {k: data[k] for k in data.files}
-    except FileNotFoundError:
-        raise InputError(path, "motion-flow file not found") from None
-    except (OSError, ValueError) as exc:
-        raise InputError(path, f"cannot read motion-flow file ({exc.__class__.__name__})") from None
+    sample = _read_npz(path, what="motion-flow file")
     needed = ("panorama_a", "panorama_b", "points_a", "points_b", "tile_centers", "tile_size")
     missing = [k for k in needed if k not in sample]
     if missing:
         raise InputError(path, f"missing array(s) {', '.join(missing)}")
     return sample
+
+
+def _read_npz(path: Path, *, what: str) -> dict[str, np.ndarray]:
+    """All arrays of an ``.npz`` file; a missing or unreadable file is an :class:`InputError`."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {k: data[k] for k in data.files}
+    except FileNotFoundError:
+        raise InputError(path, f"{what} not found") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(path, f"cannot read {what} ({exc.__class__.__name__})") from None

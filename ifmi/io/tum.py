@@ -7,46 +7,16 @@ coordinates to camera-0 coordinates); ``#`` starts a comment line.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
 from ..rotations import matrix_from_quat_xyzw, quat_xyzw_from_matrix
+from ..trajectory import Trajectory
 from .atomic import atomic_write_text
 
 __all__ = ["Trajectory", "read_tum", "write_tum", "format_tum"]
-
-
-@dataclass(frozen=True)
-class Trajectory:
-    """Poses ``T_0k`` of a sequence.
-
-    Attributes
-    ----------
-    timestamps : (N,) ndarray
-        Seconds, or frame indices when real times are unknown.
-    positions : (N, 3) ndarray
-        Camera-k origin in camera-0 coordinates (up to scale for estimates).
-    rotations : (N, 3, 3) ndarray
-        ``R_0k``: maps camera-k directions to camera-0 directions.
-    """
-
-    timestamps: np.ndarray
-    positions: np.ndarray
-    rotations: np.ndarray
-
-    def __post_init__(self) -> None:
-        n = len(self.timestamps)
-        if self.positions.shape != (n, 3) or self.rotations.shape != (n, 3, 3):
-            raise ValueError(
-                f"expected positions ({n}, 3) and rotations ({n}, 3, 3), got "
-                f"{self.positions.shape} and {self.rotations.shape}"
-            )
-
-    def __len__(self) -> int:
-        return len(self.timestamps)
 
 
 def read_tum(path: str | os.PathLike) -> Trajectory:
