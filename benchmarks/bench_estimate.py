@@ -40,7 +40,7 @@ import numpy as np
 
 from ifmi.camera import paracatadioptric_model, radius_from_pixels
 from ifmi.io.dataset import read_dataset, read_image
-from ifmi.pipeline import EstimateConfig, create_front_end, estimate_dataset
+from ifmi.pipeline import EstimateConfig, create_front_end, estimate_dataset, resolved_config
 from ifmi.relative_pose import relative_pose_from_rays
 
 # ORB settings of the baseline: OpenCV defaults except the feature count, and Lowe's ratio.
@@ -60,6 +60,7 @@ def _synthetic_dataset(folder: Path, size: int, frames: int, seed: int) -> Path:
 
 def _time_ifmi(dataset, config: EstimateConfig):
     front_end = create_front_end("ifmi", dataset.model, config)
+    pose_options = resolved_config(config, dataset.model).relative_pose
     stages = {"read": [], "prepare": [], "match": [], "solve": []}
     totals, previous = [], None
     for path in dataset.image_paths:
@@ -72,7 +73,7 @@ def _time_ifmi(dataset, config: EstimateConfig):
             corr = front_end.correspondences(previous, state)
             t3 = time.perf_counter()
             if corr.success:
-                relative_pose_from_rays(corr.rays_a, corr.rays_b, options=config.relative_pose)
+                relative_pose_from_rays(corr.rays_a, corr.rays_b, options=pose_options)
             t4 = time.perf_counter()
             stages["read"].append(t1 - t0)
             stages["prepare"].append(t2 - t1)

@@ -1,28 +1,35 @@
 """iFMI against ORB and AKAZE on rendered datasets: accuracy and end-to-end time per frame.
 
 Every method runs in this process on the same frames through the same
-odometry and relative-pose back end; each estimate is written and evaluated
-as ``ifmi estimate`` / ``ifmi evaluate`` would, so the output folder can be
-turned into a report (``ifmi report OUT --out ...``).
+odometry and relative-pose back end with the same options (one
+configuration per mode; the RANSAC threshold is resolved once per dataset
+from its calibration, ``--ransac-threshold-px`` pixels, and shared by all
+methods). Each estimate is written and evaluated as ``ifmi estimate`` /
+``ifmi evaluate`` would, under ``OUT/MODE/SCENE/``, so ``ifmi report
+OUT/MODE --out ...`` turns one mode into a report.
 
 Usage::
 
     python benchmarks/bench_methods.py /work/data/office_200 /work/data/lawn_200 \
-        /work/data/urban_200 --out out/bench_methods
+        /work/data/urban_200 --out out/bench_methods [--modes frame keyframe]
 
-Accuracy comes from one full run per method and dataset. Time per frame is
-end to end: wall time of a run (read the PNGs, prepare, match, solve, chain)
-over its frame count. Besides the full run's, it is measured in an extra
-interleaved pass: ``--timing-rounds`` rounds over the first
-``--timing-frames`` frames, the methods taking turns within each round so
-that load from other processes on the machine hits all methods alike; the
+Modes: ``frame`` (frame to frame) and ``keyframe`` (estimates against
+keyframes); both by default.
+
+Accuracy comes from one full run per method, mode and dataset. Time per
+frame is end to end: wall time of a run (read the PNGs, prepare, match,
+solve, chain) over its frame count. Besides the full run's, it is measured
+in an extra interleaved pass per mode: ``--timing-rounds`` rounds over the
+first ``--timing-frames`` frames, the methods taking turns within each round
+so that load from other processes on the machine hits all methods alike; the
 median over the rounds is used for the ratios.
 
-Prints, per scene and method, roll/pitch/yaw and mean RMSE, geodesic RMSE,
-the median per-frame ``seconds`` and the wall time per frame of the full
-run, the interleaved wall time per frame, then
-the target ratios: iFMI mean RMSE / better baseline's (target <= 1/3), iFMI
-time / ORB time (target <= 0.5) and iFMI time / AKAZE time (target <= 0.1).
+Prints, per mode, scene and method, roll/pitch/yaw and mean RMSE, geodesic
+RMSE, the median per-frame ``seconds``, the wall time per frame of the full
+run, the interleaved wall time per frame and the failures, then per mode and
+scene the target ratios: iFMI RMSE / the better baseline's (mean of the
+axes and geodesic; target <= 1/3), iFMI time / ORB time (target <= 0.5) and
+iFMI time / AKAZE time (target <= 0.1).
 """
 
 from __future__ import annotations
@@ -37,36 +44,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ifmi.camera import rays_from_pixels
 from ifmi.evaluation import evaluate_files
 from ifmi.io.calib import read_calib
 from ifmi.io.dataset import read_dataset
 from ifmi.io.results import write_estimate_run
-from ifmi.pipeline import EstimateConfig, estimate_dataset, estimate_sequence
+from ifmi.pipeline import EstimateConfig, estimate_dataset, estimate_sequence, resolved_config
 from ifmi.report import machine_info
 
 METHODS = ("ifmi", "orb", "akaze")
+# Odometry modes: estimates against the previous frame, or against keyframes.
+MODES = ("frame", "keyframe")
 
 
-def horizon_pixel_angle(dataset: str) -> float:
-    """Angle (radians) between rays of radially adjacent pixels where the rays are horizontal."""
-    model = read_calib(Path(dataset) / "calib_results.txt")
-    r = np.linspace(1.0, min(model.size) / 2.0, 4000)
-    z = np.polynomial.polynomial.polyval(r, model.pol)
-    horizon = r[np.argmin(np.abs(z))]
-    pixels = np.array([[model.center[0] + horizon, model.center[1]],
-                       [model.center[0] + horizon + 1.0, model.center[1]]])
-    rays = rays_from_pixels(model, pixels)
-    return float(np.arccos(np.clip(rays[0] @ rays[1], -1.0, 1.0)))
-
-
-def method_config(base: EstimateConfig, method: str, dataset: str,
-                  baseline_threshold_px: float | None) -> EstimateConfig:
-    """The configuration a method runs with (the shared one unless a sensitivity run asks)."""
-    if baseline_threshold_px is None or method == "ifmi":
-        return base
-    threshold = baseline_threshold_px * horizon_pixel_angle(dataset)
-    return replace(base, relative_pose=replace(base.relative_pose, ransac_threshold_rad=threshold))
+def mode_config(base: EstimateConfig, mode: str) -> EstimateConfig:
+    """The shared configuration of one mode (keyframes on or off, nothing else changes)."""
+    return replace(base, keyframe=replace(base.keyframe, enabled=(mode == "keyframe")))
 
 
 def interleaved_timing(dataset: str, methods, configs, *, frames: int, rounds: int) -> dict:
@@ -91,78 +83,98 @@ def interleaved_timing(dataset: str, methods, configs, *, frames: int, rounds: i
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("datasets", nargs="+")
-    parser.add_argument("--methods", nargs="+", default=list(METHODS))
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    parser.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES,
+                        help="odometry modes to measure (default: both)")
+    parser.add_argument("--keyframes", action="store_true", help="same as --modes keyframe")
     parser.add_argument("--out", default="out/bench_methods")
-    parser.add_argument("--keyframes", action="store_true", help="keyframe mode for every method")
-    parser.add_argument("--baseline-threshold-px", type=float, default=None, metavar="PX",
-                        help="sensitivity run: RANSAC threshold of orb/akaze set to PX pixels at "
-                             "the horizon (default: the shared back end's threshold)")
+    parser.add_argument("--ransac-threshold-px", type=float, default=None, metavar="PX",
+                        help="RANSAC threshold of every method in pixels (default: the back "
+                             "end's default, converted per calibration)")
     parser.add_argument("--timing-frames", type=int, default=50)
     parser.add_argument("--timing-rounds", type=int, default=3)
     args = parser.parse_args(argv)
+    modes = ["keyframe"] if args.keyframes else list(dict.fromkeys(args.modes))
     base = EstimateConfig()
-    if args.keyframes:
-        base = replace(base, keyframe=replace(base.keyframe, enabled=True))
+    if args.ransac_threshold_px is not None:
+        base = replace(base, relative_pose=replace(base.relative_pose,
+                                                   ransac_threshold_px=args.ransac_threshold_px))
     out = Path(args.out)
     rows = []
     for dataset in args.datasets:
         name = Path(dataset).name
-        configs = {m: method_config(base, m, dataset, args.baseline_threshold_px)
-                   for m in args.methods}
-        for method in args.methods:
-            start = time.perf_counter()
-            estimate = estimate_dataset(dataset, method=method, config=configs[method], progress=True)
-            wall = time.perf_counter() - start
-            est_path = out / name / f"{method}.txt"
-            write_estimate_run(est_path, estimate, dataset_dir=dataset, extra={"wall_seconds": wall})
-            meta = evaluate_files(Path(dataset) / "groundtruth.txt", est_path,
-                                  out_dir=out / name / f"{method}.eval")
-            s = meta["summary"]
-            seconds = np.array([r.seconds for r in estimate.frames[1:]])
-            rows.append({"dataset": name, "scene": meta["scene"], "method": method,
-                         "mean_rmse": s["mean_rmse"], "geodesic_rmse": s["geodesic"]["rmse"],
-                         "roll": s["axes"]["roll"]["rmse"], "pitch": s["axes"]["pitch"]["rmse"],
-                         "yaw": s["axes"]["yaw"]["rmse"],
-                         "median_s": float(np.median(seconds)), "mean_s": float(seconds.mean()),
-                         "wall_per_frame_s": wall / len(estimate.frames),
-                         "failures": s["failures"]["count"], "frames": len(estimate.frames),
-                         "ransac_threshold_rad": configs[method].relative_pose.ransac_threshold_rad})
-        if args.timing_rounds > 0:
-            walls = interleaved_timing(dataset, args.methods, configs, frames=args.timing_frames,
-                                       rounds=args.timing_rounds)
-            for r in rows:
-                if r["dataset"] == name:
-                    r["timed_wall_per_frame_s"] = float(np.median(walls[r["method"]]))
-                    r["timed_runs_s"] = walls[r["method"]]
+        model = read_calib(Path(dataset) / "calib_results.txt")
+        for mode in modes:
+            # One configuration for every method of this mode and dataset.
+            config = resolved_config(mode_config(base, mode), model)
+            for method in args.methods:
+                start = time.perf_counter()
+                estimate = estimate_dataset(dataset, method=method, config=config, progress=True)
+                wall = time.perf_counter() - start
+                est_path = out / mode / name / f"{method}.txt"
+                write_estimate_run(est_path, estimate, dataset_dir=dataset,
+                                   extra={"wall_seconds": wall})
+                meta = evaluate_files(Path(dataset) / "groundtruth.txt", est_path,
+                                      out_dir=out / mode / name / f"{method}.eval")
+                s = meta["summary"]
+                seconds = np.array([r.seconds for r in estimate.frames[1:]])
+                models = [r.model for r in estimate.frames[1:] if r.success]
+                rows.append({"mode": mode, "dataset": name, "scene": meta["scene"], "method": method,
+                             "mean_rmse": s["mean_rmse"], "geodesic_rmse": s["geodesic"]["rmse"],
+                             "roll": s["axes"]["roll"]["rmse"], "pitch": s["axes"]["pitch"]["rmse"],
+                             "yaw": s["axes"]["yaw"]["rmse"],
+                             "median_s": float(np.median(seconds)), "mean_s": float(seconds.mean()),
+                             "wall_per_frame_s": wall / len(estimate.frames),
+                             "failures": s["failures"]["count"], "frames": len(estimate.frames),
+                             "rotation_model_frames": models.count("rotation"),
+                             "five_point_frames": models.count("5pt"),
+                             "references": len({r.reference_frame for r in estimate.frames}),
+                             "ransac_threshold_rad": config.relative_pose.ransac_threshold_rad})
+            if args.timing_rounds > 0:
+                configs = {m: config for m in args.methods}
+                walls = interleaved_timing(dataset, args.methods, configs, frames=args.timing_frames,
+                                           rounds=args.timing_rounds)
+                for r in rows:
+                    if r["dataset"] == name and r["mode"] == mode:
+                        r["timed_wall_per_frame_s"] = float(np.median(walls[r["method"]]))
+                        r["timed_runs_s"] = walls[r["method"]]
     key = "timed_wall_per_frame_s" if args.timing_rounds > 0 else "wall_per_frame_s"
     machine = machine_info()
     print(f"machine: {machine['cpu']}, {machine['cores']} cores, {machine['ram_gib']} GiB, "
           f"python {machine['python']}")
-    print(f"{'dataset':<14}{'method':<7}{'roll':>9}{'pitch':>9}{'yaw':>9}{'mean':>9}{'geodesic':>10}"
-          f"{'run ms':>9}{'wall ms':>9}{'timed ms':>10}{'fail':>8}")
+    print("RMSE in radians; times in ms per frame; 'rot/5pt': frames solved by each model")
+    print(f"{'mode':<9}{'dataset':<12}{'method':<7}{'roll':>8}{'pitch':>8}{'yaw':>8}{'mean':>8}"
+          f"{'geodesic':>9}{'run ms':>8}{'wall ms':>8}{'timed ms':>9}{'fail':>8}{'rot/5pt':>9}"
+          f"{'refs':>6}")
     for r in rows:
-        print(f"{r['dataset']:<14}{r['method']:<7}{r['roll']:>9.4f}{r['pitch']:>9.4f}{r['yaw']:>9.4f}"
-              f"{r['mean_rmse']:>9.4f}{r['geodesic_rmse']:>10.4f}{r['median_s'] * 1e3:>9.1f}"
-              f"{r['wall_per_frame_s'] * 1e3:>9.1f}"
-              f"{r.get(key, float('nan')) * 1e3:>10.1f}{r['failures']:>4}/{r['frames']}")
+        print(f"{r['mode']:<9}{r['dataset']:<12}{r['method']:<7}{r['roll']:>8.4f}{r['pitch']:>8.4f}"
+              f"{r['yaw']:>8.4f}{r['mean_rmse']:>8.4f}{r['geodesic_rmse']:>9.4f}"
+              f"{r['median_s'] * 1e3:>8.1f}{r['wall_per_frame_s'] * 1e3:>8.1f}"
+              f"{r.get(key, float('nan')) * 1e3:>9.1f}{r['failures']:>4}/{r['frames']:<3}"
+              f"{r['rotation_model_frames']:>5}/{r['five_point_frames']:<3}{r['references']:>6}")
+    thresholds = {(r["dataset"]): r["ransac_threshold_rad"] for r in rows}
+    print("RANSAC threshold (rad, all methods): "
+          + ", ".join(f"{k} {v:.5f}" for k, v in thresholds.items()))
     print(f"\nratios (time: {key}; targets: rmse <= 0.333, time vs ORB <= 0.5, vs AKAZE <= 0.1)")
     ratios = {}
-    for dataset in dict.fromkeys(r["dataset"] for r in rows):
-        by = {r["method"]: r for r in rows if r["dataset"] == dataset}
+    for mode, dataset in dict.fromkeys((r["mode"], r["dataset"]) for r in rows):
+        by = {r["method"]: r for r in rows if r["dataset"] == dataset and r["mode"] == mode}
         if "ifmi" not in by:
             continue
         entry = {}
-        base_rmse = [by[m]["mean_rmse"] for m in ("orb", "akaze") if m in by]
-        if base_rmse:
-            entry["rmse_vs_best_baseline"] = by["ifmi"]["mean_rmse"] / min(base_rmse)
-        for m in ("orb", "akaze"):
-            if m in by:
-                entry[f"time_vs_{m}"] = by["ifmi"][key] / by[m][key]
-        ratios[dataset] = entry
-        print(f"{dataset:<14}" + "  ".join(f"{k} {v:.3f}" for k, v in entry.items()))
+        baselines = [m for m in ("orb", "akaze") if m in by]
+        if baselines:
+            entry["rmse_mean_vs_best"] = by["ifmi"]["mean_rmse"] / min(by[m]["mean_rmse"] for m in baselines)
+            entry["rmse_geodesic_vs_best"] = (by["ifmi"]["geodesic_rmse"]
+                                              / min(by[m]["geodesic_rmse"] for m in baselines))
+        for m in baselines:
+            entry[f"time_vs_{m}"] = by["ifmi"][key] / by[m][key]
+        ratios[f"{mode}/{dataset}"] = entry
+        print(f"{mode:<9}{dataset:<12}" + "  ".join(f"{k} {v:.3f}" for k, v in entry.items()))
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench_methods.json").write_text(json.dumps({"rows": rows, "ratios": ratios,
-                                                        "time_key": key, "machine": machine},
+                                                        "time_key": key, "machine": machine,
+                                                        "argv": sys.argv if argv is None else argv},
                                                        indent=2))
     return 0
 

@@ -7,18 +7,22 @@ known, giving ``R_rk``; its pose is ``R_0k = R_0r @ R_rk``.
   every frame adds the error of one estimate.
 * Keyframe mode: the reference stays the same keyframe while the match
   stays good (enough inliers, rotation from the keyframe below a bound);
-  otherwise the previous frame becomes the keyframe and the frame is
-  estimated again against it. Error then grows with the number of keyframes,
-  not of frames.
+  otherwise the last successfully estimated frame becomes the keyframe and
+  the frame is estimated again against it. Error then grows with the
+  number of keyframes, not of frames.
 
 Front ends that declare ``uses_prior_rotation`` receive a predicted
-``R_rk`` (constant angular velocity from the last two poses) and may use
-it to look for the motion near the prediction.
+``R_rk`` (constant angular velocity from the last two successfully
+estimated poses) and may use it to look for the motion near the prediction.
 
-A frame whose estimate fails keeps the previous frame's pose (flagged with a
-reason) and does not become a reference; after two failures in a row the
-current frame becomes the reference anyway, so one bad reference cannot
-stop the tracking.
+A frame whose estimate fails keeps the last pose (flagged with a reason)
+and never becomes a reference: its held pose is not its true pose, and its
+image may be what made it fail. The next frame is estimated against the
+keyframe and, if that fails, against the last successfully estimated frame;
+the constant-velocity prediction spans the failed frames. Only after
+``KeyframeOptions.max_failures`` failures in a row does the current frame
+become the reference with the held pose (tracking resumes with an offset
+equal to the rotation missed meanwhile).
 
 Positions chain the estimated translation directions as unit-length steps
 per frame: monocular translation is known only up to scale.
@@ -32,6 +36,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Iterable, Sequence
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from .trajectory import Trajectory
@@ -55,14 +60,21 @@ class KeyframeOptions:
         the current keyframe had against its first partner frame.
     max_angle_rad : float
         ... or when the rotation from the keyframe exceeds this angle (radians).
+    max_failures : int
+        In both modes: after this many failed frames in a row the current
+        frame becomes the reference with the held pose; 0 never gives up on
+        the last good frame.
     """
 
     enabled: bool = False
     min_inliers: int = 40
     min_inlier_fraction: float = 0.6
     max_angle_rad: float = 0.25
+    max_failures: int = 10
 
     def __post_init__(self) -> None:
+        if self.max_failures < 0:
+            raise ValueError(f"max_failures must be >= 0, got {self.max_failures}")
         if self.min_inliers < 0 or not 0 <= self.min_inlier_fraction <= 1 or not self.max_angle_rad > 0:
             raise ValueError(
                 "expected min_inliers >= 0, 0 <= min_inlier_fraction <= 1, max_angle_rad > 0; got "
@@ -143,11 +155,21 @@ def _solve(front_end, reference: _Reference, state, pose_options: RelativePoseOp
     return pose, info, corr
 
 
-def _predict(rotations: list) -> np.ndarray:
-    """Constant-velocity prediction of the next pose ``R_0k`` from the poses so far."""
-    if len(rotations) < 2:
-        return rotations[-1]
-    return rotations[-1] @ (rotations[-2].T @ rotations[-1])
+def _predict(good: list, frame: int) -> np.ndarray:
+    """Constant-velocity prediction of pose ``R_0k`` of ``frame``.
+
+    ``good`` holds ``(frame, R_0k)`` of the last (up to two) successfully
+    estimated frames; the angular velocity between them is extrapolated over
+    the gap to ``frame`` (failed frames in between count as time passing).
+    """
+    if len(good) < 2:
+        return good[-1][1]
+    (f0, r0), (f1, r1) = good[-2], good[-1]
+    step = r0.T @ r1
+    if f1 - f0 == 1 and frame - f1 == 1:
+        return r1 @ step
+    rotvec = Rotation.from_matrix(step).as_rotvec() * (frame - f1) / (f1 - f0)
+    return r1 @ Rotation.from_rotvec(rotvec).as_matrix()
 
 
 def _poor(info, pose, reference: _Reference, options: KeyframeOptions) -> bool:
@@ -182,9 +204,22 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
     -------
     trajectory : Trajectory
     records : list of FrameRecord
+
+    Raises
+    ------
+    ValueError
+        ``pose_options.ransac_threshold_rad`` is not set (a threshold in
+        pixels must be converted for the camera first).
     """
+    if pose_options.ransac_threshold_rad is None:
+        raise ValueError("pose_options.ransac_threshold_rad is None; resolve it for the camera "
+                         "first (RelativePoseOptions.resolved or ifmi.pipeline.resolved_config)")
     rotations, positions, records = [], [], []
-    reference = previous = None
+    # reference: the frame estimates are made against (the keyframe, or the last good
+    # frame); last_good: the last successfully estimated frame; good: its (frame, R_0k)
+    # history for the prediction.
+    reference = last_good = None
+    good: list = []
     failures_in_row = 0
     iterator = iter(images)
     bar = tqdm(total=total, disable=not progress, file=sys.stderr, unit="frame", desc="estimate")
@@ -197,19 +232,21 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
             break
         state = front_end.prepare(image)
         if reference is None:
-            reference = _Reference(0, state, np.eye(3), np.zeros(3))
+            reference = last_good = _Reference(0, state, np.eye(3), np.zeros(3))
+            good.append((0, np.eye(3)))
             rotations.append(np.eye(3))
             positions.append(np.zeros(3))
             records.append(FrameRecord(0, 0, True, "", 0, 0, time.perf_counter() - start))
-            previous = reference
             k += 1
             bar.update(1)
             continue
 
-        predicted = _predict(rotations)
+        predicted = _predict(good, k)
         pose, info, corr = _solve(front_end, reference, state, pose_options, predicted)
-        if keyframe.enabled and previous.frame != reference.frame and _poor(info, pose, reference, keyframe):
-            reference = previous
+        if (last_good.frame != reference.frame
+                and (_poor(info, pose, reference, keyframe) if keyframe.enabled
+                     else info is None or not info.success)):
+            reference = last_good
             pose, info, corr = _solve(front_end, reference, state, pose_options, predicted)
         used = reference
         if info is not None and info.success:
@@ -217,10 +254,10 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
             position = used.position + (k - used.frame) * (used.rotation @ pose.translation_direction)
             if used.first_inliers < 0:
                 used.first_inliers = info.n_inliers
-            current = _Reference(k, state, rotation, position)
+            last_good = _Reference(k, state, rotation, position)
             if not keyframe.enabled:
-                reference = current
-            previous = current
+                reference = last_good
+            good = [good[-1], (k, rotation)]
             failures_in_row = 0
             record = FrameRecord(k, used.frame, True, "", info.n_correspondences, info.n_inliers,
                                  0.0, info.model, _angle(pose.rotation), dict(corr.diagnostics))
@@ -230,9 +267,12 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
             n_corr = len(corr.rays_a)
             n_inl = 0 if info is None else info.n_inliers
             failures_in_row += 1
-            current = _Reference(k, state, rotation, position)
-            if failures_in_row >= 2:
-                reference = previous = current
+            if keyframe.max_failures and failures_in_row >= keyframe.max_failures:
+                # Give up on the last good frame: restart from this one with the held pose.
+                reference = last_good = _Reference(k, state, rotation, position)
+                good = [(k, rotation)]
+                failures_in_row = 0
+                reason += f"; reference reset after {keyframe.max_failures} failures"
             record = FrameRecord(k, used.frame, False, reason, n_corr, n_inl, 0.0,
                                  "" if info is None else info.model, 0.0, dict(corr.diagnostics))
         rotations.append(rotation)

@@ -11,12 +11,25 @@ Two models compete inside a seeded RANSAC with an angular threshold:
   the angle between a ray and the epipolar plane of its partner, then refined
   by Gauss-Newton on the inliers' symmetric epipolar angles;
 * ``"rotation"``: a rotation-only model (Kabsch on rays, two rays per
-  sample), scored by the angle between ``rays_a`` and ``R_ab @ rays_b``.
+  sample), scored by the angle between ``rays_a`` and ``R_ab @ rays_b``,
+  then refined by Kabsch on the inliers and re-solved a few times with
+  Cauchy weights of the residual angles.
 
 Under (near) pure rotation every translation fits the epipolar constraint,
 which makes the 5-point solution ill-conditioned and lets it fit noise. The
 model is chosen by Torr's GRIC, which charges the 5-point model for its two
 extra degrees of freedom and its weaker (one-dimensional) constraint per ray.
+GRIC needs the ray noise; unless given, it is estimated from the residuals
+of the rotation model's inliers (a noise level below the truth makes every
+residual look like an outlier to both models and hands the choice to the
+5-point model's lower cap per outlier). For the same reason it is evaluated
+on the correspondences that are inliers of either model only.
+
+The inlier threshold is an angle. Its default is a number of pixels
+(``ransac_threshold_px``) times the angle one pixel subtends, which only the
+caller knows (:func:`ifmi.pipeline.angular_pixel_size` for a calibration);
+:meth:`RelativePoseOptions.resolved` turns one into the other, and an
+explicit ``ransac_threshold_rad`` overrides it.
 """
 
 from __future__ import annotations
@@ -25,6 +38,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import poselib
+from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
 __all__ = [
@@ -35,6 +49,7 @@ __all__ = [
     "rotation_from_rays",
     "epipolar_angles",
     "rotation_angles",
+    "noise_sigma_from_residuals",
 ]
 
 # Smallest sample of each model.
@@ -50,9 +65,16 @@ class RelativePoseOptions:
 
     Attributes
     ----------
-    ransac_threshold_rad : float
+    ransac_threshold_rad : float or None
         Inlier threshold, radians: the angle between a ray and its epipolar
         plane (5-point model) or its rotated partner (rotation model).
+        ``None`` (default): ``ransac_threshold_px`` pixels, converted with
+        :meth:`resolved` once the pixel size is known;
+        :func:`relative_pose_from_rays` needs it set.
+    ransac_threshold_px : float
+        Default inlier threshold in pixels of the image (1 pixel, the usual
+        choice for keypoint matches); used when ``ransac_threshold_rad`` is
+        ``None``.
     max_iterations : int
         Largest number of RANSAC samples per model.
     min_iterations : int
@@ -70,16 +92,30 @@ class RelativePoseOptions:
     rotation_only : bool
         Force the rotation-only model.
     noise_sigma_rad : float or None
-        Standard deviation of the ray noise used to choose between the
-        models by GRIC; ``None`` means half the RANSAC threshold.
+        Standard deviation (per axis, radians) of the ray noise used to
+        choose between the models by GRIC; ``None`` estimates it from the
+        rotation model's inlier residuals (see :func:`noise_sigma_from_residuals`).
     rotation_threshold_factor : float
         The rotation model's inlier threshold is this multiple of
         ``ransac_threshold_rad``: its error is an angle in two dimensions,
         the epipolar one in one dimension, so equal noise gives larger
         rotation-model errors (sqrt(chi2_2 / chi2_1) = 1.25 at 95 %).
+    robust_iterations : int
+        With ``refine``: re-solve the rotation model on its inliers this many
+        times with Cauchy weights of the residual angles (0: plain
+        least squares on the inliers), so that loosely registered inliers
+        near the threshold count less.
+    robust_scale : float
+        Cauchy scale in units of the noise level (``noise_sigma_rad`` or
+        its estimate). Matched rays have heavy-tailed errors (a core of
+        well-registered tiles or keypoints and a spread of loose ones up to
+        the threshold); a scale of one noise level weights the core and
+        lowered the frame-to-frame rotation error of every front end on
+        the rendered sequences.
     """
 
-    ransac_threshold_rad: float = 2e-3
+    ransac_threshold_rad: float | None = None
+    ransac_threshold_px: float = 1.0
     max_iterations: int = 200
     min_iterations: int = 8
     confidence: float = 0.999
@@ -90,10 +126,14 @@ class RelativePoseOptions:
     rotation_only: bool = False
     noise_sigma_rad: float | None = None
     rotation_threshold_factor: float = 1.25
+    robust_iterations: int = 5
+    robust_scale: float = 1.0
 
     def __post_init__(self) -> None:
-        if not self.ransac_threshold_rad > 0:
-            raise ValueError(f"ransac_threshold_rad must be > 0, got {self.ransac_threshold_rad}")
+        if self.ransac_threshold_rad is not None and not self.ransac_threshold_rad > 0:
+            raise ValueError(f"ransac_threshold_rad must be > 0 or None, got {self.ransac_threshold_rad}")
+        if not self.ransac_threshold_px > 0:
+            raise ValueError(f"ransac_threshold_px must be > 0, got {self.ransac_threshold_px}")
         if self.max_iterations < 1 or self.min_iterations < 0:
             raise ValueError(
                 f"expected max_iterations >= 1 and min_iterations >= 0, got "
@@ -102,10 +142,34 @@ class RelativePoseOptions:
             raise ValueError(f"confidence must be in (0, 1), got {self.confidence}")
         if self.min_inliers < _SAMPLE_ROTATION:
             raise ValueError(f"min_inliers must be >= {_SAMPLE_ROTATION}, got {self.min_inliers}")
+        if self.robust_iterations < 0 or not self.robust_scale > 0:
+            raise ValueError(f"expected robust_iterations >= 0 and robust_scale > 0, got "
+                             f"{self.robust_iterations}, {self.robust_scale}")
         if (self.noise_sigma_rad is not None and not self.noise_sigma_rad > 0) or not self.rotation_threshold_factor > 0:
             raise ValueError(
                 "expected noise_sigma_rad > 0 or None and rotation_threshold_factor > 0, got "
                 f"{self.noise_sigma_rad}, {self.rotation_threshold_factor}")
+
+    def resolved(self, pixel_angle_rad: float) -> "RelativePoseOptions":
+        """These options with the angular threshold set.
+
+        Parameters
+        ----------
+        pixel_angle_rad : float
+            Angle one image pixel subtends, radians.
+
+        Returns
+        -------
+        RelativePoseOptions
+            Unchanged when ``ransac_threshold_rad`` is set (explicit
+            override), else with ``ransac_threshold_rad =
+            ransac_threshold_px * pixel_angle_rad``.
+        """
+        if self.ransac_threshold_rad is not None:
+            return self
+        if not (np.isfinite(pixel_angle_rad) and pixel_angle_rad > 0):
+            raise ValueError(f"pixel_angle_rad must be finite and > 0, got {pixel_angle_rad}")
+        return replace(self, ransac_threshold_rad=float(self.ransac_threshold_px * pixel_angle_rad))
 
 
 @dataclass(frozen=True)
@@ -286,6 +350,14 @@ def _ransac_rotation(rays_a, rays_b, options, rng):
     return best[0]
 
 
+def _reweighted_rotation(rays_a, rays_b, rotation, scale, iterations):
+    """Kabsch rotation re-solved with Cauchy weights ``1 / (1 + (e / scale)^2)`` of the residual angles ``e``."""
+    for _ in range(iterations):
+        errors = rotation_angles(rays_a, rays_b, rotation[None])[0]
+        rotation = rotation_from_rays(rays_a, rays_b, 1.0 / (1.0 + (errors / scale) ** 2))
+    return rotation
+
+
 def _tangent_basis(t: np.ndarray) -> np.ndarray:
     """Two unit vectors orthogonal to unit ``t``, as rows of a (2, 3) array."""
     helper = np.eye(3)[int(np.argmin(np.abs(t)))]
@@ -331,6 +403,51 @@ def _refine_5pt(rays_a, rays_b, rotation, translation, iterations):
     return rotation, t
 
 
+def noise_sigma_from_residuals(angles: np.ndarray, threshold: float) -> float:
+    """Noise level of rotation-model residuals that were kept below ``threshold``.
+
+    A rotation-model residual is the angle between two unit rays; with
+    isotropic noise it is Rayleigh distributed with scale ``sigma`` (the
+    per-axis standard deviation of the residual). The inliers are that
+    distribution truncated at ``threshold``; ``sigma`` is chosen so that the
+    truncated distribution's median equals the residuals' median. The
+    median keeps a minority of loosely matched inliers from inflating the
+    estimate, and the truncation keeps a threshold close to the noise from
+    biasing it low the way the inliers' plain spread would.
+
+    Parameters
+    ----------
+    angles : (N,) ndarray
+        Residual angles below ``threshold``, radians.
+    threshold : float
+        Truncation, radians.
+
+    Returns
+    -------
+    float
+        ``sigma`` in radians, within ``[threshold / 1000, 10 * threshold]``
+        (the upper end when the residuals are spread evenly up to the
+        threshold); ``threshold / 2`` for fewer than two residuals.
+    """
+    r = np.asarray(angles, dtype=np.float64)
+    r = r[(r >= 0) & (r < threshold)]
+    lower, upper = threshold * 1e-3, threshold * 10.0
+    if len(r) < _SAMPLE_ROTATION:
+        return threshold / 2.0
+    median = float(np.median(r))
+
+    def excess(log_sigma: float) -> float:
+        # Truncated Rayleigh CDF at the median minus one half.
+        s2 = 2.0 * np.exp(2.0 * log_sigma)
+        return float(-np.expm1(-median ** 2 / s2) - 0.5 * -np.expm1(-threshold ** 2 / s2))
+
+    if excess(np.log(lower)) <= 0:
+        return lower
+    if excess(np.log(upper)) >= 0:
+        return upper
+    return float(np.exp(brentq(excess, np.log(lower), np.log(upper), xtol=1e-6)))
+
+
 def _gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int) -> float:
     """Torr's geometric robust information criterion of a model (lower is better).
 
@@ -368,6 +485,9 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     if rays_a.ndim != 2 or rays_a.shape[1:] != (3,) or rays_a.shape != rays_b.shape:
         raise ValueError(
             f"expected rays_a and rays_b of equal shape (N, 3), got {rays_a.shape} and {rays_b.shape}")
+    if options.ransac_threshold_rad is None:
+        raise ValueError("ransac_threshold_rad is None; set it or resolve the pixel threshold with "
+                         "RelativePoseOptions.resolved(pixel_angle_rad)")
     n = len(rays_a)
     rng = np.random.default_rng(options.seed)
     model = "rotation" if options.rotation_only else "5pt"
@@ -388,14 +508,18 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     if options.refine and rot_mask.sum() >= _SAMPLE_ROTATION:
         rotation = rotation_from_rays(rays_a[rot_mask], rays_b[rot_mask])
         rot_mask = rotation_angles(rays_a, rays_b, rotation[None])[0] < rot_threshold
+    rot_errors = rotation_angles(rays_a, rays_b, rotation[None])[0]
+    sigma = options.noise_sigma_rad or noise_sigma_from_residuals(rot_errors[rot_mask], rot_threshold)
+    if options.refine and options.robust_iterations and rot_mask.sum() >= _SAMPLE_ROTATION:
+        rotation = _reweighted_rotation(rays_a[rot_mask], rays_b[rot_mask], rotation,
+                                        options.robust_scale * sigma, options.robust_iterations)
+        rot_errors = rotation_angles(rays_a, rays_b, rotation[None])[0]
+        rot_mask = rot_errors < rot_threshold
     chosen = ("rotation", rotation, np.zeros(3), rot_mask)
-    sigma = options.noise_sigma_rad or threshold / 2.0
-    gric_rotation = _gric(rotation_angles(rays_a, rays_b, rotation[None])[0], sigma, dimension=2,
-                          parameters=3)
-    # The 5-point model's GRIC is at least its penalty terms (all residuals zero); when the
-    # rotation model already beats that bound, the 5-point model cannot win.
-    gric_5pt_bound = np.log(4.0) * 3 * n + np.log(4.0 * n) * 5
-    if not options.rotation_only and gric_rotation >= gric_5pt_bound:
+    # GRIC compares the models on the correspondences that either explains: a gross outlier
+    # costs the 5-point model less than the rotation model (its residual cap is lower), so
+    # counting the outliers of both would hand heavily contaminated pairs to the 5-point model.
+    if not options.rotation_only:
         rotation_5pt, translation = _ransac_5pt(rays_a, rays_b, options, rng)
         if rotation_5pt is not None:
             mask = epipolar_angles(rays_a, rays_b, rotation_5pt[None], translation[None])[0] < threshold
@@ -403,7 +527,9 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
                 rotation_5pt, translation = _refine_5pt(rays_a[mask], rays_b[mask], rotation_5pt,
                                                         translation, options.refine_iterations)
             errors_5pt = epipolar_angles(rays_a, rays_b, rotation_5pt[None], translation[None])[0]
-            if _gric(errors_5pt, sigma, dimension=3, parameters=5) < gric_rotation:
+            either = rot_mask | (errors_5pt < threshold)
+            gric_rotation = _gric(rot_errors[either], sigma, dimension=2, parameters=3)
+            if _gric(errors_5pt[either], sigma, dimension=3, parameters=5) < gric_rotation:
                 chosen = ("5pt", rotation_5pt, translation / np.linalg.norm(translation),
                           errors_5pt < threshold)
 

@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from ifmi.odometry import KeyframeOptions, track_sequence
 from ifmi.pipeline import Correspondences
 from ifmi.relative_pose import RelativePoseOptions
 from ifmi.rotations import geodesic_angle
+
+
+# Exact rays: any small angular threshold works.
+POSE = RelativePoseOptions(ransac_threshold_rad=1e-3)
 
 
 class ExactFrontEnd:
@@ -41,7 +46,7 @@ def _frames(n, step=0.02):
 
 def test_frame_to_frame_chaining_is_exact():
     frames, truth = _frames(12)
-    traj, records = track_sequence(frames, ExactFrontEnd(), pose_options=RelativePoseOptions())
+    traj, records = track_sequence(frames, ExactFrontEnd(), pose_options=POSE)
     assert len(traj) == 12 and all(r.success for r in records)
     assert np.max(geodesic_angle(truth, traj.rotations)) < 1e-9
     assert [r.reference_frame for r in records] == [0] + list(range(11))
@@ -51,7 +56,7 @@ def test_keyframes_switch_only_when_rotation_grows():
     frames, truth = _frames(12, step=0.05)
     fe = ExactFrontEnd()
     options = KeyframeOptions(enabled=True, min_inliers=10, max_angle_rad=0.2)
-    traj, records = track_sequence(frames, fe, pose_options=RelativePoseOptions(), keyframe=options)
+    traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=options)
     assert np.max(geodesic_angle(truth, traj.rotations)) < 1e-9
     refs = [r.reference_frame for r in records]
     # Per-frame rotation is 0.075 rad: frames 1 and 2 use keyframe 0, frame 3 is too far (0.225).
@@ -62,7 +67,7 @@ def test_keyframes_switch_only_when_rotation_grows():
 
 def test_failed_frame_holds_the_previous_pose_and_tracking_continues():
     frames, truth = _frames(8)
-    traj, records = track_sequence(frames, ExactFrontEnd(fail={4}), pose_options=RelativePoseOptions())
+    traj, records = track_sequence(frames, ExactFrontEnd(fail={4}), pose_options=POSE)
     assert not records[4].success and records[4].reason == "no overlap"
     assert np.allclose(traj.rotations[4], traj.rotations[3])
     # Frame 5 is estimated against frame 3, the last good frame.
@@ -72,5 +77,77 @@ def test_failed_frame_holds_the_previous_pose_and_tracking_continues():
 
 
 def test_empty_sequence_gives_empty_trajectory():
-    traj, records = track_sequence([], ExactFrontEnd(), pose_options=RelativePoseOptions())
+    traj, records = track_sequence([], ExactFrontEnd(), pose_options=POSE)
     assert len(traj) == 0 and records == []
+
+
+class CorruptFrontEnd(ExactFrontEnd):
+    """Pairs that involve a frame in ``corrupt`` (as reference or as target) give random rays."""
+
+    def __init__(self, corrupt=()):
+        super().__init__()
+        self.corrupt = set(corrupt)
+
+    def correspondences(self, state_a, state_b):
+        (ka, _), (kb, _) = state_a, state_b
+        if ka in self.corrupt or kb in self.corrupt:
+            self.pairs.append((ka, kb))
+            rng = np.random.default_rng(1000 * ka + kb)
+            rays = rng.normal(size=(2, len(self.world), 3))
+            rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+            return Correspondences(rays[0] * 0, rays[1] * 0, rays[0], rays[1], {"n_tiles": 1})
+        return super().correspondences(state_a, state_b)
+
+
+@pytest.mark.parametrize("keyframes", [False, True])
+def test_consecutive_failures_never_become_references(keyframes):
+    frames, truth = _frames(12, step=0.03)
+    fe = CorruptFrontEnd(corrupt={4, 5, 6})
+    options = KeyframeOptions(enabled=keyframes, min_inliers=10, max_angle_rad=0.5)
+    traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=options)
+    assert [r.success for r in records] == [True] * 4 + [False] * 3 + [True] * 5
+    # Failed frames hold the last good pose ...
+    for k in (4, 5, 6):
+        assert np.allclose(traj.rotations[k], traj.rotations[3])
+    # ... and are never matched as references: frame 7 is estimated against a good frame.
+    assert not any(a in fe.corrupt for a, _ in fe.pairs)
+    assert records[7].reference_frame <= 3
+    good = [k for k in range(12) if k not in fe.corrupt]
+    assert np.max(geodesic_angle(truth[good], traj.rotations[good])) < 1e-9
+
+
+def test_prediction_spans_failed_frames():
+    class Recording(CorruptFrontEnd):
+        uses_prior_rotation = True
+
+        def correspondences(self, state_a, state_b, prior_rotation=None):
+            self.priors.append((state_a[0], state_b[0], prior_rotation))
+            return super().correspondences(state_a, state_b)
+
+    frames, truth = _frames(9, step=0.03)
+    fe = Recording(corrupt={4, 5})
+    fe.priors = []
+    track_sequence(frames, fe, pose_options=POSE)
+    # Constant angular velocity: the prediction for frame 6 from frame 3 is exact.
+    a, b, prior = [p for p in fe.priors if p[:2] == (3, 6)][0]
+    assert geodesic_angle(truth[3].T @ truth[6], prior) < 1e-9
+
+
+def test_reference_resets_after_max_failures():
+    frames, truth = _frames(10, step=0.03)
+    fe = CorruptFrontEnd(corrupt={3, 4})
+    # Frame 3's corruption does not stop frame 4 from being compared with frame 2, but
+    # after two failures in a row frame 4 becomes the reference with the held pose.
+    options = KeyframeOptions(max_failures=2)
+    traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=options)
+    assert "reference reset after 2 failures" in records[4].reason
+    assert records[5].reference_frame == 4 and not records[5].success
+    # Frames 5 and 6 fail against the corrupt frame 4; frame 6 becomes the reference.
+    assert records[6].reference_frame == 4 and "reference reset" in records[6].reason
+    assert all(r.success for r in records[7:]) and records[7].reference_frame == 6
+    # Tracking resumes with the rotation missed since frame 2 as a constant offset.
+    offset = truth[2] @ truth[6].T
+    assert np.max(geodesic_angle(offset @ truth[7:], traj.rotations[7:])) < 1e-9
+    assert KeyframeOptions().max_failures > 0
+    with pytest.raises(ValueError, match="max_failures"):
+        KeyframeOptions(max_failures=-1)

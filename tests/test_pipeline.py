@@ -9,7 +9,8 @@ import pytest
 
 from ifmi.camera import paracatadioptric_model
 from ifmi.odometry import KeyframeOptions
-from ifmi.pipeline import EstimateConfig, create_front_end, estimate_sequence, method_names
+from ifmi.pipeline import (EstimateConfig, create_front_end, estimate_sequence, method_names,
+                           resolved_config)
 from ifmi.rotations import geodesic_angle
 from ifmi.spectral_front_end import IfmiConfig
 from ifmi.tiling import TilingConfig
@@ -91,7 +92,7 @@ def test_prior_rotation_moves_tiles_and_keeps_the_estimate(sequence):
     errors = []
     for prior in (None, truth):
         corr = fe.correspondences(a, b, prior_rotation=prior)
-        pose, info = relative_pose_from_rays(corr.rays_a, corr.rays_b, options=CONFIG.relative_pose)
+        pose, info = relative_pose_from_rays(corr.rays_a, corr.rays_b, options=resolved_config(CONFIG, MODEL).relative_pose)
         assert info.success
         errors.append(geodesic_angle(truth, pose.rotation))
     # Three frames apart: the prediction leaves only sub-pixel tile motion to measure.
@@ -132,3 +133,29 @@ def test_real_calibration_with_default_configuration():
     assert fe.mapping.width == 960
     # 960 px panorama (0.0065 rad/px), tiles to ~0.05 px: ~3e-4 rad per estimate, 5 chained.
     assert geodesic_angle(seq.rotations, est.trajectory.rotations).max() < 1.5e-3
+
+
+def test_angular_pixel_size_scales_with_resolution():
+    from ifmi.pipeline import angular_pixel_size
+
+    # The same mirror imaged at 256, 512 and 800 px: a pixel subtends an angle
+    # inversely proportional to the resolution (to the band-sampling accuracy).
+    sizes = [angular_pixel_size(MODEL.scaled(f)) for f in (1.0, 2.0, 3.125)]
+    assert sizes[0] / sizes[1] == pytest.approx(2.0, rel=0.02)
+    assert sizes[0] / sizes[2] == pytest.approx(3.125, rel=0.02)
+    # Paraboloid: a pixel at the horizon radius h subtends 1 / h rad along and across the
+    # radius; the band median is within a factor 2 of it.
+    assert 0.5 / 80.0 < sizes[0] < 2.0 / 80.0
+
+
+def test_pixel_threshold_is_resolved_for_the_calibration(sequence):
+    from ifmi.pipeline import angular_pixel_size, resolved_config
+
+    config = replace(CONFIG, relative_pose=replace(CONFIG.relative_pose, ransac_threshold_px=1.5))
+    pixel = angular_pixel_size(MODEL, panorama=CONFIG.ifmi.panorama)
+    assert resolved_config(config, MODEL).relative_pose.ransac_threshold_rad == pytest.approx(1.5 * pixel)
+    explicit = replace(CONFIG, relative_pose=replace(CONFIG.relative_pose, ransac_threshold_rad=1e-3))
+    assert resolved_config(explicit, MODEL) == explicit
+    est = estimate_sequence(sequence.images[:3], MODEL, method="ifmi", config=config)
+    # The result's configuration records the threshold actually used.
+    assert est.config.relative_pose.ransac_threshold_rad == pytest.approx(1.5 * pixel)

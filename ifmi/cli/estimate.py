@@ -52,7 +52,11 @@ def add_parser(subparsers) -> None:
     g.add_argument("--no-prior", action="store_true",
                    help="do not cut tiles where the predicted rotation moves them")
     g = p.add_argument_group("relative pose")
-    g.add_argument("--ransac-threshold", type=float, metavar="RAD", help="RANSAC threshold, radians")
+    g.add_argument("--ransac-threshold", type=float, metavar="RAD",
+                   help="RANSAC threshold in radians (overrides --ransac-threshold-px)")
+    g.add_argument("--ransac-threshold-px", type=float, metavar="PX",
+                   help="RANSAC threshold in pixels, converted with the angle a pixel of the "
+                        "calibration's mirror band subtends (default 1)")
     g.add_argument("--rotation-only", action="store_true", help="force the rotation-only model")
     g.add_argument("--seed", type=int, help="RANSAC seed")
     g = p.add_argument_group("keyframes")
@@ -61,6 +65,9 @@ def add_parser(subparsers) -> None:
                    help="switch keyframes below this inlier count")
     g.add_argument("--keyframe-max-angle", type=float, metavar="RAD",
                    help="switch keyframes past this rotation from the keyframe")
+    g.add_argument("--max-failures", type=int, metavar="N",
+                   help="after N failed frames in a row, restart from the current frame "
+                        "(default 10; 0 never)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -102,10 +109,12 @@ def config_from_args(args) -> EstimateConfig:
         ifmi = _override(ifmi, points_per_tile=args.points_per_tile,
                          use_prior=False if args.no_prior else None)
         pose = _override(config.relative_pose, ransac_threshold_rad=args.ransac_threshold,
+                         ransac_threshold_px=args.ransac_threshold_px,
                          rotation_only=True if args.rotation_only else None, seed=args.seed)
         keyframe = _override(config.keyframe, enabled=True if args.keyframes else None,
                              min_inliers=args.keyframe_min_inliers,
-                             max_angle_rad=args.keyframe_max_angle)
+                             max_angle_rad=args.keyframe_max_angle,
+                         max_failures=args.max_failures)
     except ValueError as exc:
         raise InputError("command line", str(exc)) from None
     return replace(config, ifmi=ifmi, relative_pose=pose, keyframe=keyframe)
