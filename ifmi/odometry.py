@@ -39,10 +39,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
-from .trajectory import Trajectory
+from .errors import InputError
 from .relative_pose import RelativePoseOptions, relative_pose_from_rays
+from .trajectory import Trajectory
 
-__all__ = ["KeyframeOptions", "FrameRecord", "track_sequence"]
+__all__ = ["KeyframeOptions", "FrameRecord", "MissingFrame", "track_sequence"]
 
 
 @dataclass(frozen=True)
@@ -138,6 +139,26 @@ class _Reference:
     first_inliers: int = -1
 
 
+@dataclass(frozen=True)
+class MissingFrame:
+    """Stands in a sequence for an image that could not be used.
+
+    The frame is flagged as failed with ``reason`` and keeps the previous
+    pose; the sequence goes on. Only the first frame must be usable, since it
+    defines the reference.
+
+    Attributes
+    ----------
+    source : str
+        Where the image came from (a file path), for messages.
+    reason : str
+        Why it could not be used, one line.
+    """
+
+    source: str
+    reason: str
+
+
 def _angle(rotation: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
 
@@ -188,7 +209,8 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
 
     Parameters
     ----------
-    images : iterable of (H, W) or (H, W, 3) uint8 ndarray
+    images : iterable of (H, W) or (H, W, 3) uint8 ndarray or MissingFrame
+        A :class:`MissingFrame` item is flagged as failed and holds the pose.
     front_end : FrontEnd
         Object with ``prepare`` and ``correspondences`` (:mod:`ifmi.pipeline`).
     pose_options : RelativePoseOptions, keyword-only
@@ -207,6 +229,8 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
 
     Raises
     ------
+    InputError
+        The first frame is a :class:`MissingFrame`.
     ValueError
         ``pose_options.ransac_threshold_rad`` is not set (a threshold in
         pixels must be converted for the camera first).
@@ -230,6 +254,17 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
             image = next(iterator)
         except StopIteration:
             break
+        if isinstance(image, MissingFrame):
+            if reference is None:
+                raise InputError(image.source, f"first frame unusable: {image.reason}")
+            failures_in_row += 1
+            rotations.append(rotations[-1])
+            positions.append(positions[-1])
+            records.append(FrameRecord(k, reference.frame, False, f"image: {image.reason}", 0, 0,
+                                       time.perf_counter() - start))
+            k += 1
+            bar.update(1)
+            continue
         state = front_end.prepare(image)
         if reference is None:
             reference = last_good = _Reference(0, state, np.eye(3), np.zeros(3))

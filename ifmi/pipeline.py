@@ -325,11 +325,13 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     Raises
     ------
     InputError
-        Missing calibration or images, an unreadable image or one whose size
-        differs from the calibration's.
+        Missing calibration or images, or a first image that is unreadable
+        or whose size differs from the calibration's. Such a later image is
+        flagged as a failed frame (the pose is held) and the sequence goes on.
     """
     from .io.dataset import read_dataset
 
     dataset = read_dataset(Path(dataset_dir))
-    return estimate_sequence(dataset.iter_images(prefetch=prefetch), dataset.model, method=method,
+    images = dataset.iter_images(prefetch=prefetch, skip_unreadable=True)
+    return estimate_sequence(images, dataset.model, method=method,
                              config=config, progress=progress, total=len(dataset.image_paths))

@@ -280,7 +280,7 @@ def _execute(cells: list[SweepCell], *, out_dir: str, base_config: dict,
         if options.scheduler is None:
             cluster = LocalCluster(n_workers=options.n_workers,
                                    threads_per_worker=options.threads_per_worker,
-                                   processes=True, dashboard_address=None)
+                                   processes=True, dashboard_address=":0")
             client = Client(cluster)
         else:
             try:

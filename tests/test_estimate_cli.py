@@ -66,26 +66,42 @@ def test_estimate_without_groundtruth_and_with_rgb(dataset, tmp_path):
     assert read_image(next((copy / "images").iterdir()), gray=False).shape == (256, 256, 3)
 
 
-def test_wrong_image_size_names_the_file(dataset, tmp_path, capsys):
-    root, _ = dataset
+def _frames_csv(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_bad_images_inside_the_sequence_are_flagged(dataset, tmp_path):
+    """A wrong-size and an unreadable image mid-sequence fail their frames only."""
+    root, seq = dataset
     copy = tmp_path / "bad"
     shutil.copytree(root, copy)
-    bad = copy / "images" / "000003.png"
-    cv2.imwrite(str(bad), np.zeros((100, 120), np.uint8))
+    cv2.imwrite(str(copy / "images" / "000002.png"), np.zeros((100, 120), np.uint8))
+    (copy / "images" / "000004.png").write_bytes(b"not a png")
     out = tmp_path / "bad.txt"
-    assert main(["estimate", str(copy), "--out", str(out), "--no-progress"]) == 2
-    err = capsys.readouterr().err
-    assert "000003.png" in err and "100x120" in err and len(err.strip().splitlines()) == 1
-    assert not out.exists()
+    assert main(["estimate", str(copy), "--out", str(out), "--no-progress"]) == 0
+    rows = _frames_csv(tmp_path / "bad.frames.csv")
+    assert [r["success"] for r in rows] == ["true", "true", "false", "true", "false", "true"]
+    assert "100x120" in rows[2]["reason"] and "calibration names 256x256" in rows[2]["reason"]
+    assert "not a readable PNG/JPEG image" in rows[4]["reason"]
+    est = read_tum(out)
+    assert len(est) == 6
+    # A flagged frame holds the previous pose; the good frames stay on the ground truth.
+    np.testing.assert_allclose(est.rotations[2], est.rotations[1])
+    good = [0, 1, 3, 5]
+    assert geodesic_angle(est.rotations[good], seq.rotations[good]).max() < 0.01
 
 
-def test_unreadable_image_names_the_file(dataset, tmp_path, capsys):
+def test_unreadable_first_image_names_the_file(dataset, tmp_path, capsys):
     root, _ = dataset
     copy = tmp_path / "junk"
     shutil.copytree(root, copy)
-    (copy / "images" / "000001.png").write_bytes(b"not a png")
-    assert main(["estimate", str(copy), "--out", str(tmp_path / "j.txt"), "--no-progress"]) == 2
-    assert "000001.png: not a readable PNG/JPEG image" in capsys.readouterr().err
+    (copy / "images" / "000000.png").write_bytes(b"not a png")
+    out = tmp_path / "j.txt"
+    assert main(["estimate", str(copy), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "000000.png: first frame unusable: not a readable PNG/JPEG image" in err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
 
 
 def test_missing_calibration(tmp_path, capsys):

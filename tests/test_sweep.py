@@ -139,7 +139,7 @@ def test_sweep_through_existing_scheduler_address(datasets, tmp_path):
     good, _ = datasets
     cells = sweep_cells([str(good)], method="ifmi", tile_sizes=[48], overlaps=[0.0])
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address=":0") as cluster:
         records = run_sweep(cells, out_dir=tmp_path / "sweep",
                             base_config=EstimateConfig().to_dict(),
                             options=SweepOptions(scheduler=cluster.scheduler_address,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -18,6 +19,7 @@ import numpy as np
 
 from ..camera import OcamModel
 from ..errors import InputError
+from ..odometry import MissingFrame
 from .calib import read_calib
 
 __all__ = ["Dataset", "read_dataset", "read_image", "IMAGE_SUFFIXES"]
@@ -47,22 +49,28 @@ class Dataset:
     image_paths: tuple
     groundtruth_path: Path | None
 
-    def iter_images(self, *, gray: bool = True, prefetch: bool = False) -> Iterator[np.ndarray]:
+    def iter_images(self, *, gray: bool = True, prefetch: bool = False,
+                    skip_unreadable: bool = False) -> Iterator[np.ndarray | MissingFrame]:
         """Images in order, read lazily (see :func:`read_image`).
 
         With ``prefetch`` the next image is decoded in a background thread
         while the caller works on the current one (image decoding releases
-        the GIL), so reading overlaps with estimation.
+        the GIL), so reading overlaps with estimation. With
+        ``skip_unreadable`` an image that cannot be read, or has the wrong
+        size, comes as a :class:`~ifmi.odometry.MissingFrame` carrying the
+        reason instead of raising, so a sequence flags that frame and goes on.
         """
+        read = partial(_read_or_flag if skip_unreadable else read_image,
+                       size=self.model.size, gray=gray)
         if not prefetch:
             for path in self.image_paths:
-                yield read_image(path, size=self.model.size, gray=gray)
+                yield read(path)
             return
         with ThreadPoolExecutor(max_workers=1) as pool:
-            pending = pool.submit(read_image, self.image_paths[0], size=self.model.size, gray=gray)
+            pending = pool.submit(read, self.image_paths[0])
             for path in self.image_paths[1:]:
                 image = pending.result()
-                pending = pool.submit(read_image, path, size=self.model.size, gray=gray)
+                pending = pool.submit(read, path)
                 yield image
             yield pending.result()
 
@@ -116,6 +124,13 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
         raise InputError(path, f"image is {image.shape[0]}x{image.shape[1]} (height x width), "
                                f"but the calibration names {size[0]}x{size[1]}")
     return image
+
+
+def _read_or_flag(path: Path, *, size: tuple[int, int], gray: bool) -> np.ndarray | MissingFrame:
+    try:
+        return read_image(path, size=size, gray=gray)
+    except InputError as exc:
+        return MissingFrame(source=exc.path, reason=exc.problem)
 
 
 def read_dataset(path: str | os.PathLike) -> Dataset:
