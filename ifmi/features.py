@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from .camera import OcamModel, radius_from_pixels, rays_from_pixels
+from .options import options_from_dict
 
 __all__ = [
     "DETECTORS",
@@ -118,11 +119,7 @@ class FeatureConfig:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "FeatureConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = set(data) - known
-        if unknown:
-            raise ValueError(f"unknown feature options {sorted(unknown)}; expected {sorted(known)}")
-        return cls(**data)
+        return options_from_dict(cls, data, what="feature options")
 
 
 @dataclass(frozen=True)

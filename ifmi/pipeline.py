@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import importlib
 import os
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 
@@ -32,6 +32,7 @@ import numpy as np
 
 from .camera import OcamModel
 from .trajectory import Trajectory
+from .options import options_from_dict
 from .odometry import FrameRecord, KeyframeOptions, track_sequence
 from .relative_pose import RelativePoseOptions
 from .spectral_front_end import IfmiConfig
@@ -130,18 +131,18 @@ class EstimateConfig:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "EstimateConfig":
         """Build a config from :meth:`to_dict` output; missing sections take defaults."""
-        known = {f.name for f in fields(cls)}
-        unknown = set(data) - known
-        if unknown:
-            raise ValueError(f"unknown config sections {sorted(unknown)}; expected {sorted(known)}")
-        ifmi = data.get("ifmi") or {}
-        features = data.get("features")
-        return cls(
+        sections = dict(data)
+        ifmi = sections.get("ifmi") or {}
+        features = sections.get("features")
+        sections.update(
             ifmi=IfmiConfig.from_dict(ifmi),
             features=None if features is None else _load_feature_config(features),
-            relative_pose=RelativePoseOptions(**(data.get("relative_pose") or {})),
-            keyframe=KeyframeOptions(**(data.get("keyframe") or {})),
+            relative_pose=options_from_dict(RelativePoseOptions, sections.get("relative_pose") or {},
+                                            what="relative_pose options"),
+            keyframe=options_from_dict(KeyframeOptions, sections.get("keyframe") or {},
+                                       what="keyframe options"),
         )
+        return options_from_dict(cls, sections, what="config sections")
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .camera import OcamModel
+from .options import options_from_dict
 from .flow import flow_from_tile_motion, flow_sample_points
 from .fourier_mellin import REJECT_REASONS, FourierMellin, FourierMellinConfig, TileSpectra
 from .tiling import TileLayout, TilingConfig, tile_layout, tiles_from_panorama
@@ -68,8 +69,8 @@ class IfmiConfig:
         nested = {"panorama": PanoramaConfig, "tiling": TilingConfig, "registration": FourierMellinConfig}
         for key, kind in nested.items():
             if key in data and isinstance(data[key], Mapping):
-                data[key] = kind(**data[key])
-        return cls(**data)
+                data[key] = options_from_dict(kind, data[key], what=f"ifmi.{key} options")
+        return options_from_dict(cls, data, what="ifmi options")
 
     def to_dict(self) -> dict:
         """Nested dict of plain values (inverse of :meth:`from_dict`)."""

@@ -27,7 +27,7 @@ from ifmi.io.tum import write_tum
 
 from .config import SceneConfig, load_scene_config
 from .effects import apply_effects, exposure_gains, srgb_uint8_from_linear
-from .motion import WorldPoses, poses_for_settings, relative_trajectory, world_trajectory
+from .motion import poses_for_settings, relative_trajectory, world_trajectory
 from .scene import build_scene_dict
 from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
 

@@ -159,3 +159,17 @@ def test_pixel_threshold_is_resolved_for_the_calibration(sequence):
     est = estimate_sequence(sequence.images[:3], MODEL, method="ifmi", config=config)
     # The result's configuration records the threshold actually used.
     assert est.config.relative_pose.ransac_threshold_rad == pytest.approx(1.5 * pixel)
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"bogus": {}}, r"unknown config sections \['bogus'\]"),
+        ({"relative_pose": {"threshold": 1.0}}, r"unknown relative_pose options \['threshold'\]"),
+        ({"keyframe": {"every": 3}}, r"unknown keyframe options \['every'\]"),
+        ({"ifmi": {"tiling": {"size": 64}}}, r"unknown ifmi.tiling options \['size'\]"),
+    ],
+)
+def test_config_from_dict_names_unknown_keys(data, message):
+    with pytest.raises(ValueError, match=message):
+        EstimateConfig.from_dict(data)
