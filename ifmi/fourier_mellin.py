@@ -92,7 +92,14 @@ class FourierMellinConfig:
     phase_plane_max_frequency : float
         Largest frequency (cycles per pixel) of the phase-plane shift refinement.
     phase_plane_weight_power : float
-        Exponent of the cross-spectrum magnitude weighting the phase-plane fit.
+        Exponent of the cross-spectrum magnitude weighting the phase-plane fit
+        of the first translation and of the log-polar shifts.
+    residual_weight_power : float
+        The same exponent for the residual translation of the refinement
+        passes, where tile b has been resampled onto tile a and the shift is
+        a small fraction of a pixel; 1 weights each frequency by about the
+        inverse variance of its phase under white image noise (see
+        :func:`~ifmi.phase_correlation.refine_shift_phase_plane`).
     phase_plane_iterations : int
         Iterations of the phase-plane fit. Frequencies dominated by noise
         shrink each step toward zero, so a few iterations are needed to
@@ -110,6 +117,7 @@ class FourierMellinConfig:
     workers: int = 1
     phase_plane_max_frequency: float = 0.35
     phase_plane_weight_power: float = 0.25
+    residual_weight_power: float = 1.0
     phase_plane_iterations: int = 3
 
     def __post_init__(self) -> None:
@@ -124,6 +132,9 @@ class FourierMellinConfig:
         if not 0 < self.phase_plane_max_frequency <= 0.5 or self.phase_plane_iterations < 1:
             raise ValueError("expected 0 < phase_plane_max_frequency <= 0.5 and phase_plane_iterations >= 1, "
                              f"got {self.phase_plane_max_frequency}, {self.phase_plane_iterations}")
+        if self.phase_plane_weight_power < 0 or self.residual_weight_power < 0:
+            raise ValueError("expected non-negative phase_plane_weight_power and residual_weight_power, got "
+                             f"{self.phase_plane_weight_power}, {self.residual_weight_power}")
         if self.refine_passes < 0 or self.workers < 1:
             raise ValueError(f"expected refine_passes >= 0 and workers >= 1, got "
                              f"{self.refine_passes}, {self.workers}")
@@ -293,11 +304,13 @@ class FourierMellin:
         return TileSpectra(spectrum=spectrum, descriptor=descriptor, std=std)
 
     # -- per pair ----------------------------------------------------------------------------
-    def _refine(self, spectra_a, spectra_b, shift, shape):
+    def _refine(self, spectra_a, spectra_b, shift, shape, *, weight_power=None):
         c = self.config
+        if weight_power is None:
+            weight_power = c.phase_plane_weight_power
         return refine_shift_phase_plane(spectra_a, spectra_b, shift, shape,
                                         max_frequency=c.phase_plane_max_frequency,
-                                        weight_power=c.phase_plane_weight_power,
+                                        weight_power=weight_power,
                                         iterations=c.phase_plane_iterations)
 
     def resample(self, source: np.ndarray, origins: np.ndarray, scale: np.ndarray,
@@ -423,7 +436,8 @@ class FourierMellin:
             # b''(p) = b(M^{-1}(p)) = a(D(p)) with D a small residual similarity; compose M <- D o M.
             residual_tiles = self.resample(source_b, origins_b, scale, angle, translation)
             residual_spectra = self.spectra(residual_tiles)
-            d_shift = -self._refine(fa, residual_spectra.spectrum, zeros2, shape)
+            d_shift = -self._refine(fa, residual_spectra.spectrum, zeros2, shape,
+                                    weight_power=self.config.residual_weight_power)
             if self.config.estimate_rotation_scale:
                 lp_shift = self._refine(spectra_a.descriptor, residual_spectra.descriptor, zeros2,
                                         (self.n_angles, self.n_radii))
