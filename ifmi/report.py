@@ -16,7 +16,6 @@ import shutil
 import sys
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from importlib import metadata
 from pathlib import Path
 from typing import Sequence
 
@@ -25,6 +24,7 @@ import numpy as np
 from .errors import InputError
 from .evaluation import MOTION_FLOW_FILE
 from .io.atomic import atomic_write_json, atomic_write_text
+from .io.provenance import package_versions as _package_versions
 from .io.results import (EvaluationRecord, is_evaluation_dir, jsonable, read_evaluation,
                          read_motion_flow)
 from .metrics import AXES
@@ -115,13 +115,7 @@ def machine_info() -> dict:
 
 def package_versions() -> dict:
     """Installed versions of the packages that shape the results (None if absent)."""
-    out = {}
-    for name in PACKAGES:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = None
-    return out
+    return _package_versions(PACKAGES)
 
 
 def _method_key(method: str):

@@ -23,6 +23,7 @@ import numpy as np
 from ifmi.errors import InputError
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_json
 from ifmi.io.calib import write_calib
+from ifmi.io.provenance import package_versions
 from ifmi.io.tum import write_tum
 
 from .config import SceneConfig, load_scene_config
@@ -114,15 +115,8 @@ def _sha256_file(path: Path) -> str:
 
 
 def _versions() -> dict:
-    from importlib import metadata
-
-    out = {"python": platform.python_version()}
-    for name in ("mitsuba", "drjit", "numpy", "opencv-python-headless", "omnisim-ifmi"):
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = None
-    return out
+    names = ("mitsuba", "drjit", "numpy", "opencv-python-headless", "omnisim-ifmi")
+    return {"python": platform.python_version(), **package_versions(names)}
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import InputError
 from .atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
+from .provenance import package_versions
 
 __all__ = [
     "EVALUATION_KIND",
@@ -404,15 +405,7 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
 
 
 def _versions() -> dict:
-    from importlib import metadata
-
-    out = {}
-    for name in ("omnisim-ifmi", "numpy", "opencv-python-headless", "poselib", "scipy"):
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = None
-    return out
+    return package_versions(("omnisim-ifmi", "numpy", "opencv-python-headless", "poselib", "scipy"))
 
 
 def write_motion_flow(path: str | os.PathLike, sample: dict) -> None:
