@@ -58,6 +58,8 @@ __all__ = [
 
 # Reason codes of TileMotion.reason (index into this tuple).
 REJECT_REASONS = ("ok", "textureless", "low peak ratio", "low peak-to-noise ratio")
+# OpenCV interpolation flag of each ``FourierMellinConfig.resample_interpolation`` name.
+_INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos4": cv2.INTER_LANCZOS4}
 
 
 @dataclass(frozen=True)
@@ -104,6 +106,12 @@ class FourierMellinConfig:
         Iterations of the phase-plane fit. Frequencies dominated by noise
         shrink each step toward zero, so a few iterations are needed to
         converge on noisy tiles.
+    resample_interpolation : {"lanczos4", "cubic", "linear"}
+        Interpolation of tile b where it is cut at a sub-pixel place, turned
+        and scaled. Bilinear interpolation low-passes the tile by an amount
+        that depends on the fractional offset, which biases the measured
+        shift toward whole pixels; the 8x8 Lanczos kernel keeps that bias
+        about ten times smaller (the tests measure it).
     """
 
     log_polar_angles: int | None = None
@@ -119,6 +127,7 @@ class FourierMellinConfig:
     phase_plane_weight_power: float = 0.25
     residual_weight_power: float = 1.0
     phase_plane_iterations: int = 3
+    resample_interpolation: str = "lanczos4"
 
     def __post_init__(self) -> None:
         for name in ("log_polar_angles", "log_polar_radii"):
@@ -132,6 +141,9 @@ class FourierMellinConfig:
         if not 0 < self.phase_plane_max_frequency <= 0.5 or self.phase_plane_iterations < 1:
             raise ValueError("expected 0 < phase_plane_max_frequency <= 0.5 and phase_plane_iterations >= 1, "
                              f"got {self.phase_plane_max_frequency}, {self.phase_plane_iterations}")
+        if self.resample_interpolation not in _INTERPOLATIONS:
+            raise ValueError(f"resample_interpolation must be one of {sorted(_INTERPOLATIONS)}, "
+                             f"got {self.resample_interpolation!r}")
         if self.phase_plane_weight_power < 0 or self.residual_weight_power < 0:
             raise ValueError("expected non-negative phase_plane_weight_power and residual_weight_power, got "
                              f"{self.phase_plane_weight_power}, {self.residual_weight_power}")
@@ -315,7 +327,7 @@ class FourierMellin:
 
     def resample(self, source: np.ndarray, origins: np.ndarray, scale: np.ndarray,
                   angle: np.ndarray, translation: np.ndarray) -> np.ndarray:
-        """Tiles ``b'(p) = b(M^{-1}(p))`` sampled from ``source`` (bilinear, one remap call).
+        """Tiles ``b'(p) = b(M^{-1}(p))`` sampled from ``source`` (one remap call).
 
         ``M^{-1}(p) = R(-theta) (p - c - t) / s + c`` is affine in the tile grid, so the maps
         are built from per-tile coefficients and the separable grid in float32.
@@ -347,7 +359,8 @@ class FourierMellin:
         gc = g[None, None, :]
         map_rows = (cos3 * gr + sin3 * gc + off_r.astype(f32)[:, None, None]).reshape(-1, n)
         map_cols = (cos3 * gc - sin3 * gr + off_c.astype(f32)[:, None, None]).reshape(-1, n)
-        out = cv2.remap(source, map_cols, map_rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+        out = cv2.remap(source, map_cols, map_rows, _INTERPOLATIONS[self.config.resample_interpolation],
+                        borderMode=cv2.BORDER_REFLECT_101)
         return out.reshape(len(scale), self.tile_size, self.tile_size)
 
     def register(self, spectra_a: TileSpectra, spectra_b: TileSpectra | None, source_b: np.ndarray,

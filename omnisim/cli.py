@@ -37,8 +37,34 @@ def build_parser() -> argparse.ArgumentParser:
                         help="image size N or HEIGHTxWIDTH (default: the scene's); the calib is scaled")
     render.add_argument("--variant", help="Mitsuba variant (default: cuda_ad_rgb with a GPU, else llvm_ad_rgb)")
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
+    degrade = sub.add_parser("degrade", help="copy a dataset folder with capture effects "
+                             "(noise, JPEG, exposure drift) applied to its images")
+    degrade.add_argument("dataset", help="source DATASET folder (rendered or real)")
+    degrade.add_argument("--out", required=True, help="dataset folder to write (resumed if it exists)")
+    degrade.add_argument("--noise-sigma", type=float, default=0.0,
+                         help="Gaussian noise, standard deviation in 8-bit grey levels (default 0)")
+    degrade.add_argument("--jpeg-quality", type=int, default=0,
+                         help="JPEG quality 1..100 the frames pass through; 0 = off (default)")
+    degrade.add_argument("--exposure-stops", type=float, default=0.0,
+                         help="bound of the exposure random walk, stops (default 0 = off)")
+    degrade.add_argument("--exposure-step-stops", type=float, default=0.1,
+                         help="largest exposure change between frames, stops (default 0.1)")
+    degrade.add_argument("--seed", type=int, default=0, help="seed of noise and exposure walk (default 0)")
+    degrade.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("check-llvm", help="print the LLVM drjit will use, or how to install one")
     return parser
+
+
+def _degrade(args) -> int:
+    from .config import EffectsSettings
+    from .degrade import degrade_dataset
+
+    effects = EffectsSettings(noise_sigma=args.noise_sigma, exposure_stops=args.exposure_stops,
+                              exposure_step_stops=args.exposure_step_stops, jpeg_quality=args.jpeg_quality)
+    result = degrade_dataset(args.dataset, args.out, effects=effects, seed=args.seed,
+                             progress=not args.no_progress)
+    print(f"{result.out_dir}: {result.frames} frames ({result.written} written now)")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -49,6 +75,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "check-llvm":
             from .llvm import main as llvm_main
             return llvm_main([])
+        if args.command == "degrade":
+            return _degrade(args)
         from .render import render_dataset
         if args.frames is not None and args.frames < 1:
             raise InputError(args.scene, f"--frames: expected >= 1, got {args.frames}")

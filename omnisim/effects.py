@@ -10,7 +10,7 @@ import numpy as np
 
 from .config import EffectsSettings
 
-__all__ = ["exposure_gains", "srgb_uint8_from_linear", "apply_effects"]
+__all__ = ["exposure_gains", "srgb_uint8_from_linear", "linear_from_srgb_uint8", "apply_effects"]
 
 
 def exposure_gains(n: int, settings: EffectsSettings, *, seed: int) -> np.ndarray:
@@ -34,6 +34,12 @@ def srgb_uint8_from_linear(image: np.ndarray, *, gain: float = 1.0) -> np.ndarra
     x = np.clip(np.nan_to_num(np.asarray(image, dtype=np.float64) * gain, nan=0.0), 0.0, 1.0)
     srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     return np.round(srgb * 255.0).astype(np.uint8)
+
+
+def linear_from_srgb_uint8(image: np.ndarray) -> np.ndarray:
+    """sRGB-encoded uint8 image (any shape) -> linear intensity in [0, 1], float64 (inverse of the above)."""
+    x = np.asarray(image, dtype=np.float64) / 255.0
+    return np.where(x <= 0.04045, x / 12.92, np.power((x + 0.055) / 1.055, 2.4))
 
 
 def apply_effects(image: np.ndarray, settings: EffectsSettings, *, seed: int, frame: int) -> np.ndarray:

@@ -32,7 +32,8 @@ from .motion import poses_for_settings, relative_trajectory, world_trajectory
 from .scene import build_scene_dict
 from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
 
-__all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png"]
+__all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
+           "check_output_folder"]
 
 # Format version of meta.json; bumped when its meaning changes.
 META_FORMAT = 1
@@ -110,7 +111,8 @@ def encode_png(image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-def _sha256_file(path: Path) -> str:
+def sha256_file(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes."""
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
@@ -134,7 +136,13 @@ class DatasetResult:
     seconds_per_frame: float
 
 
-def _check_existing(out_dir: Path, identity: dict) -> dict | None:
+def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
+    """The ``meta.json`` of an output folder written with the same ``identity``, or None if new.
+
+    Raises :class:`~ifmi.errors.InputError` when the folder holds anything
+    else: a different identity, an unreadable ``meta.json``, or files
+    without one.
+    """
     meta_path = out_dir / "meta.json"
     if not out_dir.exists():
         return None
@@ -148,7 +156,7 @@ def _check_existing(out_dir: Path, identity: dict) -> dict | None:
         previous = meta.get("identity", {})
         if previous != identity:
             changed = sorted(k for k in set(previous) | set(identity) if previous.get(k) != identity.get(k))
-            raise InputError(out_dir, f"holds a render with different {', '.join(changed) or 'settings'}; "
+            raise InputError(out_dir, f"holds a dataset made with different {', '.join(changed) or 'settings'}; "
                                       "refusing to mix (choose another --out or remove it)")
         return meta
     if any(out_dir.iterdir()):
@@ -206,7 +214,7 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         "format": META_FORMAT,
         "renderer": RENDERER_VERSION,
     }
-    meta = _check_existing(out_dir, identity)
+    meta = check_output_folder(out_dir, identity)
     images_dir = out_dir / "images"
     images_dir.mkdir(parents=True, exist_ok=True)
     if meta is None:
@@ -233,7 +241,7 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     for k, name in enumerate(names):
         path = images_dir / name
         recorded = meta["images"].get(name)
-        if recorded is None or not path.exists() or _sha256_file(path) != recorded:
+        if recorded is None or not path.exists() or sha256_file(path) != recorded:
             meta["images"].pop(name, None)
             todo.append(k)
     gains = exposure_gains(len(poses), config.effects, seed=seed)

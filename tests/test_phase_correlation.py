@@ -184,3 +184,8 @@ def test_inverse_variance_residual_weighting_reduces_subpixel_error():
 def test_config_rejects_negative_weight_power():
     with pytest.raises(ValueError, match="residual_weight_power"):
         FourierMellinConfig(residual_weight_power=-1.0)
+
+
+def test_config_rejects_unknown_interpolation():
+    with pytest.raises(ValueError, match="resample_interpolation"):
+        FourierMellinConfig(resample_interpolation="nearest")

@@ -7,6 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from scipy.spatial.transform import Rotation
+
 from ifmi.camera import paracatadioptric_model
 from ifmi.odometry import KeyframeOptions
 from ifmi.pipeline import (EstimateConfig, create_front_end, estimate_sequence, method_names,
@@ -173,3 +175,34 @@ def test_pixel_threshold_is_resolved_for_the_calibration(sequence):
 def test_config_from_dict_names_unknown_keys(data, message):
     with pytest.raises(ValueError, match=message):
         EstimateConfig.from_dict(data)
+
+
+def test_lanczos_tile_resampling_removes_the_interpolation_bias(sequence):
+    # A frame registered with itself under a deliberately wrong prior: the truth is the identity,
+    # and the tiles of b are cut at sub-pixel places, turned and scaled, so the error left is
+    # the interpolation's (no noise, no scene change).
+    from ifmi.fourier_mellin import FourierMellinConfig
+    from ifmi.relative_pose import relative_pose_from_rays
+    from ifmi.spectral_front_end import IfmiFrontEnd
+
+    options = resolved_config(CONFIG, MODEL).relative_pose
+    rng = np.random.default_rng(2)
+    priors = []
+    for _ in range(6):
+        axis = rng.normal(size=3)
+        angle = 0.004  # rad, about half a panorama pixel here: a typical prediction error
+        priors.append(Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix())
+    rms = {}
+    for interpolation in ("linear", "lanczos4"):
+        config = replace(CONFIG.ifmi, registration=FourierMellinConfig(resample_interpolation=interpolation))
+        fe = IfmiFrontEnd(MODEL, config)
+        state = fe.prepare(sequence.images[0])
+        errors = []
+        for prior in priors:
+            corr = fe.correspondences(state, state, prior_rotation=prior)
+            pose, info = relative_pose_from_rays(corr.rays_a, corr.rays_b, options=options)
+            assert info.success
+            errors.append(geodesic_angle(np.eye(3), pose.rotation))
+        rms[interpolation] = float(np.sqrt(np.mean(np.square(errors))))
+    # Measured: rms 2.3e-4 rad (bilinear) against 4.1e-5 rad (Lanczos).
+    assert rms["lanczos4"] < rms["linear"] / 3

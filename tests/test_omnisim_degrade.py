@@ -1,0 +1,114 @@
+"""Capture effects applied to an existing dataset: statistics, determinism, resume, errors."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from ifmi.errors import InputError
+from ifmi.io.dataset import read_dataset
+from omnisim.cli import main as omnisim_main
+from omnisim.config import EffectsSettings
+from omnisim.degrade import degrade_dataset, degrade_image
+from omnisim.effects import linear_from_srgb_uint8, srgb_uint8_from_linear
+
+pytest.importorskip("skimage")
+from omni_synthetic import write_dataset  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def source(tmp_path_factory):
+    return write_dataset(tmp_path_factory.mktemp("src"), n=4, size=96)
+
+
+def _images(folder):
+    return [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((folder / "images").glob("*.png"))]
+
+
+def test_srgb_round_trip_is_exact_for_every_level():
+    levels = np.arange(256, dtype=np.uint8)
+    assert np.array_equal(srgb_uint8_from_linear(linear_from_srgb_uint8(levels)), levels)
+
+
+def test_noise_has_the_requested_sigma_and_is_seeded():
+    flat = np.full((200, 200), 128, dtype=np.uint8)
+    effects = EffectsSettings(noise_sigma=5.0)
+    out = degrade_image(flat, effects, gain=1.0, seed=3, frame=7)
+    assert out.shape == flat.shape and out.dtype == np.uint8
+    # Rounding to whole levels adds 1/12 to the variance.
+    assert abs(np.std(out.astype(float) - 128) - np.sqrt(25 + 1 / 12)) < 0.1
+    assert np.array_equal(out, degrade_image(flat, effects, gain=1.0, seed=3, frame=7))
+    assert not np.array_equal(out, degrade_image(flat, effects, gain=1.0, seed=3, frame=8))
+
+
+def test_exposure_gain_acts_on_linear_intensity():
+    level = np.full((4, 4), 100, dtype=np.uint8)
+    out = degrade_image(level, EffectsSettings(), gain=2.0, seed=0, frame=0)
+    expected = srgb_uint8_from_linear(2.0 * linear_from_srgb_uint8(level))
+    assert np.array_equal(out, expected) and out[0, 0] > 130
+
+
+def test_degraded_copy_keeps_calibration_and_truth_and_is_reproducible(source, tmp_path):
+    effects = EffectsSettings(noise_sigma=3.0, jpeg_quality=70, exposure_stops=0.3)
+    first = degrade_dataset(source, tmp_path / "a", effects=effects, seed=5, progress=False)
+    assert (first.frames, first.written) == (4, 4)
+    again = degrade_dataset(source, tmp_path / "a", effects=effects, seed=5, progress=False)
+    assert again.written == 0
+    degrade_dataset(source, tmp_path / "b", effects=effects, seed=5, progress=False)
+    for name in ("calib_results.txt", "groundtruth.txt"):
+        assert (tmp_path / "a" / name).read_bytes() == (source / name).read_bytes()
+    a, b, clean = _images(tmp_path / "a"), _images(tmp_path / "b"), _images(source)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    difference = np.std(a[2].astype(float) - clean[2].astype(float))
+    assert 2.0 < difference < 30.0
+    assert len(read_dataset(tmp_path / "a").image_paths) == 4
+    meta = json.loads((tmp_path / "a" / "meta.json").read_text())
+    assert meta["complete"] and meta["effects"]["jpeg_quality"] == 70
+
+
+def test_a_damaged_image_is_rewritten_on_resume(source, tmp_path):
+    effects = EffectsSettings(noise_sigma=2.0)
+    degrade_dataset(source, tmp_path / "d", effects=effects, progress=False)
+    victim = tmp_path / "d" / "images" / "000001.png"
+    good = victim.read_bytes()
+    victim.write_bytes(good[:100])
+    assert degrade_dataset(source, tmp_path / "d", effects=effects, progress=False).written == 1
+    assert victim.read_bytes() == good
+
+
+def test_other_settings_into_the_same_folder_are_refused(source, tmp_path):
+    degrade_dataset(source, tmp_path / "o", effects=EffectsSettings(noise_sigma=2.0), progress=False)
+    with pytest.raises(InputError, match="different effects"):
+        degrade_dataset(source, tmp_path / "o", effects=EffectsSettings(noise_sigma=3.0), progress=False)
+
+
+def test_output_equal_to_source_is_refused(source):
+    with pytest.raises(InputError, match="is the source dataset"):
+        degrade_dataset(source, source, effects=EffectsSettings(), progress=False)
+
+
+def test_cli_reports_bad_settings_in_one_line(source, tmp_path, capsys):
+    assert omnisim_main(["degrade", str(source), "--out", str(tmp_path / "q"), "--jpeg-quality", "101"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "jpeg_quality" in err and "got 101" in err
+
+
+def test_cli_reports_a_missing_dataset_in_one_line(tmp_path, capsys):
+    assert omnisim_main(["degrade", str(tmp_path / "none"), "--out", str(tmp_path / "q")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "none" in err
+
+
+@pytest.mark.parametrize("field, value", [("noise_sigma", -1.0), ("exposure_stops", -0.5),
+                                          ("exposure_step_stops", -0.1), ("jpeg_quality", -3)])
+def test_each_out_of_range_setting_is_named(source, tmp_path, field, value):
+    with pytest.raises(InputError, match=f"{field}: expected"):
+        degrade_dataset(source, tmp_path / "x", effects=EffectsSettings(**{field: value}), progress=False)
+
+
+def test_negative_seed_is_refused(source, tmp_path):
+    with pytest.raises(InputError, match="seed"):
+        degrade_dataset(source, tmp_path / "x", effects=EffectsSettings(), seed=-1, progress=False)
