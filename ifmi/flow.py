@@ -16,7 +16,7 @@ from .fourier_mellin import TileMotion, transform_points
 from .tiling import TileLayout
 from .unwarp import PanoramaMapping, omni_from_panorama, rays_from_panorama
 
-__all__ = ["FlowPairs", "flow_sample_points", "flow_from_tile_motion"]
+__all__ = ["FlowPairs", "flow_sample_points", "flow_from_tile_motion", "flow_from_placements"]
 
 
 @dataclass(frozen=True)
@@ -101,11 +101,55 @@ def flow_from_tile_motion(motion: TileMotion, layout: TileLayout, mapping: Panor
                             motion.translation[keep], layout.tile_size)
     pano_a = (in_a + origins[:, None, :]).reshape(-1, 2)
     pano_b = (np.broadcast_to(points_b, in_a.shape) + origins_b[:, None, :]).reshape(-1, 2)
-    width = mapping.width
-    pano_a[:, 1] = np.mod(pano_a[:, 1], width)
-    pano_b[:, 1] = np.mod(pano_b[:, 1], width)
+    return _flow_pairs(pano_a, pano_b, mapping, np.repeat(keep, k))
+
+
+def _flow_pairs(pano_a: np.ndarray, pano_b: np.ndarray, mapping: PanoramaMapping,
+                tile_index: np.ndarray) -> FlowPairs:
+    """FlowPairs of panorama point pairs (columns wrapped into ``[0, width)`` in place)."""
+    pano_a[:, 1] = np.mod(pano_a[:, 1], mapping.width)
+    pano_b[:, 1] = np.mod(pano_b[:, 1], mapping.width)
     return FlowPairs(
         panorama_a=pano_a, panorama_b=pano_b,
         pixels_a=omni_from_panorama(mapping, pano_a), pixels_b=omni_from_panorama(mapping, pano_b),
         rays_a=rays_from_panorama(mapping, pano_a), rays_b=rays_from_panorama(mapping, pano_b),
-        tile_index=np.repeat(keep, k))
+        tile_index=tile_index)
+
+
+def flow_from_placements(offsets_a: np.ndarray, linear_a: np.ndarray, offsets_b: np.ndarray,
+                         linear_b: np.ndarray, valid: np.ndarray, mapping: PanoramaMapping, *,
+                         points: np.ndarray, tile_size: int) -> FlowPairs:
+    """Pixel and ray pairs of tiles placed in both frames.
+
+    A tile placed at ``(o, L)`` in a panorama holds the panorama point
+    ``o + L (p - c)`` at tile point ``p`` (``c`` the tile centre); when the
+    registration has aligned the two tiles, the same tile point is the same
+    scene point in both frames.
+
+    Parameters
+    ----------
+    offsets_a, offsets_b : (T, 2) ndarray
+        Panorama ``(row, col)`` of the tile centres in frame a and b.
+    linear_a, linear_b : (T, 2, 2) ndarray
+        Panorama ``(row, col)`` per tile ``(row, col)`` step.
+    valid : (T,) bool ndarray
+        Tiles to use.
+    mapping : PanoramaMapping
+    points : (K, 2) ndarray, keyword-only
+        Tile ``(row, col)`` points of :func:`flow_sample_points`.
+    tile_size : int, keyword-only
+
+    Returns
+    -------
+    FlowPairs
+    """
+    keep = np.flatnonzero(valid)
+    u = np.asarray(points, dtype=np.float64) - (tile_size - 1) / 2.0
+
+    def panorama(offsets, linear):
+        offsets = np.asarray(offsets, dtype=np.float64)[keep]
+        linear = np.asarray(linear, dtype=np.float64)[keep]
+        return (offsets[:, None, :] + np.einsum("tij,kj->tki", linear, u)).reshape(-1, 2)
+
+    return _flow_pairs(panorama(offsets_a, linear_a), panorama(offsets_b, linear_b), mapping,
+                       np.repeat(keep, len(u)))

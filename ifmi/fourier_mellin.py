@@ -51,6 +51,11 @@ __all__ = [
     "FourierMellinConfig",
     "TileSpectra",
     "TileMotion",
+    "PlacedTiles",
+    "PlacedRegistration",
+    "placement_from_motion",
+    "compose_placement",
+    "motion_from_placement",
     "FourierMellin",
     "REJECT_REASONS",
     "transform_points",
@@ -229,6 +234,118 @@ def transform_points(points_b: np.ndarray, scale: np.ndarray, angle_rad: np.ndar
     return np.stack([row, col], axis=-1)
 
 
+def placement_from_motion(origins: np.ndarray, scale: np.ndarray, angle_rad: np.ndarray,
+                          translation: np.ndarray, tile_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Affine placement in b's source of the aligned tile ``b'(p) = b(M^{-1}(p))``.
+
+    Parameters
+    ----------
+    origins : (T, 2) ndarray
+        ``(row, col)`` of tile b's first pixel in its source.
+    scale, angle_rad : (T,) ndarray
+    translation : (T, 2) ndarray
+        The tile motion ``M`` (module docstring), ``(row, col)`` pixels.
+    tile_size : int
+
+    Returns
+    -------
+    offsets : (T, 2) ndarray
+        Source ``(row, col)`` of the aligned tile's centre.
+    linear : (T, 2, 2) ndarray
+        ``L = R(-theta) / s``: source ``(row, col)`` per aligned-tile step.
+    """
+    c = (tile_size - 1) / 2.0
+    return compose_placement(np.asarray(origins, dtype=np.float64) + c, np.broadcast_to(np.eye(2), (len(scale), 2, 2)),
+                             scale, angle_rad, translation)
+
+
+def compose_placement(offsets: np.ndarray, linear: np.ndarray, scale: np.ndarray, angle_rad: np.ndarray,
+                      translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Placement of tiles after a residual motion measured against tiles cut at ``(offsets, linear)``.
+
+    If tiles cut at the placement show tile a moved by the similarity
+    ``D = (s, theta, t)`` (module docstring), the tiles cut at the returned
+    placement show tile a unmoved: ``o' = o - L' t`` and ``L' = L R(-theta) / s``.
+
+    Parameters
+    ----------
+    offsets : (T, 2) ndarray
+    linear : (T, 2, 2) ndarray
+    scale, angle_rad : (T,) ndarray
+    translation : (T, 2) ndarray
+
+    Returns
+    -------
+    offsets : (T, 2) ndarray
+    linear : (T, 2, 2) ndarray
+    """
+    cos = np.cos(angle_rad) / scale
+    sin = np.sin(angle_rad) / scale
+    step = np.stack([np.stack([cos, sin], axis=-1), np.stack([-sin, cos], axis=-1)], axis=-2)
+    linear = np.asarray(linear, dtype=np.float64) @ step
+    offsets = np.asarray(offsets, dtype=np.float64) - np.einsum("tij,tj->ti", linear, translation)
+    return offsets, linear
+
+
+def motion_from_placement(origins: np.ndarray, offsets: np.ndarray, linear: np.ndarray,
+                          tile_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Inverse of :func:`placement_from_motion` for similarity placements: ``(s, theta, t)``."""
+    c = (tile_size - 1) / 2.0
+    angle = np.arctan2(linear[:, 0, 1], linear[:, 0, 0])
+    scale = 1.0 / np.hypot(linear[:, 0, 0], linear[:, 0, 1])
+    translation = np.linalg.solve(linear, (np.asarray(origins, dtype=np.float64) + c - offsets)[..., None])[..., 0]
+    return scale, angle, translation
+
+
+@dataclass(frozen=True)
+class PlacedTiles:
+    """Tiles resampled from a frame at known affine placements (see :meth:`FourierMellin.resample_placed`).
+
+    Attributes
+    ----------
+    tiles : (T, N, N) float32 ndarray
+    offsets : (T, 2) ndarray
+        Source ``(row, col)`` of each tile centre.
+    linear : (T, 2, 2) ndarray
+    spectra : TileSpectra or None
+        Their spectra, when already computed.
+    """
+
+    tiles: np.ndarray
+    offsets: np.ndarray
+    linear: np.ndarray
+    spectra: TileSpectra | None
+
+
+@dataclass(frozen=True)
+class PlacedRegistration:
+    """Result of :meth:`FourierMellin.register_placed`.
+
+    Attributes
+    ----------
+    offsets, linear : (T, 2) and (T, 2, 2) ndarray
+        Final placement in b's source of each tile of a (its centre and ``L``).
+    peak_ratio, peak_to_noise, peak_value : (T,) ndarray
+        Quality of the translation correlation.
+    valid : (T,) bool ndarray
+    reason : (T,) int ndarray
+        Index into :data:`REJECT_REASONS`.
+    last : PlacedTiles
+        The tiles of b the final residual was measured on, with their
+        placement: cut at the same place, they make the reference tiles of
+        the next pair (tile tracking).
+    """
+
+    offsets: np.ndarray
+    linear: np.ndarray
+    peak_ratio: np.ndarray
+    peak_to_noise: np.ndarray
+    peak_value: np.ndarray
+    valid: np.ndarray
+    reason: np.ndarray
+    last: PlacedTiles
+
+
 class FourierMellin:
     """Precomputed windows, filters and log-polar maps for ``count`` tiles of size ``tile_size``.
 
@@ -325,12 +442,38 @@ class FourierMellin:
                                         weight_power=weight_power,
                                         iterations=c.phase_plane_iterations)
 
-    def resample(self, source: np.ndarray, origins: np.ndarray, scale: np.ndarray,
-                  angle: np.ndarray, translation: np.ndarray) -> np.ndarray:
-        """Tiles ``b'(p) = b(M^{-1}(p))`` sampled from ``source`` (one remap call).
+    def resample_placed(self, source: np.ndarray, offsets: np.ndarray, linear: np.ndarray) -> np.ndarray:
+        """Tiles ``x(p) = source(o + L (p - c))`` sampled at affine placements (one remap call).
 
-        ``M^{-1}(p) = R(-theta) (p - c - t) / s + c`` is affine in the tile grid, so the maps
-        are built from per-tile coefficients and the separable grid in float32.
+        Parameters
+        ----------
+        source : (H, W) float32 ndarray
+        offsets : (K, 2) ndarray
+            ``o``: ``(row, col)`` in ``source`` of each tile's centre ``c``.
+        linear : (K, 2, 2) ndarray
+            ``L``: source ``(row, col)`` per tile ``(row, col)`` step.
+
+        Returns
+        -------
+        (K, N, N) float32 ndarray
+        """
+        n = self.tile_size
+        f32 = np.float32
+        g = np.arange(n, dtype=f32) - f32((n - 1) / 2.0)
+        lin = np.asarray(linear, dtype=f32)
+        off = np.asarray(offsets, dtype=f32)
+        gr, gc = g[None, :, None], g[None, None, :]
+        map_rows = (lin[:, 0, 0, None, None] * gr + lin[:, 0, 1, None, None] * gc
+                    + off[:, 0, None, None]).reshape(-1, n)
+        map_cols = (lin[:, 1, 0, None, None] * gr + lin[:, 1, 1, None, None] * gc
+                    + off[:, 1, None, None]).reshape(-1, n)
+        out = cv2.remap(source, map_cols, map_rows, _INTERPOLATIONS[self.config.resample_interpolation],
+                        borderMode=cv2.BORDER_REFLECT_101)
+        return out.reshape(len(off), n, n)
+
+    def resample(self, source: np.ndarray, origins: np.ndarray, scale: np.ndarray,
+                 angle: np.ndarray, translation: np.ndarray) -> np.ndarray:
+        """Tiles ``b'(p) = b(M^{-1}(p))`` sampled from ``source`` (one remap call).
 
         Parameters
         ----------
@@ -346,22 +489,91 @@ class FourierMellin:
         -------
         (K, N, N) float32 ndarray
         """
-        n = self.tile_size
-        c = (n - 1) / 2.0
-        cos, sin = np.cos(angle) / scale, np.sin(angle) / scale
-        off_r = -(cos * translation[:, 0] + sin * translation[:, 1]) + c + origins[:, 0]
-        off_c = -(-sin * translation[:, 0] + cos * translation[:, 1]) + c + origins[:, 1]
-        g = (np.arange(n, dtype=np.float32) - np.float32(c))
-        f32 = np.float32
-        cos3 = cos.astype(f32)[:, None, None]
-        sin3 = sin.astype(f32)[:, None, None]
-        gr = g[None, :, None]
-        gc = g[None, None, :]
-        map_rows = (cos3 * gr + sin3 * gc + off_r.astype(f32)[:, None, None]).reshape(-1, n)
-        map_cols = (cos3 * gc - sin3 * gr + off_c.astype(f32)[:, None, None]).reshape(-1, n)
-        out = cv2.remap(source, map_cols, map_rows, _INTERPOLATIONS[self.config.resample_interpolation],
-                        borderMode=cv2.BORDER_REFLECT_101)
-        return out.reshape(len(scale), self.tile_size, self.tile_size)
+        return self.resample_placed(source, *placement_from_motion(origins, scale, angle, translation,
+                                                                   self.tile_size))
+
+    def _residual_motion(self, spectra_a: TileSpectra, tiles: np.ndarray):
+        """Residual ``(s, theta, t)`` of tiles already resampled onto tile a, and their spectra."""
+        count = len(tiles)
+        zeros2 = np.zeros((count, 2))
+        shape = (self.tile_size, self.tile_size)
+        spectra = self.spectra(tiles)
+        d_shift = -self._refine(spectra_a.spectrum, spectra.spectrum, zeros2, shape,
+                                weight_power=self.config.residual_weight_power)
+        if not self.config.estimate_rotation_scale:
+            return np.ones(count), np.zeros(count), d_shift, spectra
+        lp_shift = self._refine(spectra_a.descriptor, spectra.descriptor, zeros2, (self.n_angles, self.n_radii))
+        d_angle = -lp_shift[:, 0] * (np.pi / self.n_angles)
+        d_scale = np.exp(lp_shift[:, 1] * self.log_radius_step)
+        return d_scale, d_angle, d_shift, spectra
+
+    def _refined_placement(self, spectra_a: TileSpectra, source_b: np.ndarray, offsets: np.ndarray,
+                           linear: np.ndarray):
+        """``refine_passes`` passes: resample b at the placement, measure the residual, compose.
+
+        Returns the final placement and the last resampled tiles with their
+        placement and spectra (None without refinement passes).
+        """
+        last = None
+        for _ in range(self.config.refine_passes):
+            tiles = self.resample_placed(source_b, offsets, linear)
+            d_scale, d_angle, d_shift, spectra = self._residual_motion(spectra_a, tiles)
+            last = PlacedTiles(tiles=tiles, offsets=offsets, linear=linear, spectra=spectra)
+            offsets, linear = compose_placement(offsets, linear, d_scale, d_angle, d_shift)
+        return offsets, linear, last
+
+    def _reasons(self, spectra_a: TileSpectra, std_b: np.ndarray, peak_ratio: np.ndarray,
+                 pnr: np.ndarray) -> np.ndarray:
+        reason = np.zeros(len(pnr), dtype=np.int64)
+        reason[pnr < self.config.th_pnr] = 3
+        reason[peak_ratio < self.config.th_pr] = 2
+        reason[(spectra_a.std < self.config.min_std) | (std_b < self.config.min_std)] = 1
+        return reason
+
+    def register_placed(self, spectra_a: TileSpectra, source_b: np.ndarray, offsets_b: np.ndarray,
+                        linear_b: np.ndarray) -> "PlacedRegistration":
+        """Register tiles of b cut at predicted affine placements against tiles a.
+
+        Tile b is resampled at its placement (the prediction of where, and how
+        distorted, tile a's content appears in b), the translation is measured
+        by phase correlation, and the refinement passes measure and compose
+        the residual similarity.
+
+        Parameters
+        ----------
+        spectra_a : TileSpectra
+            Spectra of the tiles of a (``T`` tiles).
+        source_b : (H, W) float32 ndarray
+            Image the tiles of b are resampled from; pad it so that tiles do not leave it.
+        offsets_b : (T, 2) ndarray
+            Predicted ``(row, col)`` in ``source_b`` of each tile centre.
+        linear_b : (T, 2, 2) ndarray
+            Predicted ``L`` of each tile (see :meth:`resample_placed`).
+
+        Returns
+        -------
+        PlacedRegistration
+        """
+        source_b = np.ascontiguousarray(source_b, dtype=np.float32)
+        offsets_b = np.asarray(offsets_b, dtype=np.float64)
+        linear_b = np.asarray(linear_b, dtype=np.float64)
+        shape = (self.tile_size, self.tile_size)
+        tiles = self.resample_placed(source_b, offsets_b, linear_b)
+        fb, std_b = self._windowed_fft(tiles)
+        fa = spectra_a.spectrum
+        peaks = find_peaks(correlation_surface(normalized_cross_power(fa, fb), shape,
+                                               workers=self.config.workers))
+        # b'(p) = a(p + t) means b' is a moved by d = -t.
+        translation = -self._refine(fa, fb, peaks.shift, shape)
+        count = len(offsets_b)
+        offsets, linear = compose_placement(offsets_b, linear_b, np.ones(count), np.zeros(count), translation)
+        offsets, linear, last = self._refined_placement(spectra_a, source_b, offsets, linear)
+        if last is None:
+            last = PlacedTiles(tiles=tiles, offsets=offsets_b, linear=linear_b, spectra=None)
+        reason = self._reasons(spectra_a, std_b, peaks.peak_ratio, peaks.peak_to_noise)
+        return PlacedRegistration(offsets=offsets, linear=linear, peak_ratio=peaks.peak_ratio,
+                                  peak_to_noise=peaks.peak_to_noise, peak_value=peaks.value,
+                                  valid=reason == 0, reason=reason, last=last)
 
     def register(self, spectra_a: TileSpectra, spectra_b: TileSpectra | None, source_b: np.ndarray,
                  origins_b: np.ndarray, *, prior_scale: np.ndarray | None = None,
@@ -397,15 +609,15 @@ class FourierMellin:
         origins_b = np.asarray(origins_b, dtype=np.float64)
         zeros2 = np.zeros((t, 2))
         if prior_scale is not None:
-            scale = np.asarray(prior_scale, dtype=np.float64)
-            angle = np.asarray(prior_angle, dtype=np.float64)
-            rotation_ratio = np.full(t, np.nan)
-            fa = spectra_a.spectrum
-            fb, std_b = self._windowed_fft(self.resample(source_b, origins_b, scale, angle, zeros2))
-            peaks = find_peaks(correlation_surface(normalized_cross_power(fa, fb), shape, workers=workers))
-            shift, peak_value = peaks.shift, peaks.value
-            peak_ratio, pnr = peaks.peak_ratio, peaks.peak_to_noise
-        elif self.config.estimate_rotation_scale:
+            offsets, linear = placement_from_motion(origins_b, np.asarray(prior_scale, dtype=np.float64),
+                                                    np.asarray(prior_angle, dtype=np.float64), zeros2, n)
+            placed = self.register_placed(spectra_a, source_b, offsets, linear)
+            scale, angle, translation = motion_from_placement(origins_b, placed.offsets, placed.linear, n)
+            return TileMotion(scale=scale, angle_rad=angle, translation=translation,
+                              peak_ratio=placed.peak_ratio, peak_to_noise=placed.peak_to_noise,
+                              peak_value=placed.peak_value, rotation_peak_ratio=np.full(t, np.nan),
+                              valid=placed.valid, reason=placed.reason)
+        if self.config.estimate_rotation_scale:
             std_b = spectra_b.std
             lp = correlation_surface(normalized_cross_power(spectra_a.descriptor, spectra_b.descriptor),
                                      (self.n_angles, self.n_radii), workers=workers)
@@ -445,31 +657,10 @@ class FourierMellin:
             peak_ratio, pnr = peaks.peak_ratio, peaks.peak_to_noise
         # b'(p) = a(p + t) means b' is a moved by d = -t.
         translation = -self._refine(fa, fb, shift, shape)
-        for _ in range(self.config.refine_passes):
-            # b''(p) = b(M^{-1}(p)) = a(D(p)) with D a small residual similarity; compose M <- D o M.
-            residual_tiles = self.resample(source_b, origins_b, scale, angle, translation)
-            residual_spectra = self.spectra(residual_tiles)
-            d_shift = -self._refine(fa, residual_spectra.spectrum, zeros2, shape,
-                                    weight_power=self.config.residual_weight_power)
-            if self.config.estimate_rotation_scale:
-                lp_shift = self._refine(spectra_a.descriptor, residual_spectra.descriptor, zeros2,
-                                        (self.n_angles, self.n_radii))
-                d_angle = -lp_shift[:, 0] * (np.pi / self.n_angles)
-                d_scale = np.exp(lp_shift[:, 1] * self.log_radius_step)
-                cos, sin = np.cos(d_angle), np.sin(d_angle)
-                rotated = np.stack([cos * translation[:, 0] - sin * translation[:, 1],
-                                    sin * translation[:, 0] + cos * translation[:, 1]], axis=1)
-                translation = d_scale[:, None] * rotated + d_shift
-                scale = scale * d_scale
-                angle = np.mod(angle + d_angle + np.pi, 2 * np.pi) - np.pi
-            else:
-                translation = translation + d_shift
-
-        reason = np.zeros(t, dtype=np.int64)
-        reason[pnr < self.config.th_pnr] = 3
-        reason[peak_ratio < self.config.th_pr] = 2
-        textureless = (spectra_a.std < self.config.min_std) | (std_b < self.config.min_std)
-        reason[textureless] = 1
+        offsets, linear = placement_from_motion(origins_b, scale, angle, translation, n)
+        offsets, linear, _ = self._refined_placement(spectra_a, source_b, offsets, linear)
+        scale, angle, translation = motion_from_placement(origins_b, offsets, linear, n)
+        reason = self._reasons(spectra_a, std_b, peak_ratio, pnr)
         return TileMotion(scale=scale, angle_rad=angle, translation=translation, peak_ratio=peak_ratio,
                           peak_to_noise=pnr, peak_value=peak_value, rotation_peak_ratio=rotation_ratio,
                           valid=reason == 0, reason=reason)

@@ -8,15 +8,15 @@ noise filters and returns ray pairs from the flow equation.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Mapping
 
 import numpy as np
 
 from .camera import OcamModel
 from .options import options_from_dict
-from .flow import flow_from_tile_motion, flow_sample_points
-from .fourier_mellin import REJECT_REASONS, FourierMellin, FourierMellinConfig, TileSpectra
+from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
+from .fourier_mellin import REJECT_REASONS, FourierMellin, FourierMellinConfig, PlacedTiles, TileSpectra
 from .tiling import TileLayout, TilingConfig, tile_layout, tiles_from_panorama
 from .unwarp import (PanoramaConfig, PanoramaMapping, panorama_from_omni, panorama_from_rays,
                      panorama_mapping, rays_from_panorama)
@@ -44,7 +44,21 @@ class IfmiConfig:
         When the odometry passes a predicted rotation, cut each tile of
         frame b where the prediction moves tile a's content, so that the
         registration measures only the small residual motion (more overlap,
-        less window bias, keyframes that last longer).
+        less window bias, keyframes that last longer). Tile b is cut with
+        the local affine map of the predicted rotation (the panorama warp's
+        Jacobian at the tile centre), not only its similarity part.
+    track_tiles : bool
+        With a prediction, a frame that becomes a reference keeps the tiles
+        it was registered with -- resampled where its previous reference's
+        tiles were found -- instead of cutting new ones at the fixed
+        layout, like tracked features. The same pixels then enter the pair
+        before and the pair after it with opposite signs, so their noise
+        cancels along the trajectory instead of accumulating. Tiles that
+        failed registration, left the panorama rows or became distorted
+        are cut anew from the layout.
+    max_tile_distortion : float
+        A tracked tile whose placement stretches or shrinks the panorama by
+        more than this factor along any direction is cut anew.
     """
 
     panorama: PanoramaConfig = field(default_factory=PanoramaConfig)
@@ -54,6 +68,8 @@ class IfmiConfig:
     point_spread: float = 0.1
     min_tiles: int = 3
     use_prior: bool = True
+    track_tiles: bool = True
+    max_tile_distortion: float = 1.25
 
     def __post_init__(self) -> None:
         if self.points_per_tile not in (1, 5, 9):
@@ -61,6 +77,8 @@ class IfmiConfig:
         if not 0 <= self.point_spread < 0.5 or self.min_tiles < 1:
             raise ValueError(f"expected 0 <= point_spread < 0.5 and min_tiles >= 1, got "
                              f"{self.point_spread}, {self.min_tiles}")
+        if not self.max_tile_distortion > 1:
+            raise ValueError(f"expected max_tile_distortion > 1, got {self.max_tile_distortion}")
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "IfmiConfig":
@@ -78,24 +96,28 @@ class IfmiConfig:
 
 
 class IfmiFrameState:
-    """Prepared frame: wrap-padded panorama (float32) and, computed once on first use, its tile spectra.
+    """Prepared frame: wrap-padded panorama (float32), its layout tiles and, on first use, their spectra.
 
     The spectra are needed when the frame is a reference (or matched without
     a prediction); in keyframe mode most frames are neither, and skip them.
+    ``tracked`` holds the tiles this frame was last registered with (set by
+    the front end; see ``IfmiConfig.track_tiles``).
     """
 
     def __init__(self, padded_panorama: np.ndarray, tiles: np.ndarray, engine: FourierMellin):
         self.padded_panorama = padded_panorama
-        self._tiles = tiles
+        self.tiles = tiles
         self._engine = engine
         self._spectra: TileSpectra | None = None
+        self.tracked: PlacedTiles | None = None
+        self.tracked_valid: np.ndarray | None = None
+        self.reference: tuple | None = None
 
     @property
     def spectra(self) -> TileSpectra:
         """Tile spectra (:class:`~ifmi.fourier_mellin.TileSpectra`), computed on first access."""
         if self._spectra is None:
-            self._spectra = self._engine.spectra(self._tiles)
-            self._tiles = None
+            self._spectra = self._engine.spectra(self.tiles)
         return self._spectra
 
 
@@ -157,68 +179,177 @@ class IfmiFrontEnd:
         # reaches 0.71 N beyond it, and predicted origins may sit anywhere in [0, width).
         return 2 * self.layout.tile_size
 
-    def predicted_origins(self, prior_rotation: np.ndarray) -> np.ndarray:
-        """Panorama ``(row, col)`` in frame b of each tile's first pixel under ``R_ab``.
+    @property
+    def _layout_placement(self) -> tuple[np.ndarray, np.ndarray]:
+        centre = (self.layout.tile_size - 1) / 2.0
+        offsets = self.layout.origins.astype(np.float64) + centre
+        return offsets, np.broadcast_to(np.eye(2), (self.layout.count, 2, 2)).copy()
 
-        Tile a's centre ray ``r_a`` is seen in frame b along ``R_ab^T r_a``.
-        """
-        return self.predicted_tiles(prior_rotation)[0]
+    def predicted_placements(self, offsets_a: np.ndarray, linear_a: np.ndarray,
+                             prior_rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where tiles placed at ``(offsets_a, linear_a)`` in frame a appear in frame b under ``R_ab``.
 
-    def predicted_tiles(self, prior_rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Predicted tile-b origins and the local similarity ``(s, theta)`` of each tile under ``R_ab``.
+        A panorama point of a with ray ``r_a`` is seen in b along
+        ``R_ab^T r_a``; the map is differentiated at each tile centre
+        (central differences of half a pixel) and its Jacobian ``J`` carries
+        the tile's own map: ``L_b = J L_a``.
 
-        The panorama map ``p_b -> p_a`` of the rotation is differentiated at
-        each predicted tile centre (one-pixel differences); its Jacobian's
-        similarity part gives the tile motion's scale and angle.
+        Parameters
+        ----------
+        offsets_a : (T, 2) ndarray
+            Panorama ``(row, col)`` of the tile centres in frame a.
+        linear_a : (T, 2, 2) ndarray
+        prior_rotation : (3, 3) ndarray
+            Predicted ``R_ab``.
 
         Returns
         -------
-        origins_b : (T, 2) ndarray
-        scale, angle : (T,) ndarray
+        offsets_b : (T, 2) ndarray
+            Panorama ``(row, col)`` in frame b; columns may leave ``[0, width)`` by less than a width.
+        linear_b : (T, 2, 2) ndarray
         """
         rotation = np.asarray(prior_rotation, dtype=np.float64)
-        c = (self.layout.tile_size - 1) / 2.0
-        rays_a = rays_from_panorama(self.mapping, self.layout.origins + c)
-        centres_b = panorama_from_rays(self.mapping, rays_a @ rotation)
-        probes = centres_b[:, None, :] + np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-        in_a = panorama_from_rays(self.mapping, rays_from_panorama(self.mapping, probes) @ rotation.T)
+        steps = np.array([[0.0, 0.0], [0.5, 0.0], [-0.5, 0.0], [0.0, 0.5], [0.0, -0.5]])
+        probes = offsets_a[:, None, :] + steps
+        in_b = panorama_from_rays(self.mapping, rays_from_panorama(self.mapping, probes) @ rotation)
         width = self.mapping.width
-        d_row = in_a[:, 1] - in_a[:, 0]
-        d_col = in_a[:, 2] - in_a[:, 0]
-        d_row[:, 1] = np.mod(d_row[:, 1] + width / 2, width) - width / 2
-        d_col[:, 1] = np.mod(d_col[:, 1] + width / 2, width) - width / 2
-        # Jacobian columns: d p_a / d row_b and d p_a / d col_b.
-        alpha = (d_row[:, 0] + d_col[:, 1]) / 2.0
-        beta = (d_row[:, 1] - d_col[:, 0]) / 2.0
-        return centres_b - c, np.hypot(alpha, beta), np.arctan2(beta, alpha)
+        centre = in_b[:, 0]
+        # Differences taken across the seam are unwrapped.
+        d = in_b[:, 1:] - centre[:, None, :]
+        d[..., 1] = np.mod(d[..., 1] + width / 2, width) - width / 2
+        jacobian = np.stack([d[:, 0] - d[:, 1], d[:, 2] - d[:, 3]], axis=-1)
+        return centre, jacobian @ linear_a
 
-    def register(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
-                 prior_rotation: np.ndarray | None = None):
-        """Tile motions of frame b against frame a (:class:`~ifmi.fourier_mellin.TileMotion`).
+    def predicted_origins(self, prior_rotation: np.ndarray) -> np.ndarray:
+        """Panorama ``(row, col)`` in frame b of each layout tile's first pixel under ``R_ab``.
 
-        With ``prior_rotation`` (a predicted ``R_ab``) frame b's tiles are cut
-        where the prediction moves tile a's content, with its local rotation
-        and scale undone; the motion is then relative to those origins.
+        Tile a's centre ray ``r_a`` is seen in frame b along ``R_ab^T r_a``.
+        """
+        offsets, linear = self._layout_placement
+        centres, _ = self.predicted_placements(offsets, linear, prior_rotation)
+        return centres - (self.layout.tile_size - 1) / 2.0
+
+    def _needs_new_tile(self, tracked: PlacedTiles, valid: np.ndarray) -> np.ndarray:
+        singular = np.linalg.svd(tracked.linear, compute_uv=False)
+        limit = self.config.max_tile_distortion
+        distorted = (singular[:, 0] > limit) | (singular[:, 1] < 1.0 / limit)
+        # Rows the tile covers: its corners reach (N/2)(|L_00| + |L_01|) from the centre.
+        reach = self.layout.tile_size / 2.0 * np.abs(tracked.linear[:, 0, :]).sum(axis=1)
+        rows = tracked.offsets[:, 0]
+        outside = (rows - reach < 0) | (rows + reach > self.mapping.height - 1)
+        return ~valid | distorted | outside
+
+    def reference_tiles(self, state: IfmiFrameState) -> tuple[np.ndarray, np.ndarray, TileSpectra, int]:
+        """Placement and spectra of a reference frame's tiles (tracked where possible).
+
+        Returns
+        -------
+        offsets : (T, 2) ndarray
+        linear : (T, 2, 2) ndarray
+        spectra : TileSpectra
+        n_new : int
+            Tiles cut anew from the layout.
+        """
+        if state.reference is not None:
+            return state.reference
+        offsets, linear = self._layout_placement
+        tracked = state.tracked
+        if not self.config.track_tiles or tracked is None:
+            state.reference = (offsets, linear, state.spectra, self.layout.count)
+            return state.reference
+        spectra = tracked.spectra if tracked.spectra is not None else self.engine.spectra(tracked.tiles)
+        new = self._needs_new_tile(tracked, state.tracked_valid)
+        if new.any():
+            layout = state.spectra
+            merged = [np.where(new.reshape((-1,) + (1,) * (x.ndim - 1)), y, x) if x is not None else None
+                      for x, y in ((spectra.spectrum, layout.spectrum), (spectra.descriptor, layout.descriptor),
+                                   (spectra.std, layout.std))]
+            spectra = TileSpectra(spectrum=merged[0], descriptor=merged[1], std=merged[2])
+            offsets = np.where(new[:, None], offsets, tracked.offsets)
+            linear = np.where(new[:, None, None], linear, tracked.linear)
+        else:
+            offsets, linear = tracked.offsets, tracked.linear
+        state.reference = (offsets, linear, spectra, int(new.sum()))
+        return state.reference
+
+    def register(self, state_a: IfmiFrameState, state_b: IfmiFrameState):
+        """Tile motions of frame b against frame a without a prediction (layout tiles in both).
 
         Returns
         -------
         motion : TileMotion
         origins_b : (T, 2) ndarray
-            Panorama ``(row, col)`` of tile b's first pixel.
+            Panorama ``(row, col)`` of tile b's first pixel (the layout's).
         """
         shift = np.array([0.0, self._pad])
-        if prior_rotation is None:
-            motion = self.engine.register(state_a.spectra, state_b.spectra, state_b.padded_panorama,
-                                          self.layout.origins + shift)
-            return motion, self.layout.origins.astype(np.float64)
-        origins_b, scale, angle = self.predicted_tiles(prior_rotation)
-        motion = self.engine.register(state_a.spectra, None, state_b.padded_panorama, origins_b + shift,
-                                      prior_scale=scale, prior_angle=angle)
-        return motion, origins_b
+        motion = self.engine.register(state_a.spectra, state_b.spectra, state_b.padded_panorama,
+                                      self.layout.origins + shift)
+        return motion, self.layout.origins.astype(np.float64)
+
+    def register_predicted(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
+                           prior_rotation: np.ndarray):
+        """Find the reference's tiles in frame b where a predicted rotation puts them.
+
+        Frame b keeps the tiles the final residual was measured on as its
+        tracked tiles (used when it becomes a reference, ``track_tiles``).
+
+        Parameters
+        ----------
+        state_a, state_b : IfmiFrameState
+        prior_rotation : (3, 3) ndarray, keyword-only
+            Predicted ``R_ab``.
+
+        Returns
+        -------
+        offsets_a : (T, 2) ndarray
+            Panorama ``(row, col)`` of the reference tiles' centres in frame a.
+        linear_a : (T, 2, 2) ndarray
+        placed : PlacedRegistration
+            With panorama coordinates of frame b (columns in ``[0, width)``).
+        n_new : int
+            Reference tiles cut anew from the layout.
+        """
+        offsets_a, linear_a, spectra_a, n_new = self.reference_tiles(state_a)
+        offsets_b, linear_b = self.predicted_placements(offsets_a, linear_a, prior_rotation)
+        shift = np.array([0.0, self._pad])
+        width = self.mapping.width
+
+        def unpadded(offsets):
+            offsets = offsets - shift
+            offsets[:, 1] = np.mod(offsets[:, 1], width)
+            return offsets
+
+        offsets_b[:, 1] = np.mod(offsets_b[:, 1], width)
+        placed = self.engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + shift, linear_b)
+        last = placed.last
+        state_b.tracked = PlacedTiles(tiles=last.tiles, offsets=unpadded(last.offsets), linear=last.linear,
+                                      spectra=last.spectra)
+        state_b.tracked_valid = placed.valid
+        state_b.reference = None
+        placed = replace(placed, offsets=unpadded(placed.offsets), last=state_b.tracked)
+        return offsets_a, linear_a, placed, n_new
+
+    def _diagnostics(self, reason: np.ndarray, peak_ratio: np.ndarray, peak_to_noise: np.ndarray,
+                     n_new: int) -> dict:
+        counts = np.bincount(reason, minlength=len(REJECT_REASONS))
+        return {
+            "n_tiles": int(self.layout.count),
+            "n_tiles_kept": int((reason == 0).sum()),
+            **{f"n_tiles_{name.replace(' ', '_').replace('-', '_')}": int(counts[i])
+               for i, name in enumerate(REJECT_REASONS) if i > 0},
+            "n_tiles_new": int(n_new),
+            "median_peak_ratio": float(np.median(peak_ratio)),
+            "median_peak_to_noise": float(np.median(peak_to_noise)),
+        }
 
     def correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
                         prior_rotation: np.ndarray | None = None):
         """Ray pairs of frame a (reference) and frame b from the kept tiles.
+
+        With a predicted rotation (and ``config.use_prior``) the reference's
+        tiles (tracked or from the layout) are looked for in frame b where
+        the prediction puts them, cut with its local affine map; frame b
+        then keeps the tiles it was registered with (``track_tiles``).
 
         Parameters
         ----------
@@ -234,22 +365,25 @@ class IfmiFrontEnd:
 
         if not self.config.use_prior:
             prior_rotation = None
-        motion, origins_b = self.register(state_a, state_b, prior_rotation=prior_rotation)
-        counts = np.bincount(motion.reason, minlength=len(REJECT_REASONS))
-        valid = motion.valid
-        diagnostics = {
-            "n_tiles": int(self.layout.count),
-            "n_tiles_kept": int(valid.sum()),
-            **{f"n_tiles_{name.replace(' ', '_').replace('-', '_')}": int(counts[i])
-               for i, name in enumerate(REJECT_REASONS) if i > 0},
-            "median_peak_ratio": float(np.median(motion.peak_ratio)),
-            "median_peak_to_noise": float(np.median(motion.peak_to_noise)),
-        }
+        if prior_rotation is None:
+            motion, origins_b = self.register(state_a, state_b)
+            diagnostics = self._diagnostics(motion.reason, motion.peak_ratio, motion.peak_to_noise,
+                                            self.layout.count)
+            valid = motion.valid
+        else:
+            offsets_a, linear_a, placed, n_new = self.register_predicted(state_a, state_b,
+                                                                          prior_rotation=prior_rotation)
+            diagnostics = self._diagnostics(placed.reason, placed.peak_ratio, placed.peak_to_noise, n_new)
+            valid = placed.valid
         if valid.sum() < self.config.min_tiles:
             return Correspondences.failed(
                 f"only {int(valid.sum())} of {self.layout.count} tiles passed the noise filters "
                 f"(need {self.config.min_tiles})", diagnostics)
-        pairs = flow_from_tile_motion(motion, self.layout, self.mapping, points_b=self._points_b,
-                                      origins_b=origins_b)
+        if prior_rotation is None:
+            pairs = flow_from_tile_motion(motion, self.layout, self.mapping, points_b=self._points_b,
+                                          origins_b=origins_b)
+        else:
+            pairs = flow_from_placements(offsets_a, linear_a, placed.offsets, placed.linear, valid,
+                                         self.mapping, points=self._points_b, tile_size=self.layout.tile_size)
         return Correspondences(pixels_a=pairs.pixels_a, pixels_b=pairs.pixels_b,
                                rays_a=pairs.rays_a, rays_b=pairs.rays_b, diagnostics=diagnostics)
