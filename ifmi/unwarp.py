@@ -44,6 +44,8 @@ __all__ = [
 # Azimuths and radii of the coarse polar profile used to find the imaged band.
 _PROFILE_AZIMUTHS = 256
 _PROFILE_RADII = 256
+# Aperture (pixels) of the median filter applied before the band is detected.
+_NOISE_MEDIAN_PX = 5
 
 
 @dataclass(frozen=True)
@@ -175,7 +177,8 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
     calibration's monotonic range); with an image, it shrinks to the last
     radius whose ring is mostly brighter than ``config.dark_level`` (black
     outside the mirror) and the inner radius grows past a dark central disk
-    (the camera's reflection). The inner radius is at least
+    (the camera's reflection); rings are judged on the median-filtered
+    image, so noisy pixels in the black regions do not count as lit. The inner radius is at least
     ``config.min_radius_fraction`` of the outer one. Explicit radii in
     ``config`` override the detection.
 
@@ -193,7 +196,10 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
     outer = _monotonic_radius(model, _inscribed_radius(model))
     inner = 0.0
     if image is not None:
-        gray = gray_from_image(image).astype(np.float32)
+        # Median filtering removes isolated noisy pixels (sensor noise in the black regions,
+        # JPEG ringing) before rings are judged; the band's edges move by less than a pixel.
+        gray = cv2.medianBlur(np.clip(gray_from_image(image), 0, 255).astype(np.uint8),
+                              _NOISE_MEDIAN_PX).astype(np.float32)
         radii = np.linspace(0.0, outer, _PROFILE_RADII)
         phi = np.linspace(0.0, 2 * np.pi, _PROFILE_AZIMUTHS, endpoint=False)
         c, d, e = model.affine
