@@ -412,23 +412,28 @@ class FourierMellin:
 
         Parameters
         ----------
-        tiles : (T, N, N) ndarray
+        tiles : (K, N, N) ndarray
+            ``1 <= K <= T`` tiles (all of a frame's, or some of them).
 
         Returns
         -------
         TileSpectra
         """
-        if tiles.shape != (self.count, self.tile_size, self.tile_size):
-            raise ValueError(f"expected tiles of shape {(self.count, self.tile_size, self.tile_size)}, "
+        n = self.tile_size
+        if tiles.ndim != 3 or tiles.shape[1:] != (n, n) or not 1 <= len(tiles) <= self.count:
+            raise ValueError(f"expected tiles of shape (K, {n}, {n}) with 1 <= K <= {self.count}, "
                              f"got {tiles.shape}")
+        k = len(tiles)
         spectrum, std = self._windowed_fft(tiles)
         descriptor = None
         if self.config.estimate_rotation_scale:
             magnitude = np.abs(np.fft.fftshift(spectrum, axes=1)) * self.highpass
             stacked = np.ascontiguousarray(magnitude.reshape(-1, magnitude.shape[-1]), dtype=np.float32)
-            log_polar = cv2.remap(stacked, self.lp_map1, self.lp_map2, cv2.INTER_LINEAR,
+            # The maps of the first K tiles read only the first K stacked tiles.
+            rows = k * self.n_angles
+            log_polar = cv2.remap(stacked, self.lp_map1[:rows], self.lp_map2[:rows], cv2.INTER_LINEAR,
                                   borderMode=cv2.BORDER_REPLICATE)
-            log_polar = log_polar.reshape(self.count, self.n_angles, self.n_radii)
+            log_polar = log_polar.reshape(k, self.n_angles, self.n_radii)
             log_polar -= log_polar.mean(axis=(1, 2), keepdims=True)
             descriptor = scipy.fft.rfft2(log_polar, workers=self.config.workers).astype(np.complex64)
         return TileSpectra(spectrum=spectrum, descriptor=descriptor, std=std)

@@ -260,11 +260,18 @@ class IfmiFrontEnd:
         spectra = tracked.spectra if tracked.spectra is not None else self.engine.spectra(tracked.tiles)
         new = self._needs_new_tile(tracked, state.tracked_valid)
         if new.any():
-            layout = state.spectra
-            merged = [np.where(new.reshape((-1,) + (1,) * (x.ndim - 1)), y, x) if x is not None else None
-                      for x, y in ((spectra.spectrum, layout.spectrum), (spectra.descriptor, layout.descriptor),
-                                   (spectra.std, layout.std))]
-            spectra = TileSpectra(spectrum=merged[0], descriptor=merged[1], std=merged[2])
+            fresh = self.engine.spectra(state.tiles[new])
+
+            def merged(tracked_rows, new_rows):
+                if tracked_rows is None:
+                    return None
+                rows = tracked_rows.copy()
+                rows[new] = new_rows
+                return rows
+
+            spectra = TileSpectra(spectrum=merged(spectra.spectrum, fresh.spectrum),
+                                  descriptor=merged(spectra.descriptor, fresh.descriptor),
+                                  std=merged(spectra.std, fresh.std))
             offsets = np.where(new[:, None], offsets, tracked.offsets)
             linear = np.where(new[:, None, None], linear, tracked.linear)
         else:

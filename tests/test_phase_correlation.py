@@ -189,3 +189,14 @@ def test_config_rejects_negative_weight_power():
 def test_config_rejects_unknown_interpolation():
     with pytest.raises(ValueError, match="resample_interpolation"):
         FourierMellinConfig(resample_interpolation="nearest")
+
+
+def test_spectra_of_some_tiles_are_rows_of_all_tiles_spectra():
+    rng = np.random.default_rng(1)
+    engine = FourierMellin(32, 5)
+    tiles = rng.uniform(0, 255, (5, 32, 32)).astype(np.float32)
+    full, part = engine.spectra(tiles), engine.spectra(tiles[[1, 3]])
+    assert np.allclose(part.spectrum, full.spectrum[[1, 3]], atol=1e-3)
+    assert np.allclose(part.descriptor, full.descriptor[[1, 3]], atol=1e-2)
+    with pytest.raises(ValueError, match="1 <= K <= 5"):
+        engine.spectra(np.zeros((6, 32, 32), np.float32))
