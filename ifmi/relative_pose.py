@@ -9,7 +9,8 @@ Two models compete inside a seeded RANSAC with an angular threshold:
 * ``"5pt"``: the minimal essential-matrix solver on bearing vectors
   (``poselib.relpose_5pt``, which accepts rays of any sign of z), scored by
   the angle between a ray and the epipolar plane of its partner, then refined
-  by Gauss-Newton on the inliers' symmetric epipolar angles;
+  by Gauss-Newton (analytic Jacobian) on the inliers' symmetric epipolar
+  angles;
 * ``"rotation"``: a rotation-only model (Kabsch on rays, two rays per
   sample), scored by the angle between ``rays_a`` and ``R_ab @ rays_b``,
   then refined by Kabsch on the inliers and re-solved a few times with
@@ -34,12 +35,12 @@ explicit ``ransac_threshold_rad`` overrides it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 import poselib
 from scipy.optimize import brentq
-from scipy.spatial.transform import Rotation
 
 __all__ = [
     "RelativePoseOptions",
@@ -57,6 +58,12 @@ _SAMPLE_5PT = 5
 _SAMPLE_ROTATION = 2
 # Rotation-only hypotheses are cheap; they are drawn and scored in batches of this size.
 _ROTATION_BATCH = 32
+# 5-point samples are solved one at a time but their hypotheses scored in chunks of this many samples.
+_CHUNK_5PT = 8
+# Two-pair rotations come in closed form from frames of the pairs' bisector, half difference and
+# normal; a frame vector shorter than this (rays within 1e-6 rad of equal or opposite) is too
+# ill-conditioned and the rotation is solved by SVD instead.
+_FRAME_MIN_LENGTH = 1e-6
 
 
 @dataclass(frozen=True)
@@ -220,6 +227,47 @@ def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], axis=-1)
 
 
+def _skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices ``[v]_x`` of (..., 3) vectors, (..., 3, 3)."""
+    if v.ndim == 1:
+        x, y, z = v.tolist()
+        return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def _ray_products(rays_a: np.ndarray, rays_b: np.ndarray) -> np.ndarray:
+    """Flattened outer products ``a_n b_n^T`` of the rays, (N, 9).
+
+    ``a_n . (M b_n)`` of every row is ``products @ M.ravel()``, so one matrix
+    product evaluates the bilinear form of all rays under many 3 x 3 matrices
+    (rotations, essential matrices) at once; weighted sums of the rows are
+    the covariances of the Kabsch fit.
+    """
+    return (rays_a[:, :, None] * rays_b[:, None, :]).reshape(-1, 9)
+
+
+def _angles_from_cosines(cosines: np.ndarray) -> np.ndarray:
+    """Angle between unit vectors from their dot product, through the half chord ``sqrt((1 - cos) / 2)``."""
+    return 2.0 * np.arcsin(np.sqrt(np.clip(0.5 - 0.5 * cosines, 0.0, 1.0)))
+
+
+def _epipolar_angles_of_essentials(products: np.ndarray, rays_b: np.ndarray,
+                                   essentials: np.ndarray) -> np.ndarray:
+    """:func:`epipolar_angles` for essential matrices ``E = [t]_x R_ab``, (K, 3, 3) -> (K, N).
+
+    ``E b`` is the normal of the epipolar plane of ``b`` and ``a^T E b`` the
+    ray's projection on it.
+    """
+    normals = essentials @ rays_b.T
+    length = np.sqrt(np.sum(normals * normals, axis=1))
+    dot = np.abs(essentials.reshape(-1, 9) @ products.T) / np.maximum(length, 1e-300)
+    return np.arcsin(np.minimum(dot, 1.0))
+
+
 def epipolar_angles(rays_a: np.ndarray, rays_b: np.ndarray, rotations: np.ndarray,
                     translations: np.ndarray) -> np.ndarray:
     """Angle between ``rays_a`` and the epipolar plane of ``rays_b`` (radians).
@@ -239,11 +287,8 @@ def epipolar_angles(rays_a: np.ndarray, rays_b: np.ndarray, rotations: np.ndarra
         ``asin |rays_a . n|`` with ``n`` the unit normal of the plane spanned
         by ``t_ab`` and ``R_ab @ rays_b``.
     """
-    rotated = np.einsum("kij,nj->kni", rotations, rays_b)
-    normal = _cross(translations[:, None, :], rotated)
-    norm = np.linalg.norm(normal, axis=-1)
-    dot = np.abs(np.einsum("kni,ni->kn", normal, rays_a)) / np.maximum(norm, 1e-300)
-    return np.arcsin(np.minimum(dot, 1.0))
+    return _epipolar_angles_of_essentials(_ray_products(rays_a, rays_b), rays_b,
+                                          _skew(translations) @ rotations)
 
 
 def rotation_angles(rays_a: np.ndarray, rays_b: np.ndarray, rotations: np.ndarray) -> np.ndarray:
@@ -253,15 +298,36 @@ def rotation_angles(rays_a: np.ndarray, rays_b: np.ndarray, rotations: np.ndarra
     ----------
     rays_a, rays_b : (N, 3) ndarray
         Unit rays.
-    rotations : (K, 3, 3) ndarray
+    rotations : (K, 3, 3) or (3, 3) ndarray
 
     Returns
     -------
-    (K, N) ndarray
+    (K, N) or (N,) ndarray
     """
-    rotated = np.einsum("kij,nj->kni", rotations, rays_b)
-    chord = np.linalg.norm(rotated - rays_a[None], axis=-1)
-    return 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0))
+    difference = rays_b @ (rotations.T if rotations.ndim == 2 else np.swapaxes(rotations, -1, -2)) - rays_a
+    half_chord = 0.5 * np.sqrt(np.einsum("...i,...i->...", difference, difference))
+    return 2.0 * np.arcsin(np.minimum(half_chord, 1.0))
+
+
+def _determinant(matrix: np.ndarray) -> float:
+    """Determinant of one 3 x 3 matrix, in plain floats (cheaper than ``np.linalg.det`` for one)."""
+    (a, b, c), (d, e, f), (g, h, i) = matrix.tolist()
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+
+
+def _kabsch(covariance: np.ndarray) -> np.ndarray:
+    """Proper rotations ``R`` maximising ``trace(R^T C)`` for covariances ``C``, (..., 3, 3)."""
+    u, _, vt = np.linalg.svd(covariance)
+    if covariance.ndim == 2:
+        rotation = u @ vt
+        if _determinant(rotation) < 0:
+            u[:, 2] = -u[:, 2]
+            rotation = u @ vt
+        return rotation
+    det = np.linalg.det(u @ vt)
+    fix = np.ones(u.shape[:-2] + (3,))
+    fix[..., 2] = np.sign(np.where(det == 0, 1.0, det))
+    return (u * fix[..., None, :]) @ vt
 
 
 def rotation_from_rays(rays_a: np.ndarray, rays_b: np.ndarray,
@@ -283,11 +349,43 @@ def rotation_from_rays(rays_a: np.ndarray, rays_b: np.ndarray,
         cov = np.einsum("...ni,...nj->...ij", rays_a, rays_b)
     else:
         cov = np.einsum("...n,...ni,...nj->...ij", weights, rays_a, rays_b)
-    u, _, vt = np.linalg.svd(cov)
-    det = np.linalg.det(u @ vt)
-    fix = np.ones(u.shape[:-2] + (3,))
-    fix[..., 2] = np.sign(np.where(det == 0, 1.0, det))
-    return (u * fix[..., None, :]) @ vt
+    return _kabsch(cov)
+
+
+def _rotations_from_ray_pairs(rays: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Kabsch rotations ``R_ab`` of two ray pairs each, in closed form.
+
+    Parameters
+    ----------
+    rays : (2, N, 3) ndarray
+        ``rays_a`` and ``rays_b``.
+    first, second : (K,) ndarray of int
+        The two pairs of each rotation.
+
+    Returns
+    -------
+    (K, 3, 3) ndarray
+
+    Notes
+    -----
+    For two pairs of unit rays the least-squares rotation maps the plane of
+    the ``rays_b`` onto that of the ``rays_a`` and the bisector of the two
+    ``rays_b`` onto the bisector of the two ``rays_a``: it is ``F_a F_b^T``
+    with ``F = [bisector, half difference, normal]`` (orthogonal, as the rays
+    have unit length). Pairs of (nearly) equal or opposite rays have no such
+    frame; their rotations come from the singular value decomposition.
+    """
+    u, v = rays[:, first], rays[:, second]
+    columns = np.stack([u + v, u - v, _cross(u, v)], axis=-1)
+    length = np.sqrt(np.einsum("...ij,...ij->...j", columns, columns))
+    frames = columns / np.maximum(length, 1e-300)[..., None, :]
+    rotations = frames[0] @ np.swapaxes(frames[1], -1, -2)
+    degenerate = np.any(length < _FRAME_MIN_LENGTH, axis=(0, 2))
+    if degenerate.any():
+        pairs_a = np.stack([u[0, degenerate], v[0, degenerate]], axis=1)
+        pairs_b = np.stack([u[1, degenerate], v[1, degenerate]], axis=1)
+        rotations[degenerate] = rotation_from_rays(pairs_a, pairs_b)
+    return rotations
 
 
 def _needed_iterations(inlier_fraction: float, sample: int, confidence: float) -> float:
@@ -296,7 +394,14 @@ def _needed_iterations(inlier_fraction: float, sample: int, confidence: float) -
         return np.inf
     if good >= 1:
         return 0.0
-    return np.log(1.0 - confidence) / np.log(1.0 - good)
+    return math.log(1.0 - confidence) / math.log(1.0 - good)
+
+
+def _iteration_limit(count: int, n: int, sample: int, options: RelativePoseOptions) -> int:
+    """Adaptive RANSAC stop after a best hypothesis with ``count`` of ``n`` inliers."""
+    need = _needed_iterations(count / n, sample, options.confidence)
+    stop = options.max_iterations if need >= options.max_iterations else math.ceil(need)
+    return min(options.max_iterations, max(options.min_iterations, stop))
 
 
 def _score(errors: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
@@ -306,31 +411,56 @@ def _score(errors: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray
     return inliers.sum(axis=-1), cost
 
 
-def _ransac_5pt(rays_a, rays_b, options, rng):
-    n = len(rays_a)
-    best = (None, None, -1, np.inf)
+def _ransac_5pt(rays, products, threshold, options, rng):
+    """Best essential-matrix hypothesis ``(R_ab, t_ab)`` (``None`` twice when no sample gave one).
+
+    ``rays`` holds ``rays_a`` and ``rays_b``, (2, N, 3); ``products`` their
+    :func:`_ray_products`. Samples are drawn and solved a chunk at a time and all their hypotheses
+    scored in one go; the chunk's results are then taken in the order drawn
+    with the adaptive stop applied after each sample, so the outcome is that
+    of scoring one sample at a time (hypotheses drawn past the stop are
+    discarded).
+    """
+    n = rays.shape[1]
+    best_rotation, best_translation, best_count, best_cost = None, None, -1, np.inf
     limit = options.max_iterations
-    iteration = 0
-    while iteration < limit:
-        iteration += 1
-        idx = rng.choice(n, _SAMPLE_5PT, replace=False)
-        poses = poselib.relpose_5pt(rays_b[idx], rays_a[idx])
-        if not poses:
-            continue
-        rotations = np.stack([p.R for p in poses])
-        translations = np.stack([p.t for p in poses])
-        count, cost = _score(epipolar_angles(rays_a, rays_b, rotations, translations),
-                             options.ransac_threshold_rad)
-        k = int(np.lexsort((cost, -count))[0])
-        if count[k] > best[2] or (count[k] == best[2] and cost[k] < best[3]):
-            best = (rotations[k], translations[k], int(count[k]), float(cost[k]))
-            need = _needed_iterations(best[2] / n, _SAMPLE_5PT, options.confidence)
-            limit = int(min(options.max_iterations, max(options.min_iterations, np.ceil(need))))
-    return best[0], best[1]
+    drawn = 0
+    while drawn < limit:
+        chunk = min(limit - drawn, max(options.min_iterations - drawn, _CHUNK_5PT))
+        rotations, translations, owners = [], [], []
+        for j in range(chunk):
+            sample = rays[:, rng.choice(n, _SAMPLE_5PT, replace=False)]
+            for pose in poselib.relpose_5pt(sample[1], sample[0]):
+                rotations.append(pose.R)
+                translations.append(pose.t)
+                owners.append(j)
+        if rotations:
+            rotations, translations = np.stack(rotations), np.stack(translations)
+            count, cost = _score(_epipolar_angles_of_essentials(
+                products, rays[1], _skew(translations) @ rotations), threshold)
+            # Best hypothesis of each sample (most inliers, then lowest cost, then first solved).
+            sample_of = np.asarray(owners)
+            order = np.lexsort((cost, -count, sample_of))
+            first = np.ones(len(order), dtype=bool)
+            first[1:] = sample_of[order[1:]] != sample_of[order[:-1]]
+            count, cost = count.tolist(), cost.tolist()
+            for k in order[first].tolist():
+                if drawn + owners[k] >= limit:
+                    break
+                if count[k] > best_count or (count[k] == best_count and cost[k] < best_cost):
+                    best_rotation, best_translation = rotations[k], translations[k]
+                    best_count, best_cost = count[k], cost[k]
+                    limit = _iteration_limit(best_count, n, _SAMPLE_5PT, options)
+        drawn += chunk
+    return best_rotation, best_translation
 
 
-def _ransac_rotation(rays_a, rays_b, options, rng):
-    n = len(rays_a)
+def _ransac_rotation(rays, products, threshold, options, rng):
+    """Best rotation-only hypothesis ``R_ab``; two-pair samples are solved and scored a batch at a time.
+
+    ``rays`` holds ``rays_a`` and ``rays_b``, (2, N, 3); ``products`` their :func:`_ray_products`.
+    """
+    n = rays.shape[1]
     best = (None, -1, np.inf)
     limit = options.max_iterations
     drawn = 0
@@ -339,65 +469,148 @@ def _ransac_rotation(rays_a, rays_b, options, rng):
         drawn += batch
         first = rng.integers(0, n, size=batch)
         second = (first + rng.integers(1, n, size=batch)) % n
-        idx = np.stack([first, second], axis=1)
-        rotations = rotation_from_rays(rays_a[idx], rays_b[idx])
-        count, cost = _score(rotation_angles(rays_a, rays_b, rotations), options.ransac_threshold_rad)
+        rotations = _rotations_from_ray_pairs(rays, first, second)
+        count, cost = _score(_angles_from_cosines(rotations.reshape(-1, 9) @ products.T), threshold)
         k = int(np.lexsort((cost, -count))[0])
         if count[k] > best[1] or (count[k] == best[1] and cost[k] < best[2]):
             best = (rotations[k], int(count[k]), float(cost[k]))
-            need = _needed_iterations(best[1] / n, _SAMPLE_ROTATION, options.confidence)
-            limit = int(min(options.max_iterations, max(options.min_iterations, np.ceil(need))))
+            limit = _iteration_limit(best[1], n, _SAMPLE_ROTATION, options)
     return best[0]
 
 
-def _reweighted_rotation(rays_a, rays_b, rotation, scale, iterations):
+def _reweighted_rotation(rays_a, rays_b, products, rotation, scale, iterations):
     """Kabsch rotation re-solved with Cauchy weights ``1 / (1 + (e / scale)^2)`` of the residual angles ``e``."""
+    scale2 = scale * scale
     for _ in range(iterations):
-        errors = rotation_angles(rays_a, rays_b, rotation[None])[0]
-        rotation = rotation_from_rays(rays_a, rays_b, 1.0 / (1.0 + (errors / scale) ** 2))
+        errors = rotation_angles(rays_a, rays_b, rotation)
+        # The weights times scale^2: a common factor leaves the Kabsch rotation unchanged.
+        rotation = _kabsch((1.0 / (scale2 + errors * errors) @ products).reshape(3, 3))
     return rotation
 
 
 def _tangent_basis(t: np.ndarray) -> np.ndarray:
-    """Two unit vectors orthogonal to unit ``t``, as rows of a (2, 3) array."""
-    helper = np.eye(3)[int(np.argmin(np.abs(t)))]
-    e1 = np.cross(t, helper)
-    e1 /= np.linalg.norm(e1)
-    return np.stack([e1, np.cross(t, e1)])
+    """Two unit vectors orthogonal to unit ``t``, as rows of a (2, 3) array.
+
+    The first is ``t`` crossed with the coordinate axis least aligned with
+    ``t``, the second ``t`` crossed with the first.
+    """
+    x, y, z = t.tolist()
+    magnitudes = [abs(x), abs(y), abs(z)]
+    axis = magnitudes.index(min(magnitudes))
+    u = ((0.0, z, -y), (-z, 0.0, x), (y, -x, 0.0))[axis]  # t x (unit vector of that axis)
+    norm = math.sqrt(u[0] ** 2 + u[1] ** 2 + u[2] ** 2)
+    u0, u1, u2 = u[0] / norm, u[1] / norm, u[2] / norm
+    return np.array([[u0, u1, u2], [y * u2 - z * u1, z * u0 - x * u2, x * u1 - y * u0]])
 
 
-def _symmetric_epipolar_residuals(rays_a, rays_b, rotations, translations):
-    """Signed sines of both rays' angles to the epipolar plane, (K, 2N)."""
-    rotated = np.einsum("kij,nj->kni", rotations, rays_b)
-    t = translations[:, None, :]
-    n1 = _cross(t, rotated)
-    n2 = _cross(t, rays_a[None])
-    r1 = np.einsum("kni,ni->kn", n1, rays_a) / np.maximum(np.linalg.norm(n1, axis=-1), 1e-300)
-    r2 = np.einsum("kni,kni->kn", n2, rotated) / np.maximum(np.linalg.norm(n2, axis=-1), 1e-300)
-    return np.concatenate([r1, r2], axis=1)
+def _rotation_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector (Rodrigues' formula), (3,) -> (3, 3)."""
+    x, y, z = rotvec.tolist()
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < 1e-12:  # I + [v]_x is exact to rounding: the next term is of order angle^2
+        return np.array([[1.0, -z, y], [z, 1.0, -x], [-y, x, 1.0]])
+    x, y, z = x / angle, y / angle, z / angle
+    s, c = math.sin(angle), 2.0 * math.sin(0.5 * angle) ** 2  # sin, 1 - cos
+    return np.array([[1.0 - c * (y * y + z * z), c * x * y - s * z, c * x * z + s * y],
+                     [c * x * y + s * z, 1.0 - c * (x * x + z * z), c * y * z - s * x],
+                     [c * x * z - s * y, c * y * z + s * x, 1.0 - c * (x * x + y * y)]])
+
+
+def _unit_step(t: np.ndarray, step: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """``normalise(t + basis^T step)`` for a (3,) vector, a (2,) step and a (2, 3) basis, in plain floats."""
+    (x, y, z), (s0, s1), ((p0, p1, p2), (q0, q1, q2)) = t.tolist(), step.tolist(), basis.tolist()
+    x, y, z = x + s0 * p0 + s1 * q0, y + s0 * p1 + s1 * q1, z + s0 * p2 + s1 * q2
+    norm = math.sqrt(x * x + y * y + z * z)
+    return np.array([x / norm, y / norm, z / norm])
+
+
+def _symmetric_epipolar_residuals(rays_a, rays_b, rotation, t, *, jacobian=True):
+    """Signed sines of both rays' angles to the epipolar plane and their Jacobian.
+
+    Parameters
+    ----------
+    rays_a, rays_b : (N, 3) ndarray
+        Unit rays.
+    rotation : (3, 3) ndarray
+        ``R_ab``.
+    t : (3,) ndarray
+        Unit translation direction.
+    jacobian : bool, keyword-only
+        Compute the Jacobian (else ``None`` is returned for it and the basis).
+
+    Returns
+    -------
+    residuals : (2N,) ndarray
+        ``a . (t x R b) / |t x R b|``, then ``R b . (t x a) / |t x a|``.
+    jac : (2N, 5) ndarray or None
+        Derivatives with respect to a rotation vector ``w`` applied on the
+        left (``R <- exp([w]_x) R``) and a step ``s`` in the tangent basis
+        ``B`` (``t <- normalise(t + B^T s)``), at zero.
+    basis : (2, 3) ndarray or None
+        ``B``, rows orthogonal to ``t``.
+    """
+    n = len(rays_a)
+    rotated = rays_b @ rotation.T
+    cross_t = _skew(t)
+    # Rows 0..N-1: moving ray R b, partner a; rows N..2N-1: moving ray a, partner R b.
+    stacked = np.concatenate([rotated, rays_a, rotated])
+    moving, partner = stacked[:2 * n], stacked[n:]
+    normals = moving @ cross_t.T  # t x moving
+    length = np.maximum(np.sqrt(np.einsum("ni,ni->n", normals, normals)), 1e-300)
+    residuals = np.einsum("ni,ni->n", normals, partner) / length
+    if not jacobian:
+        return residuals, None, None
+    basis = _tangent_basis(t)
+    # d r = g . d(t x moving) + (d partner) . normal / |normal|,
+    # with g = (partner - r normal / |normal|) / |normal|.
+    g = (partner - (residuals / length)[:, None] * normals) / length[:, None]
+    tb = rotated @ t
+    ab = np.einsum("ni,ni->n", rays_a, rotated)
+    jac = np.empty((2 * n, 5))
+    # Rotation w moves R b: d(R b) = w x R b. First half: d(t x R b) = w (t . R b) - R b (t . w),
+    # and g . R b = (a . R b) / |t x R b|. Second half: (w x R b) . (t x a) / |t x a|
+    # = w . (t (a . R b) - a (t . R b)) / |t x a|.
+    jac[:n, :3] = tb[:, None] * g[:n] - (ab / length[:n])[:, None] * t
+    jac[n:, :3] = (ab[:, None] * t - tb[:, None] * rays_a) / length[n:, None]
+    # Translation d t = B^T s: d(t x moving) = d t x moving, so d r_k = (moving x g) . B_k
+    # = g . (B_k x moving), with the rows B_k x moving = moving @ [B_k]_x^T of both k in one product.
+    (p0, p1, p2), (q0, q1, q2) = basis.tolist()
+    crossing = np.array([[0.0, p2, -p1, 0.0, q2, -q1],
+                         [-p2, 0.0, p0, -q2, 0.0, q0],
+                         [p1, -p0, 0.0, q1, -q0, 0.0]])
+    jac[:, 3:] = np.einsum("nkj,nj->nk", (moving @ crossing).reshape(2 * n, 2, 3), g)
+    return residuals, jac, basis
+
+
+def _gauss_newton_step(jac: np.ndarray, res: np.ndarray) -> np.ndarray:
+    """Step ``d`` minimising ``|res + jac d|``: normal equations, least squares if they are singular."""
+    try:
+        return np.linalg.solve(jac.T @ jac, -(jac.T @ res))
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(jac, -res, rcond=None)[0]
 
 
 def _refine_5pt(rays_a, rays_b, rotation, translation, iterations):
-    """Gauss-Newton on (rotation vector, tangent step of t) with a numeric Jacobian."""
+    """Gauss-Newton on (rotation vector, tangent step of t) of the symmetric epipolar residuals.
+
+    The Jacobian is analytic (:func:`_symmetric_epipolar_residuals`). A step
+    that raises the sum of squares is rejected and ends the iterations; so
+    does a relative decrease below ``1e-6``.
+    """
     t = translation / np.linalg.norm(translation)
-    step = 1e-7
-    for _ in range(iterations):
-        basis = _tangent_basis(t)
-        params = np.vstack([np.zeros(5), step * np.eye(5)])
-        rots = Rotation.from_rotvec(params[:, :3]).as_matrix() @ rotation
-        ts = t + params[:, 3:] @ basis
-        ts /= np.linalg.norm(ts, axis=1, keepdims=True)
-        res = _symmetric_epipolar_residuals(rays_a, rays_b, rots, ts)
-        jac = ((res[1:] - res[0]) / step).T
-        delta, *_ = np.linalg.lstsq(jac, -res[0], rcond=None)
-        cand_rot = Rotation.from_rotvec(delta[:3]).as_matrix() @ rotation
-        cand_t = t + delta[3:] @ basis
-        cand_t /= np.linalg.norm(cand_t)
-        new = _symmetric_epipolar_residuals(rays_a, rays_b, cand_rot[None], cand_t[None])[0]
-        old_cost, new_cost = np.sum(res[0] ** 2), np.sum(new ** 2)
-        if new_cost > old_cost:
+    res, jac, basis = _symmetric_epipolar_residuals(rays_a, rays_b, rotation, t, jacobian=iterations > 0)
+    cost = float(res @ res)
+    for i in range(iterations):
+        delta = _gauss_newton_step(jac, res)
+        cand_rot = _rotation_from_rotvec(delta[:3]) @ rotation
+        cand_t = _unit_step(t, delta[3:], basis)
+        res_new, jac_new, basis_new = _symmetric_epipolar_residuals(
+            rays_a, rays_b, cand_rot, cand_t, jacobian=i + 1 < iterations)
+        new_cost = float(res_new @ res_new)
+        if not new_cost <= cost:  # also rejects a step that made the residuals NaN
             break
-        rotation, t = cand_rot, cand_t
+        rotation, t, res, jac, basis = cand_rot, cand_t, res_new, jac_new, basis_new
+        old_cost, cost = cost, new_cost
         if old_cost - new_cost <= 1e-6 * old_cost:
             break
     return rotation, t
@@ -430,22 +643,24 @@ def noise_sigma_from_residuals(angles: np.ndarray, threshold: float) -> float:
         threshold); ``threshold / 2`` for fewer than two residuals.
     """
     r = np.asarray(angles, dtype=np.float64)
-    r = r[(r >= 0) & (r < threshold)]
+    r = np.sort(r[(r >= 0) & (r < threshold)])
     lower, upper = threshold * 1e-3, threshold * 10.0
     if len(r) < _SAMPLE_ROTATION:
         return threshold / 2.0
-    median = float(np.median(r))
+    half = len(r) // 2
+    median = float(r[half]) if len(r) % 2 else float((r[half - 1] + r[half]) / 2.0)
+    median2, threshold2 = median ** 2, threshold ** 2
 
     def excess(log_sigma: float) -> float:
         # Truncated Rayleigh CDF at the median minus one half.
-        s2 = 2.0 * np.exp(2.0 * log_sigma)
-        return float(-np.expm1(-median ** 2 / s2) - 0.5 * -np.expm1(-threshold ** 2 / s2))
+        s2 = 2.0 * math.exp(2.0 * log_sigma)
+        return -math.expm1(-median2 / s2) + 0.5 * math.expm1(-threshold2 / s2)
 
-    if excess(np.log(lower)) <= 0:
+    if excess(math.log(lower)) <= 0:
         return lower
-    if excess(np.log(upper)) >= 0:
+    if excess(math.log(upper)) >= 0:
         return upper
-    return float(np.exp(brentq(excess, np.log(lower), np.log(upper), xtol=1e-6)))
+    return math.exp(brentq(excess, math.log(lower), math.log(upper), xtol=1e-6))
 
 
 def _gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int) -> float:
@@ -491,8 +706,8 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     n = len(rays_a)
     rng = np.random.default_rng(options.seed)
     model = "rotation" if options.rotation_only else "5pt"
-    finite = np.all(np.isfinite(rays_a), axis=1) & np.all(np.isfinite(rays_b), axis=1)
-    if not finite.all():
+    if not (np.isfinite(rays_a).all() and np.isfinite(rays_b).all()):
+        finite = np.all(np.isfinite(rays_a), axis=1) & np.all(np.isfinite(rays_b), axis=1)
         raise ValueError(f"rays must be finite; {int((~finite).sum())} of {n} rows are not")
     needed = max(options.min_inliers, _SAMPLE_ROTATION if options.rotation_only else _SAMPLE_5PT)
     if n < needed:
@@ -502,31 +717,36 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
 
     threshold = options.ransac_threshold_rad
     rot_threshold = options.rotation_threshold_factor * threshold
-    rot_options = replace(options, ransac_threshold_rad=rot_threshold)
-    rotation = _ransac_rotation(rays_a, rays_b, rot_options, rng)
-    rot_mask = rotation_angles(rays_a, rays_b, rotation[None])[0] < rot_threshold
+    products = _ray_products(rays_a, rays_b)
+    rays = np.stack([rays_a, rays_b])
+    rotation = _ransac_rotation(rays, products, rot_threshold, options, rng)
+    rot_errors = rotation_angles(rays_a, rays_b, rotation)
+    rot_mask = rot_errors < rot_threshold
     if options.refine and rot_mask.sum() >= _SAMPLE_ROTATION:
-        rotation = rotation_from_rays(rays_a[rot_mask], rays_b[rot_mask])
-        rot_mask = rotation_angles(rays_a, rays_b, rotation[None])[0] < rot_threshold
-    rot_errors = rotation_angles(rays_a, rays_b, rotation[None])[0]
+        rotation = _kabsch(products[rot_mask].sum(axis=0).reshape(3, 3))
+        rot_errors = rotation_angles(rays_a, rays_b, rotation)
+        rot_mask = rot_errors < rot_threshold
     sigma = options.noise_sigma_rad or noise_sigma_from_residuals(rot_errors[rot_mask], rot_threshold)
     if options.refine and options.robust_iterations and rot_mask.sum() >= _SAMPLE_ROTATION:
-        rotation = _reweighted_rotation(rays_a[rot_mask], rays_b[rot_mask], rotation,
+        rotation = _reweighted_rotation(rays_a[rot_mask], rays_b[rot_mask], products[rot_mask], rotation,
                                         options.robust_scale * sigma, options.robust_iterations)
-        rot_errors = rotation_angles(rays_a, rays_b, rotation[None])[0]
+        rot_errors = rotation_angles(rays_a, rays_b, rotation)
         rot_mask = rot_errors < rot_threshold
     chosen = ("rotation", rotation, np.zeros(3), rot_mask)
     # GRIC compares the models on the correspondences that either explains: a gross outlier
     # costs the 5-point model less than the rotation model (its residual cap is lower), so
     # counting the outliers of both would hand heavily contaminated pairs to the 5-point model.
     if not options.rotation_only:
-        rotation_5pt, translation = _ransac_5pt(rays_a, rays_b, options, rng)
+        rotation_5pt, translation = _ransac_5pt(rays, products, threshold, options, rng)
         if rotation_5pt is not None:
-            mask = epipolar_angles(rays_a, rays_b, rotation_5pt[None], translation[None])[0] < threshold
+            errors_5pt = _epipolar_angles_of_essentials(
+                products, rays_b, (_skew(translation) @ rotation_5pt)[None])[0]
+            mask = errors_5pt < threshold
             if options.refine and mask.sum() >= _SAMPLE_5PT:
                 rotation_5pt, translation = _refine_5pt(rays_a[mask], rays_b[mask], rotation_5pt,
                                                         translation, options.refine_iterations)
-            errors_5pt = epipolar_angles(rays_a, rays_b, rotation_5pt[None], translation[None])[0]
+                errors_5pt = _epipolar_angles_of_essentials(
+                    products, rays_b, (_skew(translation) @ rotation_5pt)[None])[0]
             either = rot_mask | (errors_5pt < threshold)
             gric_rotation = _gric(rot_errors[either], sigma, dimension=2, parameters=3)
             if _gric(errors_5pt[either], sigma, dimension=3, parameters=5) < gric_rotation:

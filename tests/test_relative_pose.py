@@ -166,3 +166,111 @@ def test_reweighting_discounts_loose_inliers():
     assert errors[5] < 2e-5 and errors[5] < errors[0] / 3
     with pytest.raises(ValueError, match="robust_iterations"):
         RelativePoseOptions(robust_iterations=-1)
+
+
+def _unit(rng, shape):
+    v = rng.normal(size=shape)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def test_epipolar_angles_match_the_plane_definition():
+    from ifmi.relative_pose import epipolar_angles
+
+    rng = np.random.default_rng(21)
+    rays_a, rays_b = _unit(rng, (50, 3)), _unit(rng, (50, 3))
+    rotations = Rotation.from_rotvec(rng.normal(0.0, 0.5, (4, 3))).as_matrix()
+    translations = rng.normal(size=(4, 3))  # any length
+    for k in range(4):
+        normal = np.cross(translations[k], rays_b @ rotations[k].T)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        expected = np.arcsin(np.abs(np.sum(rays_a * normal, axis=1)))
+        assert np.allclose(epipolar_angles(rays_a, rays_b, rotations, translations)[k], expected,
+                           rtol=0, atol=1e-12)
+
+
+def test_rotation_angles_resolve_small_angles():
+    from ifmi.relative_pose import rotation_angles
+
+    rng = np.random.default_rng(22)
+    rays_b = _unit(rng, (20, 3))
+    for angle in (1e-7, 1e-3, 2.0):
+        axis = _unit(rng, (3,))
+        rotation = Rotation.from_rotvec(angle * axis).as_matrix()
+        # Rays orthogonal to the axis turn by exactly the rotation angle.
+        orthogonal = rays_b - np.outer(rays_b @ axis, axis)
+        orthogonal /= np.linalg.norm(orthogonal, axis=1, keepdims=True)
+        assert np.allclose(rotation_angles(orthogonal @ rotation.T, orthogonal, rotation[None])[0],
+                           0.0, atol=1e-15)
+        assert np.allclose(rotation_angles(orthogonal, orthogonal, rotation), angle, rtol=1e-9)
+
+
+def test_symmetric_residual_jacobian_matches_finite_differences():
+    from ifmi.relative_pose import _symmetric_epipolar_residuals
+
+    rng = np.random.default_rng(23)
+    rays_a, rays_b = _unit(rng, (40, 3)), _unit(rng, (40, 3))
+    rotation = Rotation.from_rotvec([0.1, 0.2, -0.3]).as_matrix()
+    t = _unit(rng, (3,))
+    residuals, jac, basis = _symmetric_epipolar_residuals(rays_a, rays_b, rotation, t)
+    assert np.allclose(basis @ t, 0.0, atol=1e-15) and np.allclose(basis @ basis.T, np.eye(2))
+    # The residuals by their definition.
+    rotated = rays_b @ rotation.T
+    n1, n2 = np.cross(t, rotated), np.cross(t, rays_a)
+    expected = np.concatenate([np.sum(rays_a * n1, axis=1) / np.linalg.norm(n1, axis=1),
+                               np.sum(rotated * n2, axis=1) / np.linalg.norm(n2, axis=1)])
+    assert np.allclose(residuals, expected, rtol=0, atol=1e-14)
+
+    def perturbed(params):
+        r = Rotation.from_rotvec(params[:3]).as_matrix() @ rotation
+        moved = t + params[3:] @ basis
+        return _symmetric_epipolar_residuals(rays_a, rays_b, r, moved / np.linalg.norm(moved),
+                                             jacobian=False)[0]
+
+    step = 1e-6
+    numeric = np.stack([(perturbed(step * e) - perturbed(-step * e)) / (2 * step) for e in np.eye(5)], axis=1)
+    # Central differences: truncation ~ step^2 and rounding ~ 1e-16 / step, both far below 1e-7.
+    assert np.abs(numeric - jac).max() < 1e-7 * max(1.0, np.abs(jac).max())
+
+
+def test_two_pair_rotations_equal_kabsch():
+    from ifmi.relative_pose import _rotations_from_ray_pairs
+
+    rng = np.random.default_rng(24)
+    rays = _unit(rng, (2, 30, 3))
+    first = np.arange(15)
+    second = first + 15
+    closed = _rotations_from_ray_pairs(rays, first, second)
+    pairs = np.stack([first, second], axis=1)
+    kabsch = rotation_from_rays(rays[0][pairs], rays[1][pairs])
+    assert np.allclose(closed, kabsch, atol=1e-12)
+    assert np.allclose(np.linalg.det(closed), 1.0)
+
+
+def test_rotation_from_rotation_vector_matches_scipy():
+    from ifmi.relative_pose import _rotation_from_rotvec
+
+    rng = np.random.default_rng(25)
+    for scale in (0.0, 1e-13, 1e-6, 1e-2, 1.0, 3.0):
+        rotvec = scale * _unit(rng, (3,))
+        assert np.allclose(_rotation_from_rotvec(rotvec), Rotation.from_rotvec(rotvec).as_matrix(),
+                           rtol=0, atol=1e-15)
+
+
+
+def test_two_pair_rotations_of_degenerate_pairs_are_rotations():
+    from ifmi.relative_pose import _rotations_from_ray_pairs
+
+    rng = np.random.default_rng(27)
+    rays = _unit(rng, (2, 6, 3))
+    rays[:, 1] = rays[:, 0]  # pair 0 and 1: equal rays in both frames
+    rays[:, 3] = -rays[:, 2]  # pair 2 and 3: opposite rays
+    first, second = np.array([0, 2, 4]), np.array([1, 3, 5])
+    rotations = _rotations_from_ray_pairs(rays, first, second)
+    assert np.allclose(rotations @ np.swapaxes(rotations, 1, 2), np.eye(3), atol=1e-12)
+    assert np.allclose(np.linalg.det(rotations), 1.0)
+    # The degenerate pairs fall back to the SVD (whose turn about the ray is arbitrary but
+    # deterministic), the regular pair is solved in closed form: all equal the Kabsch solution.
+    pairs = np.stack([first, second], axis=1)
+    assert np.allclose(rotations, rotation_from_rays(rays[0][pairs], rays[1][pairs]), atol=1e-12)
+    for k in range(2):
+        assert np.allclose(rotations[k] @ rays[1, first[k]], rays[0, first[k]], atol=1e-12)
