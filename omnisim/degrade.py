@@ -31,7 +31,7 @@ from ifmi.io.provenance import package_versions
 
 from .config import EffectsSettings
 from .effects import apply_effects, exposure_gains, linear_from_srgb_uint8, srgb_uint8_from_linear
-from .render import META_FORMAT, check_output_folder, sha256_file, encode_png
+from .render import META_FORMAT, encode_png, open_output_folder, pending_images, sha256_file
 
 __all__ = ["DegradeResult", "validate_effects", "degrade_image", "degrade_dataset"]
 
@@ -140,11 +140,8 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
         "format": META_FORMAT,
         "degrade": DEGRADE_VERSION,
     }
-    meta = check_output_folder(out_dir, identity)
+    meta = open_output_folder(out_dir, identity)
     images_dir = out_dir / "images"
-    images_dir.mkdir(parents=True, exist_ok=True)
-    if meta is None:
-        meta = {"identity": identity, "images": {}, "complete": False}
     meta.update({"source": str(dataset.root.resolve()), "effects": asdict(effects), "seed": int(seed),
                  "frames": len(names), "versions": package_versions(("numpy", "opencv-python-headless",
                                                                      "omnisim-ifmi"))})
@@ -157,9 +154,7 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
     atomic_write_json(out_dir / "meta.json", meta)
 
     out_names = [Path(name).with_suffix(".png").name for name in names]
-    todo = [k for k, name in enumerate(out_names)
-            if meta["images"].get(name) is None or not (images_dir / name).exists()
-            or sha256_file(images_dir / name) != meta["images"][name]]
+    todo = pending_images(out_dir, meta, out_names)
     gains = exposure_gains(len(names), effects, seed=seed)
     from tqdm import tqdm
 

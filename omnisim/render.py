@@ -33,7 +33,7 @@ from .scene import build_scene_dict
 from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
 
 __all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
-           "check_output_folder"]
+           "check_output_folder", "open_output_folder", "pending_images"]
 
 # Format version of meta.json; bumped when its meaning changes.
 META_FORMAT = 1
@@ -164,6 +164,32 @@ def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
     return None
 
 
+def open_output_folder(out_dir: Path, identity: dict) -> dict:
+    """Check an output folder (:func:`check_output_folder`), create ``images/``, return its meta.
+
+    The meta is the folder's ``meta.json`` when it holds the same identity,
+    else a fresh one with no images recorded.
+    """
+    meta = check_output_folder(out_dir, identity)
+    (out_dir / "images").mkdir(parents=True, exist_ok=True)
+    return meta if meta is not None else {"identity": identity, "images": {}, "complete": False}
+
+
+def pending_images(out_dir: Path, meta: dict, names: list) -> list:
+    """Indices of the image ``names`` still to write: missing, or not matching the recorded SHA-256.
+
+    Stale records are dropped from ``meta["images"]``.
+    """
+    todo = []
+    for k, name in enumerate(names):
+        path = out_dir / "images" / name
+        recorded = meta["images"].get(name)
+        if recorded is None or not path.exists() or sha256_file(path) != recorded:
+            meta["images"].pop(name, None)
+            todo.append(k)
+    return todo
+
+
 def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int | None = None,
                    spp: int | None = None, resolution=None, progress: bool = True,
                    variant: str | None = None) -> DatasetResult:
@@ -214,11 +240,8 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         "format": META_FORMAT,
         "renderer": RENDERER_VERSION,
     }
-    meta = check_output_folder(out_dir, identity)
+    meta = open_output_folder(out_dir, identity)
     images_dir = out_dir / "images"
-    images_dir.mkdir(parents=True, exist_ok=True)
-    if meta is None:
-        meta = {"identity": identity, "images": {}, "complete": False}
     meta.update({
         "scene_file": str(Path(scene_path).resolve()),
         "scene_name": config.name,
@@ -237,13 +260,7 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     atomic_write_json(out_dir / "meta.json", meta)
 
     names = [f"{k:06d}.png" for k in range(len(poses))]
-    todo = []
-    for k, name in enumerate(names):
-        path = images_dir / name
-        recorded = meta["images"].get(name)
-        if recorded is None or not path.exists() or sha256_file(path) != recorded:
-            meta["images"].pop(name, None)
-            todo.append(k)
+    todo = pending_images(out_dir, meta, names)
     gains = exposure_gains(len(poses), config.effects, seed=seed)
     rendered, seconds = 0, 0.0
     if todo:
