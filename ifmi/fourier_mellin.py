@@ -111,6 +111,16 @@ class FourierMellinConfig:
         Iterations of the phase-plane fit. Frequencies dominated by noise
         shrink each step toward zero, so a few iterations are needed to
         converge on noisy tiles.
+    refine_predicted_rotation_scale : bool
+        When tile b is cut at a predicted affine placement
+        (:meth:`FourierMellin.register_placed`), let the refinement passes
+        measure the residual rotation and scale too (log-polar descriptors
+        of the resampled tiles). Off by default: the predicted affine map
+        leaves only second-order rotation and scale, and measuring the
+        translation alone was as accurate on the rendered benchmark
+        sequences (20-frame drift 62.3e-5 against 61.7e-5 rad, mean of six)
+        and about a millisecond faster per frame. Without a prediction the
+        residual rotation and scale are always measured.
     resample_interpolation : {"cubic", "lanczos4", "linear"}
         Interpolation of tile b where it is cut at a sub-pixel place, turned
         and scaled. Bilinear interpolation low-passes the tile by an amount
@@ -133,6 +143,7 @@ class FourierMellinConfig:
     phase_plane_weight_power: float = 0.25
     residual_weight_power: float = 1.0
     phase_plane_iterations: int = 3
+    refine_predicted_rotation_scale: bool = False
     resample_interpolation: str = "cubic"
 
     def __post_init__(self) -> None:
@@ -407,13 +418,15 @@ class FourierMellin:
         spectrum = scipy.fft.rfft2(centred * self.window, workers=self.config.workers)
         return spectrum.astype(np.complex64, copy=False), std
 
-    def spectra(self, tiles: np.ndarray) -> TileSpectra:
+    def spectra(self, tiles: np.ndarray, *, with_descriptor: bool = True) -> TileSpectra:
         """Spectra of one frame's tiles.
 
         Parameters
         ----------
         tiles : (K, N, N) ndarray
             ``1 <= K <= T`` tiles (all of a frame's, or some of them).
+        with_descriptor : bool, keyword-only
+            Compute the log-polar descriptor (when rotation and scale are estimated).
 
         Returns
         -------
@@ -426,7 +439,7 @@ class FourierMellin:
         k = len(tiles)
         spectrum, std = self._windowed_fft(tiles)
         descriptor = None
-        if self.config.estimate_rotation_scale:
+        if self.config.estimate_rotation_scale and with_descriptor:
             magnitude = np.abs(np.fft.fftshift(spectrum, axes=1)) * self.highpass
             stacked = np.ascontiguousarray(magnitude.reshape(-1, magnitude.shape[-1]), dtype=np.float32)
             # The maps of the first K tiles read only the first K stacked tiles.
@@ -498,15 +511,15 @@ class FourierMellin:
         return self.resample_placed(source, *placement_from_motion(origins, scale, angle, translation,
                                                                    self.tile_size))
 
-    def _residual_motion(self, spectra_a: TileSpectra, tiles: np.ndarray):
+    def _residual_motion(self, spectra_a: TileSpectra, tiles: np.ndarray, *, with_rotation: bool):
         """Residual ``(s, theta, t)`` of tiles already resampled onto tile a, and their spectra."""
         count = len(tiles)
         zeros2 = np.zeros((count, 2))
         shape = (self.tile_size, self.tile_size)
-        spectra = self.spectra(tiles)
+        spectra = self.spectra(tiles, with_descriptor=with_rotation)
         d_shift = -self._refine(spectra_a.spectrum, spectra.spectrum, zeros2, shape,
                                 weight_power=self.config.residual_weight_power)
-        if not self.config.estimate_rotation_scale:
+        if not with_rotation:
             return np.ones(count), np.zeros(count), d_shift, spectra
         lp_shift = self._refine(spectra_a.descriptor, spectra.descriptor, zeros2, (self.n_angles, self.n_radii))
         d_angle = -lp_shift[:, 0] * (np.pi / self.n_angles)
@@ -514,7 +527,7 @@ class FourierMellin:
         return d_scale, d_angle, d_shift, spectra
 
     def _refined_placement(self, spectra_a: TileSpectra, source_b: np.ndarray, offsets: np.ndarray,
-                           linear: np.ndarray):
+                           linear: np.ndarray, *, with_rotation: bool):
         """``refine_passes`` passes: resample b at the placement, measure the residual, compose.
 
         Returns the final placement and the last resampled tiles with their
@@ -523,7 +536,8 @@ class FourierMellin:
         last = None
         for _ in range(self.config.refine_passes):
             tiles = self.resample_placed(source_b, offsets, linear)
-            d_scale, d_angle, d_shift, spectra = self._residual_motion(spectra_a, tiles)
+            d_scale, d_angle, d_shift, spectra = self._residual_motion(spectra_a, tiles,
+                                                                       with_rotation=with_rotation)
             last = PlacedTiles(tiles=tiles, offsets=offsets, linear=linear, spectra=spectra)
             offsets, linear = compose_placement(offsets, linear, d_scale, d_angle, d_shift)
         return offsets, linear, last
@@ -573,7 +587,9 @@ class FourierMellin:
         translation = -self._refine(fa, fb, peaks.shift, shape)
         count = len(offsets_b)
         offsets, linear = compose_placement(offsets_b, linear_b, np.ones(count), np.zeros(count), translation)
-        offsets, linear, last = self._refined_placement(spectra_a, source_b, offsets, linear)
+        with_rotation = self.config.estimate_rotation_scale and self.config.refine_predicted_rotation_scale
+        offsets, linear, last = self._refined_placement(spectra_a, source_b, offsets, linear,
+                                                        with_rotation=with_rotation)
         if last is None:
             last = PlacedTiles(tiles=tiles, offsets=offsets_b, linear=linear_b, spectra=None)
         reason = self._reasons(spectra_a, std_b, peaks.peak_ratio, peaks.peak_to_noise)
@@ -664,7 +680,8 @@ class FourierMellin:
         # b'(p) = a(p + t) means b' is a moved by d = -t.
         translation = -self._refine(fa, fb, shift, shape)
         offsets, linear = placement_from_motion(origins_b, scale, angle, translation, n)
-        offsets, linear, _ = self._refined_placement(spectra_a, source_b, offsets, linear)
+        offsets, linear, _ = self._refined_placement(spectra_a, source_b, offsets, linear,
+                                                     with_rotation=self.config.estimate_rotation_scale)
         scale, angle, translation = motion_from_placement(origins_b, offsets, linear, n)
         reason = self._reasons(spectra_a, std_b, peak_ratio, pnr)
         return TileMotion(scale=scale, angle_rad=angle, translation=translation, peak_ratio=peak_ratio,

@@ -200,3 +200,23 @@ def test_spectra_of_some_tiles_are_rows_of_all_tiles_spectra():
     assert np.allclose(part.descriptor, full.descriptor[[1, 3]], atol=1e-2)
     with pytest.raises(ValueError, match="1 <= K <= 5"):
         engine.spectra(np.zeros((6, 32, 32), np.float32))
+
+
+@pytest.mark.parametrize("refine", [True, False])
+def test_predicted_rotation_scale_is_refined_only_when_asked(refine):
+    # The prediction is off by 1 degree and 1 %: refinement with rotation and scale recovers the
+    # truth, translation-only refinement keeps the predicted angle and scale.
+    image = _photo()
+    scale, angle, translation = 1.02, np.radians(6.0), np.array([1.3, -0.7])
+    moved = _moved(image, ORIGIN, scale, angle, translation)
+    engine = FourierMellin(TILE, 1, config=FourierMellinConfig(refine_passes=2,
+                                                               refine_predicted_rotation_scale=refine))
+    a = image[ORIGIN[0]:ORIGIN[0] + TILE, ORIGIN[1]:ORIGIN[1] + TILE][None]
+    m = engine.register(engine.spectra(a), None, moved, ORIGIN[None].astype(float),
+                        prior_scale=np.array([scale * 1.01]), prior_angle=np.array([angle + np.radians(1.0)]))
+    assert m.valid[0]
+    if refine:
+        assert abs(np.degrees(m.angle_rad[0] - angle)) < 0.1 and abs(m.scale[0] / scale - 1) < 0.002
+    else:
+        assert np.degrees(m.angle_rad[0] - angle) == pytest.approx(1.0, abs=1e-9)
+        assert m.scale[0] == pytest.approx(scale * 1.01, rel=1e-9)
