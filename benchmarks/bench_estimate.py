@@ -73,7 +73,8 @@ def _time_ifmi(dataset, config: EstimateConfig):
             corr = front_end.correspondences(previous, state)
             t3 = time.perf_counter()
             if corr.success:
-                relative_pose_from_rays(corr.rays_a, corr.rays_b, options=pose_options)
+                relative_pose_from_rays(corr.rays_a, corr.rays_b, options=pose_options,
+                                        rays_per_measurement=corr.rays_per_measurement)
             t4 = time.perf_counter()
             stages["read"].append(t1 - t0)
             stages["prepare"].append(t2 - t1)

@@ -172,7 +172,8 @@ def _solve(front_end, reference: _Reference, state, pose_options: RelativePoseOp
         corr = front_end.correspondences(reference.state, state)
     if not corr.success:
         return None, None, corr
-    pose, info = relative_pose_from_rays(corr.rays_a, corr.rays_b, options=pose_options)
+    pose, info = relative_pose_from_rays(corr.rays_a, corr.rays_b, options=pose_options,
+                                         rays_per_measurement=corr.rays_per_measurement)
     return pose, info, corr
 
 

@@ -68,6 +68,9 @@ class Correspondences:
     success : bool
     reason : str
         Empty on success, else why matching failed.
+    rays_per_measurement : int
+        Consecutive matches that come from one measurement and share its
+        error (flow points of one tile); 1 for keypoint matches.
     """
 
     pixels_a: np.ndarray
@@ -77,6 +80,7 @@ class Correspondences:
     diagnostics: dict = field(default_factory=dict)
     success: bool = True
     reason: str = ""
+    rays_per_measurement: int = 1
 
     @staticmethod
     def failed(reason: str, diagnostics: dict | None = None) -> "Correspondences":

@@ -663,21 +663,25 @@ def noise_sigma_from_residuals(angles: np.ndarray, threshold: float) -> float:
     return math.exp(brentq(excess, math.log(lower), math.log(upper), xtol=1e-6))
 
 
-def _gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int) -> float:
+def _gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int,
+          group: int = 1) -> float:
     """Torr's geometric robust information criterion of a model (lower is better).
 
     ``dimension`` is the dimension of the model's manifold in the 4-D space
     of a correspondence (2 for a rotation, 3 for an essential matrix) and
     ``parameters`` its degrees of freedom. Residuals are capped at
-    ``2 (4 - dimension)`` in units of the noise variance.
+    ``2 (4 - dimension)`` in units of the noise variance. Correspondences
+    in groups of ``group`` that share one error count as one observation
+    per group.
     """
-    n = len(errors)
-    capped = np.minimum((errors / sigma) ** 2, 2.0 * (4 - dimension)).sum()
+    n = len(errors) / group
+    capped = np.minimum((errors / sigma) ** 2, 2.0 * (4 - dimension)).sum() / group
     return float(capped + np.log(4.0) * dimension * n + np.log(4.0 * n) * parameters)
 
 
 def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
-                            options: RelativePoseOptions) -> tuple[RelativePose, RelativePoseInfo]:
+                            options: RelativePoseOptions,
+                            rays_per_measurement: int = 1) -> tuple[RelativePose, RelativePoseInfo]:
     """Estimate ``R_ab`` (and the translation direction) from corresponding rays.
 
     Parameters
@@ -687,6 +691,12 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     rays_b : (N, 3) ndarray
         Unit rays in camera b, row i corresponding to ``rays_a[i]``.
     options : RelativePoseOptions, keyword-only
+    rays_per_measurement : int, keyword-only
+        How many rays share one measurement and so one error (the iFMI front
+        end samples several flow points from each tile's motion; keypoint
+        matches are one each). The model selection counts each such group
+        as one observation: counted once per ray, group-correlated errors
+        look like evidence the 5-point model's extra freedom can explain.
 
     Returns
     -------
@@ -703,6 +713,10 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     if options.ransac_threshold_rad is None:
         raise ValueError("ransac_threshold_rad is None; set it or resolve the pixel threshold with "
                          "RelativePoseOptions.resolved(pixel_angle_rad)")
+    if isinstance(rays_per_measurement, bool) or int(rays_per_measurement) != rays_per_measurement \
+            or rays_per_measurement < 1:
+        raise ValueError(f"expected rays_per_measurement to be an integer >= 1, got {rays_per_measurement!r}")
+    rays_per_measurement = int(rays_per_measurement)
     n = len(rays_a)
     rng = np.random.default_rng(options.seed)
     model = "rotation" if options.rotation_only else "5pt"
@@ -748,8 +762,9 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
                 errors_5pt = _epipolar_angles_of_essentials(
                     products, rays_b, (_skew(translation) @ rotation_5pt)[None])[0]
             either = rot_mask | (errors_5pt < threshold)
-            gric_rotation = _gric(rot_errors[either], sigma, dimension=2, parameters=3)
-            if _gric(errors_5pt[either], sigma, dimension=3, parameters=5) < gric_rotation:
+            group = rays_per_measurement
+            gric_rotation = _gric(rot_errors[either], sigma, dimension=2, parameters=3, group=group)
+            if _gric(errors_5pt[either], sigma, dimension=3, parameters=5, group=group) < gric_rotation:
                 chosen = ("5pt", rotation_5pt, translation / np.linalg.norm(translation),
                           errors_5pt < threshold)
 

@@ -393,4 +393,5 @@ class IfmiFrontEnd:
             pairs = flow_from_placements(offsets_a, linear_a, placed.offsets, placed.linear, valid,
                                          self.mapping, points=self._points_b, tile_size=self.layout.tile_size)
         return Correspondences(pixels_a=pairs.pixels_a, pixels_b=pairs.pixels_b,
-                               rays_a=pairs.rays_a, rays_b=pairs.rays_b, diagnostics=diagnostics)
+                               rays_a=pairs.rays_a, rays_b=pairs.rays_b, diagnostics=diagnostics,
+                               rays_per_measurement=len(self._points_b))

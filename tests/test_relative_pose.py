@@ -274,3 +274,47 @@ def test_two_pair_rotations_of_degenerate_pairs_are_rotations():
     assert np.allclose(rotations, rotation_from_rays(rays[0][pairs], rays[1][pairs]), atol=1e-12)
     for k in range(2):
         assert np.allclose(rotations[k] @ rays[1, first[k]], rays[0, first[k]], atol=1e-12)
+
+
+def _grouped_rays(seed: int, *, groups: int = 20, size: int = 5, noise_rad: float = 3e-3,
+                  translation=None):
+    """Rays in tight groups (like flow points of one tile) whose members share one error."""
+    rng = np.random.default_rng(seed)
+    centres = rng.normal(size=(groups, 3))
+    centres[:, 2] *= 0.3
+    centres /= np.linalg.norm(centres, axis=1, keepdims=True)
+    rays_b = centres[:, None] + rng.normal(scale=0.02, size=(groups, size, 3))
+    rays_b /= np.linalg.norm(rays_b, axis=-1, keepdims=True)
+    rotation = Rotation.from_rotvec(rng.normal(scale=0.05, size=3)).as_matrix()
+    points = rays_b * rng.uniform(2.0, 6.0, size=(groups, 1, 1)) @ rotation.T
+    if translation is not None:
+        points = points + translation
+    rays_a = points / np.linalg.norm(points, axis=-1, keepdims=True)
+    rays_a = rays_a + rng.normal(scale=noise_rad, size=(groups, 1, 3))
+    rays_a /= np.linalg.norm(rays_a, axis=-1, keepdims=True)
+    return rays_a.reshape(-1, 3), rays_b.reshape(-1, 3)
+
+
+def test_grouped_errors_do_not_make_a_pure_rotation_look_like_translation():
+    # Counted once per ray, errors shared by a group of five rays are five times the evidence
+    # they are; the 5-point model's two extra degrees of freedom then fit some of them.
+    options = RelativePoseOptions(ransac_threshold_rad=0.004)
+    chosen = {}
+    for group in (1, 5):
+        models = [relative_pose_from_rays(*_grouped_rays(seed), options=options,
+                                          rays_per_measurement=group)[1].model for seed in range(30)]
+        chosen[group] = models.count("5pt")
+    # Measured: 5 of 30 pure rotations taken for 5-point motion per ray, none per group.
+    assert chosen[1] >= 3 and chosen[5] == 0
+    translating = [relative_pose_from_rays(*_grouped_rays(seed, translation=np.array([0.3, 0.1, 0.0])),
+                                           options=options, rays_per_measurement=5)[1].model
+                   for seed in range(30)]
+    assert translating.count("5pt") == 30
+
+
+@pytest.mark.parametrize("value", [0, 2.5, True])
+def test_rays_per_measurement_is_validated(value):
+    rays = np.tile([[1.0, 0.0, 0.0]], (10, 1))
+    with pytest.raises(ValueError, match="rays_per_measurement"):
+        relative_pose_from_rays(rays, rays, options=RelativePoseOptions(ransac_threshold_rad=0.01),
+                                rays_per_measurement=value)
