@@ -30,14 +30,12 @@ per frame: monocular translation is known only up to scale.
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from tqdm import tqdm
 
 from .errors import InputError
 from .relative_pose import RelativePoseOptions, relative_pose_from_rays
@@ -203,8 +201,8 @@ def _poor(info, pose, reference: _Reference, options: KeyframeOptions) -> bool:
 
 
 def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: RelativePoseOptions,
-                   keyframe: KeyframeOptions = KeyframeOptions(), progress: bool = False,
-                   total: int | None = None,
+                   keyframe: KeyframeOptions = KeyframeOptions(),
+                   on_frame: Callable[[FrameRecord], None] | None = None,
                    timestamps: Sequence[float] | None = None) -> tuple[Trajectory, list[FrameRecord]]:
     """Estimate every frame's pose ``T_0k`` with ``front_end`` and the relative-pose back end.
 
@@ -216,10 +214,9 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
         Object with ``prepare`` and ``correspondences`` (:mod:`ifmi.pipeline`).
     pose_options : RelativePoseOptions, keyword-only
     keyframe : KeyframeOptions, keyword-only
-    progress : bool, keyword-only
-        Show a tqdm progress bar on stderr.
-    total : int, optional, keyword-only
-        Frame count for the progress bar.
+    on_frame : callable, optional, keyword-only
+        Called with each frame's record as soon as the frame is done (a
+        progress display, a live log); default nothing.
     timestamps : (N,) sequence, optional, keyword-only
         Default: frame indices.
 
@@ -247,7 +244,6 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
     good: list = []
     failures_in_row = 0
     iterator = iter(images)
-    bar = tqdm(total=total, disable=not progress, file=sys.stderr, unit="frame", desc="estimate")
     k = 0
     while True:
         start = time.perf_counter()
@@ -263,8 +259,9 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
             positions.append(positions[-1])
             records.append(FrameRecord(k, reference.frame, False, f"image: {image.reason}", 0, 0,
                                        time.perf_counter() - start))
+            if on_frame is not None:
+                on_frame(records[-1])
             k += 1
-            bar.update(1)
             continue
         state = front_end.prepare(image)
         if reference is None:
@@ -273,8 +270,9 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
             rotations.append(np.eye(3))
             positions.append(np.zeros(3))
             records.append(FrameRecord(0, 0, True, "", 0, 0, time.perf_counter() - start))
+            if on_frame is not None:
+                on_frame(records[-1])
             k += 1
-            bar.update(1)
             continue
 
         predicted = _predict(good, k)
@@ -315,9 +313,9 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
         positions.append(position)
         seconds = time.perf_counter() - start
         records.append(replace(record, seconds=seconds))
+        if on_frame is not None:
+            on_frame(records[-1])
         k += 1
-        bar.update(1)
-    bar.close()
     n = len(rotations)
     if timestamps is None:
         stamps = np.arange(n, dtype=np.float64)

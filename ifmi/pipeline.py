@@ -24,11 +24,13 @@ from __future__ import annotations
 
 import importlib
 import os
+import sys
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
 from .camera import OcamModel
 from .trajectory import Trajectory
@@ -311,9 +313,10 @@ def estimate_sequence(images: Iterable[np.ndarray], model: OcamModel, *, method:
     front_end = create_front_end(method, model, config)
     if total is None and hasattr(images, "__len__"):
         total = len(images)
-    trajectory, records = track_sequence(images, front_end, pose_options=config.relative_pose,
-                                         keyframe=config.keyframe, progress=progress,
-                                         total=total, timestamps=timestamps)
+    with tqdm(total=total, disable=not progress, file=sys.stderr, unit="frame", desc="estimate") as bar:
+        trajectory, records = track_sequence(images, front_end, pose_options=config.relative_pose,
+                                             keyframe=config.keyframe, timestamps=timestamps,
+                                             on_frame=lambda record: bar.update(1))
     return SequenceEstimate(trajectory=trajectory, frames=tuple(records), config=config,
                             method=method)
 

@@ -151,3 +151,12 @@ def test_reference_resets_after_max_failures():
     assert KeyframeOptions().max_failures > 0
     with pytest.raises(ValueError, match="max_failures"):
         KeyframeOptions(max_failures=-1)
+
+
+def test_each_finished_frame_is_reported_in_order():
+    frames, _ = _frames(5)
+    seen = []
+    traj, records = track_sequence(frames, ExactFrontEnd(fail={2}), pose_options=POSE,
+                                   on_frame=seen.append)
+    assert [r.frame for r in seen] == [0, 1, 2, 3, 4]
+    assert seen == records and not seen[2].success
