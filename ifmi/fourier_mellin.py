@@ -30,6 +30,14 @@ Per pair (all tiles of a frame at once, one FFT call per step):
    translation) the same way, which removes the bias that the window causes
    at large motions, and compose it with the estimate.
 
+With a prediction of where tile a's content lies in frame b and how it is
+distorted -- an affine *placement* ``p -> o + L (p - c)`` in b's source
+(:meth:`FourierMellin.register_placed`) -- steps 1 to 3 are skipped: tile b
+is resampled at the placement, step 4 measures the residual, and the result
+is again a placement (:func:`compose_placement`). The tiles the last
+residual was measured on are returned with their placement, so a tracker
+can use exactly those pixels as the next pair's reference.
+
 Quality figures of the translation correlation -- peak ratio (main peak over
 the highest value outside its lobe) and peak-to-noise ratio ((peak - mean) /
 std of the surface) -- reject bad tiles with the thresholds ``th_pr`` and
