@@ -24,6 +24,11 @@ first ``--timing-frames`` frames, the methods taking turns within each round
 so that load from other processes on the machine hits all methods alike; the
 median over the rounds is used for the ratios.
 
+Each timing round also reads and decodes the frames alone (no estimation),
+the part of every method's end-to-end time that no front end can remove;
+its time over AKAZE's (``read_vs_akaze``) is the lowest iFMI/AKAZE ratio
+possible on the machine.
+
 Prints, per mode, scene and method, roll/pitch/yaw and mean RMSE, geodesic
 RMSE, the median per-frame ``seconds``, the wall time per frame of the full
 run, the interleaved wall time per frame and the failures, then per mode and
@@ -71,7 +76,14 @@ def interleaved_timing(dataset: str, methods, configs, *, frames: int, rounds: i
     data = read_dataset(dataset)
     n = min(frames, len(data.image_paths))
     walls = {m: [] for m in methods}
+    walls["read"] = []
     for _ in range(rounds):
+        # Reading and decoding the images alone, in this thread: the share of every method's
+        # end-to-end time that no front end can remove.
+        start = time.perf_counter()
+        for _image in islice(data.iter_images(), n):
+            pass
+        walls["read"].append((time.perf_counter() - start) / n)
         for method in methods:
             start = time.perf_counter()
             estimate_sequence(islice(data.iter_images(prefetch=True), n), data.model,
@@ -138,6 +150,7 @@ def main(argv=None) -> int:
                     if r["dataset"] == name and r["mode"] == mode:
                         r["timed_wall_per_frame_s"] = float(np.median(walls[r["method"]]))
                         r["timed_runs_s"] = walls[r["method"]]
+                        r["read_per_frame_s"] = float(np.median(walls["read"]))
     key = "timed_wall_per_frame_s" if args.timing_rounds > 0 else "wall_per_frame_s"
     machine = machine_info()
     print(f"machine: {machine['cpu']}, {machine['cores']} cores, {machine['ram_gib']} GiB, "
@@ -152,6 +165,10 @@ def main(argv=None) -> int:
               f"{r['median_s'] * 1e3:>8.1f}{r['wall_per_frame_s'] * 1e3:>8.1f}"
               f"{r.get(key, float('nan')) * 1e3:>9.1f}{r['failures']:>4}/{r['frames']:<3}"
               f"{r['rotation_model_frames']:>5}/{r['five_point_frames']:<3}{r['references']:>6}")
+    reads = {r["dataset"]: r["read_per_frame_s"] for r in rows if "read_per_frame_s" in r}
+    if reads:
+        print("reading + decoding the images alone (ms per frame, median of the timing rounds): "
+              + ", ".join(f"{k} {v * 1e3:.1f}" for k, v in reads.items()))
     thresholds = {(r["dataset"]): r["ransac_threshold_rad"] for r in rows}
     print("RANSAC threshold (rad, all methods): "
           + ", ".join(f"{k} {v:.5f}" for k, v in thresholds.items()))
@@ -162,6 +179,9 @@ def main(argv=None) -> int:
         if "ifmi" not in by:
             continue
         entry = {}
+        if "read_per_frame_s" in by["ifmi"] and "akaze" in by:
+            # A time ratio cannot go below reading the image over the other method's time.
+            entry["read_vs_akaze"] = by["ifmi"]["read_per_frame_s"] / by["akaze"][key]
         baselines = [m for m in ("orb", "akaze") if m in by]
         if baselines:
             entry["rmse_mean_vs_best"] = by["ifmi"]["mean_rmse"] / min(by[m]["mean_rmse"] for m in baselines)

@@ -59,6 +59,13 @@ class IfmiConfig:
     max_tile_distortion : float
         A tracked tile whose placement stretches or shrinks the panorama by
         more than this factor along any direction is cut anew.
+    anchor_templates : bool
+        Tracked tiles keep the template (spectrum) of the frame they were
+        first cut from, and each frame's placement of it is measured
+        against that template; consecutive pairs then share the placement
+        error of their common frame with opposite signs, so tile errors
+        telescope along the track instead of adding up. Otherwise a tracked
+        tile is re-cut from every frame at its last placement.
     """
 
     panorama: PanoramaConfig = field(default_factory=PanoramaConfig)
@@ -70,6 +77,7 @@ class IfmiConfig:
     use_prior: bool = True
     track_tiles: bool = True
     max_tile_distortion: float = 1.25
+    anchor_templates: bool = True
 
     def __post_init__(self) -> None:
         if self.points_per_tile not in (1, 5, 9):
@@ -257,10 +265,16 @@ class IfmiFrontEnd:
         if not self.config.track_tiles or tracked is None:
             state.reference = (offsets, linear, state.spectra, self.layout.count)
             return state.reference
+        # A tracked reference is matched at predicted placements, where log-polar descriptors
+        # serve only when the residual rotation and scale are measured.
+        registration = self.config.registration
+        with_descriptor = registration.estimate_rotation_scale and registration.refine_predicted_rotation_scale
         spectra = tracked.spectra if tracked.spectra is not None else self.engine.spectra(tracked.tiles)
+        if not with_descriptor:
+            spectra = replace(spectra, descriptor=None)
         new = self._needs_new_tile(tracked, state.tracked_valid)
         if new.any():
-            fresh = self.engine.spectra(state.tiles[new])
+            fresh = self.engine.spectra(state.tiles[new], with_descriptor=with_descriptor)
 
             def merged(tracked_rows, new_rows):
                 if tracked_rows is None:
@@ -328,12 +342,16 @@ class IfmiFrontEnd:
 
         offsets_b[:, 1] = np.mod(offsets_b[:, 1], width)
         placed = self.engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + shift, linear_b)
-        last = placed.last
-        state_b.tracked = PlacedTiles(tiles=last.tiles, offsets=unpadded(last.offsets), linear=last.linear,
-                                      spectra=last.spectra)
+        last = replace(placed.last, offsets=unpadded(placed.last.offsets))
+        if self.config.anchor_templates:
+            # The reference's templates, placed where they were found in b.
+            state_b.tracked = PlacedTiles(tiles=None, offsets=unpadded(placed.offsets), linear=placed.linear,
+                                          spectra=spectra_a)
+        else:
+            state_b.tracked = last
         state_b.tracked_valid = placed.valid
         state_b.reference = None
-        placed = replace(placed, offsets=unpadded(placed.offsets), last=state_b.tracked)
+        placed = replace(placed, offsets=unpadded(placed.offsets), last=last)
         return offsets_a, linear_a, placed, n_new
 
     def _diagnostics(self, reason: np.ndarray, peak_ratio: np.ndarray, peak_to_noise: np.ndarray,

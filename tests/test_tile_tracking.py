@@ -75,8 +75,8 @@ def test_affine_prediction_follows_the_exact_panorama_warp(clean_frames):
     assert error(linear_b) < 0.7 * error(similarity)
 
 
-def test_tracked_tiles_are_the_pixels_the_residual_was_measured_on(clean_frames):
-    fe = IfmiFrontEnd(MODEL, CONFIG)
+def test_recut_tracked_tiles_are_the_pixels_the_residual_was_measured_on(clean_frames):
+    fe = IfmiFrontEnd(MODEL, replace(CONFIG, anchor_templates=False))
     s0, s1 = fe.prepare(clean_frames[0]), fe.prepare(clean_frames[1])
     fe.register_predicted(s0, s1, prior_rotation=STEP)
     tracked = s1.tracked
@@ -88,6 +88,44 @@ def test_tracked_tiles_are_the_pixels_the_residual_was_measured_on(clean_frames)
     kept = ~np.isclose(offsets, fe._layout_placement[0]).all(axis=1)
     assert kept.sum() == fe.layout.count - n_new
     assert np.allclose(spectra.spectrum[kept], tracked.spectra.spectrum[kept])
+
+
+def test_anchored_tiles_keep_the_first_frames_template_at_the_found_placement(clean_frames):
+    fe = IfmiFrontEnd(MODEL, CONFIG)
+    assert CONFIG.anchor_templates
+    s0, s1 = fe.prepare(clean_frames[0]), fe.prepare(clean_frames[1])
+    _, _, placed, _ = fe.register_predicted(s0, s1, prior_rotation=STEP)
+    offsets, linear, spectra, n_new = fe.reference_tiles(s1)
+    assert n_new == (~placed.valid).sum() and n_new < fe.layout.count // 2
+    kept = placed.valid
+    assert np.allclose(offsets[kept], placed.offsets[kept]) and np.allclose(linear[kept], placed.linear[kept])
+    assert np.array_equal(spectra.spectrum[kept], s0.spectra.spectrum[kept])
+    assert np.allclose(offsets[~kept], fe._layout_placement[0][~kept])
+
+
+def test_anchored_templates_keep_a_middle_frames_errors_out_of_later_frames(clean_frames):
+    # A template re-cut from frame 1 carries its placement error (and resampling blur) into
+    # frame 2; a template kept from frame 0 is found in frame 2 from frame 2's pixels only, so
+    # its placement there does not depend on frame 1, noisy or not.
+    def placement_error_in_frame_2(anchor, middle):
+        fe = IfmiFrontEnd(MODEL, replace(CONFIG, anchor_templates=anchor))
+        states = [fe.prepare(image) for image in (clean_frames[0], middle, clean_frames[2])]
+        truth_2 = fe.predicted_placements(*fe.predicted_placements(*fe._layout_placement, STEP), STEP)[0]
+        _, _, placed_1, _ = fe.register_predicted(states[0], states[1], prior_rotation=STEP)
+        _, _, placed_2, _ = fe.register_predicted(states[1], states[2], prior_rotation=STEP)
+        d = placed_2.offsets - truth_2
+        d[:, 1] = np.mod(d[:, 1] + fe.mapping.width / 2, fe.mapping.width) - fe.mapping.width / 2
+        return d[placed_1.valid & placed_2.valid]
+
+    rng = np.random.default_rng(0)
+    noisy = np.clip(np.round(clean_frames[1] + rng.normal(0.0, 20.0, clean_frames[1].shape)), 0, 255)
+    rms = {(anchor, kind): np.sqrt(np.mean(placement_error_in_frame_2(anchor, middle) ** 2))
+           for anchor in (True, False)
+           for kind, middle in (("clean", clean_frames[1]), ("noisy", noisy.astype(np.uint8)))}
+    # Measured (px): anchored 0.049 clean / 0.042 noisy; re-cut 0.165 / 0.136.
+    assert rms[True, "noisy"] < 1.5 * rms[True, "clean"]
+    for kind in ("clean", "noisy"):
+        assert rms[False, kind] > 2.0 * rms[True, kind]
 
 
 @pytest.mark.parametrize("track", [True, False])
