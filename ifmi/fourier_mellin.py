@@ -46,7 +46,7 @@ std of the surface) -- reject bad tiles with the thresholds ``th_pr`` and
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -199,6 +199,12 @@ class TileSpectra:
     spectrum: np.ndarray
     descriptor: np.ndarray | None
     std: np.ndarray
+
+    def rows(self, index: np.ndarray) -> "TileSpectra":
+        """The spectra of some tiles (``index``: bool mask or indices)."""
+        return TileSpectra(spectrum=self.spectrum[index],
+                           descriptor=None if self.descriptor is None else self.descriptor[index],
+                           std=self.std[index])
 
 
 @dataclass(frozen=True)
@@ -369,6 +375,23 @@ class PlacedRegistration:
     valid: np.ndarray
     reason: np.ndarray
     last: PlacedTiles
+
+
+def _replace_rows(placed: PlacedTiles, rows: np.ndarray, update: PlacedTiles) -> PlacedTiles:
+    """``placed`` (whose arrays are overwritten) with ``rows`` set from ``update``.
+
+    Descriptors are kept only when ``update`` has them (zero in the other rows).
+    """
+    for name in ("tiles", "offsets", "linear"):
+        getattr(placed, name)[rows] = getattr(update, name)
+    placed.spectra.spectrum[rows] = update.spectra.spectrum
+    placed.spectra.std[rows] = update.spectra.std
+    descriptor = None
+    if update.spectra.descriptor is not None:
+        descriptor = np.zeros((len(placed.tiles),) + update.spectra.descriptor.shape[1:],
+                              dtype=update.spectra.descriptor.dtype)
+        descriptor[rows] = update.spectra.descriptor
+    return replace(placed, spectra=replace(placed.spectra, descriptor=descriptor))
 
 
 class FourierMellin:
@@ -618,12 +641,17 @@ class FourierMellin:
         translation = -self._search_shift(fa, fb, peaks.shift, shape)
         count = len(offsets_b)
         offsets, linear = compose_placement(offsets_b, linear_b, np.ones(count), np.zeros(count), translation)
-        with_rotation = self.config.estimate_rotation_scale and self.config.refine_predicted_rotation_scale
-        offsets, linear, last = self._refined_placement(spectra_a, source_b, offsets, linear,
-                                                        with_rotation=with_rotation)
-        if last is None:
-            last = PlacedTiles(tiles=tiles, offsets=offsets_b, linear=linear_b, spectra=None)
         reason = self._reasons(spectra_a, std_b, peaks.peak_ratio, peaks.peak_to_noise)
+        # Only the tiles the filters kept are refined; the others keep the search placement.
+        keep = np.flatnonzero(reason == 0)
+        last = PlacedTiles(tiles=tiles, offsets=offsets_b.copy(), linear=linear_b.copy(),
+                           spectra=TileSpectra(spectrum=fb, descriptor=None, std=std_b.copy()))
+        if self.config.refine_passes and keep.size:
+            with_rotation = self.config.estimate_rotation_scale and self.config.refine_predicted_rotation_scale
+            kept_offsets, kept_linear, kept_last = self._refined_placement(
+                spectra_a.rows(keep), source_b, offsets[keep], linear[keep], with_rotation=with_rotation)
+            offsets[keep], linear[keep] = kept_offsets, kept_linear
+            last = _replace_rows(last, keep, kept_last)
         return PlacedRegistration(offsets=offsets, linear=linear, peak_ratio=peaks.peak_ratio,
                                   peak_to_noise=peaks.peak_to_noise, peak_value=peaks.value,
                                   valid=reason == 0, reason=reason, last=last)

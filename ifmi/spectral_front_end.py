@@ -17,7 +17,7 @@ from .camera import OcamModel
 from .options import options_from_dict
 from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
 from .fourier_mellin import REJECT_REASONS, FourierMellin, FourierMellinConfig, PlacedTiles, TileSpectra
-from .tiling import TileLayout, TilingConfig, tile_layout, tiles_from_panorama
+from .tiling import TileLayout, TilingConfig, tile_layout
 from .unwarp import (PanoramaConfig, PanoramaMapping, panorama_from_omni, panorama_from_rays,
                      panorama_mapping, rays_from_panorama)
 
@@ -49,10 +49,10 @@ class IfmiConfig:
         Jacobian at the tile centre), not only its similarity part.
     track_tiles : bool
         With a prediction, a frame that becomes a reference keeps the tiles
-        it was registered with -- resampled where its previous reference's
-        tiles were found -- instead of cutting new ones at the fixed
-        layout, like tracked features. The same pixels then enter the pair
-        before and the pair after it with opposite signs, so their noise
+        it was registered with, placed where its previous reference's tiles
+        were found, instead of cutting new ones at the fixed layout, like
+        tracked features. A tile's placement in a frame then enters the
+        pair before and the pair after it with opposite signs, so its error
         cancels along the trajectory instead of accumulating. Tiles that
         failed registration, left the panorama rows or became distorted
         are cut anew from the layout.
@@ -61,11 +61,13 @@ class IfmiConfig:
         more than this factor along any direction is cut anew.
     anchor_templates : bool
         Tracked tiles keep the template (spectrum) of the frame they were
-        first cut from, and each frame's placement of it is measured
-        against that template; consecutive pairs then share the placement
-        error of their common frame with opposite signs, so tile errors
-        telescope along the track instead of adding up. Otherwise a tracked
-        tile is re-cut from every frame at its last placement.
+        first cut from, and every later frame's placement of them is
+        measured against that template, so a placement error of one frame
+        does not pass on to the next. Otherwise a tracked tile is re-cut
+        (resampled) from every frame at its last placement and carries that
+        placement's error and the resampling blur along the track (the
+        tests measure 0.05 against 0.17 px two frames on; 20-frame drift on
+        the rendered benchmark, sum of six runs, 227e-5 against 250e-5 rad).
     """
 
     panorama: PanoramaConfig = field(default_factory=PanoramaConfig)
@@ -104,28 +106,47 @@ class IfmiConfig:
 
 
 class IfmiFrameState:
-    """Prepared frame: wrap-padded panorama (float32), its layout tiles and, on first use, their spectra.
+    """Prepared frame: wrap-padded panorama (float32); its layout tiles and their spectra on first use.
 
-    The spectra are needed when the frame is a reference (or matched without
-    a prediction); in keyframe mode most frames are neither, and skip them.
+    The layout tiles and their spectra are needed when the frame is matched
+    without a prediction, or as a reference whose tiles are cut anew; with
+    tracked tiles most frames need few of them, or none.
     ``tracked`` holds the tiles this frame was last registered with (set by
     the front end; see ``IfmiConfig.track_tiles``).
+
+    Parameters
+    ----------
+    padded_panorama : (H, W + 2 P) float32 ndarray
+        Panorama with ``P`` columns wrapped onto each side.
+    pad : int
+        ``P``.
+    layout : TileLayout
+    engine : FourierMellin
     """
 
-    def __init__(self, padded_panorama: np.ndarray, tiles: np.ndarray, engine: FourierMellin):
+    def __init__(self, padded_panorama: np.ndarray, pad: int, layout: TileLayout, engine: FourierMellin):
         self.padded_panorama = padded_panorama
-        self.tiles = tiles
+        self._pad = pad
+        self._layout = layout
         self._engine = engine
         self._spectra: TileSpectra | None = None
         self.tracked: PlacedTiles | None = None
         self.tracked_valid: np.ndarray | None = None
         self.reference: tuple | None = None
 
+    def layout_tiles(self, index: np.ndarray | None = None) -> np.ndarray:
+        """Layout tiles ``(K, N, N)`` float32, all or ``index`` (bool mask or indices) of them."""
+        origins = self._layout.origins if index is None else self._layout.origins[index]
+        n = self._layout.tile_size
+        # The wrapped columns hold every tile that crosses the seam (pad >= N).
+        windows = np.lib.stride_tricks.sliding_window_view(self.padded_panorama, (n, n))
+        return np.ascontiguousarray(windows[origins[:, 0], origins[:, 1] + self._pad])
+
     @property
     def spectra(self) -> TileSpectra:
-        """Tile spectra (:class:`~ifmi.fourier_mellin.TileSpectra`), computed on first access."""
+        """Spectra of all layout tiles (:class:`~ifmi.fourier_mellin.TileSpectra`), computed on first access."""
         if self._spectra is None:
-            self._spectra = self._engine.spectra(self.tiles)
+            self._spectra = self._engine.spectra(self.layout_tiles())
         return self._spectra
 
 
@@ -178,8 +199,7 @@ class IfmiFrontEnd:
         panorama = panorama_from_omni(image, self.mapping)
         pad = self._pad
         padded = np.concatenate([panorama[:, -pad:], panorama, panorama[:, :pad]], axis=1)
-        tiles = np.ascontiguousarray(tiles_from_panorama(panorama, self.layout))
-        return IfmiFrameState(padded, tiles, self.engine)
+        return IfmiFrameState(padded, pad, self.layout, self.engine)
 
     @property
     def _pad(self) -> int:
@@ -269,12 +289,14 @@ class IfmiFrontEnd:
         # serve only when the residual rotation and scale are measured.
         registration = self.config.registration
         with_descriptor = registration.estimate_rotation_scale and registration.refine_predicted_rotation_scale
-        spectra = tracked.spectra if tracked.spectra is not None else self.engine.spectra(tracked.tiles)
+        spectra = tracked.spectra
+        if spectra is None or (with_descriptor and spectra.descriptor is None):
+            spectra = self.engine.spectra(tracked.tiles)
         if not with_descriptor:
             spectra = replace(spectra, descriptor=None)
         new = self._needs_new_tile(tracked, state.tracked_valid)
         if new.any():
-            fresh = self.engine.spectra(state.tiles[new], with_descriptor=with_descriptor)
+            fresh = self.engine.spectra(state.layout_tiles(new), with_descriptor=with_descriptor)
 
             def merged(tracked_rows, new_rows):
                 if tracked_rows is None:
@@ -311,8 +333,10 @@ class IfmiFrontEnd:
                            prior_rotation: np.ndarray):
         """Find the reference's tiles in frame b where a predicted rotation puts them.
 
-        Frame b keeps the tiles the final residual was measured on as its
-        tracked tiles (used when it becomes a reference, ``track_tiles``).
+        Frame b keeps the reference's templates at their final placements
+        in b (``anchor_templates``), or the tiles the final residual was
+        measured on, as its tracked tiles (used when it becomes a reference,
+        ``track_tiles``).
 
         Parameters
         ----------

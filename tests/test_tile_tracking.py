@@ -160,3 +160,17 @@ def test_tracking_makes_a_frames_noise_cancel_between_its_two_pairs(clean_frames
 def test_distortion_limit_is_validated():
     with pytest.raises(ValueError, match="max_tile_distortion"):
         IfmiConfig(max_tile_distortion=1.0)
+
+
+def test_layout_tiles_of_a_frame_are_cut_across_the_seam(clean_frames):
+    from ifmi.tiling import TilingConfig, tiles_from_panorama
+    from ifmi.unwarp import panorama_from_omni
+
+    # 40 px tiles at half overlap on a 512 px wide panorama: the last column of tiles wraps.
+    fe = IfmiFrontEnd(MODEL, replace(CONFIG, tiling=TilingConfig(tile_size=40, overlap=0.5)))
+    state = fe.prepare(clean_frames[0])
+    assert (fe.layout.origins[:, 1] + fe.layout.tile_size > fe.mapping.width).any()
+    expected = tiles_from_panorama(panorama_from_omni(clean_frames[0], fe.mapping), fe.layout)
+    assert np.array_equal(state.layout_tiles(), expected)
+    some = np.arange(fe.layout.count) % 3 == 0
+    assert np.array_equal(state.layout_tiles(some), expected[some])
