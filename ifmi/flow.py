@@ -14,7 +14,8 @@ import numpy as np
 
 from .fourier_mellin import TileMotion, transform_points
 from .tiling import TileLayout
-from .unwarp import PanoramaMapping, omni_from_panorama, rays_from_panorama
+from .camera import pixels_from_rays
+from .unwarp import PanoramaMapping, rays_from_panorama
 
 __all__ = ["FlowPairs", "flow_sample_points", "flow_from_tile_motion", "flow_from_placements"]
 
@@ -109,11 +110,12 @@ def _flow_pairs(pano_a: np.ndarray, pano_b: np.ndarray, mapping: PanoramaMapping
     """FlowPairs of panorama point pairs (columns wrapped into ``[0, width)`` in place)."""
     pano_a[:, 1] = np.mod(pano_a[:, 1], mapping.width)
     pano_b[:, 1] = np.mod(pano_b[:, 1], mapping.width)
-    return FlowPairs(
-        panorama_a=pano_a, panorama_b=pano_b,
-        pixels_a=omni_from_panorama(mapping, pano_a), pixels_b=omni_from_panorama(mapping, pano_b),
-        rays_a=rays_from_panorama(mapping, pano_a), rays_b=rays_from_panorama(mapping, pano_b),
-        tile_index=tile_index)
+    # Both frames' points in one call each (the omni pixels are those of the rays).
+    rays = rays_from_panorama(mapping, np.concatenate([pano_a, pano_b]))
+    pixels = pixels_from_rays(mapping.model, rays)
+    m = len(pano_a)
+    return FlowPairs(panorama_a=pano_a, panorama_b=pano_b, pixels_a=pixels[:m], pixels_b=pixels[m:],
+                     rays_a=rays[:m], rays_b=rays[m:], tile_index=tile_index)
 
 
 def flow_from_placements(offsets_a: np.ndarray, linear_a: np.ndarray, offsets_b: np.ndarray,

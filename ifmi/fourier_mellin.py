@@ -448,10 +448,13 @@ class FourierMellin:
     # -- per frame ---------------------------------------------------------------------------
     def _windowed_fft(self, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         tiles = tiles.astype(np.float32, copy=False)
-        mean = tiles.mean(axis=(1, 2), keepdims=True)
-        centred = tiles - mean
-        std = np.sqrt((centred ** 2).mean(axis=(1, 2)))
-        spectrum = scipy.fft.rfft2(centred * self.window, workers=self.config.workers)
+        k = len(tiles)
+        pixels = tiles[0].size
+        centred = tiles - (tiles.reshape(k, -1).sum(axis=1) / pixels)[:, None, None]
+        flat = centred.reshape(k, -1)
+        std = np.sqrt(np.einsum("ki,ki->k", flat, flat) / pixels)
+        centred *= self.window
+        spectrum = scipy.fft.rfft2(centred, workers=self.config.workers, overwrite_x=True)
         return spectrum.astype(np.complex64, copy=False), std
 
     def spectra(self, tiles: np.ndarray, *, with_descriptor: bool = True) -> TileSpectra:

@@ -19,7 +19,7 @@ from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_point
 from .fourier_mellin import REJECT_REASONS, FourierMellin, FourierMellinConfig, PlacedTiles, TileSpectra
 from .tiling import TileLayout, TilingConfig, tile_layout
 from .unwarp import (PanoramaConfig, PanoramaMapping, panorama_from_omni, panorama_from_rays,
-                     panorama_mapping, rays_from_panorama)
+                     panorama_mapping, rays_from_panorama, wrapped_panorama_maps)
 
 __all__ = ["IfmiConfig", "IfmiFrameState", "IfmiFrontEnd"]
 
@@ -137,10 +137,11 @@ class IfmiFrameState:
     def layout_tiles(self, index: np.ndarray | None = None) -> np.ndarray:
         """Layout tiles ``(K, N, N)`` float32, all or ``index`` (bool mask or indices) of them."""
         origins = self._layout.origins if index is None else self._layout.origins[index]
-        n = self._layout.tile_size
+        steps = np.arange(self._layout.tile_size)
+        rows = origins[:, 0, None] + steps
         # The wrapped columns hold every tile that crosses the seam (pad >= N).
-        windows = np.lib.stride_tricks.sliding_window_view(self.padded_panorama, (n, n))
-        return np.ascontiguousarray(windows[origins[:, 0], origins[:, 1] + self._pad])
+        cols = origins[:, 1, None] + self._pad + steps
+        return self.padded_panorama[rows[:, :, None], cols[:, None, :]]
 
     @property
     def spectra(self) -> TileSpectra:
@@ -171,6 +172,7 @@ class IfmiFrontEnd:
         self.layout: TileLayout | None = None
         self.engine: FourierMellin | None = None
         self._points_b: np.ndarray | None = None
+        self._padded_maps: tuple = ()
 
     @property
     def uses_prior_rotation(self) -> bool:
@@ -182,6 +184,7 @@ class IfmiFrontEnd:
         self.layout = tile_layout((self.mapping.height, self.mapping.width), config=self.config.tiling)
         self.engine = FourierMellin(self.layout.tile_size, self.layout.count,
                                     config=self.config.registration)
+        self._padded_maps = wrapped_panorama_maps(self.mapping, self._pad)
         self._points_b = flow_sample_points(self.layout.tile_size,
                                             points_per_tile=self.config.points_per_tile,
                                             spread=self.config.point_spread)
@@ -196,10 +199,8 @@ class IfmiFrontEnd:
         """
         if self.mapping is None:
             self._setup(image)
-        panorama = panorama_from_omni(image, self.mapping)
-        pad = self._pad
-        padded = np.concatenate([panorama[:, -pad:], panorama, panorama[:, :pad]], axis=1)
-        return IfmiFrameState(padded, pad, self.layout, self.engine)
+        padded = panorama_from_omni(image, self.mapping, maps=self._padded_maps)
+        return IfmiFrameState(padded, self._pad, self.layout, self.engine)
 
     @property
     def _pad(self) -> int:
@@ -258,9 +259,14 @@ class IfmiFrontEnd:
         return centres - (self.layout.tile_size - 1) / 2.0
 
     def _needs_new_tile(self, tracked: PlacedTiles, valid: np.ndarray) -> np.ndarray:
-        singular = np.linalg.svd(tracked.linear, compute_uv=False)
+        # Singular values of each 2x2 map: s1^2 + s2^2 = |L|_F^2 and s1 s2 = |det L|.
+        frobenius = np.einsum("tij,tij->t", tracked.linear, tracked.linear)
+        twice_det = 2.0 * np.abs(np.linalg.det(tracked.linear))
+        plus = np.sqrt(frobenius + twice_det)
+        minus = np.sqrt(np.maximum(frobenius - twice_det, 0.0))
+        largest, smallest = (plus + minus) / 2.0, (plus - minus) / 2.0
         limit = self.config.max_tile_distortion
-        distorted = (singular[:, 0] > limit) | (singular[:, 1] < 1.0 / limit)
+        distorted = (largest > limit) | (smallest < 1.0 / limit)
         # Rows the tile covers: its corners reach (N/2)(|L_00| + |L_01|) from the centre.
         reach = self.layout.tile_size / 2.0 * np.abs(tracked.linear[:, 0, :]).sum(axis=1)
         rows = tracked.offsets[:, 0]

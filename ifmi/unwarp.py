@@ -34,6 +34,7 @@ __all__ = [
     "radius_band",
     "panorama_mapping",
     "panorama_from_omni",
+    "wrapped_panorama_maps",
     "rays_from_panorama",
     "omni_from_panorama",
     "panorama_from_omni_pixels",
@@ -282,7 +283,28 @@ def panorama_mapping(model: OcamModel, image: np.ndarray | None = None, *,
         map_cols=map_cols, fixed_maps=cv2.convertMaps(map_cols, map_rows, cv2.CV_16SC2))
 
 
-def panorama_from_omni(image: np.ndarray, mapping: PanoramaMapping) -> np.ndarray:
+def wrapped_panorama_maps(mapping: PanoramaMapping, columns: int) -> tuple:
+    """Remap maps of the panorama with ``columns`` columns wrapped onto each side.
+
+    Parameters
+    ----------
+    mapping : PanoramaMapping
+    columns : int
+        Columns copied from the other end onto each side (``0 <= columns <= width``).
+
+    Returns
+    -------
+    tuple of ndarray
+        OpenCV fixed-point maps of the ``(height, width + 2 columns)`` grid,
+        for :func:`panorama_from_omni`'s ``maps``.
+    """
+    if not 0 <= columns <= mapping.width:
+        raise ValueError(f"expected 0 <= columns <= {mapping.width}, got {columns}")
+    index = np.arange(-columns, mapping.width + columns) % mapping.width
+    return cv2.convertMaps(mapping.map_cols[:, index], mapping.map_rows[:, index], cv2.CV_16SC2)
+
+
+def panorama_from_omni(image: np.ndarray, mapping: PanoramaMapping, *, maps: tuple | None = None) -> np.ndarray:
     """Resample an omni image into the panorama (bilinear, float32).
 
     Parameters
@@ -291,17 +313,21 @@ def panorama_from_omni(image: np.ndarray, mapping: PanoramaMapping) -> np.ndarra
         Omni image of the size the mapping's calibration names; RGB is
         converted to gray.
     mapping : PanoramaMapping
+    maps : tuple of ndarray, optional, keyword-only
+        Remap maps of another grid on the same panorama, such as
+        :func:`wrapped_panorama_maps`; default the mapping's own.
 
     Returns
     -------
     (height, width) float32 ndarray
+        Or the shape of ``maps``.
     """
     gray = gray_from_image(image)
     if gray.shape != mapping.model.size:
         raise ValueError(f"expected an image of size {mapping.model.size}, got {gray.shape}")
     if gray.dtype != np.uint8:
         gray = gray.astype(np.float32)
-    map1, map2 = mapping.fixed_maps or (mapping.map_cols, mapping.map_rows)
+    map1, map2 = maps or mapping.fixed_maps or (mapping.map_cols, mapping.map_rows)
     pano = cv2.remap(gray, map1, map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return pano.astype(np.float32, copy=False)
 

@@ -7,7 +7,8 @@ import pytest
 
 from ifmi.camera import paracatadioptric_model, radius_from_pixels
 from ifmi.unwarp import (PanoramaConfig, omni_from_panorama, panorama_from_omni,
-                         panorama_from_omni_pixels, panorama_mapping, radius_band, rays_from_panorama)
+                         panorama_from_omni_pixels, panorama_mapping, radius_band, rays_from_panorama,
+                         wrapped_panorama_maps)
 
 # An off-centre, non-identity-affine paracatadioptric camera.
 MODEL = paracatadioptric_model((240, 260), horizon_radius_px=70.0, center=(118.6, 133.2),
@@ -32,6 +33,16 @@ def test_panorama_omni_round_trip():
     col_err = np.abs(np.angle(np.exp(2j * np.pi * (back[:, 1] - pano[:, 1]) / mapping.width)))
     assert np.max(np.abs(back[:, 0] - pano[:, 0])) < 1e-3
     assert np.max(col_err) * mapping.width / (2 * np.pi) < 1e-3
+
+
+def test_wrapped_panorama_repeats_the_columns_across_the_seam():
+    mapping = panorama_mapping(MODEL, config=PanoramaConfig(width=128, radius_min_px=30, radius_max_px=110))
+    image = _band_image(MODEL, 30, 110)
+    pano = panorama_from_omni(image, mapping)
+    padded = panorama_from_omni(image, mapping, maps=wrapped_panorama_maps(mapping, 20))
+    assert np.array_equal(padded, np.concatenate([pano[:, -20:], pano, pano[:, :20]], axis=1))
+    with pytest.raises(ValueError, match="columns"):
+        wrapped_panorama_maps(mapping, 129)
 
 
 def test_remap_maps_agree_with_pixel_mapping():
