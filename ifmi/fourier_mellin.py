@@ -102,8 +102,9 @@ class FourierMellinConfig:
         pass only has to land within a pixel: it resamples bilinearly and
         keeps the parabolic sub-pixel peak, and the passes measure the
         residual with ``resample_interpolation`` and the phase-plane fit
-        (as accurate on the rendered benchmark sequences, about a
-        millisecond less per frame).
+        (as accurate on the rendered benchmark sequences: 20-frame drift
+        219e-5 against 227e-5 rad summed over six runs; about 0.5 ms less
+        per frame for 32 tiles of 64 px).
     estimate_rotation_scale : bool
         Estimate ``s`` and ``theta``; when false they are 1 and 0 and only the
         translation is measured (faster; for nearly rigid tile motion).
