@@ -104,7 +104,7 @@ def main(argv=None) -> int:
                         help="RANSAC threshold of every method in pixels (default: the back "
                              "end's default, converted per calibration)")
     parser.add_argument("--timing-frames", type=int, default=50)
-    parser.add_argument("--timing-rounds", type=int, default=3)
+    parser.add_argument("--timing-rounds", type=int, default=5)
     args = parser.parse_args(argv)
     modes = ["keyframe"] if args.keyframes else list(dict.fromkeys(args.modes))
     base = EstimateConfig()
@@ -156,11 +156,12 @@ def main(argv=None) -> int:
     print(f"machine: {machine['cpu']}, {machine['cores']} cores, {machine['ram_gib']} GiB, "
           f"python {machine['python']}")
     print("RMSE in radians; times in ms per frame; 'rot/5pt': frames solved by each model")
-    print(f"{'mode':<9}{'dataset':<12}{'method':<7}{'roll':>8}{'pitch':>8}{'yaw':>8}{'mean':>8}"
+    width = max([12] + [len(r["dataset"]) + 1 for r in rows])
+    print(f"{'mode':<9}{'dataset':<{width}}{'method':<7}{'roll':>8}{'pitch':>8}{'yaw':>8}{'mean':>8}"
           f"{'geodesic':>9}{'run ms':>8}{'wall ms':>8}{'timed ms':>9}{'fail':>8}{'rot/5pt':>9}"
           f"{'refs':>6}")
     for r in rows:
-        print(f"{r['mode']:<9}{r['dataset']:<12}{r['method']:<7}{r['roll']:>8.4f}{r['pitch']:>8.4f}"
+        print(f"{r['mode']:<9}{r['dataset']:<{width}}{r['method']:<7}{r['roll']:>8.4f}{r['pitch']:>8.4f}"
               f"{r['yaw']:>8.4f}{r['mean_rmse']:>8.4f}{r['geodesic_rmse']:>9.4f}"
               f"{r['median_s'] * 1e3:>8.1f}{r['wall_per_frame_s'] * 1e3:>8.1f}"
               f"{r.get(key, float('nan')) * 1e3:>9.1f}{r['failures']:>4}/{r['frames']:<3}"
@@ -190,7 +191,7 @@ def main(argv=None) -> int:
         for m in baselines:
             entry[f"time_vs_{m}"] = by["ifmi"][key] / by[m][key]
         ratios[f"{mode}/{dataset}"] = entry
-        print(f"{mode:<9}{dataset:<12}" + "  ".join(f"{k} {v:.3f}" for k, v in entry.items()))
+        print(f"{mode:<9}{dataset:<{width}}" + "  ".join(f"{k} {v:.3f}" for k, v in entry.items()))
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench_methods.json").write_text(json.dumps({"rows": rows, "ratios": ratios,
                                                         "time_key": key, "machine": machine,

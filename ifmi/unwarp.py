@@ -270,13 +270,15 @@ def panorama_mapping(model: OcamModel, image: np.ndarray | None = None, *,
     cols = np.arange(width)
     theta = theta_hi - rows * step
     phi = cols * (2 * np.pi / width)
-    rays = np.stack(np.broadcast_arrays(
-        np.cos(theta)[:, None] * np.cos(phi)[None],
-        np.cos(theta)[:, None] * np.sin(phi)[None],
-        np.sin(theta)[:, None]), axis=-1)
-    pixels = pixels_from_rays(model, rays)
-    map_rows = np.ascontiguousarray(pixels[..., 0], dtype=np.float32)
-    map_cols = np.ascontiguousarray(pixels[..., 1], dtype=np.float32)
+    # world2cam of the grid's rays (cos(theta) cos(phi), cos(theta) sin(phi), sin(theta)):
+    # every ray of a row has elevation theta and so one sensor radius rho = invpol(theta),
+    # and its sensor point is rho (cos(phi), sin(phi)); this is pixels_from_rays, separated.
+    rho = np.polynomial.polynomial.polyval(theta, model.invpol)
+    u = rho[:, None] * np.cos(phi)[None]
+    v = rho[:, None] * np.sin(phi)[None]
+    c, d, e = model.affine
+    map_rows = (u * c + v * d + model.center[0]).astype(np.float32)
+    map_cols = (u * e + v + model.center[1]).astype(np.float32)
     return PanoramaMapping(
         model=model, width=width, height=height, elevation_top_rad=theta_hi,
         elevation_step_rad=step, radius_band_px=(inner, outer), map_rows=map_rows,
@@ -301,6 +303,9 @@ def wrapped_panorama_maps(mapping: PanoramaMapping, columns: int) -> tuple:
     if not 0 <= columns <= mapping.width:
         raise ValueError(f"expected 0 <= columns <= {mapping.width}, got {columns}")
     index = np.arange(-columns, mapping.width + columns) % mapping.width
+    if mapping.fixed_maps:
+        # The fixed-point conversion is per element, so the converted maps are wrapped as well.
+        return tuple(np.ascontiguousarray(m[:, index]) for m in mapping.fixed_maps)
     return cv2.convertMaps(mapping.map_cols[:, index], mapping.map_rows[:, index], cv2.CV_16SC2)
 
 
