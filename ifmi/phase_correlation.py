@@ -143,6 +143,8 @@ def find_peaks(surface: np.ndarray) -> Peaks:
     rr = (r[:, None, None] + offsets[None, :, None]) % h
     cc = (c[:, None, None] + offsets[None, None, :]) % w
     index = (tiles[:, None], (rr * w + cc).reshape(t, -1))
+    if not flat.flags.writeable:
+        flat = flat.copy()
     lobe = flat[index]
     flat[index] = -np.inf
     second = flat.max(axis=1)

@@ -292,7 +292,8 @@ def wrapped_panorama_maps(mapping: PanoramaMapping, columns: int) -> tuple:
     ----------
     mapping : PanoramaMapping
     columns : int
-        Columns copied from the other end onto each side (``0 <= columns <= width``).
+        Columns copied from the other end onto each side (``>= 0``; more
+        than ``width`` repeats the panorama).
 
     Returns
     -------
@@ -300,8 +301,9 @@ def wrapped_panorama_maps(mapping: PanoramaMapping, columns: int) -> tuple:
         OpenCV fixed-point maps of the ``(height, width + 2 columns)`` grid,
         for :func:`panorama_from_omni`'s ``maps``.
     """
-    if not 0 <= columns <= mapping.width:
-        raise ValueError(f"expected 0 <= columns <= {mapping.width}, got {columns}")
+    if isinstance(columns, bool) or int(columns) != columns or columns < 0:
+        raise ValueError(f"expected an integer number of columns >= 0, got {columns!r}")
+    columns = int(columns)
     index = np.arange(-columns, mapping.width + columns) % mapping.width
     if mapping.fixed_maps:
         # The fixed-point conversion is per element, so the converted maps are wrapped as well.

@@ -220,3 +220,25 @@ def test_predicted_rotation_scale_is_refined_only_when_asked(refine):
     else:
         assert np.degrees(m.angle_rad[0] - angle) == pytest.approx(1.0, abs=1e-9)
         assert m.scale[0] == pytest.approx(scale * 1.01, rel=1e-9)
+
+
+def test_peak_quality_figures_match_their_definitions_and_leave_the_surface_alone():
+    from ifmi.phase_correlation import find_peaks
+
+    rng = np.random.default_rng(4)
+    surface = rng.normal(0.0, 0.01, (3, 16, 16)).astype(np.float32)
+    peaks_at = [(2, 3), (15, 0), (8, 8)]
+    for k, (r, c) in enumerate(peaks_at):
+        surface[k, r, c] = 1.0
+        surface[k, (r + 1) % 16, c] = 0.6  # inside the main lobe: not the second peak
+        surface[k, (r + 5) % 16, (c + 7) % 16] = 0.25  # the second peak
+    before = surface.copy()
+    surface.flags.writeable = False
+    peaks = find_peaks(surface)
+    assert np.array_equal(surface, before)
+    flat = before.reshape(3, -1)
+    assert np.allclose(peaks.value, 1.0)
+    assert np.allclose(peaks.peak_ratio, 4.0)
+    assert np.allclose(peaks.peak_to_noise, (1.0 - flat.mean(1)) / flat.std(1), rtol=1e-5)
+    wrapped = [((r + 8) % 16 - 8, (c + 8) % 16 - 8) for r, c in peaks_at]
+    assert np.allclose(np.round(peaks.shift), wrapped)

@@ -41,8 +41,11 @@ def test_wrapped_panorama_repeats_the_columns_across_the_seam():
     pano = panorama_from_omni(image, mapping)
     padded = panorama_from_omni(image, mapping, maps=wrapped_panorama_maps(mapping, 20))
     assert np.array_equal(padded, np.concatenate([pano[:, -20:], pano, pano[:, :20]], axis=1))
+    # More columns than the panorama has repeat it.
+    twice = panorama_from_omni(image, mapping, maps=wrapped_panorama_maps(mapping, 130))
+    assert np.array_equal(twice[:, 130:258], pano) and np.array_equal(twice[:, :2], pano[:, -2:])
     with pytest.raises(ValueError, match="columns"):
-        wrapped_panorama_maps(mapping, 129)
+        wrapped_panorama_maps(mapping, -1)
 
 
 def test_remap_maps_agree_with_pixel_mapping():
