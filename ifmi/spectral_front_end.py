@@ -17,7 +17,7 @@ from .camera import OcamModel
 from .options import options_from_dict
 from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
 from .fourier_mellin import REJECT_REASONS, FourierMellin, FourierMellinConfig, PlacedTiles, TileSpectra
-from .tiling import TileLayout, TilingConfig, tile_layout
+from .tiling import TileLayout, TilingConfig, tile_layout, tiles_from_panorama
 from .unwarp import (PanoramaConfig, PanoramaMapping, panorama_from_omni, panorama_from_rays,
                      panorama_mapping, rays_from_panorama, wrapped_panorama_maps)
 
@@ -136,12 +136,7 @@ class IfmiFrameState:
 
     def layout_tiles(self, index: np.ndarray | None = None) -> np.ndarray:
         """Layout tiles ``(K, N, N)`` float32, all or ``index`` (bool mask or indices) of them."""
-        origins = self._layout.origins if index is None else self._layout.origins[index]
-        steps = np.arange(self._layout.tile_size)
-        rows = origins[:, 0, None] + steps
-        # The wrapped columns hold every tile that crosses the seam (pad >= N).
-        cols = origins[:, 1, None] + self._pad + steps
-        return self.padded_panorama[rows[:, :, None], cols[:, None, :]]
+        return tiles_from_panorama(self.padded_panorama, self._layout, index=index, wrapped_columns=self._pad)
 
     @property
     def spectra(self) -> TileSpectra:

@@ -121,22 +121,36 @@ def tile_layout(panorama_shape: tuple[int, int], *, config: TilingConfig = Tilin
                       grid_shape=(n_rows, n_cols))
 
 
-def tiles_from_panorama(panorama: np.ndarray, layout: TileLayout) -> np.ndarray:
-    """Cut all tiles of a panorama into one array.
+def tiles_from_panorama(panorama: np.ndarray, layout: TileLayout, *, index: np.ndarray | None = None,
+                        wrapped_columns: int = 0) -> np.ndarray:
+    """Cut tiles of a panorama into one array.
 
     Parameters
     ----------
-    panorama : (H, W) ndarray
+    panorama : (H, W + 2 P) ndarray
+        The panorama, with ``P`` (``wrapped_columns``) columns wrapped onto each side.
     layout : TileLayout
+    index : (T,) bool ndarray or (K,) int ndarray, optional, keyword-only
+        The tiles to cut; default all.
+    wrapped_columns : int, keyword-only
+        ``P``; with ``P >= N`` the tiles that cross the seam are read from
+        the wrapped columns, otherwise the panorama is wrapped here.
 
     Returns
     -------
-    (T, N, N) ndarray
-        Tile ``t`` is ``panorama[r:r+N, (c + arange(N)) % W]`` for origin ``(r, c)``.
+    (K, N, N) ndarray
+        Tile ``t`` is ``panorama[r:r+N, P + (c + arange(N)) % W]`` for origin ``(r, c)``.
     """
-    if panorama.shape != tuple(layout.panorama_shape):
-        raise ValueError(f"expected a panorama of shape {layout.panorama_shape}, got {panorama.shape}")
+    height, width = layout.panorama_shape
+    pad = int(wrapped_columns)
+    if panorama.shape != (height, width + 2 * pad):
+        raise ValueError(f"expected a panorama of shape {(height, width + 2 * pad)}, got {panorama.shape}")
     n = layout.tile_size
-    padded = np.concatenate([panorama, panorama[:, :n]], axis=1)
-    windows = np.lib.stride_tricks.sliding_window_view(padded, (n, n))
-    return windows[layout.origins[:, 0], layout.origins[:, 1]]
+    origins = layout.origins if index is None else layout.origins[index]
+    if pad < n:
+        panorama = np.concatenate([panorama[:, pad:pad + width], panorama[:, pad:pad + n]], axis=1)
+        pad = 0
+    steps = np.arange(n)
+    rows = origins[:, 0, None] + steps
+    cols = origins[:, 1, None] + pad + steps
+    return panorama[rows[:, :, None], cols[:, None, :]]

@@ -34,6 +34,17 @@ def test_seam_tile_content_wraps():
         expected = pano[r:r + 64][:, (c + np.arange(64)) % 300]
         assert np.array_equal(tile, expected)
     assert (layout.origins[:, 1] + 64 > 300).any()
+    # The same tiles, some of them, from a panorama already wrapped by 70 or 10 columns a side.
+    some = np.arange(layout.count) % 2 == 1
+    for pad in (70, 10):
+        padded = np.concatenate([pano[:, -pad:], pano, pano[:, :pad]], axis=1)
+        assert np.array_equal(tiles_from_panorama(padded, layout, index=some, wrapped_columns=pad), tiles[some])
+
+
+def test_panorama_of_the_wrong_shape_is_rejected():
+    layout = tile_layout((64, 300), config=TilingConfig(tile_size=64))
+    with pytest.raises(ValueError, match=r"expected a panorama of shape \(64, 440\)"):
+        tiles_from_panorama(np.zeros((64, 300)), layout, wrapped_columns=70)
 
 
 def test_fractional_tile_size():
