@@ -335,7 +335,8 @@ class PlacedTiles:
 
     Attributes
     ----------
-    tiles : (T, N, N) float32 ndarray
+    tiles : (T, N, N) float32 ndarray or None
+        None for templates kept from an earlier frame, which only carry their spectra.
     offsets : (T, 2) ndarray
         Source ``(row, col)`` of each tile centre.
     linear : (T, 2, 2) ndarray
@@ -343,7 +344,7 @@ class PlacedTiles:
         Their spectra, when already computed.
     """
 
-    tiles: np.ndarray
+    tiles: np.ndarray | None
     offsets: np.ndarray
     linear: np.ndarray
     spectra: TileSpectra | None

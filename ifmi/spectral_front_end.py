@@ -368,15 +368,15 @@ class IfmiFrontEnd:
         offsets_b[:, 1] = np.mod(offsets_b[:, 1], width)
         placed = self.engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + shift, linear_b)
         last = replace(placed.last, offsets=unpadded(placed.last.offsets))
+        placed = replace(placed, offsets=unpadded(placed.offsets), last=last)
         if self.config.anchor_templates:
             # The reference's templates, placed where they were found in b.
-            state_b.tracked = PlacedTiles(tiles=None, offsets=unpadded(placed.offsets), linear=placed.linear,
+            state_b.tracked = PlacedTiles(tiles=None, offsets=placed.offsets, linear=placed.linear,
                                           spectra=spectra_a)
         else:
             state_b.tracked = last
         state_b.tracked_valid = placed.valid
         state_b.reference = None
-        placed = replace(placed, offsets=unpadded(placed.offsets), last=last)
         return offsets_a, linear_a, placed, n_new
 
     def _diagnostics(self, reason: np.ndarray, peak_ratio: np.ndarray, peak_to_noise: np.ndarray,
