@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["InputError"]
+__all__ = ["InputError", "OutputError"]
 
 
 class InputError(ValueError):
@@ -16,3 +16,27 @@ class InputError(ValueError):
         self.path = str(path)
         self.problem = problem
         super().__init__(f"{path}: {problem}")
+
+
+class OutputError(OSError):
+    """A result could not be written: the user's path and the OS reason, in one line.
+
+    Raised by the atomic writers of :mod:`ifmi.io.atomic` in place of the raw
+    ``OSError`` (whose message would name a temporary file). Command-line entry
+    points print it and exit with status 1; nothing half-written is left.
+    """
+
+    def __init__(self, path, reason: str) -> None:
+        self.path = str(path)
+        self.reason = reason
+        super().__init__(f"cannot write {path}: {reason}")
+
+    def __str__(self) -> str:
+        return f"cannot write {self.path}: {self.reason}"
+
+    @classmethod
+    def from_os_error(cls, path, exc: OSError) -> "OutputError":
+        """Wrap ``exc`` (raised while writing ``path``) with the user's path."""
+        if isinstance(exc, cls):
+            return exc
+        return cls(path, exc.strerror or str(exc))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ifmi.errors import InputError
+from ifmi.errors import InputError, OutputError
 
 __all__ = ["main", "build_parser"]
 
@@ -91,6 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"omnisim {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OutputError as exc:
+        print(f"omnisim {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except LlvmNotFoundError as exc:
         print(f"omnisim {args.command}: error: {exc}", file=sys.stderr)
         return 1

@@ -11,7 +11,7 @@ import argparse
 import importlib
 import sys
 
-from ..errors import InputError
+from ..errors import InputError, OutputError
 
 __all__ = ["main"]
 
@@ -45,6 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"ifmi {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OutputError as exc:
+        print(f"ifmi {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"ifmi {args.command}: interrupted", file=sys.stderr)
         return 130
