@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["InputError", "OutputError"]
+__all__ = ["InputError", "InputWarning", "OutputError"]
 
 
 class InputError(ValueError):
@@ -40,3 +40,11 @@ class OutputError(OSError):
         if isinstance(exc, cls):
             return exc
         return cls(path, exc.strerror or str(exc))
+
+
+class InputWarning(UserWarning):
+    """Input that was used in part, with something left out (e.g. files skipped).
+
+    The message is one line naming the file or folder; command-line entry
+    points print it as ``ifmi COMMAND: warning: MESSAGE``.
+    """

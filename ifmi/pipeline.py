@@ -52,6 +52,7 @@ __all__ = [
     "estimate_dataset",
     "angular_pixel_size",
     "resolved_config",
+    "check_config_for_model",
 ]
 
 
@@ -100,11 +101,6 @@ class FrontEnd(Protocol):
     def correspondences(self, state_a: Any, state_b: Any) -> Correspondences: ...
 
 
-def _load_feature_config(data: Mapping[str, Any]):
-    module = importlib.import_module("ifmi.features")
-    return module.FeatureConfig(**data)
-
-
 @dataclass(frozen=True)
 class EstimateConfig:
     """Everything that determines an estimate, saved as JSON beside each result.
@@ -136,19 +132,21 @@ class EstimateConfig:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "EstimateConfig":
-        """Build a config from :meth:`to_dict` output; missing sections take defaults."""
-        sections = dict(data)
-        ifmi = sections.get("ifmi") or {}
-        features = sections.get("features")
-        sections.update(
-            ifmi=IfmiConfig.from_dict(ifmi),
-            features=None if features is None else _load_feature_config(features),
-            relative_pose=options_from_dict(RelativePoseOptions, sections.get("relative_pose") or {},
-                                            what="relative_pose options"),
-            keyframe=options_from_dict(KeyframeOptions, sections.get("keyframe") or {},
-                                       what="keyframe options"),
-        )
-        return options_from_dict(cls, sections, what="config sections")
+        """Build a config from :meth:`to_dict` output; missing keys take defaults.
+
+        Every value of every section is type-checked against its field
+        (:func:`ifmi.options.options_from_dict`).
+
+        Raises
+        ------
+        ifmi.options.OptionError
+            An unknown key, a value of the wrong type or out of range; the
+            message names the key path (``ifmi.tiling.overlap``), what was
+            expected and what was got.
+        """
+        feature_config = importlib.import_module("ifmi.features").FeatureConfig
+        return options_from_dict(cls, data, what="",
+                                 types_override={"features": feature_config | None})
 
 
 @dataclass(frozen=True)
@@ -263,6 +261,73 @@ def angular_pixel_size(model: OcamModel, *, band: tuple[float, float] | None = N
     return float(np.median(per_radius))
 
 
+# Largest panorama size, as a multiple of what the image band holds: the circumference
+# of its outer circle (width) and its outer radius (height). Four times already
+# samples every omni pixel four-fold along each axis; beyond that memory grows
+# (quadratically) without new detail. Log-polar grids are bounded by the same
+# factor times the tile side.
+_MAX_OVERSAMPLING = 4
+
+
+def check_config_for_model(config: EstimateConfig, model: OcamModel, *, method: str = "ifmi") -> None:
+    """Refuse sizes and radii that the images of ``model`` cannot give.
+
+    Checked: the panorama's radius band lies inside the image (and is not
+    empty), its width is at most ``4 x 2 pi r_outer`` and its height at most
+    ``4 r_outer`` pixels (``r_outer`` the band's outer radius), and, for the
+    ``"ifmi"`` method, the tiles fit that panorama and the log-polar grids
+    are at most four times the tile side; a feature front end's
+    ``radius_band`` lies inside the image. The panorama is measured with
+    the calibration alone (a frame's dark border can only shrink the band).
+
+    Raises
+    ------
+    InputError
+        Named after the configuration key (``ifmi.panorama.width``): what is
+        accepted for this camera and what was given.
+    """
+    from .camera import max_image_radius
+    from .errors import InputError
+    from .tiling import tile_layout
+    from .unwarp import panorama_mapping, radius_band
+
+    pano = config.ifmi.panorama
+    reach = max_image_radius(model.size, model.center, model.affine)
+    radii = {"ifmi.panorama.radius_min_px": pano.radius_min_px,
+             "ifmi.panorama.radius_max_px": pano.radius_max_px}
+    if config.features is not None and config.features.radius_band is not None:
+        radii["features.radius_band"] = max(config.features.radius_band)
+    for key, value in radii.items():
+        if value is not None and value >= reach:
+            raise InputError(key, f"expected a radius under {reach:.1f} px (the farthest image corner "
+                                  f"from the calibration's centre), got {value:g}")
+    try:
+        outer = radius_band(model, config=pano)[1]
+    except ValueError as exc:
+        raise InputError("ifmi.panorama", str(exc)) from None
+    limits = {"width": int(_MAX_OVERSAMPLING * 2 * np.pi * outer), "height": int(_MAX_OVERSAMPLING * outer)}
+    for name, limit in limits.items():
+        value = getattr(pano, name)
+        if value is not None and value > limit:
+            raise InputError(f"ifmi.panorama.{name}", f"expected at most {limit} px for this camera "
+                                                      f"({_MAX_OVERSAMPLING} x its image band's outer "
+                                                      f"{'circumference' if name == 'width' else 'radius'}), "
+                                                      f"got {value}")
+    if method != "ifmi":
+        return
+    mapping = panorama_mapping(model, config=pano)
+    try:
+        tile = tile_layout((mapping.height, mapping.width), config=config.ifmi.tiling).tile_size
+    except ValueError as exc:
+        raise InputError("ifmi.tiling.tile_size", str(exc)) from None
+    for name in ("log_polar_angles", "log_polar_radii"):
+        value = getattr(config.ifmi.registration, name)
+        if value is not None and value > _MAX_OVERSAMPLING * tile:
+            raise InputError(f"ifmi.registration.{name}", f"expected at most {_MAX_OVERSAMPLING * tile} "
+                                                          f"({_MAX_OVERSAMPLING} x the {tile} px tile side), "
+                                                          f"got {value}")
+
+
 def resolved_config(config: EstimateConfig, model: OcamModel) -> EstimateConfig:
     """``config`` with the relative-pose threshold in radians for ``model``.
 
@@ -309,6 +374,7 @@ def estimate_sequence(images: Iterable[np.ndarray], model: OcamModel, *, method:
     -------
     SequenceEstimate
     """
+    check_config_for_model(config, model, method=method)
     config = resolved_config(config, model)
     front_end = create_front_end(method, model, config)
     if total is None and hasattr(images, "__len__"):
@@ -330,6 +396,10 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     the current one is estimated; a frame's ``seconds`` then holds the wait
     for its image instead of the whole decoding time.
 
+    The trajectory's timestamps and the records' ``frame`` and
+    ``reference_frame`` are the dataset's frame indices (the integers in the
+    image file names), so a missing image leaves a gap.
+
     Raises
     ------
     InputError
@@ -341,5 +411,11 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
 
     dataset = read_dataset(Path(dataset_dir))
     images = dataset.iter_images(prefetch=prefetch, skip_unreadable=True)
-    return estimate_sequence(images, dataset.model, method=method,
-                             config=config, progress=progress, total=len(dataset.image_paths))
+    estimate = estimate_sequence(images, dataset.model, method=method, config=config,
+                                 progress=progress, total=len(dataset.image_paths),
+                                 timestamps=dataset.frame_indices)
+    # Records count frames by position; the dataset's frames are named by index (gaps allowed).
+    index = dataset.frame_indices
+    frames = tuple(replace(r, frame=index[r.frame], reference_frame=index[r.reference_frame])
+                   for r in estimate.frames)
+    return replace(estimate, frames=frames)
