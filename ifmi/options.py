@@ -114,16 +114,21 @@ def _checked_generic(value, hint, key: str):
             return None
         options = [a for a in args if a is not type(None)]
         if len(options) == 1:
-            return _checked(value, options[0], key)
+            try:
+                return _checked(value, options[0], key)
+            except OptionError as exc:
+                # A plain value's message names every accepted kind; a nested one keeps its own.
+                if dataclasses.is_dataclass(options[0]) or exc.key != key:
+                    raise
         for option in options:
             try:
                 return _checked(value, option, key)
             except OptionError:
                 continue
-    elif origin is tuple and isinstance(value, (list, tuple)):
-        if len(args) == 2 and args[1] is Ellipsis:
+    elif origin is tuple:
+        if isinstance(value, (list, tuple)) and len(args) == 2 and args[1] is Ellipsis:
             return tuple(_checked(v, args[0], f"{key}[{i}]") for i, v in enumerate(value))
-        if len(value) == len(args):
+        if isinstance(value, (list, tuple)) and len(value) == len(args):
             return tuple(_checked(v, a, f"{key}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
     elif origin is typing.Literal:
         if value in args and not isinstance(value, bool):

@@ -164,13 +164,12 @@ def _missing_blocks(data: list[str], comments: list[str]) -> str:
              for c in comments]
     if None not in named and len(set(named)) == len(named):
         return ", ".join(b for i, b in enumerate(_BLOCKS) if i not in named)
-    candidates = []
-    for present in itertools.combinations(range(len(_BLOCKS)), len(data)):
-        if all(_fits(block, line) for block, line in zip(present, data)):
-            candidates.append(", ".join(b for i, b in enumerate(_BLOCKS) if i not in present))
+    candidates = sorted(tuple(i for i in range(len(_BLOCKS)) if i not in present)
+                        for present in itertools.combinations(range(len(_BLOCKS)), len(data))
+                        if all(_fits(block, line) for block, line in zip(present, data)))
     if not candidates:
         return "cannot tell which from the values"
-    return " or ".join(candidates)
+    return " or ".join(", ".join(_BLOCKS[i] for i in missing) for missing in candidates)
 
 
 def inverse_polynomial_error(model: OcamModel) -> tuple[float, float]:

@@ -103,8 +103,9 @@ def frame_files(image_dir: str | os.PathLike) -> FrameFiles:
         else:
             by_index[index] = path
     if not by_index:
+        found = f"; found only {_listed(skipped)}" if skipped else ""
         raise InputError(image_dir, f"no frame images in folder (expected files named by the frame "
-                                    f"index, e.g. 000000.png; types {', '.join(IMAGE_SUFFIXES)})")
+                                    f"index, e.g. 000000.png; types {', '.join(IMAGE_SUFFIXES)}){found}")
     indices = tuple(sorted(by_index))
     return FrameFiles(indices=indices, paths=tuple(by_index[k] for k in indices), skipped=tuple(skipped))
 
@@ -112,12 +113,16 @@ def frame_files(image_dir: str | os.PathLike) -> FrameFiles:
 def _warn_skipped(image_dir: Path, skipped: tuple) -> None:
     if not skipped:
         return
-    listed = ", ".join(skipped[:_LISTED_SKIPS])
-    more = f" and {len(skipped) - _LISTED_SKIPS} more" if len(skipped) > _LISTED_SKIPS else ""
     warnings.warn(f"{image_dir}: skipped {len(skipped)} entr{'y' if len(skipped) == 1 else 'ies'} "
                   f"that {'is not a frame image' if len(skipped) == 1 else 'are not frame images'} "
-                  f"(hidden, not PNG/JPEG, or not named by a frame index): {listed}{more}",
+                  f"(hidden, not PNG/JPEG, or not named by a frame index): {_listed(skipped)}",
                   InputWarning, stacklevel=3)
+
+
+def _listed(names) -> str:
+    """The first few ``names``, and how many more."""
+    more = f" and {len(names) - _LISTED_SKIPS} more" if len(names) > _LISTED_SKIPS else ""
+    return ", ".join(names[:_LISTED_SKIPS]) + more
 
 
 @dataclass(frozen=True)
