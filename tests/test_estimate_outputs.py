@@ -68,9 +68,10 @@ def test_a_failed_set_leaves_the_old_set_byte_identical(tmp_path, monkeypatch, p
 
 
 def test_a_failed_first_set_leaves_nothing(tmp_path, monkeypatch):
+    """Not even the folders the write made."""
     monkeypatch.setattr(atomic.os, "replace", _failing_on_call(os.replace, 3, errno.ENOSPC))
     with pytest.raises(OutputError):
-        atomic_write_files({tmp_path / n: b"x" for n in ("a", "b", "c")})
+        atomic_write_files({tmp_path / "new" / "deeper" / n: b"x" for n in ("a", "b", "c")})
     assert os.listdir(tmp_path) == []
 
 

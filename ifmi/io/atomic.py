@@ -165,15 +165,28 @@ def atomic_write_files(files: Mapping[str | os.PathLike, bytes]) -> None:
     targets = {Path(p): writable_target(p) for p in files}
     if len(set(targets.values())) != len(targets):
         raise ValueError(f"two outputs of one set are the same file: {sorted(map(str, files))}")
+    new_folders = sorted({folder for target in targets.values() for folder in _missing_folders(target)},
+                         key=lambda folder: len(folder.parts), reverse=True)
     temporaries: dict[Path, str] = {}
     try:
         for path, data in files.items():
             path = Path(path)
             temporaries[path] = _temporary_copy(path, targets[path], data)
         _commit(temporaries, targets)
-    finally:
+    except BaseException:
         for tmp in temporaries.values():
             _remove(tmp)
+        for folder in new_folders:
+            try:
+                folder.rmdir()
+            except OSError:
+                pass
+        raise
+
+
+def _missing_folders(target: Path) -> list[Path]:
+    """The folders above ``target`` that do not exist yet (made by the write)."""
+    return [folder for folder in target.parents if not folder.exists()]
 
 
 def _commit(temporaries: dict[Path, str], targets: dict[Path, Path]) -> None:
