@@ -269,27 +269,62 @@ def angular_pixel_size(model: OcamModel, *, band: tuple[float, float] | None = N
 _MAX_OVERSAMPLING = 4
 
 
-def check_config_for_model(config: EstimateConfig, model: OcamModel, *, method: str = "ifmi") -> None:
+def check_config_for_model(config: EstimateConfig, model: OcamModel, *, method: str = "ifmi",
+                           image: np.ndarray | None = None, image_source: str | None = None) -> None:
     """Refuse sizes and radii that the images of ``model`` cannot give.
 
     Checked: the panorama's radius band lies inside the image (and is not
     empty), its width is at most ``4 x 2 pi r_outer`` and its height at most
-    ``4 r_outer`` pixels (``r_outer`` the band's outer radius), and, for the
-    ``"ifmi"`` method, the tiles fit that panorama and the log-polar grids
-    are at most four times the tile side; a feature front end's
-    ``radius_band`` lies inside the image. The panorama is measured with
-    the calibration alone (a frame's dark border can only shrink the band).
+    ``4 r_outer`` pixels (``r_outer`` the outer radius of the calibration's
+    image band), and, for the ``"ifmi"`` method, the tiles fit the panorama
+    and the log-polar grids are at most four times the tile side; a feature
+    front end's ``radius_band`` lies inside the image. With ``image`` (the
+    first frame) the band and the panorama are those the estimator will
+    use: a dark border can shrink them.
+
+    Parameters
+    ----------
+    config : EstimateConfig
+    model : OcamModel
+    method : str, keyword-only
+    image : (H, W) or (H, W, 3) uint8 ndarray, optional, keyword-only
+        The first frame.
+    image_source : str, optional, keyword-only
+        Where ``image`` came from, for messages.
 
     Raises
     ------
     InputError
-        Named after the configuration key (``ifmi.panorama.width``): what is
-        accepted for this camera and what was given.
+        Named after the configuration key (``ifmi.panorama.width``) or the
+        image: what is accepted for this camera and what was given.
     """
+    from .errors import InputError
+    from .unwarp import panorama_mapping, radius_band
+
+    _check_radii(config, model)
+    pano = config.ifmi.panorama
+    try:
+        outer = radius_band(model, config=pano)[1]
+        if image is not None:
+            radius_band(model, image, config=pano)
+    except ValueError as exc:
+        where = "ifmi.panorama" if image is None else image_source or "first frame"
+        raise InputError(where, str(exc)) from None
+    limits = {"width": int(_MAX_OVERSAMPLING * 2 * np.pi * outer), "height": int(_MAX_OVERSAMPLING * outer)}
+    for name, limit in limits.items():
+        value = getattr(pano, name)
+        if value is not None and value > limit:
+            kind = "circumference" if name == "width" else "radius"
+            raise InputError(f"ifmi.panorama.{name}", f"expected at most {limit} px for this camera "
+                                                      f"({_MAX_OVERSAMPLING} x its image band's outer "
+                                                      f"{kind}), got {value}")
+    if method == "ifmi":
+        _check_tiles(config, panorama_mapping(model, image, config=pano), image_source)
+
+
+def _check_radii(config: EstimateConfig, model: OcamModel) -> None:
     from .camera import max_image_radius
     from .errors import InputError
-    from .tiling import tile_layout
-    from .unwarp import panorama_mapping, radius_band
 
     pano = config.ifmi.panorama
     reach = max_image_radius(model.size, model.center, model.affine)
@@ -301,25 +336,17 @@ def check_config_for_model(config: EstimateConfig, model: OcamModel, *, method: 
         if value is not None and value >= reach:
             raise InputError(key, f"expected a radius under {reach:.1f} px (the farthest image corner "
                                   f"from the calibration's centre), got {value:g}")
-    try:
-        outer = radius_band(model, config=pano)[1]
-    except ValueError as exc:
-        raise InputError("ifmi.panorama", str(exc)) from None
-    limits = {"width": int(_MAX_OVERSAMPLING * 2 * np.pi * outer), "height": int(_MAX_OVERSAMPLING * outer)}
-    for name, limit in limits.items():
-        value = getattr(pano, name)
-        if value is not None and value > limit:
-            raise InputError(f"ifmi.panorama.{name}", f"expected at most {limit} px for this camera "
-                                                      f"({_MAX_OVERSAMPLING} x its image band's outer "
-                                                      f"{'circumference' if name == 'width' else 'radius'}), "
-                                                      f"got {value}")
-    if method != "ifmi":
-        return
-    mapping = panorama_mapping(model, config=pano)
+
+
+def _check_tiles(config: EstimateConfig, mapping, image_source: str | None) -> None:
+    from .errors import InputError
+    from .tiling import tile_layout
+
     try:
         tile = tile_layout((mapping.height, mapping.width), config=config.ifmi.tiling).tile_size
     except ValueError as exc:
-        raise InputError("ifmi.tiling.tile_size", str(exc)) from None
+        band = f" (the band lit in {image_source})" if image_source else ""
+        raise InputError("ifmi.tiling.tile_size", f"{exc}{band}") from None
     for name in ("log_polar_angles", "log_polar_radii"):
         value = getattr(config.ifmi.registration, name)
         if value is not None and value > _MAX_OVERSAMPLING * tile:
@@ -407,9 +434,14 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
         or whose size differs from the calibration's. Such a later image is
         flagged as a failed frame (the pose is held) and the sequence goes on.
     """
+    from .frames import MissingFrame
     from .io.dataset import read_dataset
 
     dataset = read_dataset(Path(dataset_dir))
+    first = next(dataset.iter_images(skip_unreadable=True))
+    if not isinstance(first, MissingFrame):
+        check_config_for_model(config, dataset.model, method=method, image=first,
+                               image_source=str(dataset.image_paths[0]))
     images = dataset.iter_images(prefetch=prefetch, skip_unreadable=True)
     estimate = estimate_sequence(images, dataset.model, method=method, config=config,
                                  progress=progress, total=len(dataset.image_paths),

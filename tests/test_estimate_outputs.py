@@ -242,3 +242,22 @@ def test_a_library_bug_is_not_reported_as_bad_input(dataset, tmp_path, monkeypat
     monkeypatch.setattr(ifmi.pipeline, "track_sequence", broken)
     with pytest.raises(ValueError, match="internal inconsistency"):
         main(["estimate", str(dataset), "--out", str(tmp_path / "e.txt"), *FAST])
+
+
+def test_tiles_are_checked_against_the_band_the_first_frame_shows(dataset, tmp_path, capsys):
+    """A dark border shrinks the panorama below the calibration's; the check uses the frame."""
+    import cv2
+
+    copy = tmp_path / "ring"
+    shutil.copytree(dataset, copy)
+    rows, cols = np.mgrid[:256, :256]
+    radius = np.hypot(rows - MODEL.center[0], cols - MODEL.center[1])
+    for path in (copy / "images").glob("*.png"):
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        image[(radius < 60) | (radius > 100)] = 0
+        cv2.imwrite(str(path), image)
+    args = ["estimate", str(copy), "--out", str(tmp_path / "e.txt"), "--width", "512", "--no-progress"]
+    assert main([*args, "--tile-size", "80"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("ifmi estimate: error: ifmi.tiling.tile_size: tile size 80 px does not fit the ")
+    assert err.endswith(f"(the band lit in {copy / 'images' / '000000.png'})")

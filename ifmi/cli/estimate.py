@@ -111,7 +111,7 @@ def config_from_args(args) -> EstimateConfig:
         keyframe = _override(config.keyframe, enabled=True if args.keyframes else None,
                              min_inliers=args.keyframe_min_inliers,
                              max_angle_rad=args.keyframe_max_angle,
-                         max_failures=args.max_failures)
+                             max_failures=args.max_failures)
     except ValueError as exc:
         raise InputError("command line", str(exc)) from None
     return replace(config, ifmi=ifmi, relative_pose=pose, keyframe=keyframe)
