@@ -302,6 +302,8 @@ def check_config_for_model(config: EstimateConfig, model: OcamModel, *, method: 
     from .unwarp import panorama_mapping, radius_band
 
     _check_radii(config, model)
+    if config.features is not None:
+        _check_feature_sizes(config.features, model)
     pano = config.ifmi.panorama
     try:
         outer = radius_band(model, config=pano)[1]
@@ -336,6 +338,27 @@ def _check_radii(config: EstimateConfig, model: OcamModel) -> None:
         if value is not None and value >= reach:
             raise InputError(key, f"expected a radius under {reach:.1f} px (the farthest image corner "
                                   f"from the calibration's centre), got {value:g}")
+
+
+def _check_feature_sizes(features, model: OcamModel) -> None:
+    """Keypoint counts, pyramids and windows at most what an image of ``model`` holds."""
+    from .errors import InputError
+
+    side = min(model.size)
+    # A level (octave) past these has less than one pixel along the image's shorter side.
+    limits = {
+        "n_features": (features.n_features, model.height * model.width, "the image's pixel count"),
+        "orb_levels": (features.orb_levels,
+                       1 + int(np.log(side) / np.log(features.orb_scale_factor))
+                       if features.orb_scale_factor > 1 else 1,
+                       f"levels down to one pixel at scale factor {features.orb_scale_factor:g}"),
+        "akaze_octaves": (features.akaze_octaves, int(np.log2(side)), "octaves down to one pixel"),
+        "orb_patch_size": (features.orb_patch_size, side, "the image's shorter side"),
+        "orb_edge_threshold": (features.orb_edge_threshold, side, "the image's shorter side"),
+    }
+    for name, (value, limit, what) in limits.items():
+        if value > limit:
+            raise InputError(f"features.{name}", f"expected at most {limit} ({what}), got {value}")
 
 
 def _check_tiles(config: EstimateConfig, mapping, image_source: str | None) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import json
 import os
 import shutil
 
@@ -261,3 +262,19 @@ def test_tiles_are_checked_against_the_band_the_first_frame_shows(dataset, tmp_p
     err = capsys.readouterr().err.strip()
     assert err.startswith("ifmi estimate: error: ifmi.tiling.tile_size: tile size 80 px does not fit the ")
     assert err.endswith(f"(the band lit in {copy / 'images' / '000000.png'})")
+
+
+@pytest.mark.parametrize(("features", "message"), [
+    ({"n_features": 10 ** 9}, "features.n_features: expected at most 65536 (the image's pixel count), got 1000000000"),
+    ({"orb_levels": 10 ** 5}, "features.orb_levels: expected at most 31 (levels down to one pixel"),
+    ({"akaze_octaves": 40}, "features.akaze_octaves: expected at most 8 (octaves down to one pixel), got 40"),
+    ({"orb_patch_size": 10 ** 6}, "features.orb_patch_size: expected at most 256"),
+    ({"radius_band": [10, 10 ** 6]}, "features.radius_band: expected a radius under 18"),
+])
+def test_feature_sizes_beyond_the_image_are_refused(dataset, tmp_path, capsys, features, message):
+    config = tmp_path / "c.json"
+    config.write_text(json.dumps({"features": features}))
+    assert main(["estimate", str(dataset), "--method", "orb", "--config", str(config),
+                 "--out", str(tmp_path / "e.txt"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("ifmi estimate: error: ") and message in err and "\n" not in err
