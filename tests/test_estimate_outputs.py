@@ -156,15 +156,23 @@ def test_estimate_through_a_symlink_keeps_the_link(dataset, tmp_path):
     assert (tmp_path / "target.txt").read_text().startswith("# ifmi estimate")
 
 
-@pytest.mark.parametrize(("where", "error"), [
-    ("mkstemp", errno.EACCES), ("mkstemp", errno.EROFS), ("fsync", errno.ENOSPC), ("replace", errno.ENOSPC),
+# Calls of tempfile.mkstemp: three write probes before the estimate, three more when writing,
+# then the three temporaries; the 8th is the second temporary.
+_WRITE_TIME_MKSTEMP = 8
+
+
+@pytest.mark.parametrize(("where", "call", "error"), [
+    ("mkstemp", 2, errno.EACCES), ("mkstemp", 2, errno.EROFS),
+    ("mkstemp", _WRITE_TIME_MKSTEMP, errno.EACCES), ("mkstemp", _WRITE_TIME_MKSTEMP, errno.EROFS),
+    ("fsync", 2, errno.ENOSPC), ("replace", 2, errno.ENOSPC),
 ])
-def test_estimate_write_failures_are_one_line_and_exit_1(dataset, tmp_path, monkeypatch, capsys, where, error):
+def test_estimate_write_failures_are_one_line_and_exit_1(dataset, tmp_path, monkeypatch, capsys, where,
+                                                         call, error):
     """Permission denied, read-only file system, full disk: the old outputs stay as they were."""
     before = _old_set(tmp_path / "run")
     module = atomic.tempfile if where == "mkstemp" else atomic.os
     real = getattr(module, where)
-    monkeypatch.setattr(module, where, _failing_on_call(real, 2, error))
+    monkeypatch.setattr(module, where, _failing_on_call(real, call, error))
     assert main(["estimate", str(dataset), "--out", str(tmp_path / "run" / "e.txt"), *FAST]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
@@ -278,3 +286,16 @@ def test_feature_sizes_beyond_the_image_are_refused(dataset, tmp_path, capsys, f
                  "--out", str(tmp_path / "e.txt"), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("ifmi estimate: error: ") and message in err and "\n" not in err
+
+
+def test_an_unwritable_output_folder_fails_before_the_estimate(dataset, tmp_path, monkeypatch, capsys):
+    import ifmi.cli.estimate
+
+    def not_called(*args, **kwargs):
+        raise AssertionError("the estimate ran although its outputs cannot be written")
+    monkeypatch.setattr(ifmi.cli.estimate, "estimate_dataset", not_called)
+    monkeypatch.setattr(atomic.tempfile, "mkstemp", _failing_on_call(atomic.tempfile.mkstemp, 1, errno.EROFS))
+    assert main(["estimate", str(dataset), "--out", str(tmp_path / "e.txt"), *FAST]) == 1
+    assert capsys.readouterr().err.strip() == (f"ifmi estimate: error: cannot write {tmp_path / 'e.txt'}: "
+                                               f"{os.strerror(errno.EROFS)}")
+    assert os.listdir(tmp_path) == []

@@ -29,7 +29,7 @@ from typing import Mapping
 from ..errors import OutputError
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "atomic_write_files",
-           "writable_target"]
+           "writable_target", "probe_writable"]
 
 # Tries at a free backup name (names are random; a clash is already unlikely).
 _BACKUP_ATTEMPTS = 16
@@ -88,6 +88,33 @@ def writable_target(path: str | os.PathLike) -> Path:
     blocker = _blocking_file(target.parent)
     if blocker is not None:
         raise OutputError(path, f"Not a directory: a file is in the way ({blocker})")
+    return target
+
+
+def probe_writable(path: str | os.PathLike) -> Path:
+    """Check, before any work, that ``path`` can be written; returns :func:`writable_target`.
+
+    When the target's folder exists a temporary file is created in it and
+    removed again (the true test: permissions, read-only file systems, a
+    full disk's inode table); otherwise the nearest existing folder above
+    must be writable. Nothing is left behind.
+
+    Raises
+    ------
+    OutputError
+        As :func:`writable_target`, or the OS reason the folder cannot be written.
+    """
+    target = writable_target(path)
+    folder = next(f for f in target.parents if f.exists())
+    if folder == target.parent:
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".probe", dir=folder)
+        except OSError as exc:
+            raise OutputError.from_os_error(path, exc) from exc
+        os.close(fd)
+        _remove(tmp)
+    elif not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputError(path, f"Permission denied (cannot create folders in {folder})")
     return target
 
 

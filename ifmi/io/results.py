@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import InputError, OutputError
 from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
-                     writable_target)
+                     probe_writable)
 from .provenance import package_versions
 
 __all__ = [
@@ -379,14 +379,15 @@ def check_estimate_outputs(path: str | os.PathLike, *,
     OutputError
         An output would replace a file of the input dataset (compared by
         resolved path and by inode, so links count), is a folder, a device
-        node, a FIFO or a socket, or a regular file stands where a folder
-        of its path should be.
+        node, a FIFO or a socket, a regular file stands where a folder of
+        its path should be, or its folder cannot be written
+        (:func:`~ifmi.io.atomic.probe_writable`).
     """
     from .dataset import dataset_conflict
 
     outputs = (Path(path), *side_file_paths(path))
     for output in outputs:
-        target = writable_target(output)
+        target = probe_writable(output)
         conflict = None if dataset_dir is None else dataset_conflict(dataset_dir, target)
         if conflict is not None:
             raise OutputError(output, f"{conflict}; choose another output path")
