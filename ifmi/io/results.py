@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import InputError, OutputError
 from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
-                     probe_writable)
+                     json_text, probe_writable)
 from .provenance import package_versions
 
 __all__ = [
@@ -437,7 +437,7 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
     config.update(extra or {})
     tum = format_tum(estimate.trajectory, header=f"ifmi estimate, method {estimate.method}")
     atomic_write_files({
-        config_path: (json.dumps(jsonable(config), indent=2, sort_keys=True) + "\n").encode("utf-8"),
+        config_path: json_text(jsonable(config)).encode("utf-8"),
         frames_path: frames_csv_text([r.to_row() for r in estimate.frames]).encode("utf-8"),
         path: tum.encode("utf-8"),
     })
