@@ -129,3 +129,12 @@ def test_cli_reports_a_bad_calibration_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err == (f"ifmi estimate: error: {tmp_path / 'calib_results.txt'}: inverse polynomial: "
                    f"value 9 is nan (every value must be finite)")
+
+
+def test_byte_order_mark_and_non_utf8_comments_are_read(tmp_path):
+    from ifmi.io.calib import read_calib
+
+    path = tmp_path / "calib_results.txt"
+    text = PUBLISHED.replace("(C convention)", "(C convention, caméra)")
+    path.write_bytes(b"\xef\xbb\xbf" + text.encode("latin-1"))
+    assert read_calib(path) == parse_calib(PUBLISHED)

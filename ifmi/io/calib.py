@@ -228,7 +228,8 @@ def read_calib(path: str | os.PathLike) -> OcamModel:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8", errors="strict")
+        # Comments may be in any encoding (only numbers are read); a byte-order mark is skipped.
+        text = path.read_text(encoding="utf-8-sig", errors="replace")
     except FileNotFoundError:
         raise InputError(path, "calibration file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
