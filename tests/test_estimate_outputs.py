@@ -299,3 +299,13 @@ def test_an_unwritable_output_folder_fails_before_the_estimate(dataset, tmp_path
     assert capsys.readouterr().err.strip() == (f"ifmi estimate: error: cannot write {tmp_path / 'e.txt'}: "
                                                f"{os.strerror(errno.EROFS)}")
     assert os.listdir(tmp_path) == []
+
+
+def test_probe_of_a_folder_still_to_be_made(tmp_path, monkeypatch):
+    from ifmi.io.atomic import probe_writable
+
+    assert probe_writable(tmp_path / "a" / "b" / "e.txt") == tmp_path / "a" / "b" / "e.txt"
+    assert os.listdir(tmp_path) == []
+    monkeypatch.setattr(atomic.os, "access", lambda path, mode: False)
+    with pytest.raises(OutputError, match=rf"Permission denied \(cannot create folders in {tmp_path}\)"):
+        probe_writable(tmp_path / "a" / "b" / "e.txt")
