@@ -309,3 +309,20 @@ def test_probe_of_a_folder_still_to_be_made(tmp_path, monkeypatch):
     monkeypatch.setattr(atomic.os, "access", lambda path, mode: False)
     with pytest.raises(OutputError, match=rf"Permission denied \(cannot create folders in {tmp_path}\)"):
         probe_writable(tmp_path / "a" / "b" / "e.txt")
+
+
+@pytest.mark.parametrize("patched", ["fsync", "replace"])
+def test_an_interrupt_during_a_set_also_keeps_the_old_set(tmp_path, monkeypatch, patched):
+    before = _old_set(tmp_path / "run")
+    real, calls = getattr(os, patched), {"n": 0}
+
+    def interrupted(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+    monkeypatch.setattr(atomic.os, patched, interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write_files({tmp_path / "run" / n: b"new" for n in ("e.config.json", "e.frames.csv", "e.txt")})
+    assert _snapshot(tmp_path / "run") == before
+    assert sorted(os.listdir(tmp_path / "run")) == sorted(before)
