@@ -114,6 +114,16 @@ def vignetting_from_pixels(model, *, strength: float, radius_max: float) -> np.n
     return ((1.0 + (strength * rho / radius_max) ** 2) ** -2).astype(np.float32)
 
 
+def _host_matrix(transform) -> np.ndarray:
+    """(4, 4) float64 copy of a width-1 ``Transform4f``, read entry by entry.
+
+    Converting the whole matrix at once would run a small kernel holding the
+    entries as constants, compiled anew for every pose.
+    """
+    matrix = transform.matrix
+    return np.array([[float(matrix[i][j][0]) for j in range(4)] for i in range(4)])
+
+
 class RayTiming:
     """Capture time and camera pose of each ray of the omni sensor (Dr.Jit, inside ``sample_ray``).
 
@@ -156,16 +166,19 @@ class RayTiming:
         """Recompute the motion of the frame interval from the two poses (on the host)."""
         from scipy.spatial.transform import Rotation
 
-        start = np.array(to_world.matrix, dtype=np.float64).reshape(4, 4)
-        end = np.array(self.to_world_end.matrix, dtype=np.float64).reshape(4, 4)
+        start, end = _host_matrix(to_world), _host_matrix(self.to_world_end)
         rotvec = Rotation.from_matrix(start[:3, :3].T @ end[:3, :3]).as_rotvec()
         angle = float(np.linalg.norm(rotvec))
         axis = rotvec / angle if angle > 0 else np.array([1.0, 0.0, 0.0])
         mi = self.mi
-        self.axis = mi.Vector3f(*axis.tolist())
-        self.angle = mi.Float(angle)
-        self.step = mi.Vector3f(*(end[:3, 3] - start[:3, 3]).tolist())
-        self.dr.make_opaque(self.axis, self.angle, self.step, self.row_step, self.to_world_end)
+
+        def device(values):  # opaque from the start: a literal would be baked into the kernel
+            return [self.dr.opaque(mi.Float, float(v)) for v in np.atleast_1d(values)]
+
+        self.axis = mi.Vector3f(*device(axis))
+        [self.angle] = device(angle)
+        self.step = mi.Vector3f(*device(end[:3, 3] - start[:3, 3]))
+        self.dr.make_opaque(self.row_step)
 
     def ray_times(self, time, sample2, film):
         """Time of each ray after the frame time: its exposure time plus its row's readout delay."""
