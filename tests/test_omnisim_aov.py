@@ -232,3 +232,18 @@ def test_timed_capture_needs_the_pose_after_the_last_frame(tmp_path):
     scene = _scene(tmp_path, frames=2, exposure=0.5, tum='tum = "path.txt"')
     with pytest.raises(InputError, match=r"path.txt: trajectory has 2 poses.*after the last frame"):
         render_dataset(scene, tmp_path / "out", progress=False)
+
+
+def test_cli_writes_aovs_and_reports_bad_names_in_one_line(tmp_path, capsys):
+    from omnisim.cli import main
+
+    scene = _scene(tmp_path, frames=1, size=16)
+    assert main(["render", str(scene), "--out", str(tmp_path / "out"), "--aov", "depth", "--no-progress"]) == 0
+    assert (tmp_path / "out" / "depth" / "000000.npy").exists()
+    assert not (tmp_path / "out" / "normal").exists()
+    capsys.readouterr()
+    code = main(["render", str(scene), "--out", str(tmp_path / "bad"), "--aov", "depth,speed", "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "box.toml" in err and "speed" in err
+    code = main(["render", str(scene), "--out", str(tmp_path / "bad"), "--workers", "0", "--no-progress"])
+    assert code == 2 and "--workers: expected >= 1, got 0" in capsys.readouterr().err
