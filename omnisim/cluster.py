@@ -28,12 +28,15 @@ class OmnisimWorkerPlugin(WorkerPlugin):
     ----------
     variant : str
         Mitsuba variant the workers use (the calling process's).
+    threads : int, optional
+        Render threads per worker (default: Dr.Jit's, all cores).
     """
 
     name = PLUGIN_NAME
 
-    def __init__(self, variant: str):
+    def __init__(self, variant: str, threads: int | None = None):
         self.variant = variant
+        self.threads = threads
         self.states = {}
 
     def setup(self, worker) -> None:
@@ -41,6 +44,10 @@ class OmnisimWorkerPlugin(WorkerPlugin):
         from .sensor import register_omni_sensor
 
         register_omni_sensor(import_mitsuba(self.variant))
+        if self.threads:
+            import drjit as dr
+
+            dr.set_thread_count(int(self.threads))
 
     def state(self, key: str, factory, plan):
         """The state (e.g. a loaded scene) of ``plan``, built once per worker by ``factory(plan)``."""
@@ -76,7 +83,8 @@ def map_on_cluster(factory, run, plan, jobs: list, *, key: str, variant: str,
     variant : str, keyword-only
         Mitsuba variant for the workers.
     workers : int, optional, keyword-only
-        Start a local cluster of this many single-threaded worker processes.
+        Start a local cluster of this many worker processes, which share the
+        machine's cores (each renders with ``cores // workers`` threads, at least 1).
     scheduler : str, optional, keyword-only
         Address of an existing scheduler (used instead of ``workers``).
 
@@ -85,16 +93,20 @@ def map_on_cluster(factory, run, plan, jobs: list, *, key: str, variant: str,
     object
         The results, in completion order.
     """
+    import os
+
     from distributed import Client, LocalCluster, as_completed
 
+    threads = None
     if scheduler:
         cluster, client = None, Client(scheduler)
     else:
+        threads = max(1, (os.cpu_count() or 1) // int(workers))
         cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
                                dashboard_address=None)
         client = Client(cluster)
     try:
-        client.register_plugin(OmnisimWorkerPlugin(variant))
+        client.register_plugin(OmnisimWorkerPlugin(variant, threads))
         [shared] = client.scatter([plan], broadcast=True)
         futures = [client.submit(_run_on_worker, factory, run, shared, key, job, pure=False) for job in jobs]
         for future in as_completed(futures):

@@ -37,7 +37,7 @@ from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
 
 __all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
            "check_output_folder", "open_output_folder", "pending_images", "set_sensor_pose", "FramePlan",
-           "FrameRenderer", "frame_file_names", "render_frame_files"]
+           "FrameRenderer", "frame_file_names", "render_frame_files", "frame_plan", "frame_results"]
 
 # Format version of meta.json; bumped when its meaning changes.
 META_FORMAT = 1
@@ -381,8 +381,36 @@ def _store_frame(out_dir: Path, meta: dict, files: dict) -> None:
     atomic_write_json(out_dir / "meta.json", meta)
 
 
-def _frame_results(plan: FramePlan, jobs: list, *, workers: int | None, scheduler: str | None):
-    """Iterator of ``(k, files)`` for the jobs: in this process, or on a Dask cluster."""
+def frame_plan(scene_path, *, frames: int | None = None, seed: int | None = None, spp: int | None = None,
+               resolution=None, variant: str | None = None, aovs=()) -> FramePlan:
+    """The :class:`FramePlan` of a scene file with the command line's overrides (see :func:`render_dataset`).
+
+    Raises
+    ------
+    InputError
+        Bad scene file or values, a bad AOV name or a negative seed.
+    """
+    config = load_scene_config(scene_path, spp=spp, resolution=resolution, frames=frames)
+    seed = config.layout_seed if seed is None else int(seed)
+    if seed < 0:
+        raise InputError(scene_path, f"seed: expected a non-negative integer, got {seed}")
+    try:
+        aovs = aov_names_from_text(aovs)
+    except ValueError as exc:
+        raise InputError(scene_path, f"--aov: {exc}") from None
+    trajectory = _trajectory_samples(config, seed)
+    from .llvm import import_mitsuba
+    mi = import_mitsuba(variant or config.render.variant or None)
+    n = config.trajectory.frames
+    return FramePlan(config=config, seed=seed, variant=mi.variant(), trajectory=trajectory,
+                     gains=tuple(float(g) for g in exposure_gains(n, config.effects, seed=seed)), aovs=aovs)
+
+
+def frame_results(plan: FramePlan, jobs: list, *, workers: int | None = None, scheduler: str | None = None):
+    """Iterator of ``(k, files)`` for the jobs ``(k, kinds)``: in this process, or on a Dask cluster.
+
+    ``files`` maps relative paths (``images/000003.png``, ``depth/000003.npy``) to bytes.
+    """
     if workers or scheduler:
         from .cluster import map_on_cluster
 
@@ -434,24 +462,13 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     InputError
         Bad scene file or values, or an output folder holding another render.
     """
-    config = load_scene_config(scene_path, spp=spp, resolution=resolution, frames=frames)
-    seed = config.layout_seed if seed is None else int(seed)
-    if seed < 0:
-        raise InputError(scene_path, f"seed: expected a non-negative integer, got {seed}")
-    try:
-        aovs = aov_names_from_text(aovs)
-    except ValueError as exc:
-        raise InputError(scene_path, f"--aov: {exc}") from None
     if workers is not None and workers < 1:
         raise InputError(scene_path, f"--workers: expected >= 1, got {workers}")
+    plan = frame_plan(scene_path, frames=frames, seed=seed, spp=spp, resolution=resolution,
+                      variant=variant, aovs=aovs)
+    config, seed, aovs, n = plan.config, plan.seed, plan.aovs, plan.config.trajectory.frames
     out_dir = Path(out_dir)
-    trajectory = _trajectory_samples(config, seed)
-    from .llvm import import_mitsuba
-    mi = import_mitsuba(variant or config.render.variant or None)
-    meta = _open_dataset(scene_path, out_dir, config, seed, mi.variant(), trajectory)
-    n = config.trajectory.frames
-    plan = FramePlan(config=config, seed=seed, variant=mi.variant(), trajectory=trajectory,
-                     gains=tuple(float(g) for g in exposure_gains(n, config.effects, seed=seed)), aovs=aovs)
+    meta = _open_dataset(scene_path, out_dir, config, seed, plan.variant, plan.trajectory)
     kinds = ("images",) + aovs
     jobs = _pending_jobs(out_dir, meta, n, kinds)
     rendered, start = 0, time.perf_counter()
@@ -459,7 +476,7 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         from tqdm import tqdm
 
         with tqdm(total=n, initial=n - len(jobs), disable=not progress, unit="frame", desc=config.name) as bar:
-            for _, files in _frame_results(plan, jobs, workers=workers, scheduler=scheduler):
+            for _, files in frame_results(plan, jobs, workers=workers, scheduler=scheduler):
                 _store_frame(out_dir, meta, files)
                 rendered += 1
                 bar.update(1)
