@@ -2,7 +2,12 @@
 
 A dataset folder holds ``calib_results.txt``, ``images/NNNNNN.png`` (8-bit
 RGB), ``groundtruth.txt`` (TUM, camera k in camera 0), ``poses_world.txt``
-(TUM, camera-to-world) and ``meta.json``. Rendering is deterministic for a
+(TUM, camera-to-world) and ``meta.json``; optionally ``depth/`` and
+``normal/`` (:mod:`omnisim.aov`) and, with rolling shutter, per-row poses in
+``rolling_shutter/`` (:mod:`omnisim.capture`). Frames are rendered by a
+:class:`FrameRenderer` in this process or on Dask workers
+(:mod:`omnisim.cluster`), which return file bytes; this process alone writes
+them, atomically, recording each file's SHA-256. Rendering is deterministic for a
 given scene file, seed and settings: each frame seeds Mitsuba's sampler from
 (seed, frame), so an interrupted render resumes where it stopped and a rerun
 reproduces the same bytes. A folder that holds a render with other settings
