@@ -332,7 +332,7 @@ def _trajectory_samples(config: SceneConfig, seed: int) -> WorldPoses:
 
 
 def _write_ground_truth(out_dir: Path, config: SceneConfig, trajectory: WorldPoses) -> dict:
-    """groundtruth.txt, poses_world.txt and per-row poses; returns {relative path: sha256} of the latter."""
+    """groundtruth.txt, poses_world.txt and per-row poses; returns {file name: sha256} of the latter."""
     n, capture = config.trajectory.frames, config.capture
     when = ground_truth_time(capture)
     truth = (poses_at_times(trajectory, np.arange(n) + when) if capture.timed
@@ -352,8 +352,8 @@ def _write_ground_truth(out_dir: Path, config: SceneConfig, trajectory: WorldPos
                                                timestamps=k + offsets),
                           header=f"omnisim rolling shutter of {config.name}, frame {k}: line r = row r at "
                                  "its mid-exposure, T_0r in camera 0 of groundtruth.txt; time in frames")
-        name = f"rolling_shutter/{k:06d}.txt"
-        atomic_write_text(out_dir / name, text)
+        name = f"{k:06d}.txt"
+        atomic_write_text(out_dir / "rolling_shutter" / name, text)
         records[name] = hashlib.sha256(text.encode("utf-8")).hexdigest()
     return records
 

@@ -162,7 +162,9 @@ def test_rolling_shutter_row_poses_explain_the_depth(tmp_path):
     world = read_tum(out / "poses_world.txt")
     origin = _pose_matrix(world, 0)
     meta = json.loads((out / "meta.json").read_text())
-    assert sorted(meta["rolling_shutter"]) == ["rolling_shutter/000000.txt", "rolling_shutter/000001.txt"]
+    assert sorted(meta["rolling_shutter"]) == ["000000.txt", "000001.txt"]
+    for name, sha in meta["rolling_shutter"].items():
+        assert hashlib.sha256((out / "rolling_shutter" / name).read_bytes()).hexdigest() == sha
     for k in range(2):
         rows = read_tum(out / "rolling_shutter" / f"{k:06d}.txt")
         assert len(rows) == SIZE

@@ -25,7 +25,7 @@ def test_workers_write_the_same_bytes_as_one_process(tmp_path):
     """Two worker processes render a timed capture with AOVs; every file equals the single-process one."""
     from omnisim.render import render_dataset
 
-    scene = _scene(tmp_path, frames=3, exposure=0.3, rolling=0.2, size=32)
+    scene = _scene(tmp_path, frames=3, exposure=0.3, rolling=0.2, size=16)
     single, parallel = tmp_path / "single", tmp_path / "parallel"
     render_dataset(scene, single, progress=False, aovs="depth,normal")
     result = render_dataset(scene, parallel, progress=False, aovs="depth,normal", workers=2)
@@ -37,3 +37,18 @@ def test_workers_write_the_same_bytes_as_one_process(tmp_path):
     for kind in ("images", "depth", "normal", "rolling_shutter"):
         assert meta_parallel[kind] == meta_single[kind]
     assert meta_parallel["complete"]
+
+
+def test_existing_scheduler_renders_the_same_bytes(tmp_path):
+    """--scheduler ADDRESS: a cluster started elsewhere (here: in this test) renders the same files."""
+    from distributed import LocalCluster
+
+    from omnisim.render import render_dataset
+
+    scene = _scene(tmp_path, frames=2, size=16)
+    render_dataset(scene, tmp_path / "single", progress=False, aovs="depth")
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        result = render_dataset(scene, tmp_path / "remote", progress=False, aovs="depth",
+                                scheduler=cluster.scheduler_address)
+    assert result.rendered == 2
+    assert _files(tmp_path / "remote") == _files(tmp_path / "single")
