@@ -2,8 +2,8 @@
 
 One process loads the scene four times -- sharp, motion blur (exposure 0.5),
 rolling shutter (readout 0.3), both -- and renders the same frames of the
-scene's trajectory with each, in turn, at the same spp, after a warm-up
-(JIT compilation excluded). Printed: the median seconds per frame of each and
+scene's trajectory with each, in turn (order reversed every other round), at
+the same spp, after a warm-up (JIT compilation excluded). Printed: the median seconds per frame of each and
 its ratio to the sharp capture (target <= 1.1). A timed capture traces one
 ray per sample like the sharp one; the extra cost is the per-ray time sample
 and pose interpolation in the sensor.
@@ -51,7 +51,8 @@ def main() -> None:
     wall = {name: [] for name in renderers}
     cpu = {name: [] for name in renderers}
     for k in range(1, args.repeats + 1):
-        for name, renderer in renderers.items():
+        # Alternate the order, so that no capture always runs first or last in a round.
+        for name, renderer in (list(renderers.items()) if k % 2 else list(renderers.items())[::-1]):
             start, start_cpu = time.perf_counter(), time.process_time()
             render(renderer, k)
             wall[name].append(time.perf_counter() - start)
