@@ -12,7 +12,7 @@ Time model (times in frame intervals; frame ``k`` starts at time ``k``):
   window. Since ``exposure + rolling_shutter <= 1``, a frame is captured
   between poses ``k`` and ``k + 1``.
 * The ground truth of frame ``k`` is the pose at the mid-exposure of the
-  middle row, time ``k + (rolling_shutter + exposure) / 2``: exactly the pose
+  middle row (row ``(H - 1) / 2``, between the two middle rows when ``H`` is even), time ``k + (rolling_shutter + exposure) / 2``: exactly the pose
   the ray of the image's middle row at mid-exposure sees. Row ``r``'s own pose
   is the one at ``k + rolling_shutter * r / (H - 1) + exposure / 2``.
 
