@@ -8,7 +8,7 @@ its ratio to the sharp capture (target <= 1.1). A timed capture traces one
 ray per sample like the sharp one; the extra cost is the per-ray time sample
 and pose interpolation in the sensor.
 
-Run: python benchmarks/bench_capture.py [--scene scenes/office.toml] [--resolution 256] [--spp 16] [--repeats 5]
+Run: python benchmarks/bench_capture.py [--scene scenes/office.toml] [--resolution 256] [--spp 16] [--repeats 9]
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ def main() -> None:
     parser.add_argument("--scene", default=str(ROOT / "scenes" / "office.toml"))
     parser.add_argument("--resolution", type=int, default=256)
     parser.add_argument("--spp", type=int, default=16)
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=9)
     args = parser.parse_args()
 
     from omnisim.config import CaptureSettings, load_scene_config

@@ -142,9 +142,11 @@ class RayTiming:
         intervals), ``rolling_shutter`` (readout fraction), ``to_world_end``.
     height : int
         Rows of the full film.
+    to_world : (4, 4) ndarray
+        The frame's pose, also the end pose when ``props`` gives none (the camera stands still).
     """
 
-    def __init__(self, mi, props, height: int):
+    def __init__(self, mi, props, height: int, to_world: np.ndarray):
         import drjit as dr
 
         self.mi, self.dr = mi, dr
@@ -153,7 +155,7 @@ class RayTiming:
         self.enabled = readout > 0.0 or closing > 0.0 or opening > 0.0
         self.row_step = mi.Float(readout / (height - 1) if height > 1 else 0.0)
         self.last_row = float(height - 1)
-        matrix = np.eye(4, dtype=np.float32)
+        matrix = np.asarray(to_world, dtype=np.float32)
         if "to_world_end" in props:
             matrix = np.array(props["to_world_end"].matrix, dtype=np.float32)
         self.to_world_end = mi.Transform4f(np.ascontiguousarray(matrix))

@@ -124,7 +124,7 @@ def register_omni_sensor(mi) -> None:
             if "to_world" in props:
                 matrix = np.array(props["to_world"].matrix, dtype=np.float32)
             self.to_world = mi.Transform4f(np.ascontiguousarray(matrix))
-            self.timing = RayTiming(mi, props, self.film().size().y)
+            self.timing = RayTiming(mi, props, self.film().size().y, matrix)
             self._make_opaque()
 
         def _make_opaque(self):
