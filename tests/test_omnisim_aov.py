@@ -118,17 +118,20 @@ def _check_room(points, normals):
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
 
 
-def test_depth_and_normals_land_on_room_walls(tmp_path):
+@pytest.mark.parametrize("exposure", [0.0, 0.6])
+def test_depth_and_normals_land_on_room_walls(tmp_path, exposure):
     """depth * rays_from_pixels, carried by the ground-truth pose, lies on the room's faces (median < 1 mm).
 
     The room's faces are the planes |x| = 3, |y| = 2.5, z = 0, z = 3 m; the
     normals, rotated to the world, are the faces' axes. Pixels outside the
-    mirror band have no surface: NaN.
+    mirror band have no surface: NaN. With motion blur the AOV rays are traced
+    at mid-exposure, so this also checks that the ground truth is exactly the
+    pose the mid-exposure rays see.
     """
     from ifmi.io.tum import read_tum
     from omnisim.render import render_dataset
 
-    scene = _scene(tmp_path)
+    scene = _scene(tmp_path, exposure=exposure)
     out = tmp_path / "out"
     render_dataset(scene, out, progress=False, aovs="depth,normal")
     world = read_tum(out / "poses_world.txt")
