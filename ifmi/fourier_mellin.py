@@ -47,6 +47,7 @@ std of the surface) -- reject bad tiles with the thresholds ``th_pr`` and
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from enum import IntEnum
 
 import cv2
 import numpy as np
@@ -65,12 +66,25 @@ __all__ = [
     "compose_placement",
     "motion_from_placement",
     "FourierMellin",
-    "REJECT_REASONS",
+    "TileRejection",
     "transform_points",
 ]
 
-# Reason codes of TileMotion.reason (index into this tuple).
-REJECT_REASONS = ("ok", "textureless", "low peak ratio", "low peak-to-noise ratio")
+
+
+class TileRejection(IntEnum):
+    """Why a tile pair was rejected (``TileMotion.reason``); ``KEPT`` (0) when it was not."""
+
+    KEPT = 0
+    TEXTURELESS = 1
+    LOW_PEAK_RATIO = 2
+    LOW_PEAK_TO_NOISE_RATIO = 3
+
+    @property
+    def label(self) -> str:
+        """Snake-case name used in diagnostics (``"low_peak_to_noise_ratio"``)."""
+        return self.name.lower()
+
 # OpenCV interpolation flag of each ``FourierMellinConfig.resample_interpolation`` name.
 _INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos4": cv2.INTER_LANCZOS4}
 
@@ -226,7 +240,7 @@ class TileMotion:
         Peak ratio of the log-polar correlation (nan without rotation/scale).
     valid : (T,) bool ndarray
     reason : (T,) int ndarray
-        Index into :data:`REJECT_REASONS`.
+        :class:`TileRejection` code of each tile.
     """
 
     scale: np.ndarray
@@ -362,7 +376,7 @@ class PlacedRegistration:
         Quality of the translation correlation.
     valid : (T,) bool ndarray
     reason : (T,) int ndarray
-        Index into :data:`REJECT_REASONS`.
+        :class:`TileRejection` code of each tile.
     last : PlacedTiles
         The tiles of b the final residual was measured on, with their
         placement: cut at the same place, they make the reference tiles of
@@ -603,10 +617,11 @@ class FourierMellin:
 
     def _reasons(self, spectra_a: TileSpectra, std_b: np.ndarray, peak_ratio: np.ndarray,
                  pnr: np.ndarray) -> np.ndarray:
-        reason = np.zeros(len(pnr), dtype=np.int64)
-        reason[pnr < self.config.th_pnr] = 3
-        reason[peak_ratio < self.config.th_pr] = 2
-        reason[(spectra_a.std < self.config.min_std) | (std_b < self.config.min_std)] = 1
+        # Later assignments take precedence: a textureless tile is reported as such.
+        reason = np.full(len(pnr), TileRejection.KEPT, dtype=np.int64)
+        reason[pnr < self.config.th_pnr] = TileRejection.LOW_PEAK_TO_NOISE_RATIO
+        reason[peak_ratio < self.config.th_pr] = TileRejection.LOW_PEAK_RATIO
+        reason[(spectra_a.std < self.config.min_std) | (std_b < self.config.min_std)] = TileRejection.TEXTURELESS
         return reason
 
     def register_placed(self, spectra_a: TileSpectra, source_b: np.ndarray, offsets_b: np.ndarray,
@@ -648,7 +663,7 @@ class FourierMellin:
         offsets, linear = compose_placement(offsets_b, linear_b, np.ones(count), np.zeros(count), translation)
         reason = self._reasons(spectra_a, std_b, peaks.peak_ratio, peaks.peak_to_noise)
         # Only the tiles the filters kept are refined; the others keep the search placement.
-        keep = np.flatnonzero(reason == 0)
+        keep = np.flatnonzero(reason == TileRejection.KEPT)
         last = PlacedTiles(tiles=tiles, offsets=offsets_b.copy(), linear=linear_b.copy(),
                            spectra=TileSpectra(spectrum=fb, descriptor=None, std=std_b.copy()))
         if self.config.refine_passes and keep.size:
@@ -659,7 +674,7 @@ class FourierMellin:
             last = _replace_rows(last, keep, kept_last)
         return PlacedRegistration(offsets=offsets, linear=linear, peak_ratio=peaks.peak_ratio,
                                   peak_to_noise=peaks.peak_to_noise, peak_value=peaks.value,
-                                  valid=reason == 0, reason=reason, last=last)
+                                  valid=reason == TileRejection.KEPT, reason=reason, last=last)
 
     def register(self, spectra_a: TileSpectra, spectra_b: TileSpectra | None, source_b: np.ndarray,
                  origins_b: np.ndarray, *, prior_scale: np.ndarray | None = None,
@@ -751,4 +766,4 @@ class FourierMellin:
         reason = self._reasons(spectra_a, std_b, peak_ratio, pnr)
         return TileMotion(scale=scale, angle_rad=angle, translation=translation, peak_ratio=peak_ratio,
                           peak_to_noise=pnr, peak_value=peak_value, rotation_peak_ratio=rotation_ratio,
-                          valid=reason == 0, reason=reason)
+                          valid=reason == TileRejection.KEPT, reason=reason)

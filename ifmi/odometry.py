@@ -69,7 +69,7 @@ class KeyframeOptions:
     min_inliers: int = 40
     min_inlier_fraction: float = 0.6
     max_angle_rad: float = 0.25
-    max_failures: int = 10
+    max_failures: int = 2
 
     def __post_init__(self) -> None:
         if self.max_failures < 0:

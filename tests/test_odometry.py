@@ -103,7 +103,8 @@ class CorruptFrontEnd(ExactFrontEnd):
 def test_consecutive_failures_never_become_references(keyframes):
     frames, truth = _frames(12, step=0.03)
     fe = CorruptFrontEnd(corrupt={4, 5, 6})
-    options = KeyframeOptions(enabled=keyframes, min_inliers=10, max_angle_rad=0.5)
+    # Three failures in a row stay below max_failures: the last good frame stays the reference.
+    options = KeyframeOptions(enabled=keyframes, min_inliers=10, max_angle_rad=0.5, max_failures=4)
     traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=options)
     assert [r.success for r in records] == [True] * 4 + [False] * 3 + [True] * 5
     # Failed frames hold the last good pose ...
