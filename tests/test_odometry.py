@@ -128,7 +128,7 @@ def test_prediction_spans_failed_frames():
     frames, truth = _frames(9, step=0.03)
     fe = Recording(corrupt={4, 5})
     fe.priors = []
-    track_sequence(frames, fe, pose_options=POSE)
+    track_sequence(frames, fe, pose_options=POSE, keyframe=KeyframeOptions(max_failures=3))
     # Constant angular velocity: the prediction for frame 6 from frame 3 is exact.
     a, b, prior = [p for p in fe.priors if p[:2] == (3, 6)][0]
     assert geodesic_angle(truth[3].T @ truth[6], prior) < 1e-9
