@@ -161,3 +161,21 @@ def test_each_finished_frame_is_reported_in_order():
                                    on_frame=seen.append)
     assert [r.frame for r in seen] == [0, 1, 2, 3, 4]
     assert seen == records and not seen[2].success
+
+
+def test_tracker_steps_frame_by_frame_with_a_given_pose_solver():
+    from ifmi.odometry import Tracker
+    from ifmi.relative_pose import relative_pose_from_rays
+
+    calls = []
+
+    def counting_solver(rays_a, rays_b, **kwargs):
+        calls.append(len(rays_a))
+        return relative_pose_from_rays(rays_a, rays_b, **kwargs)
+
+    frames, truth = _frames(6)
+    tracker = Tracker(ExactFrontEnd(), pose_options=POSE, pose_solver=counting_solver)
+    records = [tracker.step(frame) for frame in frames]
+    assert [r.frame for r in records] == list(range(6)) and all(r.success for r in records)
+    assert len(calls) == 5
+    assert np.max(geodesic_angle(truth, tracker.trajectory().rotations)) < 1e-9
