@@ -53,7 +53,7 @@ import cv2
 import numpy as np
 import scipy.fft
 
-from .phase_correlation import (correlation_surface, find_peaks, hann_window,
+from .phase_correlation import (Peaks, correlation_surface, find_peaks, hann_window,
                                 normalized_cross_power, refine_shift_phase_plane)
 
 __all__ = [
@@ -676,28 +676,51 @@ class FourierMellin:
                                   peak_to_noise=peaks.peak_to_noise, peak_value=peaks.value,
                                   valid=reason == TileRejection.KEPT, reason=reason, last=last)
 
-    def register(self, spectra_a: TileSpectra, spectra_b: TileSpectra | None, source_b: np.ndarray,
-                 origins_b: np.ndarray, *, prior_scale: np.ndarray | None = None,
-                 prior_angle: np.ndarray | None = None) -> TileMotion:
-        """Register all tile pairs of two frames.
+    def _search_rotation_scale(self, spectra_a: TileSpectra, spectra_b: TileSpectra, source_b: np.ndarray,
+                               origins_b: np.ndarray):
+        """Steps 2 and 3 of the module docstring: ``theta`` and ``s`` from the log-polar descriptors,
+        the 180-degree ambiguity and the translation peak of the chosen candidate.
 
-        With a predicted similarity per tile (``prior_scale``, ``prior_angle``)
-        the log-polar stage and the 180-degree test are skipped: tile b is
-        resampled with the prediction and the translation measured; the
-        refinement passes then measure the residual rotation and scale.
+        Returns ``(scale, angle, rotation_peak_ratio, fb, peaks)`` with ``fb`` the spectra of the
+        re-rotated tiles b and ``peaks`` their translation peaks.
+        """
+        t = self.count
+        shape = (self.tile_size, self.tile_size)
+        workers = self.config.workers
+        lp = correlation_surface(normalized_cross_power(spectra_a.descriptor, spectra_b.descriptor),
+                                 (self.n_angles, self.n_radii), workers=workers)
+        lp_peaks = find_peaks(lp)
+        lp_shift = self._refine(spectra_a.descriptor, spectra_b.descriptor, lp_peaks.shift,
+                                (self.n_angles, self.n_radii))
+        angle = -lp_shift[:, 0] * (np.pi / self.n_angles)
+        scale = np.exp(lp_shift[:, 1] * self.log_radius_step)
+        # Both candidates of the 180-degree ambiguity: tile b re-rotated by theta, and the same
+        # tile turned by another 180 degrees about its centre, which is its point reflection
+        # (the window is symmetric), whose spectrum is conj(B) times a phase ramp.
+        fb1, _ = self._windowed_fft(self.resample(source_b, origins_b, scale, angle, np.zeros((t, 2)),
+                                                  interpolation=self._search_interpolation))
+        fb2 = np.concatenate([fb1, np.conj(fb1) * self.flip_ramp])
+        fa2 = np.concatenate([spectra_a.spectrum, spectra_a.spectrum])
+        peaks2 = find_peaks(correlation_surface(normalized_cross_power(fa2, fb2), shape, workers=workers))
+        index = np.arange(t) + np.where(peaks2.value[t:] > peaks2.value[:t], t, 0)
+        angle = np.mod(np.concatenate([angle, angle + np.pi])[index] + np.pi, 2 * np.pi) - np.pi
+        peaks = Peaks(shift=peaks2.shift[index], value=peaks2.value[index],
+                      peak_ratio=peaks2.peak_ratio[index], peak_to_noise=peaks2.peak_to_noise[index])
+        return scale, angle, lp_peaks.peak_ratio, fb2[index], peaks
+
+    def register(self, spectra_a: TileSpectra, spectra_b: TileSpectra, source_b: np.ndarray,
+                 origins_b: np.ndarray) -> TileMotion:
+        """Register all tile pairs of two frames without a prediction.
 
         Parameters
         ----------
         spectra_a, spectra_b : TileSpectra
-            From :meth:`spectra` of the two frames' tiles (``spectra_b`` is not
-            needed with a prediction).
+            From :meth:`spectra` of the two frames' tiles.
         source_b : (H, W) float32 ndarray
             Image that tile b was cut from, resampled for the re-rotated,
             re-scaled tiles; pad it so that tiles do not leave it.
         origins_b : (T, 2) ndarray
             ``(row, col)`` in ``source_b`` of each tile's first pixel.
-        prior_scale, prior_angle : (T,) ndarray, optional, keyword-only
-            Predicted ``s`` and ``theta`` (radians) of each tile.
 
         Returns
         -------
@@ -705,65 +728,24 @@ class FourierMellin:
         """
         n, t = self.tile_size, self.count
         shape = (n, n)
-        workers = self.config.workers
         source_b = np.ascontiguousarray(source_b, dtype=np.float32)
         origins_b = np.asarray(origins_b, dtype=np.float64)
-        zeros2 = np.zeros((t, 2))
-        if prior_scale is not None:
-            offsets, linear = placement_from_motion(origins_b, np.asarray(prior_scale, dtype=np.float64),
-                                                    np.asarray(prior_angle, dtype=np.float64), zeros2, n)
-            placed = self.register_placed(spectra_a, source_b, offsets, linear)
-            scale, angle, translation = motion_from_placement(origins_b, placed.offsets, placed.linear, n)
-            return TileMotion(scale=scale, angle_rad=angle, translation=translation,
-                              peak_ratio=placed.peak_ratio, peak_to_noise=placed.peak_to_noise,
-                              peak_value=placed.peak_value, rotation_peak_ratio=np.full(t, np.nan),
-                              valid=placed.valid, reason=placed.reason)
+        fa = spectra_a.spectrum
         if self.config.estimate_rotation_scale:
-            std_b = spectra_b.std
-            lp = correlation_surface(normalized_cross_power(spectra_a.descriptor, spectra_b.descriptor),
-                                     (self.n_angles, self.n_radii), workers=workers)
-            lp_peaks = find_peaks(lp)
-            lp_shift = self._refine(spectra_a.descriptor, spectra_b.descriptor, lp_peaks.shift,
-                                    (self.n_angles, self.n_radii))
-            angle = -lp_shift[:, 0] * (np.pi / self.n_angles)
-            scale = np.exp(lp_shift[:, 1] * self.log_radius_step)
-            rotation_ratio = lp_peaks.peak_ratio
-            # Both candidates of the 180-degree ambiguity: tile b re-rotated by theta, and the same
-            # tile turned by another 180 degrees about its centre, which is its point reflection
-            # (the window is symmetric), whose spectrum is conj(B) times a phase ramp.
-            fb1, _ = self._windowed_fft(self.resample(source_b, origins_b, scale, angle, zeros2,
-                                                      interpolation=self._search_interpolation))
-            fb2 = np.concatenate([fb1, np.conj(fb1) * self.flip_ramp])
-            fa2 = np.concatenate([spectra_a.spectrum, spectra_a.spectrum])
-            surface = correlation_surface(normalized_cross_power(fa2, fb2), shape, workers=workers)
-            peaks2 = find_peaks(surface)
-            pick = np.where(peaks2.value[t:] > peaks2.value[:t], 1, 0)
-            index = np.arange(t) + pick * t
-            angles2 = np.concatenate([angle, angle + np.pi])
-            angle = np.mod(angles2[index] + np.pi, 2 * np.pi) - np.pi
-            fb = fb2[index]
-            fa = spectra_a.spectrum
-            shift = peaks2.shift[index]
-            peak_value = peaks2.value[index]
-            peak_ratio = peaks2.peak_ratio[index]
-            pnr = peaks2.peak_to_noise[index]
+            scale, angle, rotation_ratio, fb, peaks = self._search_rotation_scale(spectra_a, spectra_b,
+                                                                                  source_b, origins_b)
         else:
-            std_b = spectra_b.std
-            scale = np.ones(t)
-            angle = np.zeros(t)
-            rotation_ratio = np.full(t, np.nan)
-            fa = spectra_a.spectrum
+            scale, angle, rotation_ratio = np.ones(t), np.zeros(t), np.full(t, np.nan)
             fb = spectra_b.spectrum
-            peaks = find_peaks(correlation_surface(normalized_cross_power(fa, fb), shape, workers=workers))
-            shift, peak_value = peaks.shift, peaks.value
-            peak_ratio, pnr = peaks.peak_ratio, peaks.peak_to_noise
+            peaks = find_peaks(correlation_surface(normalized_cross_power(fa, fb), shape,
+                                                   workers=self.config.workers))
         # b'(p) = a(p + t) means b' is a moved by d = -t.
-        translation = -self._search_shift(fa, fb, shift, shape)
+        translation = -self._search_shift(fa, fb, peaks.shift, shape)
         offsets, linear = placement_from_motion(origins_b, scale, angle, translation, n)
         offsets, linear, _ = self._refined_placement(spectra_a, source_b, offsets, linear,
                                                      with_rotation=self.config.estimate_rotation_scale)
         scale, angle, translation = motion_from_placement(origins_b, offsets, linear, n)
-        reason = self._reasons(spectra_a, std_b, peak_ratio, pnr)
-        return TileMotion(scale=scale, angle_rad=angle, translation=translation, peak_ratio=peak_ratio,
-                          peak_to_noise=pnr, peak_value=peak_value, rotation_peak_ratio=rotation_ratio,
-                          valid=reason == TileRejection.KEPT, reason=reason)
+        reason = self._reasons(spectra_a, spectra_b.std, peaks.peak_ratio, peaks.peak_to_noise)
+        return TileMotion(scale=scale, angle_rad=angle, translation=translation, peak_ratio=peaks.peak_ratio,
+                          peak_to_noise=peaks.peak_to_noise, peak_value=peaks.value,
+                          rotation_peak_ratio=rotation_ratio, valid=reason == TileRejection.KEPT, reason=reason)

@@ -17,6 +17,19 @@ TILE = 128
 ORIGIN = np.array([220, 180])
 
 
+
+def _register_predicted(engine, spectra_a, source_b, origins_b, scale, angle):
+    """Tiles of b cut with a predicted similarity (no translation), registered; as a TileMotion-like triple."""
+    from types import SimpleNamespace
+
+    from ifmi.fourier_mellin import motion_from_placement, placement_from_motion
+
+    n = engine.tile_size
+    offsets, linear = placement_from_motion(origins_b, scale, angle, np.zeros((len(scale), 2)), n)
+    placed = engine.register_placed(spectra_a, source_b, offsets, linear)
+    scale, angle, translation = motion_from_placement(origins_b, placed.offsets, placed.linear, n)
+    return SimpleNamespace(scale=scale, angle_rad=angle, translation=translation, valid=placed.valid)
+
 def _photo(name: str = "camera") -> np.ndarray:
     image = np.asarray(getattr(skimage_data, name)(), dtype=np.float32)
     if image.ndim == 3:
@@ -170,8 +183,8 @@ def test_inverse_variance_residual_weighting_reduces_subpixel_error():
     errors, valid = {}, np.ones(count, dtype=bool)
     for power in (0.25, 1.0):
         engine = FourierMellin(n, count, config=FourierMellinConfig(residual_weight_power=power))
-        m = engine.register(engine.spectra(a), None, b_source, origins_b,
-                            prior_scale=np.ones(count), prior_angle=np.zeros(count))
+        m = _register_predicted(engine, engine.spectra(a), b_source, origins_b,
+                                np.ones(count), np.zeros(count))
         errors[power] = m.translation - fraction
         valid &= m.valid
     errors = {k: np.sqrt(np.mean(v[valid] ** 2)) for k, v in errors.items()}
@@ -212,8 +225,8 @@ def test_predicted_rotation_scale_is_refined_only_when_asked(refine):
     engine = FourierMellin(TILE, 1, config=FourierMellinConfig(refine_passes=2,
                                                                refine_predicted_rotation_scale=refine))
     a = image[ORIGIN[0]:ORIGIN[0] + TILE, ORIGIN[1]:ORIGIN[1] + TILE][None]
-    m = engine.register(engine.spectra(a), None, moved, ORIGIN[None].astype(float),
-                        prior_scale=np.array([scale * 1.01]), prior_angle=np.array([angle + np.radians(1.0)]))
+    m = _register_predicted(engine, engine.spectra(a), moved, ORIGIN[None].astype(float),
+                            np.array([scale * 1.01]), np.array([angle + np.radians(1.0)]))
     assert m.valid[0]
     if refine:
         assert abs(np.degrees(m.angle_rad[0] - angle)) < 0.1 and abs(m.scale[0] / scale - 1) < 0.002
