@@ -1,0 +1,89 @@
+"""Mirror band detection under dark objects: rims dark in every frame, calibration fallback."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from ifmi.camera import paracatadioptric_model, radius_from_pixels
+from ifmi.unwarp import PanoramaConfig, radius_band
+
+MODEL = paracatadioptric_model((240, 260), horizon_radius_px=70.0, center=(118.6, 133.2),
+                               affine=(1.004, 0.006, -0.003))
+INNER, OUTER = 40.0, 100.0
+CONFIG = PanoramaConfig(min_radius_fraction=0.0)
+
+
+def _polar():
+    rows, cols = np.mgrid[0:MODEL.height, 0:MODEL.width]
+    pixels = np.stack([rows, cols], axis=-1).astype(float)
+    radius = radius_from_pixels(MODEL, pixels)
+    azimuth = np.arctan2(cols - MODEL.center[1], rows - MODEL.center[0])
+    return radius, azimuth
+
+
+def _frame(seed, *, dark=None):
+    """Lit band INNER..OUTER with texture; ``dark(radius, azimuth) -> bool mask`` painted black."""
+    radius, azimuth = _polar()
+    image = np.random.default_rng(seed).integers(110, 190, size=MODEL.size).astype(np.uint8)
+    image[(radius < INNER) | (radius > OUTER)] = 0
+    if dark is not None:
+        image[dark(radius, azimuth)] = 3
+    return image
+
+
+def _check(band, tol=7.0):
+    inner, outer = band
+    assert INNER <= inner <= INNER + tol
+    assert OUTER - tol <= outer <= OUTER
+
+
+def test_dark_objects_crossing_the_ring_do_not_end_the_band():
+    # Three dark objects (a third of the azimuths each time, at different places per frame)
+    # cross the whole band, rim to centre; the old rule (first ring more than half dark) cut it.
+    frames = []
+    for k in range(5):
+        centre = 2 * np.pi * k / 5
+
+        def objects(radius, azimuth, centre=centre):
+            delta = np.angle(np.exp(1j * (azimuth[..., None] - centre - np.array([0.0, 2.1, 4.2]))))
+            return (np.abs(delta) < 0.6).any(axis=-1) & (radius > 30) & (radius < 110)
+
+        frames.append(_frame(k, dark=objects))
+    _check(radius_band(MODEL, frames[0], config=CONFIG, frames=frames[1:]))
+    # One frame alone: two thirds of each ring dark, still not a rim.
+    _check(radius_band(MODEL, frames[0], config=CONFIG))
+
+
+def test_dark_clothed_operator_in_the_centre_does_not_end_the_band():
+    # The operator fills the inner half of the band over 250 degrees of azimuth in every frame.
+    def operator(radius, azimuth):
+        return (radius < 75) & (np.abs(azimuth) < np.radians(125))
+
+    frames = [_frame(k, dark=operator) for k in range(3)]
+    _check(radius_band(MODEL, frames[0], config=CONFIG, frames=frames[1:]))
+
+
+def test_an_all_dark_image_falls_back_to_the_calibration_band_with_a_warning():
+    calib = radius_band(MODEL, config=CONFIG)
+    with pytest.warns(UserWarning, match="calibration's band"):
+        band = radius_band(MODEL, np.zeros(MODEL.size, np.uint8), config=CONFIG)
+    assert band == pytest.approx(calib)
+    # A thin lit ring is not trusted either.
+    radius, _ = _polar()
+    thin = np.where((radius > 60) & (radius < 66), 150, 0).astype(np.uint8)
+    with pytest.warns(UserWarning, match="calibration's band"):
+        assert radius_band(MODEL, thin, config=CONFIG) == pytest.approx(calib)
+
+
+def test_a_clean_band_gives_no_warning():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _check(radius_band(MODEL, _frame(0), config=CONFIG))
+
+
+def test_band_options_are_checked():
+    with pytest.raises(ValueError, match="rim_lit_fraction"):
+        PanoramaConfig(rim_lit_fraction=1.5)
