@@ -50,6 +50,7 @@ __all__ = [
     "create_front_end",
     "estimate_sequence",
     "estimate_dataset",
+    "estimate_video",
     "angular_pixel_size",
     "resolved_config",
 ]
@@ -343,3 +344,27 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     images = dataset.iter_images(prefetch=prefetch, skip_unreadable=True)
     return estimate_sequence(images, dataset.model, method=method,
                              config=config, progress=progress, total=len(dataset.image_paths))
+
+
+def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike, *, method: str,
+                   config: EstimateConfig = EstimateConfig(), progress: bool = False) -> SequenceEstimate:
+    """Estimate a video file's frames (decoded in order by OpenCV) with one calibration.
+
+    The trajectory's timestamps are the frames' presentation times from the
+    container, in seconds (:class:`ifmi.io.video.VideoFrames`).
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable calibration or video, or frames whose size
+        differs from the calibration's.
+    """
+    from .io.calib import read_calib
+    from .io.video import VideoFrames
+
+    model = read_calib(Path(calib_path))
+    frames = VideoFrames(video_path, size=model.size)
+    estimate = estimate_sequence(frames, model, method=method, config=config, progress=progress,
+                                 total=len(frames) or None)
+    trajectory = replace(estimate.trajectory, timestamps=np.asarray(frames.timestamps, dtype=np.float64))
+    return replace(estimate, trajectory=trajectory)
