@@ -68,6 +68,13 @@ class GlobalMotionConfig:
         than this (radians), the other starts are searched too and the best
         match wins; a good prediction is only corrected by a few degrees,
         while a wrong peak of a repetitive scene moves it far.
+    settled_shift_px : float
+        When the whole-panorama shift from a start is below this (coarse
+        pixels) along both axes, the start is returned as it is and the
+        sector passes are skipped (the usual case while tracking, which
+        keeps the stage cheap); a tilt error the whole-panorama shift does
+        not show is then left to the tiles, whose failure triggers the
+        search from the identity.
     """
 
     width: int = 128
@@ -77,6 +84,7 @@ class GlobalMotionConfig:
     min_sectors: int = 4
     outlier_factor: float = 3.0
     confirm_angle_rad: float = 0.1
+    settled_shift_px: float = 0.5
 
     def __post_init__(self) -> None:
         if self.width < 32 or self.sectors < 3 or self.iterations < 0:
@@ -84,7 +92,8 @@ class GlobalMotionConfig:
                              f"{self.width}, {self.sectors}, {self.iterations}")
         if not 3 <= self.min_sectors <= self.sectors:
             raise ValueError(f"expected 3 <= min_sectors <= sectors, got {self.min_sectors}, {self.sectors}")
-        if self.min_peak_ratio < 0 or not self.outlier_factor > 1 or not self.confirm_angle_rad > 0:
+        if self.min_peak_ratio < 0 or not self.outlier_factor > 1 or not self.confirm_angle_rad > 0 \
+                or self.settled_shift_px < 0:
             raise ValueError(f"expected min_peak_ratio >= 0, outlier_factor > 1, confirm_angle_rad > 0; got "
                              f"{self.min_peak_ratio}, {self.outlier_factor}, {self.confirm_angle_rad}")
 
@@ -183,6 +192,8 @@ class GlobalMotionEstimator:
 
     def warped(self, coarse_b: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         """Coarse panorama of b resampled onto a's grid under ``R_ab`` (bilinear; rows past the band replicated)."""
+        if np.array_equal(rotation, np.eye(3)):
+            return coarse_b
         full = panorama_from_rays(self.mapping, self.rays @ rotation)
         coarse = self._coarse_from_full(full)
         pad = 2
@@ -212,7 +223,7 @@ class GlobalMotionEstimator:
         cols = self.sector_cols[:, None] + np.arange(self.sector_width)
         sectors_a = np.moveaxis(coarse_a[:, cols], 1, 0)
         sectors_b = np.moveaxis(warped_b[:, cols], 1, 0)
-        shifts, peaks = phase_correlation(sectors_a, sectors_b)
+        shifts, peaks = phase_correlation(sectors_a, sectors_b, refine=False)
         limit = np.array(self.shape[0:1] + (self.sector_width,)) / 2.0
         ok = (peaks.peak_ratio >= c.min_peak_ratio) & np.all(np.abs(shifts) < limit, axis=1)
         if ok.sum() < c.min_sectors:
@@ -272,7 +283,11 @@ class GlobalMotionEstimator:
     def _search(self, coarse_a: np.ndarray, coarse_b: np.ndarray, start: np.ndarray) -> GlobalMotion:
         """Yaw search and sector passes from ``start``."""
         rotation = start
-        shift, yaw_ratio = self._yaw_search(coarse_a, self.warped(coarse_b, rotation))
+        warped_b = self.warped(coarse_b, rotation)
+        shift, yaw_ratio = self._yaw_search(coarse_a, warped_b)
+        if yaw_ratio >= self.config.min_peak_ratio and np.all(np.abs(shift) < self.config.settled_shift_px):
+            # The start already lines the panoramas up; the tiles measure what is left.
+            return GlobalMotion(start, True, "", yaw_ratio, 0, self.score(coarse_a, warped_b))
         shifts = np.broadcast_to(shift, self.sector_centres.shape)
         rotation = rotation_from_ray_pairs(*self._ray_pairs(self.sector_centres, shifts, rotation))
         used = 0
