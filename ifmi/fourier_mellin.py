@@ -154,8 +154,12 @@ class FourierMellinConfig:
         and scaled. Bilinear interpolation low-passes the tile by an amount
         that depends on the fractional offset, which biases the measured
         shift toward whole pixels; the bicubic and 8x8 Lanczos kernels keep
-        that bias five or more times smaller (the tests measure it), bicubic
-        at about a fifth of Lanczos' cost.
+        that bias five or more times smaller (the tests measure it). On
+        sharp images Lanczos is clearly better: on 1024 px pure-rotation
+        sequences warped from one image (``omnisim warp``) the frame-to-frame
+        error was 5.7e-6 against 9.7e-6 rad (photo-like) and 1.42e-5
+        against 1.84e-5 rad (high-spp render), for about 16 % more compute
+        per frame on 256 px renders.
     """
 
     log_polar_angles: int | None = None
@@ -172,7 +176,7 @@ class FourierMellinConfig:
     residual_weight_power: float = 1.0
     phase_plane_iterations: int = 3
     refine_predicted_rotation_scale: bool = False
-    resample_interpolation: str = "cubic"
+    resample_interpolation: str = "lanczos4"
 
     def __post_init__(self) -> None:
         for name in ("log_polar_angles", "log_polar_radii"):

@@ -19,7 +19,7 @@ from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_point
 from .global_motion import GlobalMotionConfig, GlobalMotionEstimator
 from .fourier_mellin import FourierMellin, TileRejection, FourierMellinConfig, PlacedTiles, TileSpectra
 from .tiling import TileLayout, TilingConfig, tile_layout, tiles_from_panorama
-from .unwarp import (PanoramaConfig, PanoramaMapping, panorama_from_omni, panorama_from_rays,
+from .unwarp import (PanoramaConfig, PanoramaMapping, gray_from_image, panorama_from_omni, panorama_from_rays,
                      panorama_mapping, rays_from_panorama, wrapped_panorama_maps)
 
 __all__ = ["IfmiConfig", "IfmiFrameState", "IfmiFrontEnd"]
@@ -213,7 +213,10 @@ class IfmiFrontEnd:
         """
         if self.mapping is None:
             self._setup(image)
-        padded = panorama_from_omni(image, self.mapping, maps=self._padded_maps)
+        # Remapped as float: an 8-bit result would round every panorama pixel to a whole gray
+        # level (on sharp 1024 px images that noise doubled the frame-to-frame error).
+        gray = gray_from_image(image).astype(np.float32)
+        padded = panorama_from_omni(gray, self.mapping, maps=self._padded_maps)
         coarse = None
         if self.global_stage is not None:
             coarse = self.global_stage.coarse_panorama(padded[:, self._pad:self._pad + self.mapping.width])

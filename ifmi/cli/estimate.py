@@ -36,7 +36,7 @@ def add_parser(subparsers) -> None:
                         "to_dict() JSON); the options below override it")
     g = p.add_argument_group("panorama")
     g.add_argument("--width", type=int,
-                   help="panorama width in pixels (default: the band's circumference, at most 1024)")
+                   help="panorama width in pixels (default: the band's circumference, at most 2048)")
     g.add_argument("--height", type=int, help="panorama height in pixels (default: square pixels)")
     g.add_argument("--radius-min", type=float, metavar="PX", help="inner sensor radius of the band")
     g.add_argument("--radius-max", type=float, metavar="PX", help="outer sensor radius of the band")
