@@ -70,6 +70,8 @@ __all__ = [
     "transform_points",
 ]
 
+# Rows (exclusive) OpenCV's remap accepts, and the range of its 16-bit fixed-point maps.
+_REMAP_MAX_ROWS = 2 ** 15
 
 
 class TileRejection(IntEnum):
@@ -458,12 +460,15 @@ class FourierMellin:
         rho = r_min * np.exp(self.log_radius_step * np.arange(self.n_radii))
         rows = n / 2.0 + rho[None, :] * np.cos(phi)[:, None]
         cols = rho[None, :] * np.sin(phi)[:, None]
-        offsets = (np.arange(self.count) * n)[:, None, None]
-        self.lp_rows = (rows[None] + offsets).reshape(-1, self.n_radii).astype(np.float32)
-        self.lp_cols = np.broadcast_to(cols[None], (self.count,) + cols.shape).reshape(
+        # OpenCV's remap takes fewer than 2^15 rows and 16-bit fixed-point maps: the tiles are
+        # remapped in chunks of at most ``lp_chunk`` tiles, with the maps of one chunk.
+        self.lp_chunk = min(self.count, (_REMAP_MAX_ROWS - 1) // max(n, self.n_angles))
+        offsets = (np.arange(self.lp_chunk) * n)[:, None, None]
+        lp_rows = (rows[None] + offsets).reshape(-1, self.n_radii).astype(np.float32)
+        lp_cols = np.broadcast_to(cols[None], (self.lp_chunk,) + cols.shape).reshape(
             -1, self.n_radii).astype(np.float32)
         # Fixed-point form of the constant maps: remap skips converting them on every call.
-        self.lp_map1, self.lp_map2 = cv2.convertMaps(self.lp_cols, self.lp_rows, cv2.CV_16SC2)
+        self.lp_map1, self.lp_map2 = cv2.convertMaps(lp_cols, lp_rows, cv2.CV_16SC2)
 
     # -- per frame ---------------------------------------------------------------------------
     def _windowed_fft(self, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -500,12 +505,15 @@ class FourierMellin:
         descriptor = None
         if self.config.estimate_rotation_scale and with_descriptor:
             magnitude = np.abs(np.fft.fftshift(spectrum, axes=1)) * self.highpass
-            stacked = np.ascontiguousarray(magnitude.reshape(-1, magnitude.shape[-1]), dtype=np.float32)
-            # The maps of the first K tiles read only the first K stacked tiles.
-            rows = k * self.n_angles
-            log_polar = cv2.remap(stacked, self.lp_map1[:rows], self.lp_map2[:rows], cv2.INTER_LINEAR,
-                                  borderMode=cv2.BORDER_REPLICATE)
-            log_polar = log_polar.reshape(k, self.n_angles, self.n_radii)
+            log_polar = np.empty((k, self.n_angles, self.n_radii), dtype=np.float32)
+            for first in range(0, k, self.lp_chunk):
+                chunk = magnitude[first:first + self.lp_chunk]
+                stacked = np.ascontiguousarray(chunk.reshape(-1, chunk.shape[-1]), dtype=np.float32)
+                # The maps of the first K tiles read only the first K stacked tiles.
+                rows = len(chunk) * self.n_angles
+                log_polar[first:first + len(chunk)] = cv2.remap(
+                    stacked, self.lp_map1[:rows], self.lp_map2[:rows], cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE).reshape(len(chunk), self.n_angles, self.n_radii)
             log_polar -= log_polar.mean(axis=(1, 2), keepdims=True)
             descriptor = scipy.fft.rfft2(log_polar, workers=self.config.workers).astype(np.complex64)
         return TileSpectra(spectrum=spectrum, descriptor=descriptor, std=std)
