@@ -568,8 +568,12 @@ class FourierMellin:
         map_cols = (lin[:, 1, 0, None, None] * gr + lin[:, 1, 1, None, None] * gc
                     + off[:, 1, None, None]).reshape(-1, n)
         kind = _INTERPOLATIONS[interpolation or self.config.resample_interpolation]
-        out = cv2.remap(source, map_cols, map_rows, kind,
-                        borderMode=cv2.BORDER_REFLECT_101)
+        # One remap call per chunk of fewer than 2^15 rows (OpenCV's limit).
+        step = ((_REMAP_MAX_ROWS - 1) // n) * n
+        out = np.empty(map_rows.shape, dtype=np.float32)
+        for first in range(0, len(map_rows), step):
+            rows = slice(first, first + step)
+            out[rows] = cv2.remap(source, map_cols[rows], map_rows[rows], kind, borderMode=cv2.BORDER_REFLECT_101)
         return out.reshape(len(off), n, n)
 
     def resample(self, source: np.ndarray, origins: np.ndarray, scale: np.ndarray,

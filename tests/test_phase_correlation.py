@@ -271,3 +271,14 @@ def test_spectra_of_more_tiles_than_one_remap_call_takes():
         # Equal up to the last spectrum row of a stack's last tile, which the interpolation reads
         # with the next tile's first row or the replicated border (measured 0.3 % at most).
         assert np.linalg.norm(full.descriptor[t] - alone) < 1e-2 * np.linalg.norm(alone)
+
+
+def test_resampling_more_tiles_than_one_remap_call_takes():
+    rng = np.random.default_rng(6)
+    source = rng.uniform(0, 255, (300, 400)).astype(np.float32)
+    engine = FourierMellin(64, 600)
+    offsets = np.stack([rng.uniform(40, 260, 600), rng.uniform(40, 360, 600)], axis=1)
+    linear = np.broadcast_to(np.eye(2), (600, 2, 2))
+    tiles = engine.resample_placed(source, offsets, linear)
+    for t in (0, 511, 512, 599):
+        assert np.array_equal(tiles[t], engine.resample_placed(source, offsets[t:t + 1], linear[:1])[0])
