@@ -70,7 +70,7 @@ def add_parser(subparsers) -> None:
                    help="switch keyframes past this rotation from the keyframe")
     g.add_argument("--max-failures", type=int, metavar="N",
                    help="after N failed frames in a row, restart from the current frame "
-                        "(default 10; 0 never)")
+                        "(default 2; 0 never)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
