@@ -36,7 +36,7 @@ import numpy as np
 import scipy.fft
 
 from .phase_correlation import correlation_surface, find_peaks, normalized_cross_power, phase_correlation
-from .unwarp import PanoramaMapping, panorama_from_rays, rays_from_panorama
+from .unwarp import PanoramaMapping, rays_from_panorama
 
 __all__ = ["GlobalMotionConfig", "GlobalMotion", "GlobalMotionEstimator", "rotation_from_ray_pairs"]
 
@@ -169,7 +169,8 @@ class GlobalMotionEstimator:
         self.shape = (height, width)
         self.scale = np.array([mapping.height / height, mapping.width / width])
         rows, cols = np.mgrid[0:height, 0:width].astype(np.float64)
-        self.rays = rays_from_panorama(mapping, self._full_from_coarse(np.stack([rows, cols], axis=-1)))
+        self.rays32 = rays_from_panorama(mapping, self._full_from_coarse(np.stack([rows, cols], axis=-1))).astype(
+            np.float32)
         self.sector_width = width // config.sectors
         self.row_window = np.sin(np.pi * (np.arange(height) + 0.5) / height).astype(np.float32)[:, None] ** 2
         # Sector centres (coarse (row, col)) and the sectors' first column.
@@ -194,12 +195,18 @@ class GlobalMotionEstimator:
         """Coarse panorama of b resampled onto a's grid under ``R_ab`` (bilinear; rows past the band replicated)."""
         if np.array_equal(rotation, np.eye(3)):
             return coarse_b
-        full = panorama_from_rays(self.mapping, self.rays @ rotation)
-        coarse = self._coarse_from_full(full)
+        # panorama_from_rays in float32 (a coarse pixel is far above its rounding), then coarse pixels.
+        rays = self.rays32 @ rotation.astype(np.float32)
+        x, y, z = rays[..., 0], rays[..., 1], rays[..., 2]
+        m = self.mapping
+        theta = np.arctan2(z, np.hypot(x, y))
+        rows = ((m.elevation_top_rad - theta) / m.elevation_step_rad + 0.5) / self.scale[0] - 0.5
+        cols = np.mod(np.arctan2(y, x) * (self.shape[1] / (2 * np.pi)), self.shape[1])
+        # Column of the coarse grid: (full + 0.5) / s - 0.5 with full = phi W / (2 pi).
+        cols = cols - 0.5 / self.scale[1] * (self.scale[1] - 1)
         pad = 2
         wrapped = np.concatenate([coarse_b[:, -pad:], coarse_b, coarse_b[:, :pad]], axis=1)
-        cols = np.mod(coarse[..., 1] + 0.5, self.shape[1]) - 0.5 + pad
-        return cv2.remap(wrapped, cols.astype(np.float32), coarse[..., 0].astype(np.float32),
+        return cv2.remap(wrapped, (cols + pad).astype(np.float32), rows.astype(np.float32),
                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def _ray_pairs(self, centres: np.ndarray, shifts: np.ndarray, rotation: np.ndarray):
