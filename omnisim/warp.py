@@ -47,7 +47,7 @@ from ifmi.unwarp import PanoramaConfig, gray_from_image, radius_band
 
 from .render import META_FORMAT, encode_png, open_output_folder, pending_images
 
-__all__ = ["WarpSettings", "WarpResult", "rotation_walk", "valid_source_mask", "warp_image",
+__all__ = ["WarpSettings", "WarpResult", "rotation_walk", "valid_source_band", "warp_image",
            "round_trip_error", "warp_dataset"]
 
 # Version of the warping procedure; part of an output folder's identity.
@@ -119,7 +119,7 @@ def rotation_walk(settings: WarpSettings) -> np.ndarray:
     return Rotation.from_euler("ZYX", np.stack(angles, axis=1)).as_matrix()
 
 
-def valid_source_mask(model: OcamModel, image: np.ndarray) -> tuple[float, float]:
+def valid_source_band(model: OcamModel, image: np.ndarray) -> tuple[float, float]:
     """Sensor-radius band ``(inner, outer)`` of the source image that the mirror images (pixels)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the fallback to the calibration's band is fine here
@@ -145,7 +145,7 @@ def warp_image(source: np.ndarray, model: OcamModel, rotation: np.ndarray, *,
     rotation : (3, 3) ndarray
         ``R_0k``: frame-k directions to frame-0 directions.
     band : (float, float), keyword-only
-        Valid sensor-radius band of the source (:func:`valid_source_mask`).
+        Valid sensor-radius band of the source (:func:`valid_source_band`).
 
     Returns
     -------
@@ -219,7 +219,7 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
         "settings": asdict(settings), "format": META_FORMAT, "warp": WARP_VERSION,
     }
     meta = open_output_folder(out_dir, identity)
-    band = valid_source_mask(model, source)
+    band = valid_source_band(model, source)
     rotations = rotation_walk(settings)
     meta.update({"source": str(image_path.resolve()), "settings": asdict(settings), "frames": settings.frames,
                  "valid_band_px": list(band), "interpolation": "cubic B-spline (scipy map_coordinates, order 3)",

@@ -68,10 +68,10 @@ def test_warped_sequence_ground_truth_agrees_with_pixels(tmp_path, source_files)
 
 
 def test_round_trip_error_is_the_interpolation_error(source_files):
-    from omnisim.warp import round_trip_error, rotation_walk, valid_source_mask, warp_image, WarpSettings
+    from omnisim.warp import round_trip_error, rotation_walk, valid_source_band, warp_image, WarpSettings
 
     source = cv2.imread(str(source_files[0]), cv2.IMREAD_GRAYSCALE)
-    band = valid_source_mask(MODEL, source)
+    band = valid_source_band(MODEL, source)
     assert BAND[0] - 2 <= band[0] <= BAND[0] + 4 and BAND[1] - 4 <= band[1] <= BAND[1] + 1
     rotation = rotation_walk(WarpSettings(frames=3, seed=1, max_step_deg=8.0))[2]
     frame = warp_image(source, MODEL, rotation, band=band)
