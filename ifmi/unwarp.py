@@ -22,7 +22,7 @@ both the omni image and the panorama.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import cv2
@@ -34,6 +34,7 @@ __all__ = [
     "PanoramaConfig",
     "PanoramaMapping",
     "radius_band",
+    "panorama_config_with_band",
     "panorama_mapping",
     "panorama_from_omni",
     "wrapped_panorama_maps",
@@ -260,6 +261,35 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
     if not 0 <= inner < outer:
         raise ValueError(f"empty radius band: inner {inner:.1f} px >= outer {outer:.1f} px")
     return inner, outer
+
+
+def panorama_config_with_band(model: OcamModel, frames: Sequence[np.ndarray], *,
+                              config: PanoramaConfig = PanoramaConfig()) -> PanoramaConfig:
+    """``config`` with the radius band decided from several frames of a sequence.
+
+    The band is :func:`radius_band` of all ``frames`` (rings judged on the
+    median over the frames, calibration's band as fallback), written into
+    ``radius_min_px`` and ``radius_max_px`` so that every method of a run
+    uses it and it is saved with the run's configuration. Radii the
+    configuration already fixes are kept; without frames ``config`` is
+    returned unchanged.
+
+    Parameters
+    ----------
+    model : OcamModel
+    frames : sequence of (H, W) or (H, W, 3) ndarray
+        A few frames spread over the sequence.
+    config : PanoramaConfig, keyword-only
+
+    Returns
+    -------
+    PanoramaConfig
+    """
+    if not len(frames) or (config.radius_min_px is not None and config.radius_max_px is not None):
+        return config
+    inner, outer = radius_band(model, frames[0], config=config, frames=frames[1:])
+    return replace(config, radius_min_px=inner if config.radius_min_px is None else config.radius_min_px,
+                   radius_max_px=outer if config.radius_max_px is None else config.radius_max_px)
 
 
 def _band_from_lit_rings(lit: np.ndarray, radii: np.ndarray, margin: float) -> tuple[float, float] | None:

@@ -113,3 +113,28 @@ def test_sequence_with_a_dark_operator_is_estimated_end_to_end():
     assert all(r.success for r in estimate.frames)
     # Measured 0.79 degree at most (a third of the panorama is black).
     assert np.degrees(np.max(geodesic_angle(sequence.rotations, estimate.trajectory.rotations))) < 1.5
+
+
+def test_dataset_band_is_decided_from_several_frames(tmp_path):
+    # Frame 0 has a shadow over the outer band at every azimuth; judged alone it would end
+    # the band at 70 px. Over five frames the median lit fraction keeps the whole band.
+    import cv2
+
+    from ifmi.pipeline import EstimateConfig, estimate_dataset
+    from ifmi.synthetic import synthetic_sequence, write_synthetic_dataset
+
+    model = paracatadioptric_model((160, 160), horizon_radius_px=50.0)
+    band = (16.0, 75.0)
+    sequence = synthetic_sequence(model, 6, seed=1, max_step_rad=0.03, band_px=band)
+    root = write_synthetic_dataset(tmp_path / "ds", sequence)
+    rows, cols = np.mgrid[0:160, 0:160]
+    radius = radius_from_pixels(model, np.stack([rows, cols], axis=-1).astype(float))
+    shadowed = np.where(radius > 55, 1, sequence.images[0]).astype(np.uint8)
+    cv2.imwrite(str(root / "images" / "000000.png"), shadowed)
+    alone = radius_band(model, shadowed, config=CONFIG)
+    assert alone[1] < 56
+    config = EstimateConfig()
+    estimate = estimate_dataset(root, method="ifmi", config=config)
+    panorama = estimate.config.ifmi.panorama
+    assert panorama.radius_max_px > band[1] - 5
+    assert estimate.config.relative_pose.ransac_threshold_rad is not None
