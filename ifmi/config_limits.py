@@ -26,8 +26,7 @@ __all__ = ["check_config_for_model"]
 _MAX_OVERSAMPLING = 4
 
 
-def check_config_for_model(config, model: OcamModel, *, method: str = "ifmi",
-                           image: np.ndarray | None = None, image_source: str | None = None) -> None:
+def check_config_for_model(config, model: OcamModel, *, method: str = "ifmi") -> None:
     """Refuse sizes and radii that the images of ``model`` cannot give.
 
     Checked: the panorama's radius band lies inside the image (and is not
@@ -35,25 +34,20 @@ def check_config_for_model(config, model: OcamModel, *, method: str = "ifmi",
     ``4 r_outer`` pixels (``r_outer`` the outer radius of the calibration's
     image band), and, for the ``"ifmi"`` method, the tiles fit the panorama
     and the log-polar grids are at most four times the tile side; a feature
-    front end's ``radius_band`` lies inside the image. With ``image`` (the
-    first frame) the band and the panorama are those the estimator will
-    use: a dark border can shrink them.
+    front end's ``radius_band`` lies inside the image. Explicit band radii
+    in ``config`` (e.g. decided from the frames) are the band checked.
 
     Parameters
     ----------
     config : ifmi.pipeline.EstimateConfig
     model : OcamModel
     method : str, keyword-only
-    image : (H, W) or (H, W, 3) uint8 ndarray, optional, keyword-only
-        The first frame.
-    image_source : str, optional, keyword-only
-        Where ``image`` came from, for messages.
 
     Raises
     ------
     InputError
-        Named after the configuration key (``ifmi.panorama.width``) or the
-        image: what is accepted for this camera and what was given.
+        Named after the configuration key (``ifmi.panorama.width``): what is
+        accepted for this camera and what was given.
     """
     _check_radii(config, model)
     if config.features is not None:
@@ -61,11 +55,8 @@ def check_config_for_model(config, model: OcamModel, *, method: str = "ifmi",
     pano = config.ifmi.panorama
     try:
         outer = radius_band(model, config=pano)[1]
-        if image is not None:
-            radius_band(model, image, config=pano)
     except ValueError as exc:
-        where = "ifmi.panorama" if image is None else image_source or "first frame"
-        raise InputError(where, str(exc)) from None
+        raise InputError("ifmi.panorama", str(exc)) from None
     limits = {"width": int(_MAX_OVERSAMPLING * 2 * np.pi * outer), "height": int(_MAX_OVERSAMPLING * outer)}
     for name, limit in limits.items():
         value = getattr(pano, name)
@@ -75,7 +66,7 @@ def check_config_for_model(config, model: OcamModel, *, method: str = "ifmi",
                                                       f"({_MAX_OVERSAMPLING} x its image band's outer "
                                                       f"{kind}), got {value}")
     if method == "ifmi":
-        _check_tiles(config, panorama_mapping(model, image, config=pano), image_source)
+        _check_tiles(config, panorama_mapping(model, config=pano))
 
 
 def _check_radii(config, model: OcamModel) -> None:
@@ -111,11 +102,13 @@ def _check_feature_sizes(features, model: OcamModel) -> None:
             raise InputError(f"features.{name}", f"expected at most {limit} ({what}), got {value}")
 
 
-def _check_tiles(config, mapping, image_source: str | None) -> None:
+def _check_tiles(config, mapping) -> None:
     try:
         tile = tile_layout((mapping.height, mapping.width), config=config.ifmi.tiling).tile_size
     except ValueError as exc:
-        band = f" (the band lit in {image_source})" if image_source else ""
+        pano = config.ifmi.panorama
+        band = (f" (band {pano.radius_min_px:.1f}..{pano.radius_max_px:.1f} px)"
+                if pano.radius_min_px is not None and pano.radius_max_px is not None else "")
         raise InputError("ifmi.tiling.tile_size", f"{exc}{band}") from None
     for name in ("log_polar_angles", "log_polar_radii"):
         value = getattr(config.ifmi.registration, name)

@@ -14,7 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..errors import InputError
-from ..pipeline import EstimateConfig, estimate_dataset, method_names
+from ..pipeline import EstimateConfig, estimate_dataset, estimate_video, method_names
 
 # Exit status when the outputs were written but more than half of the frames failed.
 EXIT_MOSTLY_FAILED = 3
@@ -35,7 +35,10 @@ def add_parser(subparsers) -> None:
                "the dataset; 2 bad input (dataset, calibration, options); 3 outputs written but more "
                "than half of the frames failed.",
     )
-    p.add_argument("dataset", metavar="DATASET", help="dataset folder")
+    p.add_argument("dataset", metavar="DATASET",
+                   help="dataset folder, or a video file (.mp4, .avi, ...; needs --calib)")
+    p.add_argument("--calib", metavar="CALIB",
+                   help="calib_results.txt of a video's camera (timestamps come from the video)")
     p.add_argument("--method", default="ifmi", choices=method_names(), help="front end (default ifmi)")
     p.add_argument("--out", required=True, metavar="ESTIMATE", help="TUM file to write")
     p.add_argument("--config", metavar="JSON",
@@ -43,7 +46,7 @@ def add_parser(subparsers) -> None:
                         "to_dict() JSON); the options below override it")
     g = p.add_argument_group("panorama")
     g.add_argument("--width", type=int,
-                   help="panorama width in pixels (default: the band's circumference, at most 1024)")
+                   help="panorama width in pixels (default: the band's circumference, at most 2048)")
     g.add_argument("--height", type=int, help="panorama height in pixels (default: square pixels)")
     g.add_argument("--radius-min", type=float, metavar="PX", help="inner sensor radius of the band")
     g.add_argument("--radius-max", type=float, metavar="PX", help="outer sensor radius of the band")
@@ -77,7 +80,7 @@ def add_parser(subparsers) -> None:
                    help="switch keyframes past this rotation from the keyframe")
     g.add_argument("--max-failures", type=int, metavar="N",
                    help="after N failed frames in a row, restart from the current frame "
-                        "(default 10; 0 never)")
+                        "(default 2; 0 never)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -119,13 +122,23 @@ def config_from_args(args) -> EstimateConfig:
 
 def run(args) -> int:
     from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
+    from ..io.video import is_video_path
 
     config = config_from_args(args)
     out = Path(args.out)
-    check_estimate_outputs(out, dataset_dir=args.dataset)
-    estimate = estimate_dataset(args.dataset, method=args.method, config=config,
-                                progress=not args.no_progress)
-    write_estimate_run(out, estimate, dataset_dir=args.dataset)
+    video = is_video_path(args.dataset)
+    if video and not args.calib:
+        raise InputError(args.dataset, "a video needs --calib CALIB (calib_results.txt)")
+    inputs = (args.dataset, args.calib) if video else ()
+    dataset_dir = None if video else args.dataset
+    check_estimate_outputs(out, dataset_dir=dataset_dir, input_files=inputs)
+    if video:
+        estimate = estimate_video(args.dataset, args.calib, method=args.method, config=config,
+                                  progress=not args.no_progress)
+    else:
+        estimate = estimate_dataset(args.dataset, method=args.method, config=config,
+                                    progress=not args.no_progress)
+    write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs)
     failed = sum(not r.success for r in estimate.frames)
     print(f"{out}: {len(estimate.frames)} frames, {failed} failed")
     if 2 * failed > len(estimate.frames):

@@ -358,8 +358,8 @@ def frames_csv_text(rows: list[dict]) -> str:
     return buf.getvalue()
 
 
-def check_estimate_outputs(path: str | os.PathLike, *,
-                           dataset_dir: str | os.PathLike | None = None) -> tuple[Path, Path, Path]:
+def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.PathLike | None = None,
+                           input_files: tuple = ()) -> tuple[Path, Path, Path]:
     """The three files an estimate writes, checked before anything is computed.
 
     Parameters
@@ -368,6 +368,8 @@ def check_estimate_outputs(path: str | os.PathLike, *,
         The TUM file (``DIR/NAME.txt``).
     dataset_dir : path, optional, keyword-only
         The input dataset; no output may replace one of its files.
+    input_files : tuple of path, keyword-only
+        Other inputs (a video and its calibration) no output may replace.
 
     Returns
     -------
@@ -389,13 +391,24 @@ def check_estimate_outputs(path: str | os.PathLike, *,
     for output in outputs:
         target = probe_writable(output)
         conflict = None if dataset_dir is None else dataset_conflict(dataset_dir, target)
+        for source in input_files:
+            if _same_file(source, target):
+                conflict = f"would replace the input file {source}"
         if conflict is not None:
             raise OutputError(output, f"{conflict}; choose another output path")
     return outputs
 
 
+def _same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether two paths name one existing file (through links, by inode)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
 def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | os.PathLike | None,
-                       extra: dict | None = None) -> Path:
+                       extra: dict | None = None, input_files: tuple = ()) -> Path:
     """Write an estimate as ``NAME.txt`` (TUM) with ``NAME.frames.csv`` and ``NAME.config.json``.
 
     The three files are written as one set (:func:`~ifmi.io.atomic.atomic_write_files`):
@@ -412,6 +425,8 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
         output may replace one of its files).
     extra : dict, optional, keyword-only
         More entries for the config file.
+    input_files : tuple of path, keyword-only
+        Other inputs no output may replace (see :func:`check_estimate_outputs`).
 
     Returns
     -------
@@ -426,7 +441,8 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
     """
     from .tum import format_tum
 
-    path, frames_path, config_path = check_estimate_outputs(path, dataset_dir=dataset_dir)
+    path, frames_path, config_path = check_estimate_outputs(path, dataset_dir=dataset_dir,
+                                                            input_files=input_files)
     config = {
         "method": estimate.method,
         "config": estimate.config.to_dict(),
