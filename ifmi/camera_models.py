@@ -572,6 +572,8 @@ class EquirectangularModel:
     size: tuple[int, int]
 
     kalibr_model = "equirectangular"
+    # Column 0 and column W - 1 are neighbours (360 degrees of longitude).
+    wraps_columns = True
     distortion = ()
     distortion_model = "none"
 

@@ -243,6 +243,9 @@ def angular_pixel_size(model: OcamModel, *, band: tuple[float, float] | None = N
     from .camera import rays_from_pixels
     from .unwarp import PanoramaConfig, radius_band
 
+    if not isinstance(model, OcamModel):  # other camera models: over their panorama's band
+        from .unwarp import angular_pixel_size_in_band
+        return angular_pixel_size_in_band(model, config=panorama if panorama is not None else PanoramaConfig())
     if band is None:
         band = radius_band(model, config=panorama if panorama is not None else PanoramaConfig())
     inner, outer = (float(v) for v in band)
