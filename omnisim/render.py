@@ -1,6 +1,7 @@
 """Render scene files into dataset folders (images, calibration, ground truth, provenance).
 
-A dataset folder holds ``calib_results.txt``, ``images/NNNNNN.png`` (8-bit
+A dataset folder holds ``calib_results.txt`` (or ``camera.yaml`` for a Kalibr
+camera), ``images/NNNNNN.png`` (8-bit
 RGB), ``groundtruth.txt`` (TUM, camera k in camera 0), ``poses_world.txt``
 (TUM, camera-to-world) and ``meta.json``. Rendering is deterministic for a
 given scene file, seed and settings: each frame seeds Mitsuba's sampler from
@@ -22,17 +23,17 @@ import numpy as np
 
 from ifmi.errors import InputError
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_json
-from ifmi.io.calib import write_calib
+from ifmi.io.camera_file import write_camera
 from ifmi.io.provenance import package_versions
 from ifmi.io.tum import write_tum
 
 from .config import SceneConfig, load_scene_config
 from .effects import apply_effects, exposure_gains, srgb_uint8_from_linear
-from .motion import poses_for_settings, relative_trajectory, world_trajectory
+from .motion import WorldPoses, poses_for_settings, relative_trajectory, world_trajectory
 from .scene import build_scene_dict
 from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
 
-__all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
+__all__ = ["OmniRenderer", "poses_in_model_frame", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
            "check_output_folder", "open_output_folder", "pending_images"]
 
 # Format version of meta.json; bumped when its meaning changes.
@@ -40,6 +41,31 @@ META_FORMAT = 1
 # Version of the rendering code; bumped whenever the same inputs would give other pixels,
 # so an old folder is refused instead of being completed with differently made frames.
 RENDERER_VERSION = 3
+
+
+def poses_in_model_frame(poses: WorldPoses, model) -> WorldPoses:
+    """Poses of the camera model's own frame, so that ground truth is in the frame of the dataset's model.
+
+    Trajectories are generated for a body whose z axis is up when level, the
+    axis about which it mostly turns (yaw): an OCamCalib camera's mirror
+    axis, whose frame is used as is (its central pixel looks down). A Kalibr
+    model (x along columns, y down the image, z the optical axis) is mounted
+    the same way, looking straight down: its optical axis is the body's -z
+    and its x the body's x, ``R_wc(model) = R_wc(body) diag(1, -1, -1)``, so
+    that yaw turns the image about its centre as for the catadioptric
+    camera. An equirectangular camera (z forward, -y up) is mounted level:
+    its z is the body's x and its -y the body's z.
+    """
+    from ifmi.camera import OcamModel
+    from ifmi.camera_models import EquirectangularModel
+
+    if isinstance(model, OcamModel):
+        return poses
+    if isinstance(model, EquirectangularModel):
+        mount = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    else:
+        mount = np.diag([1.0, -1.0, -1.0])
+    return WorldPoses(rotations=poses.rotations @ mount, positions=poses.positions)
 
 
 def frame_seed(seed: int, frame: int) -> int:
@@ -228,7 +254,7 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     if seed < 0:
         raise InputError(scene_path, f"seed: expected a non-negative integer, got {seed}")
     out_dir = Path(out_dir)
-    poses = poses_for_settings(config.trajectory, seed=seed)
+    poses = poses_in_model_frame(poses_for_settings(config.trajectory, seed=seed), config.camera.model)
 
     from .llvm import import_mitsuba
     mi = import_mitsuba(variant or config.render.variant or None)
@@ -252,7 +278,7 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         "variant": mi.variant(),
         "versions": _versions(),
     })
-    write_calib(out_dir / "calib_results.txt", config.camera.model)
+    write_camera(out_dir, config.camera.model)  # calib_results.txt or camera.yaml
     write_tum(out_dir / "groundtruth.txt", relative_trajectory(poses),
               header=f"omnisim ground truth of {config.name}: T_0k, camera k in camera 0")
     write_tum(out_dir / "poses_world.txt", world_trajectory(poses),
