@@ -24,8 +24,10 @@ __all__ = ["RAY_KINDS", "ray_kind", "ray_parameters", "parameter_count", "rays_f
 
 # Kinds of ray code: one compiled kernel each.
 RAY_KINDS = ("unified", "unified_radtan", "eucm", "ds", "kb", "equirectangular")
-# Newton steps of the radtan undistortion and of the Kannala-Brandt angle inversion.
-_NEWTON_STEPS = 10
+# Newton steps of the radtan undistortion and of the Kannala-Brandt angle inversion: from
+# the distorted start, a Mei camera with 90 px of radtan distortion is within 1e-6 px after
+# 6 steps, TUM-VI's Kannala-Brandt camera after 4.
+_NEWTON_STEPS = 8
 # Largest residual (normalised image units, float32) of a converged inversion; 1e-5 is
 # 0.005 px at a 500 px focal length, and float32 rounding stays near 1e-7.
 _CONVERGED = 1e-5
