@@ -12,6 +12,9 @@ not traced and cost less; their share is printed); and the urban scene
 parts of the scene. A distortion-free Kalibr pinhole posed like the
 perspective camera traces exactly its rays (same-rays row).
 
+Ray generation: the cost of each sensor's ``sample_ray`` alone, per million
+rays, against the perspective sensor's (no scene).
+
 ATE: for each model the urban scene is rendered with ``[camera] kalibr`` (a
 pure-rotation sequence, the camera mounted as omnisim mounts that model),
 estimated with ``ifmi estimate`` (ifmi, orb, akaze), and the geodesic ATE
@@ -71,10 +74,20 @@ def _perspective(mi, size, spp, sampler, origin, fov_deg=90.0) -> dict:
             "sampler": {"type": sampler, "sample_count": spp}}
 
 
+def _benchmark_models(width: int) -> dict:
+    """The example models at ``width`` px, and a distortion-free pinhole with the perspective camera's rays."""
+    from ifmi.camera_models import PinholeModel
+
+    models = {name: EXAMPLES[name].scaled(width / EXAMPLES[name].width) for name in MODELS}
+    size = models["pinhole-radtan"].size
+    f = size[1] / 2.0  # 90 degrees across the width, as the perspective camera
+    models["pinhole, same rays"] = PinholeModel.create((f, f), ((size[1] - 1) / 2, (size[0] - 1) / 2), size)
+    return models
+
+
 def render_ratios(args) -> dict:
     """Median render time ratio model / perspective per model, in the uniform sphere and the urban scene."""
     from ifmi.camera import valid_mask
-    from ifmi.camera_models import PinholeModel
     from omnisim.config import load_scene_config
     from omnisim.llvm import import_mitsuba
     from omnisim.scene import build_scene_dict
@@ -86,10 +99,7 @@ def render_ratios(args) -> dict:
     origin = np.asarray(config.trajectory.position, dtype=np.float64)
     # Kalibr frame looking along world +x with image rows down: x -> -y_w, y -> -z_w, z -> +x_w.
     forward = to_world_matrix(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]), origin)
-    models = {name: EXAMPLES[name].scaled(args.width / EXAMPLES[name].width) for name in MODELS}
-    size = models["pinhole-radtan"].size
-    f = size[1] / 2.0  # 90 degrees across the width, as the perspective camera
-    models["pinhole, same rays"] = PinholeModel.create((f, f), ((size[1] - 1) / 2, (size[0] - 1) / 2), size)
+    models = _benchmark_models(args.width)
     ratios = {}
     for name, model in models.items():
         sensors = [sensor_dict(model, to_world=forward, radius_min=0.0, radius_max=float("inf"), spp=args.spp,
@@ -110,6 +120,44 @@ def render_ratios(args) -> dict:
               f"{row['urban']:.3f} (urban, different view; pairs {row['urban pairs']:.3f}); "
               f"valid pixels {100 * row['valid']:.0f} %", flush=True)
     return ratios
+
+
+def ray_costs(args) -> dict:
+    """Seconds per million camera rays of each sensor's ``sample_ray`` alone, over the perspective sensor's.
+
+    The same film-sample batch goes through each sensor and is evaluated
+    (``dr.eval``), alternately, fastest of ``repeats``: the sensor's own
+    cost, with no scene to trace.
+    """
+    from omnisim.llvm import import_mitsuba
+    from omnisim.sensor import register_omni_sensor, sensor_dict
+
+    mi = import_mitsuba()  # selects drjit's LLVM before drjit is first imported
+    import drjit as dr
+    register_omni_sensor(mi)
+    origin = np.zeros(3)
+    rng = np.random.default_rng(0)
+    samples = rng.random((2, args.ray_batch)).astype(np.float32)
+    results = {}
+    for name, model in _benchmark_models(args.width).items():
+        sensors = [mi.load_dict(sensor_dict(model, to_world=np.eye(4), radius_min=0.0, radius_max=float("inf"),
+                                            spp=1, mi=mi)),
+                   mi.load_dict(_perspective(mi, model.size, 1, "independent", origin))]
+        sample2 = mi.Point2f(samples[0], samples[1])
+        times = [[], []]
+        for k in range(args.repeats + 2):
+            for index, sensor in enumerate(sensors):
+                start = time.perf_counter()
+                ray, weight = sensor.sample_ray(0.0, 0.5, sample2, mi.Point2f(0.5, 0.5))
+                dr.eval(ray, weight)
+                dr.sync_thread()
+                if k >= 2:  # the first two compile
+                    times[index].append(time.perf_counter() - start)
+        per_million = [1e6 * min(t) / args.ray_batch for t in times]
+        results[name] = per_million[0] / per_million[1]
+        print(f"  {name:22s} ray generation: {1e3 * per_million[0]:.2f} ms per million rays, perspective "
+              f"{1e3 * per_million[1]:.2f} ms: ratio {results[name]:.2f}", flush=True)
+    return results
 
 
 def _kalibr_scene(folder: Path, model) -> Path:
@@ -163,11 +211,14 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--repeats", type=int, default=9)
     parser.add_argument("--out", default="/work/data/cameras/bench", help="folder for the rendered datasets")
+    parser.add_argument("--ray-batch", type=int, default=4_000_000, help="rays per sample_ray timing")
     parser.add_argument("--skip-render-ratio", action="store_true")
     parser.add_argument("--skip-ate", action="store_true")
     args = parser.parse_args()
     print(f"camera models at {args.width} px width, {args.spp} spp")
     ratios = {} if args.skip_render_ratio else render_ratios(args)
+    if not args.skip_render_ratio:
+        ray_costs(args)
     ates = {} if args.skip_ate else estimator_ates(args)
     print(f"\nsummary ({args.frames} frames, urban scene, pure rotation):")
     print(f"  {'model':22s} {'ratio (uniform)':>16s} {'ratio (urban)':>14s} {'ifmi ATE rad':>13s} "

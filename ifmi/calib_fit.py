@@ -72,8 +72,14 @@ class CalibrationFit:
 
 
 def rays_in_frame_of(rays: np.ndarray, source, target) -> np.ndarray:
-    """``(..., 3)`` rays of ``source``'s frame expressed in ``target``'s frame."""
-    if isinstance(source, OcamModel) == isinstance(target, OcamModel):
+    """``(..., 3)`` rays of ``source``'s frame expressed in ``target``'s frame.
+
+    ``source`` and ``target`` are models, or ``"ocamcalib"`` / ``"kalibr"`` naming a frame.
+    """
+    def is_ocam(model):
+        return model == "ocamcalib" if isinstance(model, str) else isinstance(model, OcamModel)
+
+    if is_ocam(source) == is_ocam(target):
         return rays
     return rays @ _OCAM_TO_KALIBR.T
 
@@ -127,7 +133,7 @@ def _kalibr_builder(kind: str, size):
 def _fit_kalibr(source, kind: str, pixels: np.ndarray):
     initial, build = _kalibr_builder(kind, source.size)
     centre, scale = _axis_pixel_and_scale(source)
-    rays = rays_in_frame_of(source.rays_from_pixels(pixels), source, build(initial((0, 0), 1.0)))
+    rays = rays_in_frame_of(source.rays_from_pixels(pixels), source, "kalibr")
 
     def residuals(p):
         try:
@@ -143,7 +149,7 @@ def _fit_kalibr(source, kind: str, pixels: np.ndarray):
 
 
 def _fit_ocamcalib(source, pixels: np.ndarray) -> OcamModel:
-    rays = rays_in_frame_of(source.rays_from_pixels(pixels), source, OcamModel((1.0,), (1.0,), (0, 0), size=(1, 1)))
+    rays = rays_in_frame_of(source.rays_from_pixels(pixels), source, "ocamcalib")
     centre, scale = _axis_pixel_and_scale(source)
 
     def build(p):

@@ -85,7 +85,7 @@ class CameraModel(Protocol):
 
 
 # Pixels whose lifted ray re-projects farther than this (px) are outside a model's valid region.
-_VALID_ROUND_TRIP_PX = 1e-3
+VALID_ROUND_TRIP_PX = 1e-3
 
 
 def _image_grid(size: tuple[int, int]) -> np.ndarray:
@@ -209,7 +209,7 @@ class OcamModel:
         inside = ((pixels[..., 0] >= -0.5) & (pixels[..., 0] <= self.height - 0.5)
                   & (pixels[..., 1] >= -0.5) & (pixels[..., 1] <= self.width - 0.5))
         back = pixels_from_rays(self, rays_from_pixels(self, pixels))
-        close = np.hypot(back[..., 0] - pixels[..., 0], back[..., 1] - pixels[..., 1]) < _VALID_ROUND_TRIP_PX
+        close = np.hypot(back[..., 0] - pixels[..., 0], back[..., 1] - pixels[..., 1]) < VALID_ROUND_TRIP_PX
         return inside & (radius_from_pixels(self, pixels) <= self.monotonic_radius) & close
 
     @cached_property

@@ -37,7 +37,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .camera import measured_field_of_view
+from .camera import VALID_ROUND_TRIP_PX, measured_field_of_view
 
 __all__ = [
     "UnifiedModel",
@@ -56,8 +56,6 @@ __all__ = [
 _UNDISTORT_TOLERANCE = 1e-9
 # ... or after this many steps; points not converged by then are outside the valid region.
 _UNDISTORT_MAX_STEPS = 50
-# A pixel is in the valid region when its ray projects back onto it to this accuracy (px).
-_VALID_ROUND_TRIP_PX = 1e-3
 # Angles sampled to find where the Kannala-Brandt polynomial stops increasing.
 _KB_THETA_SAMPLES = 20001
 
@@ -252,7 +250,7 @@ class _CentralModel:
                   & (pixels[..., 1] >= -0.5) & (pixels[..., 1] <= self.width - 0.5))
         back = self.pixels_from_rays(self.rays_from_pixels(pixels))
         with np.errstate(invalid="ignore"):
-            close = np.hypot(*(back - pixels).transpose(-1, *range(pixels.ndim - 1))) < _VALID_ROUND_TRIP_PX
+            close = np.linalg.norm(back - pixels, axis=-1) < VALID_ROUND_TRIP_PX
         return inside & close
 
     @cached_property

@@ -483,6 +483,8 @@ def off_axis_band(model, *, config: PanoramaConfig = PanoramaConfig()) -> tuple[
     (float, float)
         Inner and outer angle from the axis, radians.
     """
+    if config.radius_min_px is not None or config.radius_max_px is not None:
+        raise ValueError("radius_min_px / radius_max_px apply to OCamCalib models only")
     rotation = panorama_axis_rotation(model)
     angles = np.linspace(0.0, np.pi, _BAND_ANGLES)
     azimuths = np.linspace(0.0, 2 * np.pi, _BAND_AZIMUTHS, endpoint=False)
@@ -506,8 +508,6 @@ def off_axis_band(model, *, config: PanoramaConfig = PanoramaConfig()) -> tuple[
     pole_gap = config.min_radius_fraction * min(last, 0.5 * np.pi)
     inner = max(first, pole_gap)
     outer = min(last, np.pi - pole_gap)
-    if config.radius_min_px is not None or config.radius_max_px is not None:
-        raise ValueError("radius_min_px / radius_max_px apply to OCamCalib models only")
     if not inner < outer:
         raise ValueError(f"empty band: inner {np.degrees(inner):.1f} deg >= outer {np.degrees(outer):.1f} deg")
     return inner, outer
@@ -561,10 +561,9 @@ def band_mask(mapping: PanoramaMapping, *, margin_px: float = 0.0) -> np.ndarray
     model = mapping.model
     rows, cols = np.mgrid[0:model.height, 0:model.width]
     pixels = np.stack([rows, cols], axis=-1).astype(np.float64)
-    rays = rays_from_pixels(model, pixels)
-    theta = 0.5 * np.pi - angles_from_axis(rays, panorama_axis_rotation(model)[:, 2]) \
-        if mapping.camera_from_panorama is not None else \
-        np.arctan2(rays[..., 2], np.hypot(rays[..., 0], rays[..., 1]))
+    axis = np.array([0.0, 0.0, 1.0]) if mapping.camera_from_panorama is None \
+        else mapping.camera_from_panorama[:, 2]
+    theta = 0.5 * np.pi - angles_from_axis(rays_from_pixels(model, pixels), axis)
     bottom = mapping.elevation_top_rad - (mapping.height - 1) * mapping.elevation_step_rad
     with np.errstate(invalid="ignore"):
         mask = (theta <= mapping.elevation_top_rad) & (theta >= bottom) & model.valid_pixels(pixels)

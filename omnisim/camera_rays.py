@@ -10,24 +10,36 @@ the sensor stores as opaque JIT variables, so a new calibration of the same
 model reuses the compiled kernel; only the model kind (and, for the unified
 model, whether it has radtan distortion) changes the kernel.
 
-Iterative inversions run a fixed number of Newton steps (the kernel has no
-data-dependent loop): radtan undistortion and the Kannala-Brandt angle
-converge quadratically from the distorted point, well within the steps
-below for any calibration whose valid region the numpy model accepts;
-samples whose residual stays above a tolerance are outside the valid region
-and come back invalid (black pixels), as do samples outside a model's domain.
+Iterative inversions (radtan undistortion, the Kannala-Brandt angle) start
+from a lookup table of the radial inverse -- ``TABLE_SIZE`` samples of the
+undistorted radius (radtan, tangential terms left out) or angle
+(Kannala-Brandt) against the distorted radius, linearly interpolated -- and
+then take a few Newton steps, which converge quadratically to float32
+precision from that start. The table travels with the parameters (built by
+:func:`ray_parameters`), so it is calibration data, not kernel code. Samples
+whose residual stays above a tolerance are outside the valid region and come
+back invalid (black pixels), as do samples outside a model's domain.
 """
 
 from __future__ import annotations
 
-__all__ = ["RAY_KINDS", "ray_kind", "ray_parameters", "parameter_count", "rays_from_film"]
+import numpy as np
+
+__all__ = ["RAY_KINDS", "TABLE_SIZE", "ray_kind", "ray_parameters", "parameter_count", "scalar_count",
+           "rays_from_film"]
 
 # Kinds of ray code: one compiled kernel each.
 RAY_KINDS = ("unified", "unified_radtan", "eucm", "ds", "kb", "equirectangular")
-# Newton steps of the radtan undistortion and of the Kannala-Brandt angle inversion: from
-# the distorted start, a Mei camera with 90 px of radtan distortion is within 1e-6 px after
-# 6 steps, TUM-VI's Kannala-Brandt camera after 4.
-_NEWTON_STEPS = 8
+# Entries of the radial inverse table of the radtan and Kannala-Brandt models.
+TABLE_SIZE = 512
+# Newton steps after the table's start: its interpolation error (below 1e-4 normalised units
+# for the tests' cameras, tangential radtan terms of 1e-3 included) falls under float32
+# rounding in two quadratic steps; three leave a margin.
+_NEWTON_STEPS = 2
+# Dense samples of the forward radial map from which the inverse table is interpolated.
+_TABLE_DENSE = 20000
+# The table reaches this factor beyond the largest distorted radius of the image.
+_TABLE_MARGIN = 1.05
 # Largest residual (normalised image units, float32) of a converged inversion; 1e-5 is
 # 0.005 px at a 500 px focal length, and float32 rounding stays near 1e-7.
 _CONVERGED = 1e-5
@@ -50,9 +62,10 @@ def ray_kind(model) -> str:
 def ray_parameters(model) -> list[float]:
     """Flat parameter list of a model, in the order :func:`rays_from_film` reads it.
 
-    unified: ``xi fu fv pu pv [k1 k2 p1 p2]``; eucm: ``alpha beta fu fv pu pv``;
-    ds: ``xi alpha fu fv pu pv``; kb: ``fu fv pu pv k1 k2 k3 k4 theta_max``;
-    equirectangular: ``height width``.
+    unified: ``xi fu fv pu pv [k1 k2 p1 p2 1/step table...]``; eucm:
+    ``alpha beta fu fv pu pv``; ds: ``xi alpha fu fv pu pv``; kb:
+    ``fu fv pu pv k1 k2 k3 k4 theta_max 1/step table...``; equirectangular:
+    ``height width``. Tables: :func:`_inverse_table`.
     """
     kind = ray_kind(model)
     if kind.startswith("unified"):
@@ -65,7 +78,41 @@ def ray_parameters(model) -> list[float]:
         values = [*model.focal, *model.principal_point, *model.distortion, model.max_angle_rad]
     else:
         values = [model.height, model.width]
+    if kind in ("unified_radtan", "kb"):
+        values += _inverse_table(model, kind)
     return [float(v) for v in values]
+
+
+def _largest_distorted_radius(model) -> float:
+    """Largest normalised (distorted) radius of the image's corners."""
+    (fu, fv), (pu, pv) = model.focal, model.principal_point
+    u = np.array([-0.5, model.width - 0.5])
+    v = np.array([-0.5, model.height - 0.5])
+    return float(np.hypot(*np.meshgrid((u - pu) / fu, (v - pv) / fv)).max())
+
+
+def _inverse_table(model, kind: str) -> list[float]:
+    """``[1 / step] + TABLE_SIZE`` samples of the radial inverse on ``[0, (TABLE_SIZE - 1) step]``.
+
+    radtan: undistorted radius against distorted radius (radial terms
+    only); Kannala-Brandt: angle from the axis against ``theta_d``. Beyond
+    the forward map's increasing range the last value repeats (the Newton
+    steps then fail to converge and the sample is invalid).
+    """
+    limit = _TABLE_MARGIN * _largest_distorted_radius(model)
+    if kind == "kb":
+        forward_x = np.linspace(0.0, model.max_angle_rad, _TABLE_DENSE)
+        forward_y = model._theta_d(forward_x)
+    else:
+        k1, k2 = model.distortion[:2]
+        reach = np.linspace(0.0, 4.0 * limit, _TABLE_DENSE)
+        forward_x, forward_y = reach, reach * (1.0 + reach ** 2 * (k1 + k2 * reach ** 2))
+    rising = np.flatnonzero(np.diff(forward_y) <= 0)
+    stop = rising[0] + 1 if rising.size else len(forward_y)
+    forward_x, forward_y = forward_x[:stop], forward_y[:stop]
+    step = limit / (TABLE_SIZE - 1)
+    table = np.interp(np.arange(TABLE_SIZE) * step, forward_y, forward_x)
+    return [1.0 / step, *table.tolist()]
 
 
 def _normalised(dr, p, row, col, first: int):
@@ -85,8 +132,21 @@ def _radtan(dr, x, y, k1, k2, p1, p2):
     return dx, dy, jxx, jxy, jyy
 
 
-def _undistort_radtan(dr, mx, my, k1, k2, p1, p2):
-    x, y = mx, my
+def _table_lookup(dr, mi, table, offset: int, inv_step, radius):
+    """Linear interpolation in the ``TABLE_SIZE`` entries of ``table`` from ``offset``."""
+    t = dr.clip(radius * inv_step, 0.0, TABLE_SIZE - 1.001)
+    index = mi.UInt32(t)
+    frac = t - mi.Float(index)
+    a = dr.gather(mi.Float, table, index + offset)
+    b = dr.gather(mi.Float, table, index + offset + 1)
+    return dr.fma(frac, b - a, a)
+
+
+def _undistort_radtan(dr, mi, mx, my, k1, k2, p1, p2, inv_step, table):
+    rd = dr.sqrt(dr.fma(mx, mx, my * my))
+    ru = _table_lookup(dr, mi, table, scalar_count("unified_radtan"), inv_step, rd)
+    shrink = dr.select(rd > 0, ru / dr.maximum(rd, 1e-30), 1.0)
+    x, y = mx * shrink, my * shrink
     for _ in range(_NEWTON_STEPS):
         dx, dy, jxx, jxy, jyy = _radtan(dr, x, y, k1, k2, p1, p2)
         ex, ey = dx - mx, dy - my
@@ -98,12 +158,12 @@ def _undistort_radtan(dr, mx, my, k1, k2, p1, p2):
     return x, y, ok
 
 
-def _unified(dr, mi, p, row, col, radtan: bool):
+def _unified(dr, mi, p, table, row, col, radtan: bool):
     xi = p[0]
     mx, my = _normalised(dr, p, row, col, 1)
     ok = mi.Bool(True)
     if radtan:
-        mx, my, ok = _undistort_radtan(dr, mx, my, *p[5:9])
+        mx, my, ok = _undistort_radtan(dr, mi, mx, my, *p[5:10], table)
     r2 = dr.fma(mx, mx, my * my)
     arg = 1.0 + (1.0 - xi * xi) * r2
     factor = (xi + dr.sqrt(dr.maximum(arg, 0.0))) / (1.0 + r2)
@@ -130,16 +190,16 @@ def _double_sphere(dr, mi, p, row, col):
     return mi.Vector3f(scale * mx, scale * my, scale * mz - xi), (arg >= 0) & (arg2 >= 0)
 
 
-def _kannala_brandt(dr, mi, p, row, col):
+def _kannala_brandt(dr, mi, p, table, row, col):
     mx, my = _normalised(dr, p, row, col, 0)
-    k1, k2, k3, k4, theta_max = p[4:9]
+    k1, k2, k3, k4, theta_max, inv_step = p[4:10]
     theta_d = dr.sqrt(dr.fma(mx, mx, my * my))
 
     def forward(t):
         t2 = t * t
         return t * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
 
-    theta = dr.minimum(theta_d, theta_max)
+    theta = _table_lookup(dr, mi, table, scalar_count("kb"), inv_step, theta_d)
     for _ in range(_NEWTON_STEPS):
         t2 = theta * theta
         slope = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
@@ -158,7 +218,7 @@ def _equirectangular(dr, mi, p, row, col):
     return mi.Vector3f(cos_lat * sin_lon, -sin_lat, cos_lat * cos_lon), mi.Bool(True)
 
 
-def rays_from_film(dr, mi, kind: str, params: list, row, col):
+def rays_from_film(dr, mi, kind: str, params: list, table, row, col):
     """Unit camera-frame rays of pixel positions ``(row, col)`` (drjit arrays, pixel centres at integers).
 
     Parameters
@@ -168,7 +228,10 @@ def rays_from_film(dr, mi, kind: str, params: list, row, col):
     kind : str
         One of :data:`RAY_KINDS`.
     params : list of mi.Float
-        Width-1 opaque parameters in :func:`ray_parameters` order.
+        The first :func:`scalar_count` parameters of :func:`ray_parameters`,
+        as width-1 opaque variables.
+    table : mi.Float
+        All of :func:`ray_parameters` (opaque); lookup tables are read from it.
     row, col : mi.Float
 
     Returns
@@ -179,13 +242,13 @@ def rays_from_film(dr, mi, kind: str, params: list, row, col):
         False outside the model's valid region (those samples are black).
     """
     if kind in ("unified", "unified_radtan"):
-        direction, ok = _unified(dr, mi, params, row, col, kind == "unified_radtan")
+        direction, ok = _unified(dr, mi, params, table, row, col, kind == "unified_radtan")
     elif kind == "eucm":
         direction, ok = _eucm(dr, mi, params, row, col)
     elif kind == "ds":
         direction, ok = _double_sphere(dr, mi, params, row, col)
     elif kind == "kb":
-        direction, ok = _kannala_brandt(dr, mi, params, row, col)
+        direction, ok = _kannala_brandt(dr, mi, params, table, row, col)
     elif kind == "equirectangular":
         direction, ok = _equirectangular(dr, mi, params, row, col)
     else:
@@ -195,6 +258,11 @@ def rays_from_film(dr, mi, kind: str, params: list, row, col):
     return direction / dr.select(ok, norm, 1.0), ok
 
 
+def scalar_count(kind: str) -> int:
+    """Number of scalar parameters of ``kind`` (before its lookup table, if any)."""
+    return {"unified": 5, "unified_radtan": 10, "eucm": 6, "ds": 6, "kb": 10, "equirectangular": 2}[kind]
+
+
 def parameter_count(kind: str) -> int:
-    """Number of parameters :func:`rays_from_film` reads for ``kind``."""
-    return {"unified": 5, "unified_radtan": 9, "eucm": 6, "ds": 6, "kb": 9, "equirectangular": 2}[kind]
+    """Length of :func:`ray_parameters` for ``kind`` (scalars and lookup table)."""
+    return scalar_count(kind) + (TABLE_SIZE if kind in ("unified_radtan", "kb") else 0)

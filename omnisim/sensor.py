@@ -156,7 +156,10 @@ def register_omni_sensor(mi) -> None:
         def _make_opaque(self):
             if self.camera_model != "ocamcalib":
                 dr.make_opaque(self.params, self.to_world)
-                self._coeffs = [dr.gather(mi.Float, self.params, i) for i in range(self.n_coeffs)]
+                from .camera_rays import scalar_count
+
+                # Scalars as width-1 opaque variables; a model's lookup table is read from params itself.
+                self._coeffs = [dr.gather(mi.Float, self.params, i) for i in range(scalar_count(self.camera_model))]
                 dr.make_opaque(*self._coeffs)
                 return
             dr.make_opaque(self.pol, self.center, self.affine, self.band, self.to_world)
@@ -193,7 +196,7 @@ def register_omni_sensor(mi) -> None:
             if self.camera_model != "ocamcalib":
                 from .camera_rays import rays_from_film
 
-                return rays_from_film(dr, mi, self.camera_model, self._coeffs, row, col)
+                return rays_from_film(dr, mi, self.camera_model, self._coeffs, self.params, row, col)
             c, d, e = self.affine.x, self.affine.y, self.affine.z
             inv_det = dr.rcp(c - d * e)
             dr_ = row - self.center.x
