@@ -22,6 +22,11 @@ calibration values are opaque JIT variables, so a new calibration (of the
 same polynomial length) reuses the compiled kernel; ``to_world`` and the
 calibration are exposed through ``traverse`` so a frame's pose is set with
 ``mi.traverse(scene)`` and ``params.update()``.
+
+Capture timing (motion blur, rolling shutter) lives in :mod:`omnisim.capture`:
+with ``shutter_close > 0`` or ``rolling_shutter > 0`` each ray is traced at
+its own time, with the pose interpolated between ``to_world`` (the frame
+time) and ``to_world_end`` (one frame interval later).
 """
 
 from __future__ import annotations
@@ -52,7 +57,8 @@ def to_world_matrix(rotation: np.ndarray, position: np.ndarray) -> np.ndarray:
 
 
 def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: float,
-                spp: int, sampler: str = "multijitter", seed: int = 0, mi=None) -> dict:
+                spp: int, sampler: str = "multijitter", seed: int = 0, mi=None,
+                timing: dict | None = None) -> dict:
     """Mitsuba scene-dict entry of the omni sensor for an :class:`ifmi.camera.OcamModel`.
 
     Parameters
@@ -72,6 +78,9 @@ def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: f
         Sampler seed.
     mi : module
         The imported ``mitsuba`` module (variant already set).
+    timing : dict, optional, keyword-only
+        Capture timing properties (:func:`omnisim.capture.sensor_timing_props`);
+        none for an instantaneous global shutter.
     """
     height, width = model.size
     sampler_dict = {"type": sampler, "sample_count": int(spp), "seed": int(seed)}
@@ -81,7 +90,7 @@ def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: f
         return {"type": PLUGIN_NAME, "camera_model": ray_kind(model),
                 "params": " ".join(repr(v) for v in ray_parameters(model)),
                 "to_world": mi.ScalarTransform4f(np.asarray(to_world, dtype=np.float64).tolist()),
-                "film": _film_dict(width, height), "sampler": sampler_dict}
+                "film": _film_dict(width, height), "sampler": sampler_dict, **(timing or {})}
     c, d, e = model.affine
     return {
         "type": PLUGIN_NAME,
@@ -94,6 +103,7 @@ def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: f
         "to_world": mi.ScalarTransform4f(np.asarray(to_world, dtype=np.float64).tolist()),
         "film": _film_dict(width, height),
         "sampler": sampler_dict,
+        **(timing or {}),
     }
 
 
@@ -105,6 +115,8 @@ def _film_dict(width: int, height: int) -> dict:
 def register_omni_sensor(mi) -> None:
     """Register the ``omnicam`` sensor plugin with the imported Mitsuba module."""
     import drjit as dr
+
+    from .capture import RayTiming
 
     class OmniSensor(mi.Sensor):
         """OCamCalib catadioptric camera as a Mitsuba sensor."""
@@ -133,6 +145,7 @@ def register_omni_sensor(mi) -> None:
             if "to_world" in props:
                 matrix = np.array(props["to_world"].matrix, dtype=np.float32)
             self.to_world = mi.Transform4f(np.ascontiguousarray(matrix))
+            self.timing = RayTiming(mi, props, self.film().size().y, matrix)
             self._make_opaque()
 
         def _init_model_params(self, props):
@@ -151,31 +164,34 @@ def register_omni_sensor(mi) -> None:
             if "to_world" in props:
                 matrix = np.array(props["to_world"].matrix, dtype=np.float32)
             self.to_world = mi.Transform4f(np.ascontiguousarray(matrix))
+            self.timing = RayTiming(mi, props, self.film().size().y, matrix)
             self._make_opaque()
 
         def _make_opaque(self):
             if self.camera_model != "ocamcalib":
-                dr.make_opaque(self.params, self.to_world)
                 from .camera_rays import scalar_count
 
+                dr.make_opaque(self.params, self.to_world)
                 # Scalars as width-1 opaque variables; a model's lookup table is read from params itself.
                 self._coeffs = [dr.gather(mi.Float, self.params, i) for i in range(scalar_count(self.camera_model))]
-                dr.make_opaque(*self._coeffs)
-                return
-            dr.make_opaque(self.pol, self.center, self.affine, self.band, self.to_world)
-            # One width-1 opaque variable per coefficient: a kernel parameter, not a per-lane gather.
-            self._coeffs = [dr.gather(mi.Float, self.pol, i) for i in range(self.n_coeffs)]
+            else:
+                dr.make_opaque(self.pol, self.center, self.affine, self.band, self.to_world)
+                # One width-1 opaque variable per coefficient: a kernel parameter, not a per-lane gather.
+                self._coeffs = [dr.gather(mi.Float, self.pol, i) for i in range(self.n_coeffs)]
             dr.make_opaque(*self._coeffs)
+            if self.timing.enabled:
+                self.timing.update(self.to_world)
 
         def traverse(self, callback):
             callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
             if self.camera_model != "ocamcalib":
                 callback.put("params", self.params, mi.ParamFlags.NonDifferentiable)
-                return
-            callback.put("pol", self.pol, mi.ParamFlags.NonDifferentiable)
-            callback.put("center", self.center, mi.ParamFlags.NonDifferentiable)
-            callback.put("affine", self.affine, mi.ParamFlags.NonDifferentiable)
-            callback.put("band", self.band, mi.ParamFlags.NonDifferentiable)
+            else:
+                callback.put("pol", self.pol, mi.ParamFlags.NonDifferentiable)
+                callback.put("center", self.center, mi.ParamFlags.NonDifferentiable)
+                callback.put("affine", self.affine, mi.ParamFlags.NonDifferentiable)
+                callback.put("band", self.band, mi.ParamFlags.NonDifferentiable)
+            self.timing.traverse(callback)
 
         def parameters_changed(self, keys=None):
             if self.camera_model != "ocamcalib" and dr.width(self.params) != self.n_coeffs:
@@ -215,8 +231,11 @@ def register_omni_sensor(mi) -> None:
             wavelengths, wav_weight = self.sample_wavelengths(
                 dr.zeros(mi.SurfaceInteraction3f), sample1, active)
             direction, in_band = self._camera_ray(sample2)
-            origin = self.to_world @ mi.Point3f(0.0, 0.0, 0.0)
-            world_dir = self.to_world @ direction
+            if self.timing.enabled:
+                origin, world_dir = self.timing.posed_ray(self.to_world, time, sample2, self.film(), direction)
+            else:
+                origin = self.to_world @ mi.Point3f(0.0, 0.0, 0.0)
+                world_dir = self.to_world @ direction
             maxt = dr.select(in_band, dr.largest(mi.Float), 0.0)
             ray = mi.Ray3f(origin, world_dir, maxt, time, wavelengths)
             weight = dr.select(in_band, wav_weight, 0.0)
