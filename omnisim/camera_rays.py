@@ -10,31 +10,37 @@ the sensor stores as opaque JIT variables, so a new calibration of the same
 model reuses the compiled kernel; only the model kind (and, for the unified
 model, whether it has radtan distortion) changes the kernel.
 
-Iterative inversions (radtan undistortion, the Kannala-Brandt angle) start
-from a lookup table of the radial inverse -- ``TABLE_SIZE`` samples of the
-undistorted radius (radtan, tangential terms left out) or angle
-(Kannala-Brandt) against the distorted radius, linearly interpolated -- and
-then take a few Newton steps, which converge quadratically to float32
-precision from that start. The table travels with the parameters (built by
-:func:`ray_parameters`), so it is calibration data, not kernel code. Samples
-whose residual stays above a tolerance are outside the valid region and come
-back invalid (black pixels), as do samples outside a model's domain.
+The radtan undistortion starts from a lookup table of the radial inverse
+(``TABLE_SIZE`` samples of the undistorted against the distorted radius,
+tangential terms left out, linearly interpolated) and then takes two Newton
+steps, which converge quadratically to float32 precision from that start.
+The Kannala-Brandt model needs no iteration at all: ``sin(theta) / theta_d``
+and ``cos(theta)`` are tabulated against ``theta_d`` (``KB_TABLE_SIZE``
+samples of the numpy model's exact inversion), and linear interpolation in
+them is exact to ~1e-7 rad. Tables travel with the parameters (built by
+:func:`ray_parameters`), so they are calibration data, not kernel code.
+Samples outside a model's domain or valid region come back invalid (black
+pixels).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["RAY_KINDS", "TABLE_SIZE", "ray_kind", "ray_parameters", "parameter_count", "scalar_count",
+__all__ = ["RAY_KINDS", "TABLE_SIZE", "KB_TABLE_SIZE", "ray_kind", "ray_parameters", "parameter_count", "scalar_count",
            "rays_from_film"]
 
 # Kinds of ray code: one compiled kernel each.
 RAY_KINDS = ("unified", "unified_radtan", "eucm", "ds", "kb", "equirectangular")
-# Entries of the radial inverse table of the radtan and Kannala-Brandt models.
+# Entries of the radial inverse table of the radtan model.
 TABLE_SIZE = 512
-# Newton steps after the table's start: its interpolation error (below 1e-4 normalised units
-# for the tests' cameras, tangential radtan terms of 1e-3 included) falls under float32
-# rounding in two quadratic steps; three leave a margin.
+# Entries of each Kannala-Brandt table: at a spacing of about 0.001 in theta_d, linear
+# interpolation of sin(theta)/theta_d and cos(theta) errs by ~1e-7 (their second
+# derivatives are of order one).
+KB_TABLE_SIZE = 2048
+# Newton steps of the radtan undistortion after the table's start: its error (below 1e-4
+# normalised units for the tests' cameras, tangential terms of 1e-3 included) falls under
+# float32 rounding in two quadratic steps (measured: max 3e-4 px over every valid pixel).
 _NEWTON_STEPS = 2
 # Dense samples of the forward radial map from which the inverse table is interpolated.
 _TABLE_DENSE = 20000
@@ -64,8 +70,9 @@ def ray_parameters(model) -> list[float]:
 
     unified: ``xi fu fv pu pv [k1 k2 p1 p2 1/step table...]``; eucm:
     ``alpha beta fu fv pu pv``; ds: ``xi alpha fu fv pu pv``; kb:
-    ``fu fv pu pv k1 k2 k3 k4 theta_max 1/step table...``; equirectangular:
-    ``height width``. Tables: :func:`_inverse_table`.
+    ``fu fv pu pv 1/step theta_d_limit sin-table... cos-table...``;
+    equirectangular: ``height width``. Tables: :func:`_inverse_table`,
+    :func:`_kannala_brandt_tables`.
     """
     kind = ray_kind(model)
     if kind.startswith("unified"):
@@ -75,12 +82,31 @@ def ray_parameters(model) -> list[float]:
     elif kind == "ds":
         values = [model.xi, model.alpha, *model.focal, *model.principal_point]
     elif kind == "kb":
-        values = [*model.focal, *model.principal_point, *model.distortion, model.max_angle_rad]
+        values = [*model.focal, *model.principal_point, *_kannala_brandt_tables(model)]
     else:
         values = [model.height, model.width]
-    if kind in ("unified_radtan", "kb"):
-        values += _inverse_table(model, kind)
+    if kind == "unified_radtan":
+        values += _inverse_table(model)
     return [float(v) for v in values]
+
+
+def _kannala_brandt_tables(model) -> list[float]:
+    """``[1 / step, theta_d limit]``, then ``sin(theta) / theta_d`` and ``cos(theta)`` at ``KB_TABLE_SIZE`` steps.
+
+    Values come from the numpy model's own inversion along the image x
+    axis; past the valid range (``theta_d`` beyond its increasing part) the
+    last valid value repeats and the limit marks those samples invalid.
+    """
+    limit = _TABLE_MARGIN * _largest_distorted_radius(model)
+    step = limit / (KB_TABLE_SIZE - 1)
+    theta_d = np.arange(KB_TABLE_SIZE) * step
+    (fu, fv), (pu, pv) = model.focal, model.principal_point
+    rays = model.rays_from_pixels(np.stack([np.full_like(theta_d, pv), pu + fu * theta_d], axis=-1))
+    valid = np.isfinite(rays).all(axis=1)
+    last = int(np.flatnonzero(valid)[-1])
+    rays[last + 1:] = rays[last]
+    ratio = np.where(theta_d > 0, rays[:, 0] / np.where(theta_d > 0, theta_d, 1.0), 1.0)
+    return [1.0 / step, float(theta_d[last]), *ratio.tolist(), *rays[:, 2].tolist()]
 
 
 def _largest_distorted_radius(model) -> float:
@@ -91,22 +117,16 @@ def _largest_distorted_radius(model) -> float:
     return float(np.hypot(*np.meshgrid((u - pu) / fu, (v - pv) / fv)).max())
 
 
-def _inverse_table(model, kind: str) -> list[float]:
-    """``[1 / step] + TABLE_SIZE`` samples of the radial inverse on ``[0, (TABLE_SIZE - 1) step]``.
+def _inverse_table(model) -> list[float]:
+    """``[1 / step] + TABLE_SIZE`` undistorted radii (radial radtan terms) at distorted radii ``0, step, ...``.
 
-    radtan: undistorted radius against distorted radius (radial terms
-    only); Kannala-Brandt: angle from the axis against ``theta_d``. Beyond
-    the forward map's increasing range the last value repeats (the Newton
-    steps then fail to converge and the sample is invalid).
+    Beyond the forward map's increasing range the last value repeats (the
+    Newton steps then fail to converge and the sample is invalid).
     """
     limit = _TABLE_MARGIN * _largest_distorted_radius(model)
-    if kind == "kb":
-        forward_x = np.linspace(0.0, model.max_angle_rad, _TABLE_DENSE)
-        forward_y = model._theta_d(forward_x)
-    else:
-        k1, k2 = model.distortion[:2]
-        reach = np.linspace(0.0, 4.0 * limit, _TABLE_DENSE)
-        forward_x, forward_y = reach, reach * (1.0 + reach ** 2 * (k1 + k2 * reach ** 2))
+    k1, k2 = model.distortion[:2]
+    reach = np.linspace(0.0, 4.0 * limit, _TABLE_DENSE)
+    forward_x, forward_y = reach, reach * (1.0 + reach ** 2 * (k1 + k2 * reach ** 2))
     rising = np.flatnonzero(np.diff(forward_y) <= 0)
     stop = rising[0] + 1 if rising.size else len(forward_y)
     forward_x, forward_y = forward_x[:stop], forward_y[:stop]
@@ -132,11 +152,15 @@ def _radtan(dr, x, y, k1, k2, p1, p2):
     return dx, dy, jxx, jxy, jyy
 
 
-def _table_lookup(dr, mi, table, offset: int, inv_step, radius):
-    """Linear interpolation in the ``TABLE_SIZE`` entries of ``table`` from ``offset``."""
-    t = dr.clip(radius * inv_step, 0.0, TABLE_SIZE - 1.001)
+def _table_index(dr, mi, inv_step, radius, size: int):
+    """Index and fraction of ``radius`` in a table of ``size`` entries at spacing ``1 / inv_step``."""
+    t = dr.clip(radius * inv_step, 0.0, size - 1.001)
     index = mi.UInt32(t)
-    frac = t - mi.Float(index)
+    return index, t - mi.Float(index)
+
+
+def _table_lerp(dr, mi, table, offset: int, index, frac):
+    """Linear interpolation in ``table`` (entries from ``offset``) at ``index + frac``."""
     a = dr.gather(mi.Float, table, index + offset)
     b = dr.gather(mi.Float, table, index + offset + 1)
     return dr.fma(frac, b - a, a)
@@ -144,7 +168,8 @@ def _table_lookup(dr, mi, table, offset: int, inv_step, radius):
 
 def _undistort_radtan(dr, mi, mx, my, k1, k2, p1, p2, inv_step, table):
     rd = dr.sqrt(dr.fma(mx, mx, my * my))
-    ru = _table_lookup(dr, mi, table, scalar_count("unified_radtan"), inv_step, rd)
+    index, frac = _table_index(dr, mi, inv_step, rd, TABLE_SIZE)
+    ru = _table_lerp(dr, mi, table, scalar_count("unified_radtan"), index, frac)
     shrink = dr.select(rd > 0, ru / dr.maximum(rd, 1e-30), 1.0)
     x, y = mx * shrink, my * shrink
     for _ in range(_NEWTON_STEPS):
@@ -192,21 +217,13 @@ def _double_sphere(dr, mi, p, row, col):
 
 def _kannala_brandt(dr, mi, p, table, row, col):
     mx, my = _normalised(dr, p, row, col, 0)
-    k1, k2, k3, k4, theta_max, inv_step = p[4:10]
+    inv_step, limit = p[4], p[5]
     theta_d = dr.sqrt(dr.fma(mx, mx, my * my))
-
-    def forward(t):
-        t2 = t * t
-        return t * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
-
-    theta = _table_lookup(dr, mi, table, scalar_count("kb"), inv_step, theta_d)
-    for _ in range(_NEWTON_STEPS):
-        t2 = theta * theta
-        slope = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
-        theta = dr.clip(theta - (forward(theta) - theta_d) / slope, 0.0, theta_max)
-    ok = dr.abs(forward(theta) - theta_d) < _CONVERGED
-    scale = dr.select(theta_d > 0, dr.sin(theta) / dr.maximum(theta_d, 1e-30), 1.0)
-    return mi.Vector3f(scale * mx, scale * my, dr.cos(theta)), ok
+    index, frac = _table_index(dr, mi, inv_step, theta_d, KB_TABLE_SIZE)
+    first = scalar_count("kb")
+    scale = _table_lerp(dr, mi, table, first, index, frac)
+    z = _table_lerp(dr, mi, table, first + KB_TABLE_SIZE, index, frac)
+    return mi.Vector3f(scale * mx, scale * my, z), theta_d <= limit
 
 
 def _equirectangular(dr, mi, p, row, col):
@@ -260,9 +277,10 @@ def rays_from_film(dr, mi, kind: str, params: list, table, row, col):
 
 def scalar_count(kind: str) -> int:
     """Number of scalar parameters of ``kind`` (before its lookup table, if any)."""
-    return {"unified": 5, "unified_radtan": 10, "eucm": 6, "ds": 6, "kb": 10, "equirectangular": 2}[kind]
+    return {"unified": 5, "unified_radtan": 10, "eucm": 6, "ds": 6, "kb": 6, "equirectangular": 2}[kind]
 
 
 def parameter_count(kind: str) -> int:
     """Length of :func:`ray_parameters` for ``kind`` (scalars and lookup table)."""
-    return scalar_count(kind) + (TABLE_SIZE if kind in ("unified_radtan", "kb") else 0)
+    tables = {"unified_radtan": TABLE_SIZE, "kb": 2 * KB_TABLE_SIZE}
+    return scalar_count(kind) + tables.get(kind, 0)
