@@ -73,7 +73,8 @@ class FeatureConfig:
     radius_band : (2,) tuple of float or None
         Override of the mirror band ``(inner, outer)`` radius in sensor
         pixels; ``None`` uses the iFMI front end's default band for the
-        calibration and images.
+        calibration and images. OCamCalib models only: other models detect
+        in their panorama's band (:func:`ifmi.unwarp.band_mask`).
     mask_margin_px : float
         Keypoints are detected only this far (pixels) inside the band's
         edges, so no descriptor window reaches the black border or the
