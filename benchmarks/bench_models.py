@@ -15,7 +15,7 @@ perspective camera traces exactly its rays (same-rays row).
 Ray generation: the cost of each sensor's ``sample_ray`` alone, per million
 rays, against the perspective sensor's (no scene).
 
-ATE: for each model the urban scene is rendered with ``[camera] kalibr`` (a
+ATE: for each model a scene (default the urban one, ``--scene``) is rendered with ``[camera] kalibr`` (a
 pure-rotation sequence, the camera mounted as omnisim mounts that model),
 estimated with ``ifmi estimate`` (ifmi, orb, akaze), and the geodesic ATE
 (RMS of the geodesic angle of R_gt^T R_est over the frames, radians) is printed.
@@ -160,11 +160,11 @@ def ray_costs(args) -> dict:
     return results
 
 
-def _kalibr_scene(folder: Path, model) -> Path:
+def _kalibr_scene(folder: Path, model, scene_file) -> Path:
     from ifmi.io.kalibr import write_kalibr
 
     out, skipping = [], False
-    for line in (ROOT / "scenes" / "urban.toml").read_text().splitlines():
+    for line in Path(scene_file).read_text().splitlines():
         if line.startswith("["):
             skipping = line.strip() == "[camera]"
             if skipping:
@@ -186,10 +186,10 @@ def estimator_ates(args) -> dict:
     from omnisim.render import render_dataset
 
     ates = {}
-    for name in MODELS:
+    for name in args.models:
         model = EXAMPLES[name]
-        folder = Path(args.out) / f"{name}-{args.width}px-{args.spp}spp"
-        scene = _kalibr_scene(folder, model)
+        folder = Path(args.out) / f"{Path(args.scene).stem}-{name}-{args.width}px-{args.spp}spp"
+        scene = _kalibr_scene(folder, model, args.scene)
         render_dataset(scene, folder / "dataset", frames=args.frames, spp=args.spp,
                        resolution=model.scaled(args.width / model.width).size, progress=False)
         gt = read_tum(folder / "dataset" / "groundtruth.txt")
@@ -211,6 +211,10 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--repeats", type=int, default=9)
     parser.add_argument("--out", default="/work/data/cameras/bench", help="folder for the rendered datasets")
+    parser.add_argument("--scene", default=str(ROOT / "scenes" / "urban.toml"),
+                        help="scene of the ATE sequences (its [camera] table is replaced)")
+    parser.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS,
+                        help="models of the ATE sequences")
     parser.add_argument("--ray-batch", type=int, default=4_000_000, help="rays per sample_ray timing")
     parser.add_argument("--skip-render-ratio", action="store_true")
     parser.add_argument("--skip-ate", action="store_true")
@@ -220,7 +224,7 @@ def main() -> None:
     if not args.skip_render_ratio:
         ray_costs(args)
     ates = {} if args.skip_ate else estimator_ates(args)
-    print(f"\nsummary ({args.frames} frames, urban scene, pure rotation):")
+    print(f"\nsummary ({args.frames} frames, {Path(args.scene).stem} scene, pure rotation):")
     print(f"  {'model':22s} {'ratio (uniform)':>16s} {'ratio (urban)':>14s} {'ifmi ATE rad':>13s} "
           f"{'orb ATE rad':>12s} {'akaze ATE rad':>14s}")
     for name in dict.fromkeys([*ratios, *ates]):

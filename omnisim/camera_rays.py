@@ -100,7 +100,7 @@ def _kannala_brandt_tables(model) -> list[float]:
     limit = _TABLE_MARGIN * _largest_distorted_radius(model)
     step = limit / (KB_TABLE_SIZE - 1)
     theta_d = np.arange(KB_TABLE_SIZE) * step
-    (fu, fv), (pu, pv) = model.focal, model.principal_point
+    fu, (pu, pv) = model.focal[0], model.principal_point
     rays = model.rays_from_pixels(np.stack([np.full_like(theta_d, pv), pu + fu * theta_d], axis=-1))
     valid = np.isfinite(rays).all(axis=1)
     last = int(np.flatnonzero(valid)[-1])
