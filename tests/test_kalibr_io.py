@@ -137,3 +137,18 @@ def test_read_dataset_uses_camera_yaml(tmp_path):
     dataset = read_dataset(tmp_path)
     assert dataset.model == model
     assert dataset.calib_path.name == "camera.yaml"
+
+
+def test_estimate_command_refuses_a_dataset_with_both_calibrations(tmp_path, capsys):
+    import cv2
+
+    from ifmi.cli import main
+
+    model = EXAMPLES["kb"].scaled(0.25)
+    write_camera(tmp_path, model)
+    write_camera(tmp_path, paracatadioptric_model(model.size, horizon_radius_px=40.0))
+    (tmp_path / "images").mkdir()
+    cv2.imwrite(str(tmp_path / "images" / "000000.png"), np.zeros(model.size, np.uint8))
+    assert main(["estimate", str(tmp_path), "--out", str(tmp_path / "est.txt")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "holds both calib_results.txt and camera.yaml" in err and "\n" not in err
