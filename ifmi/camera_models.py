@@ -56,8 +56,11 @@ __all__ = [
 _UNDISTORT_TOLERANCE = 1e-9
 # ... or after this many steps; points not converged by then are outside the valid region.
 _UNDISTORT_MAX_STEPS = 50
-# Angles sampled to find where the Kannala-Brandt polynomial stops increasing.
+# Angles (and radii) sampled to find where the Kannala-Brandt polynomial (the radial
+# radtan map) stops increasing.
 _KB_THETA_SAMPLES = 20001
+# Largest undistorted normalised radius searched for a radtan fold (about 84 degrees off axis).
+_RADTAN_FOLD_SEARCH = 10.0
 
 
 def _check_pixels(pixels) -> np.ndarray:
@@ -306,11 +309,28 @@ class UnifiedModel(_CentralModel):
     def distortion_model(self) -> str:
         return "radtan" if self.distortion else "none"
 
+    @cached_property
+    def max_undistorted_radius(self) -> float:
+        """Undistorted normalised radius where the radial radtan map first stops increasing (inf if never).
+
+        Beyond it the distortion folds back: a pixel there would also be the
+        image of rays far outside, so it is outside the valid region (the
+        small tangential terms are left out of this bound).
+        """
+        if not self.distortion:
+            return float("inf")
+        k1, k2 = self.distortion[:2]
+        r = np.linspace(0.0, _RADTAN_FOLD_SEARCH, _KB_THETA_SAMPLES)
+        falling = np.flatnonzero(1.0 + r * r * (3.0 * k1 + 5.0 * k2 * r * r) <= 0)
+        return float(r[falling[0] - 1]) if falling.size else float("inf")
+
     def rays_from_pixels(self, pixels) -> np.ndarray:
         """Unit rays ``(..., 3)`` of ``(row, col)`` pixels ``(..., 2)``; NaN outside the domain."""
         m = self._normalised_from_pixels(_check_pixels(pixels))
         if self.distortion:
             m = undistort_radtan(m, self.distortion)
+            with np.errstate(invalid="ignore"):
+                m[np.sum(m * m, axis=-1) > self.max_undistorted_radius ** 2] = np.nan
         r2 = np.sum(m * m, axis=-1)
         with np.errstate(invalid="ignore"):
             root = np.sqrt(1.0 + (1.0 - self.xi ** 2) * r2)

@@ -42,6 +42,10 @@ KB_TABLE_SIZE = 2048
 # normalised units for the tests' cameras, tangential terms of 1e-3 included) falls under
 # float32 rounding in two quadratic steps (measured: max 3e-4 px over every valid pixel).
 _NEWTON_STEPS = 2
+# Stand-in (normalised radius) for "no fold" of a radtan distortion: beyond any image.
+_NO_FOLD = 1e6
+# Largest last Newton step (normalised units) of a converged radtan undistortion.
+_LAST_STEP = 1e-3
 # Dense samples of the forward radial map from which the inverse table is interpolated.
 _TABLE_DENSE = 20000
 # The table reaches this factor beyond the largest distorted radius of the image.
@@ -68,7 +72,7 @@ def ray_kind(model) -> str:
 def ray_parameters(model) -> list[float]:
     """Flat parameter list of a model, in the order :func:`rays_from_film` reads it.
 
-    unified: ``xi fu fv pu pv [k1 k2 p1 p2 1/step table...]``; eucm:
+    unified: ``xi fu fv pu pv [k1 k2 p1 p2 fold_radius^2 1/step table...]``; eucm:
     ``alpha beta fu fv pu pv``; ds: ``xi alpha fu fv pu pv``; kb:
     ``fu fv pu pv 1/step theta_d_limit sin-table... cos-table...``;
     equirectangular: ``height width``. Tables: :func:`_inverse_table`,
@@ -77,6 +81,8 @@ def ray_parameters(model) -> list[float]:
     kind = ray_kind(model)
     if kind.startswith("unified"):
         values = [model.xi, *model.focal, *model.principal_point, *model.distortion]
+        if model.distortion:
+            values.append(min(model.max_undistorted_radius, _NO_FOLD) ** 2)
     elif kind == "eucm":
         values = [model.alpha, model.beta, *model.focal, *model.principal_point]
     elif kind == "ds":
@@ -166,7 +172,7 @@ def _table_lerp(dr, mi, table, offset: int, index, frac):
     return dr.fma(frac, b - a, a)
 
 
-def _undistort_radtan(dr, mi, mx, my, k1, k2, p1, p2, inv_step, table):
+def _undistort_radtan(dr, mi, mx, my, k1, k2, p1, p2, fold2, inv_step, table):
     rd = dr.sqrt(dr.fma(mx, mx, my * my))
     index, frac = _table_index(dr, mi, inv_step, rd, TABLE_SIZE)
     ru = _table_lerp(dr, mi, table, scalar_count("unified_radtan"), index, frac)
@@ -175,12 +181,15 @@ def _undistort_radtan(dr, mi, mx, my, k1, k2, p1, p2, inv_step, table):
     for _ in range(_NEWTON_STEPS):
         dx, dy, jxx, jxy, jyy = _radtan(dr, x, y, k1, k2, p1, p2)
         ex, ey = dx - mx, dy - my
-        inv_det = dr.rcp(jxx * jyy - jxy * jxy)
-        x = x - (jyy * ex - jxy * ey) * inv_det
-        y = y - (jxx * ey - jxy * ex) * inv_det
-    dx, dy, jxx, jxy, jyy = _radtan(dr, x, y, k1, k2, p1, p2)
-    ok = (dr.abs(dx - mx) < _CONVERGED) & (dr.abs(dy - my) < _CONVERGED) & (jxx * jyy - jxy * jxy > 0)
-    return x, y, ok
+        det = jxx * jyy - jxy * jxy
+        inv_det = dr.rcp(det)
+        step_x, step_y = (jyy * ex - jxy * ey) * inv_det, (jxx * ey - jxy * ex) * inv_det
+        x, y = x - step_x, y - step_y
+    # Newton converges quadratically: after a last step below _LAST_STEP the error is of
+    # its square (1e-6 normalised, far below a thousandth of a pixel); a diverging or
+    # folded (det <= 0) iteration marks a pixel outside the valid region.
+    ok = (dr.abs(step_x) < _LAST_STEP) & (dr.abs(step_y) < _LAST_STEP) & (det > 0)
+    return x, y, ok & (dr.fma(x, x, y * y) <= fold2)
 
 
 def _unified(dr, mi, p, table, row, col, radtan: bool):
@@ -188,7 +197,7 @@ def _unified(dr, mi, p, table, row, col, radtan: bool):
     mx, my = _normalised(dr, p, row, col, 1)
     ok = mi.Bool(True)
     if radtan:
-        mx, my, ok = _undistort_radtan(dr, mi, mx, my, *p[5:10], table)
+        mx, my, ok = _undistort_radtan(dr, mi, mx, my, *p[5:11], table)
     r2 = dr.fma(mx, mx, my * my)
     arg = 1.0 + (1.0 - xi * xi) * r2
     factor = (xi + dr.sqrt(dr.maximum(arg, 0.0))) / (1.0 + r2)
@@ -277,7 +286,7 @@ def rays_from_film(dr, mi, kind: str, params: list, table, row, col):
 
 def scalar_count(kind: str) -> int:
     """Number of scalar parameters of ``kind`` (before its lookup table, if any)."""
-    return {"unified": 5, "unified_radtan": 10, "eucm": 6, "ds": 6, "kb": 6, "equirectangular": 2}[kind]
+    return {"unified": 5, "unified_radtan": 11, "eucm": 6, "ds": 6, "kb": 6, "equirectangular": 2}[kind]
 
 
 def parameter_count(kind: str) -> int:

@@ -162,3 +162,21 @@ def test_invalid_parameters_are_rejected():
         ExtendedUnifiedModel(0.5, float("nan"), (1.0, 1.0), (0.0, 0.0), (10, 10))
     with pytest.raises(ValueError, match="4 equidistant"):
         KannalaBrandtModel((1.0, 1.0), (0.0, 0.0), (10, 10), (0.1,))
+
+
+def test_radtan_fold_bounds_the_valid_region():
+    """Past the radius where radial distortion turns back, pixels are outside the valid region.
+
+    r_d = r (1 - 0.4 r^2 + 0.05 r^4) peaks at r^2 = (1.2 - sqrt(0.44)) / 0.5, r_d = 0.651:
+    farther pixels would also be images of rays from the far branch.
+    """
+    from ifmi.camera_models import PinholeModel
+
+    model = PinholeModel.create((200.0, 200.0), (319.5, 239.5), (480, 640), (-0.4, 0.05, 0.0, 0.0))
+    r_fold = np.sqrt((1.2 - np.sqrt(0.44)) / 0.5)
+    assert model.max_undistorted_radius == pytest.approx(r_fold, abs=1e-3)
+    rows, cols = np.mgrid[0:480, 0:640]
+    r_d = np.hypot(cols - 319.5, rows - 239.5) / 200.0
+    valid = valid_mask(model)
+    fold_d = r_fold * (1 - 0.4 * r_fold ** 2 + 0.05 * r_fold ** 4)
+    assert valid[r_d < fold_d - 0.005].all() and not valid[r_d > fold_d + 0.005].any()

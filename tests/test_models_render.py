@@ -109,9 +109,13 @@ def test_sensor_rays_match_the_model_at_every_valid_pixel(mi, name):
     assert np.max(np.hypot(pixels[:, 0] - rows, pixels[:, 1] - cols)) < 0.01
 
 
-@pytest.mark.parametrize("name", ["omni-wide", "pinhole-radtan", "omni-radtan", "kb"])
+@pytest.mark.parametrize("name", ["omni-wide", "pinhole-radtan", "omni-radtan", "kb", "fold"])
 def test_pixels_outside_the_valid_region_are_black(mi, name):
-    model = _small(name)
+    from ifmi.camera_models import PinholeModel
+
+    # "fold": radial distortion that turns back inside the image (r_d peaks at 0.651).
+    model = (PinholeModel.create((40.0, 40.0), (63.5, 47.5), (96, 128), (-0.4, 0.05, 0.0, 0.0))
+             if name == "fold" else _small(name))
     position = np.array(mi.render(_position_scene(mi, model)))[..., -3:]
     valid = valid_mask(model)
     hit = np.linalg.norm(position, axis=-1) > 0
