@@ -50,9 +50,6 @@ _LAST_STEP = 1e-3
 _TABLE_DENSE = 20000
 # The table reaches this factor beyond the largest distorted radius of the image.
 _TABLE_MARGIN = 1.05
-# Largest residual (normalised image units, float32) of a converged inversion; 1e-5 is
-# 0.005 px at a 500 px focal length, and float32 rounding stays near 1e-7.
-_CONVERGED = 1e-5
 
 
 def ray_kind(model) -> str:
