@@ -14,7 +14,7 @@ import numpy as np
 from .camera import OcamModel, max_image_radius
 from .errors import InputError
 from .tiling import tile_layout
-from .unwarp import panorama_mapping, radius_band
+from .unwarp import off_axis_band, panorama_mapping, radius_band
 
 __all__ = ["check_config_for_model"]
 
@@ -26,13 +26,14 @@ __all__ = ["check_config_for_model"]
 _MAX_OVERSAMPLING = 4
 
 
-def check_config_for_model(config, model: OcamModel, *, method: str = "ifmi") -> None:
+def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
     """Refuse sizes and radii that the images of ``model`` cannot give.
 
     Checked: the panorama's radius band lies inside the image (and is not
     empty), its width is at most ``4 x 2 pi r_outer`` and its height at most
     ``4 r_outer`` pixels (``r_outer`` the outer radius of the calibration's
-    image band), and, for the ``"ifmi"`` method, the tiles fit the panorama
+    image band; half the image diagonal for camera models other than
+    OCamCalib, which take no band radii), and, for the ``"ifmi"`` method, the tiles fit the panorama
     and the log-polar grids are at most four times the tile side; a feature
     front end's ``radius_band`` lies inside the image. Explicit band radii
     in ``config`` (e.g. decided from the frames) are the band checked.
@@ -40,7 +41,7 @@ def check_config_for_model(config, model: OcamModel, *, method: str = "ifmi") ->
     Parameters
     ----------
     config : ifmi.pipeline.EstimateConfig
-    model : OcamModel
+    model : OcamModel or another camera model (:mod:`ifmi.camera_models`)
     method : str, keyword-only
 
     Raises
@@ -49,12 +50,20 @@ def check_config_for_model(config, model: OcamModel, *, method: str = "ifmi") ->
         Named after the configuration key (``ifmi.panorama.width``): what is
         accepted for this camera and what was given.
     """
-    _check_radii(config, model)
     if config.features is not None:
         _check_feature_sizes(config.features, model)
     pano = config.ifmi.panorama
     try:
-        outer = radius_band(model, config=pano)[1]
+        if isinstance(model, OcamModel):
+            _check_radii(config, model)
+            outer = radius_band(model, config=pano)[1]
+        else:
+            # Other camera models have no sensor radius: the image's half diagonal stands for it.
+            _check_no_radii(config, model)
+            off_axis_band(model, config=pano)
+            outer = 0.5 * float(np.hypot(*model.size))
+    except InputError:
+        raise
     except ValueError as exc:
         raise InputError("ifmi.panorama", str(exc)) from None
     limits = {"width": int(_MAX_OVERSAMPLING * 2 * np.pi * outer), "height": int(_MAX_OVERSAMPLING * outer)}
@@ -82,13 +91,21 @@ def _check_radii(config, model: OcamModel) -> None:
                                   f"from the calibration's centre), got {value:g}")
 
 
+def _check_no_radii(config, model) -> None:
+    pano = config.ifmi.panorama
+    for name in ("radius_min_px", "radius_max_px"):
+        if getattr(pano, name) is not None:
+            raise InputError(f"ifmi.panorama.{name}", f"applies to OCamCalib models only; this camera is "
+                                                      f"a {type(model).__name__}")
+
+
 def _check_feature_sizes(features, model: OcamModel) -> None:
     """Keypoint counts, pyramids and windows at most what an image of ``model`` holds."""
 
     side = min(model.size)
     # A level (octave) past these has less than one pixel along the image's shorter side.
     limits = {
-        "n_features": (features.n_features, model.height * model.width, "the image's pixel count"),
+        "n_features": (features.n_features, model.size[0] * model.size[1], "the image's pixel count"),
         "orb_levels": (features.orb_levels,
                        1 + int(np.log(side) / np.log(features.orb_scale_factor))
                        if features.orb_scale_factor > 1 else 1,

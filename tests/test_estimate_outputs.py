@@ -346,3 +346,23 @@ def test_estimate_of_a_video_refuses_to_replace_the_video_or_its_calibration(tmp
                      "--out", str(tmp_path / out), *FAST]) == 1
         assert "would replace the input file" in capsys.readouterr().err
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_limits_for_a_camera_model_other_than_ocamcalib():
+    from ifmi.camera_models import DoubleSphereModel
+    from ifmi.config_limits import check_config_for_model
+    from ifmi.errors import InputError
+    from ifmi.pipeline import EstimateConfig
+
+    model = DoubleSphereModel(xi=-0.2, alpha=0.59, focal=(156.5, 157.0), principal_point=(187.75, 119.75),
+                              size=(240, 376))
+    check_config_for_model(EstimateConfig(), model)
+    limit = int(4 * 2 * np.pi * 0.5 * np.hypot(240, 376))
+    for data, message in (({"ifmi": {"panorama": {"radius_max_px": 100.0}}},
+                           "ifmi.panorama.radius_max_px: applies to OCamCalib models only; this camera is a "
+                           "DoubleSphereModel"),
+                          ({"ifmi": {"panorama": {"width": limit + 1}}},
+                           f"ifmi.panorama.width: expected at most {limit} px for this camera")):
+        with pytest.raises(InputError) as info:
+            check_config_for_model(EstimateConfig.from_dict(data), model)
+        assert str(info.value).startswith(message)

@@ -1,4 +1,4 @@
-"""DATASET folders: ``calib_results.txt``, ``images/*.png|jpg`` and optional ``groundtruth.txt``.
+"""DATASET folders: ``calib_results.txt`` (or ``camera.yaml``), ``images/*.png|jpg``, optional ``groundtruth.txt``.
 
 Frame k is the image whose file name is the integer k (``000123.png`` is
 frame 123; a text prefix such as ``frame_000123.png`` is allowed), in
@@ -10,8 +10,8 @@ read as 8-bit gray or RGB and must have the size the calibration names.
 Problems raise :class:`~ifmi.errors.InputError` naming the file.
 
 :func:`read_dataset` turns a path into the camera model and the frame
-source; another kind of input (a different camera file, a video) is a
-matter of :func:`_read_camera` and :func:`frame_files` alone.
+source; the camera file is found by :func:`ifmi.io.camera_file.calibration_path`
+and the frames by :func:`frame_files`.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import numpy as np
 from ..camera import OcamModel
 from ..errors import InputError, InputWarning
 from ..frames import MissingFrame
-from .calib import read_calib
+from .camera_file import calibration_path, read_camera
 from .images import IMAGE_SUFFIXES, read_image
 
 __all__ = ["Dataset", "FrameFiles", "read_dataset", "read_image", "frame_files", "frame_index",
@@ -186,14 +186,6 @@ def _read_or_flag(path: Path, *, size: tuple[int, int], gray: bool) -> np.ndarra
         return MissingFrame(source=exc.path, reason=f"{Path(exc.path).name}: {exc.problem}")
 
 
-def _read_camera(root: Path) -> tuple[Path, OcamModel]:
-    """The calibration file of a dataset folder and its model."""
-    calib_path = root / "calib_results.txt"
-    if not calib_path.is_file():
-        raise InputError(calib_path, "calibration file not found")
-    return calib_path, read_calib(calib_path)
-
-
 def read_dataset(path: str | os.PathLike) -> Dataset:
     """Open a DATASET folder (images are read lazily).
 
@@ -213,8 +205,9 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
         raise InputError(root, "dataset folder not found")
     if not root.is_dir():
         raise InputError(root, "not a folder (expected a dataset folder with calib_results.txt "
-                               "and images/)")
-    calib_path, model = _read_camera(root)
+                               "or camera.yaml, and images/)")
+    calib_path = calibration_path(root)  # calib_results.txt or camera.yaml, never both
+    model = read_camera(calib_path)
     image_dir = root / "images"
     if not image_dir.is_dir():
         raise InputError(image_dir, "images folder not found")
