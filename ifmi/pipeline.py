@@ -33,7 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .camera import OcamModel
-from .errors import InputError
+from .errors import CalibrationFitError, InputError
 from .trajectory import Trajectory
 from .options import options_from_dict
 from .odometry import FrameRecord, KeyframeOptions, track_sequence
@@ -346,6 +346,8 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
         Missing calibration or images, or a first image that is unreadable
         or whose size differs from the calibration's. Such a later image is
         flagged as a failed frame (the pose is held) and the sequence goes on.
+        Also a calibration too small for the method (e.g. iFMI tiles larger
+        than its panorama), naming the calibration file.
     """
     from .io.dataset import read_dataset
 
@@ -355,8 +357,11 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     config = resolved_config(config, dataset.model)
     config = replace(config, ifmi=replace(config.ifmi, panorama=_panorama_with_band(dataset, config)))
     images = dataset.iter_images(prefetch=prefetch, skip_unreadable=True)
-    return estimate_sequence(images, dataset.model, method=method,
-                             config=config, progress=progress, total=len(dataset.image_paths))
+    try:
+        return estimate_sequence(images, dataset.model, method=method,
+                                 config=config, progress=progress, total=len(dataset.image_paths))
+    except CalibrationFitError as exc:
+        raise exc.for_file(dataset.calib_path) from None
 
 
 # Frames, spread evenly over a dataset, that decide the mirror band together.
@@ -389,15 +394,19 @@ def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike,
     Raises
     ------
     InputError
-        Missing or unreadable calibration or video, or frames whose size
-        differs from the calibration's.
+        Missing or unreadable calibration or video, frames whose size
+        differs from the calibration's, or a calibration too small for the
+        method (naming the calibration file).
     """
     from .io.camera_file import read_camera
     from .io.video import VideoFrames
 
     model = read_camera(Path(calib_path))  # calib_results.txt or a Kalibr camera.yaml
     frames = VideoFrames(video_path, size=model.size)
-    estimate = estimate_sequence(frames, model, method=method, config=config, progress=progress,
-                                 total=len(frames) or None)
+    try:
+        estimate = estimate_sequence(frames, model, method=method, config=config, progress=progress,
+                                     total=len(frames) or None)
+    except CalibrationFitError as exc:
+        raise exc.for_file(calib_path) from None
     trajectory = replace(estimate.trajectory, timestamps=np.asarray(frames.timestamps, dtype=np.float64))
     return replace(estimate, trajectory=trajectory)

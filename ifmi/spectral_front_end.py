@@ -18,7 +18,8 @@ from .options import options_from_dict
 from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
 from .global_motion import GlobalMotionConfig, GlobalMotionEstimator
 from .fourier_mellin import FourierMellin, TileRejection, FourierMellinConfig, PlacedTiles, TileSpectra
-from .tiling import TileLayout, TilingConfig, tile_layout, tiles_from_panorama
+from .errors import CalibrationFitError
+from .tiling import TileLayout, TilingConfig, tile_layout, tile_size_px, tiles_from_panorama
 from .unwarp import (PanoramaConfig, PanoramaMapping, gray_from_image, panorama_from_omni, panorama_from_rays,
                      panorama_mapping, rays_from_panorama, wrapped_panorama_maps)
 
@@ -193,6 +194,7 @@ class IfmiFrontEnd:
 
     def _setup(self, image: np.ndarray) -> None:
         self.mapping = panorama_mapping(self.model, image, config=self.config.panorama)
+        self._check_tiles_fit()
         self.layout = tile_layout((self.mapping.height, self.mapping.width), config=self.config.tiling)
         self.engine = FourierMellin(self.layout.tile_size, self.layout.count,
                                     config=self.config.registration)
@@ -202,6 +204,17 @@ class IfmiFrontEnd:
         self._points_b = flow_sample_points(self.layout.tile_size,
                                             points_per_tile=self.config.points_per_tile,
                                             spread=self.config.point_spread)
+
+    def _check_tiles_fit(self) -> None:
+        """Raise :class:`~ifmi.errors.CalibrationFitError` when a tile is larger than the panorama."""
+        height, width = self.mapping.height, self.mapping.width
+        tile = tile_size_px(self.config.tiling.tile_size, width)
+        if tile <= min(height, width):
+            return
+        raise CalibrationFitError(
+            f"the {self.model.height}x{self.model.width} px image gives a {height}x{width} px panorama, "
+            f"smaller than the {tile} px tile; expected a panorama at least {tile}x{tile} px: "
+            f"use larger images, a smaller --tile-size or a larger panorama --height/--width")
 
     def prepare(self, image: np.ndarray) -> IfmiFrameState:
         """Panorama and tiles of one frame (tile spectra follow on first use).
