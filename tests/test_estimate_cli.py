@@ -156,14 +156,14 @@ def test_unreadable_config_file(dataset, tmp_path, capsys):
 
 
 def test_pixel_threshold_option_is_converted_and_recorded(dataset, tmp_path):
-    from ifmi.pipeline import angular_pixel_size
+    from ifmi.unwarp import angular_pixel_size_in_band
 
     root, _ = dataset
     out = tmp_path / "px.txt"
     assert main(["estimate", str(root), "--out", str(out), "--ransac-threshold-px", "2",
                  "--max-failures", "3", "--no-progress"]) == 0
     config = json.loads((tmp_path / "px.config.json").read_text())["config"]
-    pixel = angular_pixel_size(read_dataset(root).model)
+    pixel = angular_pixel_size_in_band(read_dataset(root).model)
     assert config["relative_pose"]["ransac_threshold_px"] == 2.0
     assert config["relative_pose"]["ransac_threshold_rad"] == pytest.approx(2.0 * pixel)
     assert config["keyframe"]["max_failures"] == 3
