@@ -20,8 +20,8 @@ from .global_motion import GlobalMotionConfig, GlobalMotionEstimator
 from .fourier_mellin import FourierMellin, TileRejection, FourierMellinConfig, PlacedTiles, TileSpectra
 from .errors import CalibrationFitError
 from .tiling import TileLayout, TilingConfig, tile_layout, tile_size_px, tiles_from_panorama
-from .unwarp import (PanoramaConfig, PanoramaMapping, gray_from_image, panorama_from_omni, panorama_from_rays,
-                     panorama_mapping, rays_from_panorama, wrapped_panorama_maps)
+from .unwarp import (PanoramaConfig, PanoramaMapping, gray_from_image, panorama_image_from_omni_image,
+                     panorama_mapping, panorama_pixels_from_rays, rays_from_panorama_pixels, wrapped_panorama_maps)
 
 __all__ = ["IfmiConfig", "IfmiFrameState", "IfmiFrontEnd"]
 
@@ -229,7 +229,7 @@ class IfmiFrontEnd:
         # Remapped as float: an 8-bit result would round every panorama pixel to a whole gray
         # level (on sharp 1024 px images that noise doubled the frame-to-frame error).
         gray = gray_from_image(image).astype(np.float32)
-        padded = panorama_from_omni(gray, self.mapping, maps=self._padded_maps)
+        padded = panorama_image_from_omni_image(self.mapping, gray, maps=self._padded_maps)
         coarse = None
         if self.global_stage is not None:
             coarse = self.global_stage.coarse_panorama(padded[:, self._pad:self._pad + self.mapping.width])
@@ -273,7 +273,7 @@ class IfmiFrontEnd:
         rotation = np.asarray(prior_rotation, dtype=np.float64)
         steps = np.array([[0.0, 0.0], [0.5, 0.0], [-0.5, 0.0], [0.0, 0.5], [0.0, -0.5]])
         probes = offsets_a[:, None, :] + steps
-        in_b = panorama_from_rays(self.mapping, rays_from_panorama(self.mapping, probes) @ rotation)
+        in_b = panorama_pixels_from_rays(self.mapping, rays_from_panorama_pixels(self.mapping, probes) @ rotation)
         width = self.mapping.width
         centre = in_b[:, 0]
         # Differences taken across the seam are unwrapped.

@@ -51,12 +51,12 @@ __all__ = [
     "band_mask",
     "angular_pixel_size_in_band",
     "panorama_mapping",
-    "panorama_from_omni",
+    "panorama_image_from_omni_image",
     "wrapped_panorama_maps",
-    "rays_from_panorama",
-    "omni_from_panorama",
-    "panorama_from_omni_pixels",
-    "panorama_from_rays",
+    "rays_from_panorama_pixels",
+    "omni_pixels_from_panorama_pixels",
+    "panorama_pixels_from_omni_pixels",
+    "panorama_pixels_from_rays",
     "gray_from_image",
 ]
 
@@ -400,7 +400,7 @@ def wrapped_panorama_maps(mapping: PanoramaMapping, columns: int) -> tuple:
     -------
     tuple of ndarray
         OpenCV fixed-point maps of the ``(height, width + 2 columns)`` grid,
-        for :func:`panorama_from_omni`'s ``maps``.
+        for :func:`panorama_image_from_omni_image`'s ``maps``.
     """
     if isinstance(columns, bool) or int(columns) != columns or columns < 0:
         raise ValueError(f"expected an integer number of columns >= 0, got {columns!r}")
@@ -412,15 +412,16 @@ def wrapped_panorama_maps(mapping: PanoramaMapping, columns: int) -> tuple:
     return cv2.convertMaps(mapping.map_cols[:, index], mapping.map_rows[:, index], cv2.CV_16SC2)
 
 
-def panorama_from_omni(image: np.ndarray, mapping: PanoramaMapping, *, maps: tuple | None = None) -> np.ndarray:
+def panorama_image_from_omni_image(mapping: PanoramaMapping, image: np.ndarray, *,
+                                   maps: tuple | None = None) -> np.ndarray:
     """Resample an omni image into the panorama (bilinear, float32).
 
     Parameters
     ----------
+    mapping : PanoramaMapping
     image : (H, W) or (H, W, 3) ndarray
         Omni image of the size the mapping's calibration names; RGB is
         converted to gray.
-    mapping : PanoramaMapping
     maps : tuple of ndarray, optional, keyword-only
         Remap maps of another grid on the same panorama, such as
         :func:`wrapped_panorama_maps`; default the mapping's own.
@@ -430,6 +431,8 @@ def panorama_from_omni(image: np.ndarray, mapping: PanoramaMapping, *, maps: tup
     (height, width) float32 ndarray
         Or the shape of ``maps``.
     """
+    if not isinstance(mapping, PanoramaMapping):
+        raise TypeError(f"expected a PanoramaMapping as the first argument, got {type(mapping).__name__}")
     gray = gray_from_image(image)
     if gray.shape != mapping.model.size:
         raise ValueError(f"expected an image of size {mapping.model.size}, got {gray.shape}")
@@ -440,7 +443,7 @@ def panorama_from_omni(image: np.ndarray, mapping: PanoramaMapping, *, maps: tup
     return pano.astype(np.float32, copy=False)
 
 
-def rays_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.ndarray:
+def rays_from_panorama_pixels(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.ndarray:
     """Unit rays of panorama pixels (exact; columns wrap around 360 degrees).
 
     Parameters
@@ -463,7 +466,7 @@ def rays_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.
     return rays
 
 
-def panorama_from_rays(mapping: PanoramaMapping, rays: np.ndarray) -> np.ndarray:
+def panorama_pixels_from_rays(mapping: PanoramaMapping, rays: np.ndarray) -> np.ndarray:
     """Panorama ``(row, col)`` of rays; columns in ``[0, width)``.
 
     Parameters
@@ -487,7 +490,7 @@ def panorama_from_rays(mapping: PanoramaMapping, rays: np.ndarray) -> np.ndarray
     return np.stack([row, col], axis=-1)
 
 
-def omni_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.ndarray:
+def omni_pixels_from_panorama_pixels(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.ndarray:
     """Omni-image ``(row, col)`` of panorama ``(row, col)`` (sub-pixel, exact).
 
     Parameters
@@ -499,10 +502,10 @@ def omni_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.
     -------
     (..., 2) ndarray
     """
-    return pixels_from_rays(mapping.model, rays_from_panorama(mapping, pano_pixels))
+    return pixels_from_rays(mapping.model, rays_from_panorama_pixels(mapping, pano_pixels))
 
 
-def panorama_from_omni_pixels(mapping: PanoramaMapping, omni_pixels: np.ndarray) -> np.ndarray:
+def panorama_pixels_from_omni_pixels(mapping: PanoramaMapping, omni_pixels: np.ndarray) -> np.ndarray:
     """Panorama ``(row, col)`` of omni-image ``(row, col)``; columns in ``[0, width)``.
 
     Parameters
@@ -515,7 +518,7 @@ def panorama_from_omni_pixels(mapping: PanoramaMapping, omni_pixels: np.ndarray)
     (..., 2) ndarray
         Rows outside ``[0, height - 1]`` are outside the band.
     """
-    return panorama_from_rays(mapping, rays_from_pixels(mapping.model, omni_pixels))
+    return panorama_pixels_from_rays(mapping, rays_from_pixels(mapping.model, omni_pixels))
 
 
 def panorama_axis_rotation(model) -> np.ndarray:
@@ -621,7 +624,7 @@ def _model_panorama_mapping(model, config: PanoramaConfig) -> PanoramaMapping:
         radius_band_px=(float("nan"), float("nan")), map_rows=np.zeros((0, 0), np.float32),
         map_cols=np.zeros((0, 0), np.float32), camera_from_panorama=rotation)
     rows, cols = np.mgrid[0:height, 0:width]
-    pixels = pixels_from_rays(model, rays_from_panorama(mapping, np.stack([rows, cols], axis=-1)))
+    pixels = pixels_from_rays(model, rays_from_panorama_pixels(mapping, np.stack([rows, cols], axis=-1)))
     pixels = np.nan_to_num(pixels, nan=-1.0).astype(np.float32)
     map_rows, map_cols = np.ascontiguousarray(pixels[..., 0]), np.ascontiguousarray(pixels[..., 1])
     return replace(mapping, map_rows=map_rows, map_cols=map_cols,
