@@ -13,7 +13,7 @@ import numpy as np
 
 from .camera import OcamModel, max_image_radius
 from .errors import InputError
-from .tiling import tile_layout
+from .tiling import tile_size_px
 from .unwarp import off_axis_band, panorama_mapping, radius_band
 
 __all__ = ["check_config_for_model"]
@@ -33,10 +33,12 @@ def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
     empty), its width is at most ``4 x 2 pi r_outer`` and its height at most
     ``4 r_outer`` pixels (``r_outer`` the outer radius of the calibration's
     image band; half the image diagonal for camera models other than
-    OCamCalib, which take no band radii), and, for the ``"ifmi"`` method, the tiles fit the panorama
-    and the log-polar grids are at most four times the tile side; a feature
-    front end's ``radius_band`` lies inside the image. Explicit band radii
-    in ``config`` (e.g. decided from the frames) are the band checked.
+    OCamCalib, which take no band radii), for the ``"ifmi"`` method the
+    log-polar grids are at most four times the tile side (a tile larger
+    than the panorama is reported by the front end, naming the
+    calibration), and a feature front end's ``radius_band`` lies inside the
+    image. Explicit band radii in ``config`` (e.g. decided from the frames)
+    are the band checked.
 
     Parameters
     ----------
@@ -120,13 +122,10 @@ def _check_feature_sizes(features, model: OcamModel) -> None:
 
 
 def _check_tiles(config, mapping) -> None:
-    try:
-        tile = tile_layout((mapping.height, mapping.width), config=config.ifmi.tiling).tile_size
-    except ValueError as exc:
-        pano = config.ifmi.panorama
-        band = (f" (band {pano.radius_min_px:.1f}..{pano.radius_max_px:.1f} px)"
-                if pano.radius_min_px is not None and pano.radius_max_px is not None else "")
-        raise InputError("ifmi.tiling.tile_size", f"{exc}{band}") from None
+    # A tile larger than the panorama is the front end's to report (it names the calibration file).
+    tile = tile_size_px(config.ifmi.tiling.tile_size, mapping.width)
+    if tile > min(mapping.height, mapping.width):
+        return
     for name in ("log_polar_angles", "log_polar_radii"):
         value = getattr(config.ifmi.registration, name)
         if value is not None and value > _MAX_OVERSAMPLING * tile:

@@ -226,7 +226,7 @@ def test_bad_configuration_files_are_one_line(dataset, tmp_path, capsys, text, m
     (["--width", "1000000000"], "ifmi.panorama.width: expected at most "),
     (["--height", "100000"], "ifmi.panorama.height: expected at most "),
     (["--radius-max", "5000"], "ifmi.panorama.radius_max_px: expected a radius under 18"),
-    (["--tile-size", "100000"], "ifmi.tiling.tile_size: tile size 100000 px does not fit"),
+    (["--tile-size", "100000"], "calib_results.txt: the 256x256 px image gives a "),
 ])
 def test_sizes_beyond_what_the_images_give_are_refused(dataset, tmp_path, capsys, args, message):
     assert main(["estimate", str(dataset), "--out", str(tmp_path / "e.txt"), "--no-progress", *args]) == 2
@@ -268,8 +268,8 @@ def test_tiles_are_checked_against_the_band_the_first_frame_shows(dataset, tmp_p
     args = ["estimate", str(copy), "--out", str(tmp_path / "e.txt"), "--width", "512", "--no-progress"]
     assert main([*args, "--tile-size", "80"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("ifmi estimate: error: ifmi.tiling.tile_size: tile size 80 px does not fit the ")
-    assert "\n" not in err and " px (band " in err
+    assert err.startswith(f"ifmi estimate: error: {copy / 'calib_results.txt'}: the 256x256 px image gives a ")
+    assert "smaller than the 80 px tile" in err and "\n" not in err
 
 
 @pytest.mark.parametrize(("features", "message"), [
