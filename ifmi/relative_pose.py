@@ -695,16 +695,32 @@ def _noise_sigma_of_5pt(errors: np.ndarray, threshold: float, group: int) -> flo
     Returns
     -------
     float or None
-        None when ``m - 5 < _NOISE_DOF`` or the estimate exceeds
-        ``threshold * _NOISE_MAX_FRACTION`` (then neither model's inliers
-        measure the noise reliably).
+        None when ``m - 5 < _NOISE_DOF``.
     """
     inliers = errors[errors < threshold]
     dof = len(inliers) / group - _SAMPLE_5PT
     if dof < _NOISE_DOF:
         return None
-    sigma = float(np.sqrt(np.sum(inliers ** 2) / (group * dof)))
-    return sigma if sigma <= threshold * _NOISE_MAX_FRACTION else None
+    return float(np.sqrt(np.sum(inliers ** 2) / (group * dof)))
+
+
+def _selection_noise(sigma_5pt: float | None, sigma_rotation: float, threshold: float,
+                     rotation_threshold: float) -> tuple[float, bool]:
+    """Noise level GRIC compares the models with, and whether it came from the 5-point model.
+
+    The 5-point model's estimate is used when it is well below
+    ``threshold`` (``_NOISE_MAX_FRACTION``; nearer, truncation makes it
+    unreliable), and up to a third of it when the rotation model's
+    estimate is at least twice ``rotation_threshold``, its own inlier
+    threshold (its inliers spread out to it with no peak of noise: the
+    rotation does not fit, or the noise is near the threshold, where the
+    5-point estimate is far lower than a third). Otherwise the rotation
+    model's estimate is used, at most ``threshold``.
+    """
+    if sigma_5pt is not None and (sigma_5pt <= _NOISE_MAX_FRACTION * threshold
+                                  or (sigma_5pt <= threshold / 3.0 and sigma_rotation >= 2.0 * rotation_threshold)):
+        return sigma_5pt, True
+    return min(sigma_rotation, threshold), False
 
 
 def _gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int,
@@ -807,9 +823,11 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
                     products, rays_b, (_skew(translation) @ rotation_5pt)[None])[0]
             either = rot_mask | (errors_5pt < threshold)
             group = rays_per_measurement
-            noise = options.noise_sigma_rad or _noise_sigma_of_5pt(errors_5pt, threshold, group)
-            margin = 0.0 if noise is None or options.noise_sigma_rad else _NOISE_5PT_MARGIN * either.sum() / group
-            noise = noise or sigma
+            noise, from_5pt = options.noise_sigma_rad, False
+            if noise is None:
+                noise, from_5pt = _selection_noise(_noise_sigma_of_5pt(errors_5pt, threshold, group), sigma,
+                                                   threshold, rot_threshold)
+            margin = _NOISE_5PT_MARGIN * either.sum() / group if from_5pt else 0.0
             if (_gric(errors_5pt[either], noise, dimension=3, parameters=5, group=group) + margin
                     < _gric(rot_errors[either], noise, dimension=2, parameters=3, group=group)):
                 chosen = ("5pt", rotation_5pt, translation / np.linalg.norm(translation),
