@@ -100,7 +100,7 @@ class IfmiConfig:
     coarse_to_fine: bool = True
     global_motion: GlobalMotionConfig = field(default_factory=GlobalMotionConfig)
     max_tile_distortion: float = 1.25
-    dense_retry_fraction: float = 0.25
+    dense_retry_fraction: float = 0.33
     dense_overlap: float = 0.5
     anchor_templates: bool = True
 
