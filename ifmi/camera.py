@@ -1,6 +1,24 @@
-"""OCamCalib (Scaramuzza) omnidirectional camera model.
+"""Camera-model protocol, and the OCamCalib (Scaramuzza) omnidirectional model.
 
-The model maps image pixels, given as ``(row, col)`` with 0-based integer pixel
+Every camera model of the project (this OCamCalib model and the Kalibr and
+equirectangular models of :mod:`ifmi.camera_models`) is a frozen object with
+
+* ``size`` ``(height, width)``, ``height``, ``width``;
+* ``rays_from_pixels(pixels)``: ``(..., 2)`` ``(row, col)`` -> ``(..., 3)``
+  unit rays in the model's own camera frame (NaN outside its domain);
+* ``pixels_from_rays(rays)``: ``(..., 3)`` -> ``(..., 2)`` ``(row, col)``
+  (NaN for rays it cannot image);
+* ``valid_pixels(pixels)``: ``(..., 2)`` -> ``(...,)`` bool, the valid image
+  region;
+* ``field_of_view_rad``: full angle of the cone about ``optical_axis`` that
+  the valid region sees (above pi for fisheyes beyond 180 degrees);
+* ``optical_axis``: ``(3,)`` camera-frame direction of the central ray;
+* ``scaled(factor)``: the same camera at another resolution.
+
+The module-level :func:`rays_from_pixels` and :func:`pixels_from_rays`
+accept any model (see :class:`CameraModel`).
+
+The OCamCalib model maps image pixels, given as ``(row, col)`` with 0-based integer pixel
 centres, to unit rays in the camera frame and back:
 
 * camera frame: x along image rows, y along image columns, z = x × y; for a
@@ -17,11 +35,17 @@ This module is pure math: reading and writing calibration files lives in
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 __all__ = [
+    "CameraModel",
     "OcamModel",
+    "valid_mask",
+    "measured_field_of_view",
+    "angles_from_axis",
     "rays_from_pixels",
     "pixels_from_rays",
     "elevation_from_radius",
@@ -30,7 +54,75 @@ __all__ = [
     "paracatadioptric_model",
     "max_image_radius",
     "radius_from_pixels",
+    "sensor_from_pixels",
+    "pixels_from_sensor",
+    "pixel_offsets_from_sensor",
+    "angular_pixel_size",
 ]
+
+
+@runtime_checkable
+class CameraModel(Protocol):
+    """What every camera model provides (see the module docstring)."""
+
+    size: tuple[int, int]
+
+    @property
+    def height(self) -> int: ...
+
+    @property
+    def width(self) -> int: ...
+
+    @property
+    def optical_axis(self) -> np.ndarray: ...
+
+    @property
+    def field_of_view_rad(self) -> float: ...
+
+    def rays_from_pixels(self, pixels) -> np.ndarray: ...
+
+    def pixels_from_rays(self, rays) -> np.ndarray: ...
+
+    def valid_pixels(self, pixels) -> np.ndarray: ...
+
+    def scaled(self, factor: float) -> "CameraModel": ...
+
+
+# Pixels whose lifted ray re-projects farther than this (px) are outside a model's valid region.
+VALID_ROUND_TRIP_PX = 1e-3
+
+
+def _image_grid(size: tuple[int, int]) -> np.ndarray:
+    rows, cols = np.mgrid[0:size[0], 0:size[1]]
+    return np.stack([rows, cols], axis=-1).astype(np.float64)
+
+
+def valid_mask(model) -> np.ndarray:
+    """``(H, W)`` bool mask of the valid image region of any camera model (rows, cols)."""
+    return model.valid_pixels(_image_grid(model.size))
+
+
+def angles_from_axis(rays: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Angle (radians) between ``(..., 3)`` rays and a ``(3,)`` axis; ``(...,)``; NaN stays NaN."""
+    rays = np.asarray(rays, dtype=np.float64)
+    norm = np.linalg.norm(rays, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = np.clip(rays @ np.asarray(axis, dtype=np.float64) / norm, -1.0, 1.0)
+    return np.arccos(cosine)
+
+
+def measured_field_of_view(model) -> float:
+    """Twice the largest angle between ``model.optical_axis`` and a valid pixel's ray (radians).
+
+    Every pixel centre of the image is lifted, so the value is exact to
+    within the angle of half a pixel.
+    """
+    grid = _image_grid(model.size)
+    valid = model.valid_pixels(grid)
+    if not valid.any():
+        raise ValueError("the camera model has no valid pixel in its image")
+    angles = angles_from_axis(model.rays_from_pixels(grid[valid]), model.optical_axis)
+    return float(2.0 * np.nanmax(angles))
 
 
 @dataclass(frozen=True)
@@ -89,6 +181,54 @@ class OcamModel:
     def width(self) -> int:
         return self.size[1]
 
+    @property
+    def optical_axis(self) -> np.ndarray:
+        """(3,) ray of the distortion centre: ``(0, 0, sign pol(0))`` (the mirror axis)."""
+        return np.array([0.0, 0.0, 1.0 if self.pol[0] >= 0 else -1.0])
+
+    def rays_from_pixels(self, pixels) -> np.ndarray:
+        """Unit rays ``(..., 3)`` of ``(row, col)`` pixels ``(..., 2)`` (:func:`rays_from_pixels`)."""
+        return rays_from_pixels(self, pixels)
+
+    def pixels_from_rays(self, rays) -> np.ndarray:
+        """``(row, col)`` pixels ``(..., 2)`` of rays ``(..., 3)`` (:func:`pixels_from_rays`)."""
+        return pixels_from_rays(self, rays)
+
+    def valid_pixels(self, pixels) -> np.ndarray:
+        """Valid image region: inside the image and within the calibration's invertible range.
+
+        Parameters
+        ----------
+        pixels : (..., 2) array_like
+            ``(row, col)``.
+
+        Returns
+        -------
+        (...,) bool ndarray
+            True inside the image whose sensor radius lies where the ray's
+            elevation grows with the radius (the direct polynomial is
+            invertible there) and whose ray re-projects onto it to 1e-3 px.
+        """
+        pixels = np.asarray(pixels, dtype=np.float64)
+        inside = ((pixels[..., 0] >= -0.5) & (pixels[..., 0] <= self.height - 0.5)
+                  & (pixels[..., 1] >= -0.5) & (pixels[..., 1] <= self.width - 0.5))
+        back = pixels_from_rays(self, rays_from_pixels(self, pixels))
+        close = np.hypot(back[..., 0] - pixels[..., 0], back[..., 1] - pixels[..., 1]) < VALID_ROUND_TRIP_PX
+        return inside & (radius_from_pixels(self, pixels) <= self.monotonic_radius) & close
+
+    @cached_property
+    def monotonic_radius(self) -> float:
+        """Largest sensor radius (px, up to the farthest image corner) where elevation still grows."""
+        limit = max_image_radius(self.size, self.center, self.affine)
+        r = np.linspace(0.0, limit, 4096)
+        grows = np.diff(elevation_from_radius(np.asarray(self.pol), r)) > 0
+        return limit if grows.all() else float(r[int(np.argmin(grows))])
+
+    @cached_property
+    def field_of_view_rad(self) -> float:
+        """Full angle (radians) about :attr:`optical_axis` seen by the valid region."""
+        return measured_field_of_view(self)
+
     def scaled(self, factor: float) -> "OcamModel":
         """Return the model of the same camera imaged at ``factor`` times the resolution.
 
@@ -104,14 +244,69 @@ class OcamModel:
         return replace(self, pol=pol, invpol=invpol, center=center, size=size)
 
 
-def _sensor_from_pixels(model: OcamModel, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def sensor_from_pixels(model: OcamModel, pixels) -> np.ndarray:
+    """Sensor-plane points of pixels: the centre and the affine part removed.
+
+    Parameters
+    ----------
+    model : OcamModel
+    pixels : (..., 2) array_like
+        ``(row, col)`` pixel coordinates.
+
+    Returns
+    -------
+    (..., 2) ndarray
+        ``(xp, yp)`` in pixels, the sensor point whose radius is the argument
+        of the direct polynomial (inverse of :func:`pixels_from_sensor`).
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
     c, d, e = model.affine
     dr = pixels[..., 0] - model.center[0]
     dc = pixels[..., 1] - model.center[1]
     inv_det = 1.0 / (c - d * e)
     xp = (dr - d * dc) * inv_det
     yp = (-e * dr + c * dc) * inv_det
-    return xp, yp
+    return np.stack([xp, yp], axis=-1)
+
+
+def pixel_offsets_from_sensor(model: OcamModel, sensor) -> np.ndarray:
+    """Affine part alone: ``(row, col)`` offsets from the distortion centre of sensor points.
+
+    Parameters
+    ----------
+    model : OcamModel
+    sensor : (..., 2) array_like
+        ``(u, v)`` sensor-plane points in pixels.
+
+    Returns
+    -------
+    (..., 2) ndarray
+        ``(row - xc, col - yc)`` = ``(u c + v d, u e + v)`` in pixels.
+    """
+    sensor = np.asarray(sensor, dtype=np.float64)
+    u, v = sensor[..., 0], sensor[..., 1]
+    c, d, e = model.affine
+    return np.stack([u * c + v * d, u * e + v], axis=-1)
+
+
+def pixels_from_sensor(model: OcamModel, sensor) -> np.ndarray:
+    """Pixels of sensor-plane points: OCamCalib's affine part and centre applied.
+
+    Parameters
+    ----------
+    model : OcamModel
+    sensor : (..., 2) array_like
+        ``(u, v)`` sensor-plane points in pixels (``rho (cos phi, sin phi)``
+        for a ray of azimuth ``phi`` imaged at sensor radius ``rho``).
+
+    Returns
+    -------
+    (..., 2) ndarray
+        ``(row, col)`` = ``(u c + v d + xc, u e + v + yc)``, 0-based pixels
+        (inverse of :func:`sensor_from_pixels`).
+    """
+    offsets = pixel_offsets_from_sensor(model, sensor)
+    return np.stack([offsets[..., 0] + model.center[0], offsets[..., 1] + model.center[1]], axis=-1)
 
 
 def radius_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
@@ -128,17 +323,16 @@ def radius_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
     (...,) ndarray
         Radius ``r`` in pixels, the argument of the direct polynomial.
     """
-    pixels = np.asarray(pixels, dtype=np.float64)
-    xp, yp = _sensor_from_pixels(model, pixels)
-    return np.hypot(xp, yp)
+    sensor = sensor_from_pixels(model, pixels)
+    return np.hypot(sensor[..., 0], sensor[..., 1])
 
 
 def rays_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
-    """Lift pixels to unit rays (OCamCalib ``cam2world``).
+    """Lift pixels to unit rays (OCamCalib ``cam2world``; other models: their own lifting).
 
     Parameters
     ----------
-    model : OcamModel
+    model : OcamModel or CameraModel
     pixels : (..., 2) array_like
         ``(row, col)`` coordinates, 0-based, pixel centres at integers.
 
@@ -147,10 +341,13 @@ def rays_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
     (..., 3) ndarray
         Unit rays ``(x, y, z)`` in the camera frame.
     """
+    if not isinstance(model, OcamModel):
+        return model.rays_from_pixels(pixels)
     pixels = np.asarray(pixels, dtype=np.float64)
     if pixels.shape[-1:] != (2,):
         raise ValueError(f"expected pixels of shape (..., 2), got {pixels.shape}")
-    xp, yp = _sensor_from_pixels(model, pixels)
+    sensor = sensor_from_pixels(model, pixels)
+    xp, yp = sensor[..., 0], sensor[..., 1]
     r = np.hypot(xp, yp)
     zp = np.polynomial.polynomial.polyval(r, model.pol)
     rays = np.stack([xp, yp, zp], axis=-1)
@@ -158,11 +355,11 @@ def rays_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
 
 
 def pixels_from_rays(model: OcamModel, rays: np.ndarray) -> np.ndarray:
-    """Project rays to pixels (OCamCalib ``world2cam``).
+    """Project rays to pixels (OCamCalib ``world2cam``; other models: their own projection).
 
     Parameters
     ----------
-    model : OcamModel
+    model : OcamModel or CameraModel
     rays : (..., 3) array_like
         Directions in the camera frame; need not be normalised.
 
@@ -172,6 +369,8 @@ def pixels_from_rays(model: OcamModel, rays: np.ndarray) -> np.ndarray:
         ``(row, col)`` pixel coordinates. Rays along the z axis land on the
         centre.
     """
+    if not isinstance(model, OcamModel):
+        return model.pixels_from_rays(rays)
     rays = np.asarray(rays, dtype=np.float64)
     if rays.shape[-1:] != (3,):
         raise ValueError(f"expected rays of shape (..., 3), got {rays.shape}")
@@ -182,10 +381,35 @@ def pixels_from_rays(model: OcamModel, rays: np.ndarray) -> np.ndarray:
     safe = np.where(norm > 0, norm, 1.0)
     u = np.where(norm > 0, x / safe * rho, 0.0)
     v = np.where(norm > 0, y / safe * rho, 0.0)
-    c, d, e = model.affine
-    row = u * c + v * d + model.center[0]
-    col = u * e + v + model.center[1]
-    return np.stack([row, col], axis=-1)
+    return pixels_from_sensor(model, np.stack([u, v], axis=-1))
+
+
+def angular_pixel_size(model, pixels) -> np.ndarray:
+    """Angle (radians) one pixel subtends at each of ``pixels``, for any camera model.
+
+    The angles between the ray of a pixel and the rays one pixel further
+    along the image rows and along the columns are measured (so an
+    OCamCalib affine part counts); a pixel's size is their geometric mean.
+    It scales inversely with the image resolution, which makes thresholds
+    given in pixels independent of it.
+
+    Parameters
+    ----------
+    model : OcamModel or CameraModel
+    pixels : (..., 2) array_like
+        ``(row, col)`` sample pixels.
+
+    Returns
+    -------
+    (...,) ndarray
+        Radians; NaN where a ray is outside the model's domain.
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
+    steps = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    rays = rays_from_pixels(model, pixels[..., None, :] + steps)
+    along_row = np.arccos(np.clip(np.sum(rays[..., 0, :] * rays[..., 1, :], axis=-1), -1.0, 1.0))
+    along_col = np.arccos(np.clip(np.sum(rays[..., 0, :] * rays[..., 2, :], axis=-1), -1.0, 1.0))
+    return np.sqrt(along_row * along_col)
 
 
 def elevation_from_radius(pol: np.ndarray, radius: np.ndarray) -> np.ndarray:
