@@ -15,6 +15,7 @@ import numpy as np
 
 from .camera import OcamModel
 from .options import options_from_dict
+from .front_end import Correspondences
 from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
 from .fourier_mellin import REJECT_REASONS, FourierMellin, FourierMellinConfig, PlacedTiles, TileSpectra
 from .tiling import TileLayout, TilingConfig, tile_layout, tiles_from_panorama
@@ -411,8 +412,6 @@ class IfmiFrontEnd:
         -------
         Correspondences
         """
-        from .pipeline import Correspondences
-
         if not self.config.use_prior:
             prior_rotation = None
         if prior_rotation is None:

@@ -12,7 +12,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..errors import InputError
-from ..pipeline import EstimateConfig, estimate_dataset, method_names
+from ..methods import load_factory
+from ..pipeline import EstimateConfig, estimate_dataset
 
 __all__ = ["add_parser", "run", "config_from_args"]
 
@@ -26,7 +27,9 @@ def add_parser(subparsers) -> None:
                     "A frame that fails keeps the previous orientation and is flagged.",
     )
     p.add_argument("dataset", metavar="DATASET", help="dataset folder")
-    p.add_argument("--method", default="ifmi", choices=method_names(), help="front end (default ifmi)")
+    p.add_argument("--method", default="ifmi", metavar="METHOD",
+                   help="front end: a name that 'ifmi methods' lists, or package.module:factory "
+                        "(default ifmi)")
     p.add_argument("--out", required=True, metavar="ESTIMATE", help="TUM file to write")
     p.add_argument("--config", metavar="JSON",
                    help="start from this configuration (an estimate's NAME.config.json or a "
@@ -123,6 +126,7 @@ def config_from_args(args) -> EstimateConfig:
 def run(args) -> int:
     from ..io.results import write_estimate_run
 
+    load_factory(args.method)  # an unknown or broken method fails before any work
     config = config_from_args(args)
     out = Path(args.out)
     if out.is_dir():
