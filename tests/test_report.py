@@ -11,7 +11,7 @@ from ifmi.cli import main
 from ifmi.evaluation import evaluate_files
 from ifmi.io.atomic import atomic_write_json
 from ifmi.io.tum import Trajectory, write_tum
-from ifmi.report import average_table, find_results, scene_tables, target_ratios
+from ifmi.report import average_table, baseline_ratios, find_results, scene_tables
 from ifmi.io.results import read_evaluation
 from ifmi.rotations import matrix_from_rpy
 
@@ -74,13 +74,13 @@ def test_tables_and_ratios(tmp_path):
     for s, scene in enumerate(("office", "lawn")):
         for method, (err, seconds) in METHODS.items():
             row = tables[scene][method]
-            assert row["yaw"]["rmse"] == pytest.approx(err * (1 + s) * np.sqrt((n - 1) / n), rel=1e-6)
+            assert row["rmse_yaw_rad"] == pytest.approx(err * (1 + s) * np.sqrt((n - 1) / n), rel=1e-6)
             assert row["time_per_frame_s"] == pytest.approx(seconds)
     avg = average_table(tables)
     yaw = [err * (1 + s) * np.sqrt(14 / 15) for s in range(2) for err in [METHODS["orb"][0]]]
-    assert avg["orb"]["yaw"]["mean"] == pytest.approx(np.mean(yaw), rel=1e-6)
-    assert avg["orb"]["yaw"]["std"] == pytest.approx(np.std(yaw), rel=1e-6)
-    ratios = target_ratios(tables)
+    assert avg["orb"]["rmse_yaw_rad"]["mean"] == pytest.approx(np.mean(yaw), rel=1e-6)
+    assert avg["orb"]["rmse_yaw_rad"]["std"] == pytest.approx(np.std(yaw), rel=1e-6)
+    ratios = baseline_ratios(tables)
     assert ratios["office"]["rmse_ratio_to_best_baseline"] == pytest.approx(0.2, rel=1e-6)
     assert ratios["office"]["time_ratio_akaze"] == pytest.approx(0.05)
 
@@ -102,7 +102,7 @@ def test_report_cli_writes_markdown_html_figures(tmp_path, capsys):
     assert len(heatmaps) == 2
     doc = json.loads((out / "report.json").read_text())
     assert doc["machine"]["cores"] >= 1 and doc["versions"]["numpy"]
-    assert doc["scenes"]["office"]["ifmi"]["yaw"]["rmse"] == pytest.approx(
+    assert doc["scenes"]["office"]["ifmi"]["rmse_yaw_rad"] == pytest.approx(
         0.002 * np.sqrt(14 / 15), rel=1e-6)
     assert len(doc["sweeps"][0]["cells"]) == 4
     assert "Machine and versions" in md
@@ -114,7 +114,7 @@ def test_report_cli_writes_markdown_html_figures(tmp_path, capsys):
     rebuilt = tmp_path / "rebuilt"
     assert main(["report", str(out / "data"), "--out", str(rebuilt)]) == 0
     again = json.loads((rebuilt / "report.json").read_text())
-    assert again["scenes"]["office"]["orb"]["yaw"] == doc["scenes"]["office"]["orb"]["yaw"]
+    assert again["scenes"]["office"]["orb"]["rmse_yaw_rad"] == doc["scenes"]["office"]["orb"]["rmse_yaw_rad"]
     assert again["average"] == doc["average"]
     assert (rebuilt / "figures" / "motion_flow_office.png").is_file()
 
