@@ -223,8 +223,9 @@ def create_front_end(method: str, model, config):
     missing = [name for name in ("prepare", "correspondences")
                if not callable(getattr(front_end, name, None))]
     if missing:
-        raise InputError(f"method {method}", f"factory returned a {type(front_end).__name__} "
-                                             f"without {' and '.join(missing)}(); expected a front end")
+        raise InputError(f"method {method}", f"factory returned an object without "
+                                             f"{'() and '.join(missing)}(); expected prepare() and "
+                                             f"correspondences(), got {type(front_end).__name__}")
     return front_end
 
 

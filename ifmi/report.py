@@ -355,8 +355,9 @@ def _flow_sample(rec: EvaluationRecord, *, compute: bool, store: Path | None) ->
     """The motion-flow sample of an iFMI evaluation: stored beside it, or computed once now.
 
     A computed sample is written to ``store`` (the report's copy of the
-    evaluation) so that a report rebuilt from its data has it; a dataset that
-    is not at hand is a warning, not an error.
+    evaluation) so that a report rebuilt from its data has it. Without the
+    dataset's images there is no sample; a dataset that cannot be read is a
+    warning, not an error.
     """
     from .motion_flow import motion_flow_sample
 
@@ -364,7 +365,8 @@ def _flow_sample(rec: EvaluationRecord, *, compute: bool, store: Path | None) ->
     if stored.is_file():
         return read_motion_flow(stored)
     dataset = rec.meta.get("dataset_path")
-    if not compute or not rec.config or rec.config.get("config") is None or not dataset:
+    if (not compute or not rec.config or rec.config.get("config") is None or not dataset
+            or not Path(dataset, "images").is_dir()):
         return None
     from .pipeline import EstimateConfig
 

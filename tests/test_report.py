@@ -130,3 +130,111 @@ def test_report_of_folder_without_results_is_one_line_error(tmp_path, capsys):
     code = main(["report", str(tmp_path / "empty"), "--out", str(tmp_path / "r")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "no evaluation.json or sweep.json" in err
+
+
+def test_failed_report_leaves_the_old_one_intact(tmp_path, capsys, monkeypatch):
+    import ifmi.report
+
+    root = _make_results(tmp_path)
+    out = tmp_path / "report"
+    assert main(["report", str(root / "eval"), "--out", str(out)]) == 0
+    (out / "notes.txt").write_text("mine")
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def broken(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(ifmi.report, "_sweep_blocks", broken)
+    code = main(["report", str(root / "eval"), str(root / "sweep"), "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and err == f"ifmi report: error: cannot write {out}: No space left on device"
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "eval", "report", "runs", "sweep"]
+
+
+def test_rebuilt_report_keeps_files_it_does_not_write(tmp_path):
+    root = _make_results(tmp_path)
+    out = tmp_path / "report"
+    assert main(["report", str(root / "eval"), "--out", str(out)]) == 0
+    (out / "notes.txt").write_text("mine")
+    (out / "figures" / "stale.png").write_bytes(b"old")
+    assert main(["report", str(root / "eval"), str(root / "sweep"), "--out", str(out)]) == 0
+    assert (out / "notes.txt").read_text() == "mine"
+    assert not (out / "figures" / "stale.png").exists()
+    assert list((out / "figures").glob("heatmap_*.png"))
+
+
+def test_report_errors_name_the_subcommand(tmp_path, capsys):
+    root = _make_results(tmp_path)
+    (tmp_path / "file").write_text("x")
+    code = main(["report", str(root / "eval"), "--out", str(tmp_path / "file" / "r"),
+                 "--command", "make report"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and len(err.splitlines()) == 1
+    assert err.startswith("ifmi report: error: cannot write ") and "None" not in err
+
+
+def test_report_has_no_internal_targets(tmp_path):
+    root = _make_results(tmp_path)
+    assert main(["report", str(root / "eval"), "--out", str(tmp_path / "r")]) == 0
+    md = (tmp_path / "r" / "README.md").read_text()
+    assert "iFMI against the baselines" in md and "Target" not in md
+
+
+def test_any_method_gets_a_row_and_a_colour(tmp_path):
+    from ifmi.methods import method_colors
+
+    root = _make_results(tmp_path, scenes=("office",))
+    est_dir = root / "runs" / "office"
+    est = est_dir / "ifmi.txt"
+    plugin = "sift_plugin:sift_front_end"
+    (est_dir / "sift.txt").write_bytes(est.read_bytes())
+    (est_dir / "sift.frames.csv").write_bytes((est_dir / "ifmi.frames.csv").read_bytes())
+    (est_dir / "sift.config.json").write_text(json.dumps(
+        {"method": plugin, "dataset": str(root / "data" / "office_20"), "config": {}}))
+    evaluate_files(root / "data" / "office_20" / "groundtruth.txt", est_dir / "sift.txt",
+                   out_dir=root / "eval" / "office" / "sift")
+    out = tmp_path / "report"
+    assert main(["report", str(root / "eval"), "--out", str(out)]) == 0
+    records = [read_evaluation(p) for p in find_results([root / "eval"]).evaluations]
+    assert list(scene_tables(records)["office"]) == ["ifmi", "orb", "akaze", plugin]
+    md = (out / "README.md").read_text()
+    assert f"| {plugin} |" in md and plugin in md.split("Average over scenes")[1].splitlines()[2]
+    colors = method_colors(["ifmi", "orb", "akaze", plugin, "zz"])
+    assert len(set(colors.values())) == 5 and colors["ifmi"] == "tab:red"
+    assert method_colors([plugin, "orb"])[plugin] == colors[plugin]
+
+
+def test_truncated_sweep_cell_is_skipped_with_a_warning(tmp_path, capsys):
+    root = _make_results(tmp_path)
+    (root / "sweep" / "cells" / "c1.json").write_text('{"cell_id": "c1", "dat')
+    (root / "sweep" / "cells" / "c2.json").write_text("[]")
+    assert main(["report", str(root / "sweep"), "--out", str(tmp_path / "r")]) == 0
+    err = capsys.readouterr().err
+    assert "c1.json: unreadable sweep cell" in err and "c2.json: expected a JSON object" in err
+    doc = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert len(doc["sweeps"][0]["cells"]) == 2
+
+
+def test_report_computes_the_motion_flow_sample_once_on_request(tmp_path):
+    from ifmi.io.results import read_motion_flow, write_estimate_run
+    from ifmi.pipeline import EstimateConfig, SequenceEstimate
+    from ifmi.io.tum import read_tum
+    from omni_synthetic import write_dataset
+
+    data = write_dataset(tmp_path / "office", n=3, size=160, seed=1)
+    gt = read_tum(data / "groundtruth.txt")
+    # An exact "estimate" suffices: the sample is computed from the dataset and the config.
+    run = SequenceEstimate(trajectory=gt, frames=(), config=EstimateConfig(), method="ifmi")
+    est = write_estimate_run(tmp_path / "runs" / "ifmi.txt", run, dataset_dir=data)
+    (tmp_path / "runs" / "ifmi.frames.csv").unlink()
+    evaluate_files(data / "groundtruth.txt", est, out_dir=tmp_path / "eval" / "ifmi")
+    assert not (tmp_path / "eval" / "ifmi" / "motion_flow.npz").exists()
+    assert main(["report", str(tmp_path / "eval"), "--out", str(tmp_path / "plain"),
+                 "--no-motion-flow"]) == 0
+    assert not list((tmp_path / "plain" / "figures").glob("motion_flow_*"))
+    assert main(["report", str(tmp_path / "eval"), "--out", str(tmp_path / "r")]) == 0
+    assert (tmp_path / "r" / "figures" / "motion_flow_office.png").is_file()
+    stored = tmp_path / "r" / "data" / "eval" / "office" / "ifmi" / "motion_flow.npz"
+    assert len(read_motion_flow(stored)["points_a"]) >= 3
