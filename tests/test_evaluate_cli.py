@@ -263,3 +263,54 @@ def test_read_only_output_folder_is_one_line_error(tmp_path, capsys):
     finally:
         locked.chmod(0o700)
     assert code == 1 and len(err.splitlines()) == 1 and "Permission denied" in err
+
+
+def test_evaluate_options_are_checked():
+    from ifmi.evaluation import EvaluateOptions
+
+    with pytest.raises(ValueError, match="expected min_matched in \\[0, 1\\], got 1.5"):
+        EvaluateOptions(min_matched=1.5)
+    with pytest.raises(ValueError, match="expected max_time_difference >= 0, got -1"):
+        EvaluateOptions(max_time_difference=-1)
+
+
+def test_evaluate_cli_rejects_bad_min_matched(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(_gate(tmp_path, "--min-matched", "1.5"))
+    assert exc.value.code == 2 and "expected a fraction in [0, 1], got 1.5" in capsys.readouterr().err
+
+
+def test_gate_fails_on_nan_rmse():
+    from ifmi.evaluation import gate_verdict
+    from ifmi.metrics import ErrorStats, EvaluationSummary
+
+    nan = ErrorStats(*[float("nan")] * 5, count=0)
+    summary = EvaluationSummary(nan, nan, nan, nan, nan, nan, 3, 3, 0)
+    verdict = gate_verdict(summary, max_rmse_rad=0.1)
+    assert not verdict.passed and verdict.line == "FAIL: geodesic RMSE nan rad > 0.1000 rad"
+
+
+def test_summary_round_trips_through_its_dict(tmp_path, capsys):
+    from ifmi.evaluation import summary_of
+    from ifmi.metrics import EvaluationSummary
+
+    _write_run(tmp_path)
+    assert main(_gate(tmp_path, "--json")) == 0
+    meta = json.loads(capsys.readouterr().out)
+    summary = summary_of(meta)
+    assert EvaluationSummary.from_dict(summary.to_dict()) == summary
+    flat = summary.flat()
+    assert flat["rmse_yaw_rad"] == meta["summary"]["axes"]["yaw"]["rmse"]
+    assert flat["rmse_mean_rad"] == pytest.approx(meta["summary"]["mean_rmse"])
+    assert flat["failures"] == 2 and flat["frames"] == 20
+
+
+def test_motion_flow_sample_of_frames_outside_the_dataset_is_input_error(tmp_path):
+    from ifmi.errors import InputError
+    from ifmi.motion_flow import motion_flow_sample
+    from ifmi.pipeline import EstimateConfig
+    from omni_synthetic import write_dataset
+
+    data = write_dataset(tmp_path / "d", n=2, size=96)
+    with pytest.raises(InputError, match=r"frames 0, 5 outside 0..1"):
+        motion_flow_sample(data, config=EstimateConfig(), frames=(0, 5))

@@ -238,3 +238,12 @@ def test_report_computes_the_motion_flow_sample_once_on_request(tmp_path):
     assert (tmp_path / "r" / "figures" / "motion_flow_office.png").is_file()
     stored = tmp_path / "r" / "data" / "eval" / "office" / "ifmi" / "motion_flow.npz"
     assert len(read_motion_flow(stored)["points_a"]) >= 3
+
+
+def test_report_out_that_is_a_file_is_one_line_error(tmp_path, capsys):
+    root = _make_results(tmp_path, scenes=("office",))
+    (tmp_path / "r").write_text("not a folder")
+    code = main(["report", str(root / "eval"), "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and err == f"ifmi report: error: cannot write {tmp_path / 'r'}: exists and is not a folder"
+    assert (tmp_path / "r").read_text() == "not a folder"
