@@ -624,7 +624,7 @@ def build_report(paths: Sequence[str | os.PathLike], *, out_dir: str | os.PathLi
         The report cannot be written (names ``out_dir`` and the OS reason).
     """
     inputs = find_results(paths)
-    out = Path(out_dir).absolute()
+    out = Path(out_dir).resolve()  # a symlinked report folder is written through, not replaced
     if out.exists() and not out.is_dir():
         raise OutputError(out, "exists and is not a folder")
     try:
