@@ -236,6 +236,18 @@ class TrajectoryErrors:
         return out
 
 
+def _reference_rows(reference_t: np.ndarray, timestamps: np.ndarray,
+                   max_time_difference: float) -> np.ndarray:
+    """Row of ``timestamps`` (sorted) at each reference time; -1 where none is within reach."""
+    reference = np.full(len(reference_t), -1)
+    finite = np.isfinite(reference_t)
+    if finite.any():
+        pos = np.clip(np.searchsorted(timestamps, reference_t[finite]), 0, len(timestamps) - 1)
+        hit = np.abs(timestamps[pos] - reference_t[finite]) <= max_time_difference
+        reference[np.flatnonzero(finite)[hit]] = pos[hit]
+    return reference
+
+
 def trajectory_errors(gt: Trajectory, est: Trajectory, *, max_time_difference: float = 1e-3,
                       reference_timestamps: np.ndarray | None = None) -> TrajectoryErrors:
     """Associate ``est`` with ``gt`` by timestamp and compute per-frame errors.
@@ -283,15 +295,8 @@ def trajectory_errors(gt: Trajectory, est: Trajectory, *, max_time_difference: f
     if reference_timestamps is None:
         reference = np.arange(len(gi)) - 1
     else:
-        ref_t = np.asarray(reference_timestamps, dtype=np.float64)[ei]
-        t_rows = sub_est.timestamps
-        reference = np.full(len(gi), -1)
-        finite = np.isfinite(ref_t)
-        if finite.any():
-            pos = np.searchsorted(t_rows, ref_t[finite])
-            pos = np.clip(pos, 0, len(t_rows) - 1)
-            hit = np.abs(t_rows[pos] - ref_t[finite]) <= max_time_difference
-            reference[np.flatnonzero(finite)[hit]] = pos[hit]
+        reference = _reference_rows(np.asarray(reference_timestamps, dtype=np.float64)[ei],
+                                    sub_est.timestamps, max_time_difference)
     translation = translation_direction_errors(sub_gt, sub_est, reference)
     return TrajectoryErrors(timestamps=est.timestamps[ei], gt_index=gi, est_index=ei,
                             rpy_gt=rpy_gt, rpy_est=rpy_est, rpy_error=rpy_error,
