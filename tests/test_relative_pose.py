@@ -109,6 +109,21 @@ def test_unresolved_threshold_is_rejected():
         relative_pose_from_rays(rays_a, rays_b, options=RelativePoseOptions())
 
 
+@pytest.mark.parametrize("group", [0, 1.5, True])
+def test_bad_group_size_is_rejected(group):
+    rays_a, rays_b, *_ = _scene()
+    with pytest.raises(ValueError, match=f"expected rays_per_measurement to be an integer >= 1, "
+                                         f"got {group!r}"):
+        relative_pose_from_rays(rays_a, rays_b, options=_options(), rays_per_measurement=group)
+
+
+def test_non_finite_rays_are_rejected():
+    rays_a, rays_b, *_ = _scene()
+    rays_b[[3, 7]] = np.nan
+    with pytest.raises(ValueError, match="rays must be finite; 2 of 150 rows are not"):
+        relative_pose_from_rays(rays_a, rays_b, options=_options())
+
+
 def test_pixel_threshold_resolves_and_explicit_threshold_wins():
     options = RelativePoseOptions(ransac_threshold_px=1.5)
     assert options.resolved(4e-3).ransac_threshold_rad == pytest.approx(6e-3)

@@ -253,3 +253,17 @@ def test_report_into_a_symlinked_folder_writes_through_the_link(tmp_path):
     assert main(["report", str(root / "eval"), "--out", str(tmp_path / "link")]) == 0
     assert (tmp_path / "link").is_symlink()
     assert (real / "README.md").is_file() and (real / "notes.txt").read_text() == "mine"
+
+
+def test_unreadable_dataset_gives_a_motion_flow_warning_not_an_error(tmp_path, capsys):
+    root = _make_results(tmp_path, scenes=("lawn",))
+    data = root / "data" / "lawn_20"
+    (data / "images").mkdir()
+    # The iFMI evaluation of this scene has a configuration but no stored sample.
+    (root / "eval" / "lawn" / "ifmi" / "motion_flow.npz").unlink()
+    (root / "eval" / "lawn" / "ifmi" / "config.json").write_text(json.dumps(
+        {"method": "ifmi", "dataset": str(data), "config": {}}))
+    assert main(["report", str(root / "eval"), "--out", str(tmp_path / "r")]) == 0
+    err = capsys.readouterr().err
+    assert "warning: no motion-flow figure for lawn:" in err and "calib" in err
+    assert not list((tmp_path / "r" / "figures").glob("motion_flow_*"))

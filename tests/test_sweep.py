@@ -225,3 +225,19 @@ def test_sweep_cli_out_below_a_file_is_one_line_error(datasets, tmp_path, capsys
     err = capsys.readouterr().err.strip()
     assert code == 1 and len(err.splitlines()) == 1
     assert f"cannot write {tmp_path / 'file' / 'sweep'}" in err
+
+
+def test_sweep_cli_bad_base_config_is_one_line_error(datasets, tmp_path, capsys):
+    good, _ = datasets
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"keyframe": {"enabled": True, "bogus": 1}}))
+    code = main(["sweep", str(good), "--tile-size", "32", "--overlap", "0", "--config", str(bad),
+                 "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "bad.json" in err and "bogus" in err
+
+
+def test_sweep_cli_rejects_bad_tile_size(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["sweep", str(tmp_path), "--tile-size", "0", "--overlap", "0", "--out", "x"])
+    assert "tile size must be > 0" in capsys.readouterr().err
