@@ -222,13 +222,18 @@ def config_digest(base_config: dict) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
+# Entries every cell record has (failed cells included).
+RECORD_KEYS = ("cell_id", "dataset", "method", "tile_size", "overlap", "status")
+
+
 def _warn(message: str) -> None:
     print(f"warning: {message}", file=sys.stderr)
 
 
 def read_cell_record(path: Path, *, action: str) -> dict | None:
     """A cell's record, or None when it is missing; a record that is not a JSON object
-    (truncated, ``[]``) is None too, with a warning naming the file and ``action``."""
+    (truncated, ``[]``) or lacks an entry of :data:`RECORD_KEYS` is None too, with a
+    warning naming the file and ``action``."""
     try:
         record = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -238,6 +243,10 @@ def read_cell_record(path: Path, *, action: str) -> dict | None:
         return None
     if not isinstance(record, dict):
         _warn(f"{path}: expected a JSON object, got {type(record).__name__}; {action}")
+        return None
+    missing = [k for k in RECORD_KEYS if k not in record]
+    if missing:
+        _warn(f"{path}: sweep cell without {', '.join(missing)}; {action}")
         return None
     return record
 

@@ -205,11 +205,13 @@ def test_truncated_sweep_cell_is_skipped_with_a_warning(tmp_path, capsys):
     root = _make_results(tmp_path)
     (root / "sweep" / "cells" / "c1.json").write_text('{"cell_id": "c1", "dat')
     (root / "sweep" / "cells" / "c2.json").write_text("[]")
+    (root / "sweep" / "cells" / "c3.json").write_text('{"cell_id": "c3", "status": "ok"}')
     assert main(["report", str(root / "sweep"), "--out", str(tmp_path / "r")]) == 0
     err = capsys.readouterr().err
     assert "c1.json: unreadable sweep cell" in err and "c2.json: expected a JSON object" in err
+    assert "c3.json: sweep cell without dataset, method, tile_size, overlap; skipped" in err
     doc = json.loads((tmp_path / "r" / "report.json").read_text())
-    assert len(doc["sweeps"][0]["cells"]) == 2
+    assert len(doc["sweeps"][0]["cells"]) == 1
 
 
 def test_report_computes_the_motion_flow_sample_once_on_request(tmp_path):
