@@ -23,7 +23,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["RenderSettings", "TrajectorySettings", "EffectsSettings", "CameraSettings",
+__all__ = ["RenderSettings", "TrajectorySettings", "EffectsSettings", "CaptureSettings", "CameraSettings",
            "SceneConfig", "load_scene_config"]
 
 
@@ -76,6 +76,37 @@ class EffectsSettings:
 
 
 @dataclass(frozen=True)
+class CaptureSettings:
+    """How the camera captures a frame (see :mod:`omnisim.capture`); all off by default.
+
+    exposure : open shutter time as a fraction of the frame interval, 0..1 (motion blur);
+    rolling_shutter : readout time of the rows (top to bottom) as a fraction of the frame interval, 0..1;
+    vignetting : strength ``v >= 0`` of the radial fall-off ``(1 + (v * rho / rho_max)**2)**-2``.
+    A frame's capture must end by the next frame: ``exposure + rolling_shutter <= 1``.
+    """
+
+    exposure: float = 0.0
+    rolling_shutter: float = 0.0
+    vignetting: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("exposure", "rolling_shutter"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"{name}: expected a fraction of the frame interval in [0, 1], got {value!r}")
+        if self.exposure + self.rolling_shutter > 1.0:
+            raise ValueError(f"exposure + rolling_shutter: expected <= 1 (a frame's capture ends by the next "
+                             f"frame), got {self.exposure + self.rolling_shutter!r}")
+        if not self.vignetting >= 0.0:
+            raise ValueError(f"vignetting: expected >= 0, got {self.vignetting!r}")
+
+    @property
+    def timed(self) -> bool:
+        """True when rays of a frame are traced at different times (motion blur or rolling shutter)."""
+        return self.exposure > 0.0 or self.rolling_shutter > 0.0
+
+
+@dataclass(frozen=True)
 class CameraSettings:
     """Calibration at the render resolution and the mirror band (sensor-plane pixels)."""
 
@@ -100,6 +131,7 @@ class SceneConfig:
     materials: dict = field(default_factory=dict)
     lights: tuple = ()
     objects: tuple = ()
+    capture: CaptureSettings = field(default_factory=CaptureSettings)
 
     def settings_dict(self) -> dict:
         """JSON-serialisable summary of everything that changes the rendered pixels."""
@@ -111,6 +143,8 @@ class SceneConfig:
                        "center": list(self.camera.model.center),
                        "affine": list(self.camera.model.affine), "size": list(self.camera.model.size),
                        "radius_min": self.camera.radius_min, "radius_max": self.camera.radius_max},
+            # Only when set, so folders rendered before [capture] existed keep their identity.
+            **({"capture": asdict(self.capture)} if self.capture != CaptureSettings() else {}),
         }
 
 
@@ -194,6 +228,17 @@ def _camera(path: Path, table: dict, resolution) -> CameraSettings:
         model = model.scaled(factor_h)
         radius_min, radius_max = radius_min * factor_h, radius_max * factor_h
     return CameraSettings(model=model, radius_min=radius_min, radius_max=radius_max)
+
+
+def _capture(path: Path, table: dict) -> CaptureSettings:
+    r = _Reader(path, table, "capture")
+    values = {"exposure": r.number("exposure", 0.0, minimum=0.0, maximum=1.0),
+              "rolling_shutter": r.number("rolling_shutter", 0.0, minimum=0.0, maximum=1.0),
+              "vignetting": r.number("vignetting", 0.0, minimum=0.0)}
+    try:
+        return CaptureSettings(**values)
+    except ValueError as exc:
+        raise InputError(path, f"[capture] {exc}") from None
 
 
 def _resolution_value(path, value) -> tuple[int, int]:
@@ -280,6 +325,7 @@ def load_scene_config(path, *, spp: int | None = None, resolution=None,
         jpeg_quality=er.number("jpeg_quality", 0, minimum=0, maximum=100, integer=True),
     )
     camera = _camera(path, _table(path, data, "camera"), res)
+    capture = _capture(path, _table(path, data, "capture"))
 
     textures = _table(path, data, "textures")
     materials = _table(path, data, "materials")
@@ -305,4 +351,5 @@ def load_scene_config(path, *, spp: int | None = None, resolution=None,
         layout_seed=scene.number("seed", 0, minimum=0, integer=True),
         render=render, trajectory=trajectory, effects=effects, camera=camera,
         textures=textures, materials=materials, lights=tuple(lights), objects=tuple(objects),
+        capture=capture,
     )
