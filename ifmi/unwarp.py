@@ -17,21 +17,38 @@ scale follows the mirror's distortion.
 
 Pixel coordinates are ``(row, col)``, 0-based, pixel centres at integers, in
 both the omni image and the panorama.
+
+Other camera models (:mod:`ifmi.camera_models`: Kalibr fisheyes, pinhole,
+equirectangular) are sampled the same way along their own rays: azimuth and
+elevation are taken about the model's ``panorama_axis`` (its optical axis,
+or up for an equirectangular camera), and the band of elevations follows
+from the model's valid region and field of view instead of a radius band.
+A fisheye looking along z sees elevations from ``90 deg - FOV/2`` (below the
+horizon when the field of view exceeds 180 degrees) up to the band's inner
+edge, at ``min_radius_fraction`` of the way out from the axis. See
+:func:`off_axis_band`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, replace
+from typing import Sequence
 
 import cv2
 import numpy as np
 
-from .camera import OcamModel, elevation_from_radius, pixels_from_rays, rays_from_pixels
+from .camera import OcamModel, angles_from_axis, elevation_from_radius, pixels_from_rays, rays_from_pixels
 
 __all__ = [
     "PanoramaConfig",
     "PanoramaMapping",
     "radius_band",
+    "panorama_config_with_band",
+    "off_axis_band",
+    "panorama_axis_rotation",
+    "band_mask",
+    "angular_pixel_size_in_band",
     "panorama_mapping",
     "panorama_from_omni",
     "wrapped_panorama_maps",
@@ -47,6 +64,9 @@ _PROFILE_AZIMUTHS = 256
 _PROFILE_RADII = 256
 # Aperture (pixels) of the median filter applied before the band is detected.
 _NOISE_MEDIAN_PX = 5
+# Off-axis angles and azimuths probed to find the band a general camera model images fully.
+_BAND_ANGLES = 721
+_BAND_AZIMUTHS = 360
 
 
 @dataclass(frozen=True)
@@ -62,7 +82,9 @@ class PanoramaConfig:
         rounded to a multiple of 64 and capped at ``max_auto_width``.
     max_auto_width : int
         Cap of the automatic width: larger images are downsampled, which
-        keeps the time per frame bounded.
+        keeps the time per frame bounded. 2048 keeps 1024 x 1024 images at
+        their resolution (on sharp 1024 px images a 1024 px panorama had
+        three times the frame-to-frame error).
     height : int or None
         Panorama height in pixels; ``None`` makes pixels square at the band's
         elevation closest to the horizon.
@@ -75,6 +97,15 @@ class PanoramaConfig:
         oversampled centre.
     dark_level : float
         Gray level (0..255) under which a pixel counts as outside the mirror.
+    rim_lit_fraction : float
+        A ring counts as dark (outside the mirror, or the camera's own
+        reflection) when fewer than this fraction of its pixels are lit, in
+        the median over the frames judged. Dark objects (clothing, shadows,
+        the operator) cover part of a ring, rarely all of it; the rim and
+        the central reflection cover all of it.
+    min_band_fraction : float
+        A detected band narrower than this fraction of the calibration's
+        band is not trusted: the calibration's band is used, with a warning.
     margin_px : float
         Band shrink at both detected edges, pixels.
     """
@@ -85,8 +116,10 @@ class PanoramaConfig:
     radius_max_px: float | None = None
     min_radius_fraction: float = 0.3
     dark_level: float = 12.0
+    rim_lit_fraction: float = 0.1
+    min_band_fraction: float = 0.25
     margin_px: float = 2.0
-    max_auto_width: int = 1024
+    max_auto_width: int = 2048
 
     def __post_init__(self) -> None:
         if (self.width is not None and self.width < 8) or (self.height is not None and self.height < 8) \
@@ -99,6 +132,9 @@ class PanoramaConfig:
             raise ValueError(f"expected 0 <= radius_min_px < radius_max_px, got {lo}, {hi}")
         if not 0 <= self.min_radius_fraction < 1:
             raise ValueError(f"min_radius_fraction must be in [0, 1), got {self.min_radius_fraction}")
+        if not 0 < self.rim_lit_fraction < 1 or not 0 <= self.min_band_fraction < 1:
+            raise ValueError("expected 0 < rim_lit_fraction < 1 and 0 <= min_band_fraction < 1, got "
+                             f"{self.rim_lit_fraction}, {self.min_band_fraction}")
 
 
 @dataclass(frozen=True)
@@ -115,11 +151,15 @@ class PanoramaMapping:
     elevation_step_rad : float
         Elevation decrease per row, radians (> 0).
     radius_band_px : (float, float)
-        Sensor radii of the band's inner and outer edge, pixels.
+        Sensor radii of the band's inner and outer edge, pixels (OCamCalib
+        models; NaN for other models, whose band is ``off_axis_band_rad``).
     map_rows, map_cols : (height, width) float32 ndarray
         Omni-image ``(row, col)`` sampled by each panorama pixel (remap maps).
     fixed_maps : tuple of ndarray
         The same maps in OpenCV's fixed-point form (faster remapping).
+    camera_from_panorama : (3, 3) ndarray or None
+        Rotation from the panorama's frame (z the azimuth axis) to the
+        camera frame; None is the identity (OCamCalib: the mirror axis z).
     """
 
     model: OcamModel
@@ -131,6 +171,7 @@ class PanoramaMapping:
     map_rows: np.ndarray
     map_cols: np.ndarray
     fixed_maps: tuple = ()
+    camera_from_panorama: np.ndarray | None = None
 
 
 def gray_from_image(image: np.ndarray) -> np.ndarray:
@@ -170,17 +211,40 @@ def _monotonic_radius(model: OcamModel, limit: float) -> float:
     return float(r[int(np.argmin(grows))])
 
 
+def _ring_lit_fractions(model: OcamModel, image: np.ndarray, radii: np.ndarray,
+                        dark_level: float) -> np.ndarray:
+    """Fraction of each ring's pixels brighter than ``dark_level`` (median-filtered image)."""
+    # Median filtering removes isolated noisy pixels (sensor noise in the black regions,
+    # JPEG ringing) before rings are judged; the band's edges move by less than a pixel.
+    gray = cv2.medianBlur(np.clip(gray_from_image(image), 0, 255).astype(np.uint8),
+                          _NOISE_MEDIAN_PX).astype(np.float32)
+    phi = np.linspace(0.0, 2 * np.pi, _PROFILE_AZIMUTHS, endpoint=False)
+    c, d, e = model.affine
+    u = radii[:, None] * np.cos(phi)[None]
+    v = radii[:, None] * np.sin(phi)[None]
+    rows = (u * c + v * d + model.center[0]).astype(np.float32)
+    cols = (u * e + v + model.center[1]).astype(np.float32)
+    ring = cv2.remap(gray, cols, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    return (ring > dark_level).mean(axis=1)
+
+
 def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
-                config: PanoramaConfig = PanoramaConfig()) -> tuple[float, float]:
+                config: PanoramaConfig = PanoramaConfig(), frames: Sequence[np.ndarray] = ()) -> tuple[float, float]:
     """Sensor-radius band ``(r_min, r_max)`` in pixels that the mirror images.
 
-    The outer radius is the largest circle inside the image (and inside the
-    calibration's monotonic range); with an image, it shrinks to the last
-    radius whose ring is mostly brighter than ``config.dark_level`` (black
+    The calibration's band runs from ``config.min_radius_fraction`` of the
+    outer radius to the largest circle inside the image (and inside the
+    calibration's monotonic range). With images (``image`` and/or
+    ``frames``), the outer radius shrinks to the last lit ring (black
     outside the mirror) and the inner radius grows past a dark central disk
-    (the camera's reflection); rings are judged on the median-filtered
-    image, so noisy pixels in the black regions do not count as lit. The inner radius is at least
-    ``config.min_radius_fraction`` of the outer one. Explicit radii in
+    (the camera's reflection). A ring is dark when fewer than
+    ``config.rim_lit_fraction`` of its pixels are brighter than
+    ``config.dark_level``, in the median over the frames; so a dark object
+    crossing the ring, or a dark-clothed operator filling part of it, does
+    not end the band. Rings are judged on median-filtered images, so noisy
+    pixels in the black regions do not count as lit. A detected band
+    narrower than ``config.min_band_fraction`` of the calibration's falls
+    back to the calibration's band with a warning. Explicit radii in
     ``config`` override the detection.
 
     Parameters
@@ -188,6 +252,8 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
     model : OcamModel
     image : (H, W) or (H, W, 3) ndarray, optional
     config : PanoramaConfig, keyword-only
+    frames : sequence of (H, W) or (H, W, 3) ndarray, keyword-only
+        More frames of the sequence to judge the rings on.
 
     Returns
     -------
@@ -195,32 +261,20 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
         Inner and outer sensor radius, pixels.
     """
     outer = _monotonic_radius(model, _inscribed_radius(model))
+    calib_inner = config.min_radius_fraction * outer
     inner = 0.0
-    if image is not None:
-        # Median filtering removes isolated noisy pixels (sensor noise in the black regions,
-        # JPEG ringing) before rings are judged; the band's edges move by less than a pixel.
-        gray = cv2.medianBlur(np.clip(gray_from_image(image), 0, 255).astype(np.uint8),
-                              _NOISE_MEDIAN_PX).astype(np.float32)
+    images = ([] if image is None else [image]) + list(frames)
+    if images:
         radii = np.linspace(0.0, outer, _PROFILE_RADII)
-        phi = np.linspace(0.0, 2 * np.pi, _PROFILE_AZIMUTHS, endpoint=False)
-        c, d, e = model.affine
-        u = radii[:, None] * np.cos(phi)[None]
-        v = radii[:, None] * np.sin(phi)[None]
-        rows = (u * c + v * d + model.center[0]).astype(np.float32)
-        cols = (u * e + v + model.center[1]).astype(np.float32)
-        ring = cv2.remap(gray, cols, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        lit = (ring > config.dark_level).mean(axis=1) >= 0.5
-        if lit.any():
-            first = int(np.argmax(lit))
-            last = int(len(lit) - 1 - np.argmax(lit[::-1]))
-            # The inner edge is the end of the dark disk around the centre, the outer edge
-            # the last lit ring that is connected to it.
-            dark_after = np.flatnonzero(~lit[first:])
-            if dark_after.size:
-                last = min(last, first + int(dark_after[0]) - 1)
-            inner = float(radii[first]) + config.margin_px if first > 0 else 0.0
-            if last < len(lit) - 1:
-                outer = float(radii[last]) - config.margin_px
+        lit_fraction = np.median([_ring_lit_fractions(model, im, radii, config.dark_level) for im in images],
+                                 axis=0)
+        detected = _band_from_lit_rings(lit_fraction >= config.rim_lit_fraction, radii, config.margin_px)
+        if detected is None or detected[1] - max(detected[0], calib_inner) < \
+                config.min_band_fraction * (outer - calib_inner):
+            warnings.warn(f"no clear mirror band in the image (detected {detected}); using the "
+                          f"calibration's band {calib_inner:.1f}..{outer:.1f} px", stacklevel=2)
+        else:
+            inner, outer = detected[0], min(outer, detected[1])
     inner = max(inner, config.min_radius_fraction * outer)
     if config.radius_min_px is not None:
         inner = float(config.radius_min_px)
@@ -228,6 +282,55 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
         outer = float(config.radius_max_px)
     if not 0 <= inner < outer:
         raise ValueError(f"empty radius band: inner {inner:.1f} px >= outer {outer:.1f} px")
+    return inner, outer
+
+
+def panorama_config_with_band(model: OcamModel, frames: Sequence[np.ndarray], *,
+                              config: PanoramaConfig = PanoramaConfig()) -> PanoramaConfig:
+    """``config`` with the radius band decided from several frames of a sequence.
+
+    The band is :func:`radius_band` of all ``frames`` (rings judged on the
+    median over the frames, calibration's band as fallback), written into
+    ``radius_min_px`` and ``radius_max_px`` so that every method of a run
+    uses it and it is saved with the run's configuration. Radii the
+    configuration already fixes are kept; without frames ``config`` is
+    returned unchanged.
+
+    Parameters
+    ----------
+    model : OcamModel or CameraModel
+        Other models than OCamCalib get ``config`` back unchanged: their
+        band comes from their valid region (:func:`off_axis_band`).
+    frames : sequence of (H, W) or (H, W, 3) ndarray
+        A few frames spread over the sequence.
+    config : PanoramaConfig, keyword-only
+
+    Returns
+    -------
+    PanoramaConfig
+    """
+    if not len(frames) or (config.radius_min_px is not None and config.radius_max_px is not None):
+        return config
+    if not isinstance(model, OcamModel):  # other models: the band follows from the model (off_axis_band)
+        return config
+    inner, outer = radius_band(model, frames[0], config=config, frames=frames[1:])
+    return replace(config, radius_min_px=inner if config.radius_min_px is None else config.radius_min_px,
+                   radius_max_px=outer if config.radius_max_px is None else config.radius_max_px)
+
+
+def _band_from_lit_rings(lit: np.ndarray, radii: np.ndarray, margin: float) -> tuple[float, float] | None:
+    """Inner and outer radius of the lit rings connected to the first one, or None if none is lit."""
+    if not lit.any():
+        return None
+    first = int(np.argmax(lit))
+    last = int(len(lit) - 1 - np.argmax(lit[::-1]))
+    # The inner edge is the end of the dark disk around the centre, the outer edge the last
+    # lit ring that is connected to it.
+    dark_after = np.flatnonzero(~lit[first:])
+    if dark_after.size:
+        last = min(last, first + int(dark_after[0]) - 1)
+    inner = float(radii[first]) + margin if first > 0 else 0.0
+    outer = float(radii[last]) - margin if last < len(lit) - 1 else float(radii[-1])
     return inner, outer
 
 
@@ -246,6 +349,8 @@ def panorama_mapping(model: OcamModel, image: np.ndarray | None = None, *,
     -------
     PanoramaMapping
     """
+    if not isinstance(model, OcamModel):
+        return _model_panorama_mapping(model, config)
     inner, outer = radius_band(model, image, config=config)
     pol = np.asarray(model.pol)
     theta_lo, theta_hi = (float(v) for v in elevation_from_radius(pol, np.array([inner, outer])))
@@ -356,7 +461,10 @@ def rays_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.
     theta = mapping.elevation_top_rad - pano_pixels[..., 0] * mapping.elevation_step_rad
     phi = pano_pixels[..., 1] * (2 * np.pi / mapping.width)
     ct = np.cos(theta)
-    return np.stack([ct * np.cos(phi), ct * np.sin(phi), np.sin(theta)], axis=-1)
+    rays = np.stack([ct * np.cos(phi), ct * np.sin(phi), np.sin(theta)], axis=-1)
+    if mapping.camera_from_panorama is not None:
+        rays = rays @ mapping.camera_from_panorama.T
+    return rays
 
 
 def panorama_from_rays(mapping: PanoramaMapping, rays: np.ndarray) -> np.ndarray:
@@ -374,6 +482,8 @@ def panorama_from_rays(mapping: PanoramaMapping, rays: np.ndarray) -> np.ndarray
         Rows outside ``[0, height - 1]`` are outside the band.
     """
     rays = np.asarray(rays, dtype=np.float64)
+    if mapping.camera_from_panorama is not None:
+        rays = rays @ mapping.camera_from_panorama
     theta = np.arctan2(rays[..., 2], np.hypot(rays[..., 0], rays[..., 1]))
     phi = np.mod(np.arctan2(rays[..., 1], rays[..., 0]), 2 * np.pi)
     row = (mapping.elevation_top_rad - theta) / mapping.elevation_step_rad
@@ -410,3 +520,160 @@ def panorama_from_omni_pixels(mapping: PanoramaMapping, omni_pixels: np.ndarray)
         Rows outside ``[0, height - 1]`` are outside the band.
     """
     return panorama_from_rays(mapping, rays_from_pixels(mapping.model, omni_pixels))
+
+
+def panorama_axis_rotation(model) -> np.ndarray:
+    """Rotation (3, 3) from a panorama frame whose z is ``model``'s panorama axis to the camera frame.
+
+    The axis is ``model.panorama_axis`` when the model names one (up for an
+    equirectangular camera), else its ``optical_axis``. Columns of the
+    result are the panorama frame's x, y, z in camera coordinates; for an
+    axis along +z it is the identity, for -z a half turn about x.
+    """
+    axis = np.asarray(getattr(model, "panorama_axis", model.optical_axis), dtype=np.float64)
+    z = axis / np.linalg.norm(axis)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    x = helper - z * (helper @ z)
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def _circle_pixels(model, rotation: np.ndarray, angles: np.ndarray, azimuths: np.ndarray) -> np.ndarray:
+    """Pixels ``(A, Z, 2)`` of the rays at off-axis ``angles`` (A,) and ``azimuths`` (Z,) about the axis."""
+    sa, ca = np.sin(angles)[:, None], np.cos(angles)[:, None]
+    local = np.stack([sa * np.cos(azimuths)[None], sa * np.sin(azimuths)[None],
+                      np.broadcast_to(ca, (len(angles), len(azimuths)))], axis=-1)
+    return model.pixels_from_rays(local @ rotation.T)
+
+
+def off_axis_band(model, *, config: PanoramaConfig = PanoramaConfig()) -> tuple[float, float]:
+    """Off-axis angles ``(inner, outer)`` (radians) of the band a non-OCamCalib model images fully.
+
+    Rings of rays at a fixed angle from the panorama axis are probed from 0
+    to pi; a ring counts when every ray of it projects to a valid pixel at
+    least ``config.margin_px`` inside the image. The band is the longest run
+    of such rings, trimmed so that its inner edge is at least
+    ``config.min_radius_fraction`` of a right angle (nor of the run's
+    extent) from the axis and its outer edge as far from the opposite pole:
+    near either pole a panorama row would oversample a tiny circle. For a
+    fisheye along z the outer edge is half its field of view (less than
+    90 degrees below 180 degrees of view, more above it).
+
+    Returns
+    -------
+    (float, float)
+        Inner and outer angle from the axis, radians.
+    """
+    if config.radius_min_px is not None or config.radius_max_px is not None:
+        raise ValueError("radius_min_px / radius_max_px apply to OCamCalib models only")
+    rotation = panorama_axis_rotation(model)
+    angles = np.linspace(0.0, np.pi, _BAND_ANGLES)
+    azimuths = np.linspace(0.0, 2 * np.pi, _BAND_AZIMUTHS, endpoint=False)
+    pixels = _circle_pixels(model, rotation, angles, azimuths)
+    m = config.margin_px
+    # Columns of a 360-degree image wrap around, so its left and right edges are no border.
+    m_col = -0.5 if getattr(model, "wraps_columns", False) else m
+    with np.errstate(invalid="ignore"):
+        inside = ((pixels[..., 0] >= m - 0.5) & (pixels[..., 0] <= model.height - 0.5 - m)
+                  & (pixels[..., 1] >= m_col - 0.5) & (pixels[..., 1] <= model.width - 0.5 - m_col))
+    ok = inside.copy()
+    ok[inside] = model.valid_pixels(pixels[inside])
+    ring_ok = ok.all(axis=1)
+    if not ring_ok.any():
+        raise ValueError("the camera model images no full ring of rays about its axis")
+    # Longest run of consecutive good rings.
+    edges = np.diff(np.concatenate([[0], ring_ok.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    best = int(np.argmax(stops - starts))
+    first, last = float(angles[starts[best]]), float(angles[stops[best]])
+    pole_gap = config.min_radius_fraction * min(last, 0.5 * np.pi)
+    inner = max(first, pole_gap)
+    outer = min(last, np.pi - pole_gap)
+    if not inner < outer:
+        raise ValueError(f"empty band: inner {np.degrees(inner):.1f} deg >= outer {np.degrees(outer):.1f} deg")
+    return inner, outer
+
+
+def _panorama_size(config: PanoramaConfig, circumference: float, theta_lo: float,
+                   theta_hi: float) -> tuple[int, int]:
+    if config.width is None:
+        width = int(min(config.max_auto_width, max(64, 64 * round(circumference / 64))))
+    else:
+        width = int(config.width)
+    if config.height is None:
+        closest = 0.0 if theta_lo <= 0 <= theta_hi else min(abs(theta_lo), abs(theta_hi))
+        height = int(round(width * (theta_hi - theta_lo) / (2 * np.pi * np.cos(closest))))
+        height = max(8, min(height, width))
+    else:
+        height = int(config.height)
+    return width, height
+
+
+def _model_panorama_mapping(model, config: PanoramaConfig) -> PanoramaMapping:
+    """Panorama grid of a non-OCamCalib model along its own rays (see :func:`off_axis_band`)."""
+    inner, outer = off_axis_band(model, config=config)
+    rotation = panorama_axis_rotation(model)
+    # Image circumference of the band's middle ring sets the automatic width.
+    ring = _circle_pixels(model, rotation, np.array([0.5 * (inner + outer)]),
+                          np.linspace(0.0, 2 * np.pi, _BAND_AZIMUTHS + 1))[0]
+    circumference = float(np.sum(np.hypot(*np.diff(ring, axis=0).T)))
+    theta_lo, theta_hi = 0.5 * np.pi - outer, 0.5 * np.pi - inner
+    width, height = _panorama_size(config, circumference, theta_lo, theta_hi)
+    step = (theta_hi - theta_lo) / max(height - 1, 1)
+    mapping = PanoramaMapping(
+        model=model, width=width, height=height, elevation_top_rad=theta_hi, elevation_step_rad=step,
+        radius_band_px=(float("nan"), float("nan")), map_rows=np.zeros((0, 0), np.float32),
+        map_cols=np.zeros((0, 0), np.float32), camera_from_panorama=rotation)
+    rows, cols = np.mgrid[0:height, 0:width]
+    pixels = pixels_from_rays(model, rays_from_panorama(mapping, np.stack([rows, cols], axis=-1)))
+    pixels = np.nan_to_num(pixels, nan=-1.0).astype(np.float32)
+    map_rows, map_cols = np.ascontiguousarray(pixels[..., 0]), np.ascontiguousarray(pixels[..., 1])
+    return replace(mapping, map_rows=map_rows, map_cols=map_cols,
+                   fixed_maps=cv2.convertMaps(map_cols, map_rows, cv2.CV_16SC2))
+
+
+def band_mask(mapping: PanoramaMapping, *, margin_px: float = 0.0) -> np.ndarray:
+    """``(H, W)`` bool mask of the omni-image pixels (rows, cols) whose rays lie in the panorama's band.
+
+    Pixels outside the model's valid region are excluded; the mask is
+    eroded by ``margin_px`` pixels (a disc), so that a descriptor window
+    around a kept pixel stays inside the band.
+    """
+    model = mapping.model
+    rows, cols = np.mgrid[0:model.height, 0:model.width]
+    pixels = np.stack([rows, cols], axis=-1).astype(np.float64)
+    axis = np.array([0.0, 0.0, 1.0]) if mapping.camera_from_panorama is None \
+        else mapping.camera_from_panorama[:, 2]
+    theta = 0.5 * np.pi - angles_from_axis(rays_from_pixels(model, pixels), axis)
+    bottom = mapping.elevation_top_rad - (mapping.height - 1) * mapping.elevation_step_rad
+    with np.errstate(invalid="ignore"):
+        mask = (theta <= mapping.elevation_top_rad) & (theta >= bottom) & model.valid_pixels(pixels)
+    radius = int(np.ceil(margin_px))
+    if radius > 0:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        mask = cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    return mask
+
+
+# Panorama points (per axis) at which the pixel angle of a general model is measured.
+_PIXEL_ANGLE_SAMPLES = 16
+
+
+def angular_pixel_size_in_band(model, *, config: PanoramaConfig = PanoramaConfig()) -> float:
+    """Angle (radians) one image pixel subtends in the panorama band of a camera model.
+
+    At a grid of points over the band (:func:`panorama_mapping` of the model
+    alone) the angles between the ray of the point's image pixel and the
+    rays one pixel further along the rows and the columns are measured; the
+    result is the median of their geometric mean.
+    """
+    mapping = panorama_mapping(model, config=config)
+    rows = np.linspace(0, mapping.height - 1, _PIXEL_ANGLE_SAMPLES).astype(int)
+    cols = np.linspace(0, mapping.width - 1, _PIXEL_ANGLE_SAMPLES, endpoint=False).astype(int)
+    base = np.stack([mapping.map_rows[np.ix_(rows, cols)], mapping.map_cols[np.ix_(rows, cols)]],
+                    axis=-1).reshape(-1, 2).astype(np.float64)
+    steps = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    rays = rays_from_pixels(model, base[:, None, :] + steps)
+    along_row = np.arccos(np.clip(np.sum(rays[:, 0] * rays[:, 1], axis=-1), -1.0, 1.0))
+    along_col = np.arccos(np.clip(np.sum(rays[:, 0] * rays[:, 2], axis=-1), -1.0, 1.0))
+    return float(np.nanmedian(np.sqrt(along_row * along_col)))

@@ -108,7 +108,11 @@ class CaptureSettings:
 
 @dataclass(frozen=True)
 class CameraSettings:
-    """Calibration at the render resolution and the mirror band (sensor-plane pixels)."""
+    """Calibration at the render resolution and the mirror band (sensor-plane pixels).
+
+    ``model`` is an OCamCalib model or, from ``kalibr = "camera.yaml"``, a
+    model of :mod:`ifmi.camera_models` (band 0..inf: its valid region bounds the image).
+    """
 
     model: OcamModel
     radius_min: float
@@ -139,13 +143,20 @@ class SceneConfig:
             "render": asdict(self.render),
             "trajectory": asdict(self.trajectory),
             "effects": asdict(self.effects),
-            "camera": {"pol": list(self.camera.model.pol), "invpol": list(self.camera.model.invpol),
-                       "center": list(self.camera.model.center),
-                       "affine": list(self.camera.model.affine), "size": list(self.camera.model.size),
-                       "radius_min": self.camera.radius_min, "radius_max": self.camera.radius_max},
+            "camera": self._camera_dict(),
             # Only when set, so folders rendered before [capture] existed keep their identity.
             **({"capture": asdict(self.capture)} if self.capture != CaptureSettings() else {}),
         }
+
+    def _camera_dict(self) -> dict:
+        if not isinstance(self.camera.model, OcamModel):
+            from ifmi.io.kalibr import kalibr_fields
+
+            return {"kalibr": kalibr_fields(self.camera.model)}
+        model = self.camera.model
+        return {"pol": list(model.pol), "invpol": list(model.invpol), "center": list(model.center),
+                "affine": list(model.affine), "size": list(model.size),
+                "radius_min": self.camera.radius_min, "radius_max": self.camera.radius_max}
 
 
 class _Reader:
@@ -196,6 +207,8 @@ def _camera(path: Path, table: dict, resolution) -> CameraSettings:
     from ifmi.io.calib import read_calib
 
     r = _Reader(path, table, "camera")
+    if "kalibr" in table:
+        return _kalibr_camera(path, r, resolution)
     if "calib" in table:
         calib_path = Path(r.string("calib", ""))
         if not calib_path.is_absolute():
@@ -228,6 +241,29 @@ def _camera(path: Path, table: dict, resolution) -> CameraSettings:
         model = model.scaled(factor_h)
         radius_min, radius_max = radius_min * factor_h, radius_max * factor_h
     return CameraSettings(model=model, radius_min=radius_min, radius_max=radius_max)
+
+
+def _kalibr_camera(path: Path, r: "_Reader", resolution) -> CameraSettings:
+    """``[camera] kalibr = "camera.yaml"``: a Kalibr camchain replaces the OCamCalib keys."""
+    from ifmi.io.kalibr import read_kalibr
+
+    for key in ("calib", "pol", "center", "affine", "size", "radius_min", "radius_max"):
+        if key in r.table:
+            r.fail(key, "not used with 'kalibr' (the Kalibr file is the whole camera; its valid "
+                        "region bounds the image)")
+    kalibr_path = Path(r.string("kalibr", ""))
+    if not kalibr_path.is_absolute():
+        kalibr_path = path.parent / kalibr_path
+    model = read_kalibr(kalibr_path)
+    height, width = resolution
+    # The width sets the scale; the height must be the calibration's, scaled and rounded.
+    factor = width / model.width
+    if int(round(model.height * factor)) != height:
+        raise InputError(path, f"[render] resolution: expected the calibration's aspect "
+                               f"{model.height}x{model.width} (height x width), got {height}x{width}")
+    if abs(factor - 1.0) > 1e-12:
+        model = model.scaled(factor)
+    return CameraSettings(model=model, radius_min=0.0, radius_max=float("inf"))
 
 
 def _capture(path: Path, table: dict) -> CaptureSettings:
