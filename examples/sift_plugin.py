@@ -1,4 +1,4 @@
-"""An ifmi method from outside the project: SIFT keypoints (OpenCV) in the mirror band.
+"""An ifmi method from outside the project: SIFT keypoints (OpenCV) in the panorama's band.
 
 Use it by its import path (this folder on PYTHONPATH), e.g.
 ``ifmi estimate DATASET --method sift_plugin:sift_front_end --out sift.txt``, or
@@ -11,9 +11,9 @@ register it from a package's ``pyproject.toml``::
 import cv2
 import numpy as np
 
-from ifmi.camera import radius_from_pixels, rays_from_pixels
+from ifmi.camera import rays_from_pixels
 from ifmi.front_end import Correspondences
-from ifmi.unwarp import gray_from_image, radius_band
+from ifmi.unwarp import band_mask, gray_from_image, panorama_mapping
 
 RATIO = 0.75  # Lowe's ratio test on L2 descriptor distances
 MARGIN_PX = 8  # keypoints this far inside the band's edges (static borders never match)
@@ -27,11 +27,10 @@ class SiftFrontEnd:
 
     def prepare(self, image):
         gray = np.clip(gray_from_image(image), 0, 255).astype(np.uint8)
-        if self.mask is None:  # the mirror band, detected on the first image
-            inner, outer = radius_band(self.model, gray, config=self.panorama)
-            r = radius_from_pixels(self.model, np.moveaxis(np.indices(gray.shape), 0, -1))
-            self.mask = np.uint8(255) * ((r > inner + MARGIN_PX) & (r < outer - MARGIN_PX))
-        keypoints, descriptors = self.sift.detectAndCompute(gray, self.mask.astype(np.uint8))
+        if self.mask is None:  # the pixels of the panorama's band (any camera model), from frame 0
+            mapping = panorama_mapping(self.model, gray, config=self.panorama)
+            self.mask = band_mask(mapping, margin_px=MARGIN_PX).astype(np.uint8) * 255
+        keypoints, descriptors = self.sift.detectAndCompute(gray, self.mask)
         pixels = np.array([kp.pt[::-1] for kp in keypoints], dtype=float).reshape(-1, 2)  # (row, col)
         return pixels, rays_from_pixels(self.model, pixels), descriptors
 
@@ -49,5 +48,5 @@ class SiftFrontEnd:
 
 
 def sift_front_end(model, config):
-    """SIFT keypoints in the mirror band (OpenCV), L2 ratio-test matching."""
+    """SIFT keypoints in the panorama's band (OpenCV), L2 ratio-test matching."""
     return SiftFrontEnd(model, config)
