@@ -137,19 +137,21 @@ def test_motion_flow_sample_of_real_frames_and_evaluation_stays_pure(tmp_path):
     from ifmi.io.results import write_estimate_run
     from ifmi.motion_flow import motion_flow_sample
     from ifmi.pipeline import EstimateConfig, estimate_dataset
-    from omni_synthetic import environment_texture, omni_model, render_omni
+    pytest.importorskip("skimage")
+    from ifmi.synthetic import environment_texture, example_band_px, example_omni_model, omni_from_environment
 
     # Two frames turned by a pure yaw: on the panorama every tile moves by
     # -yaw * width / (2 pi) columns and 0 rows.
     yaw = 0.05
     data = tmp_path / "data"
     (data / "images").mkdir(parents=True)
-    model = omni_model(256)
+    model = example_omni_model(256)
     write_calib(data / "calib_results.txt", model)
-    texture = environment_texture()
+    texture = environment_texture(height=512, seed=0)
     rotations = matrix_from_rpy(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, yaw]]))
     for k, R in enumerate(rotations):
-        cv2.imwrite(str(data / "images" / f"{k:06d}.png"), render_omni(model, R, texture))
+        cv2.imwrite(str(data / "images" / f"{k:06d}.png"), omni_from_environment(
+            texture, model, R, band_px=example_band_px(model)))
     write_tum(data / "groundtruth.txt", Trajectory(np.arange(2.0), np.zeros((2, 3)), rotations))
     est = write_estimate_run(tmp_path / "ifmi.txt", estimate_dataset(data, method="ifmi"),
                              dataset_dir=data)
@@ -309,8 +311,9 @@ def test_motion_flow_sample_of_frames_outside_the_dataset_is_input_error(tmp_pat
     from ifmi.errors import InputError
     from ifmi.motion_flow import motion_flow_sample
     from ifmi.pipeline import EstimateConfig
-    from omni_synthetic import write_dataset
+    pytest.importorskip("skimage")
+    from ifmi.synthetic import example_omni_model, synthetic_sequence, write_synthetic_dataset
 
-    data = write_dataset(tmp_path / "d", n=2, size=96)
+    data = write_synthetic_dataset(tmp_path / "d", synthetic_sequence(example_omni_model(96), 2))
     with pytest.raises(InputError, match=r"frames 0, 5 outside 0..1"):
         motion_flow_sample(data, config=EstimateConfig(), frames=(0, 5))

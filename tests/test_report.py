@@ -218,9 +218,13 @@ def test_report_computes_the_motion_flow_sample_once_on_request(tmp_path):
     from ifmi.io.results import read_motion_flow, write_estimate_run
     from ifmi.pipeline import EstimateConfig, SequenceEstimate
     from ifmi.io.tum import read_tum
-    from omni_synthetic import write_dataset
+    pytest.importorskip("skimage")
+    from ifmi.synthetic import (example_band_px, example_omni_model, synthetic_sequence,
+                                write_synthetic_dataset)
 
-    data = write_dataset(tmp_path / "office", n=3, size=160, seed=1)
+    model = example_omni_model(160)
+    data = write_synthetic_dataset(tmp_path / "office", synthetic_sequence(
+        model, 3, seed=1, band_px=example_band_px(model)))
     gt = read_tum(data / "groundtruth.txt")
     # An exact "estimate" suffices: the sample is computed from the dataset and the config.
     run = SequenceEstimate(trajectory=gt, frames=(), config=EstimateConfig(), method="ifmi")

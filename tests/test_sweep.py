@@ -14,14 +14,23 @@ from ifmi.pipeline import EstimateConfig
 from ifmi.rotations import geodesic_angle
 from ifmi.sweep import SweepOptions, config_with_tiling, run_sweep, sweep_cells
 
-from omni_synthetic import write_dataset
+pytest.importorskip("skimage")
+from ifmi.synthetic import (example_band_px, example_omni_model, synthetic_sequence,  # noqa: E402
+                            write_synthetic_dataset)
+
+
+def _write_dataset(folder, *, n, size, seed, max_step_rad=0.03):
+    model = example_omni_model(size)
+    sequence = synthetic_sequence(model, n, seed=seed, max_step_rad=max_step_rad,
+                                  band_px=example_band_px(model))
+    return write_synthetic_dataset(folder, sequence)
 
 
 @pytest.fixture(scope="module")
 def datasets(tmp_path_factory):
     root = tmp_path_factory.mktemp("sweep_data")
-    good = write_dataset(root / "tiny", n=5, size=160, seed=2, step_rad=0.04)
-    bad = write_dataset(root / "nogt", n=3, size=128, seed=3)
+    good = _write_dataset(root / "tiny", n=5, size=160, seed=2, max_step_rad=0.04)
+    bad = _write_dataset(root / "nogt", n=3, size=128, seed=3)
     (bad / "groundtruth.txt").unlink()
     return good, bad
 
@@ -148,8 +157,8 @@ def test_sweep_through_existing_scheduler_address(datasets, tmp_path):
 
 
 def test_two_datasets_of_one_name_are_distinct_cells(tmp_path):
-    a = write_dataset(tmp_path / "site_a" / "office", n=4, size=128, seed=5, step_rad=0.03)
-    b = write_dataset(tmp_path / "site_b" / "office", n=4, size=128, seed=6, step_rad=0.06)
+    a = _write_dataset(tmp_path / "site_a" / "office", n=4, size=128, seed=5, max_step_rad=0.03)
+    b = _write_dataset(tmp_path / "site_b" / "office", n=4, size=128, seed=6, max_step_rad=0.06)
     cells = sweep_cells([str(a), str(b)], method="ifmi", tile_sizes=[32], overlaps=[0.0])
     out = tmp_path / "sweep"
     records = run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(),
@@ -166,13 +175,13 @@ def test_two_datasets_of_one_name_are_distinct_cells(tmp_path):
 
 
 def test_changed_dataset_is_recomputed_never_reused(tmp_path):
-    data = write_dataset(tmp_path / "office", n=4, size=128, seed=5)
+    data = _write_dataset(tmp_path / "office", n=4, size=128, seed=5)
     cells = sweep_cells([str(data)], method="ifmi", tile_sizes=[32], overlaps=[0.0])
     out = tmp_path / "sweep"
     options = SweepOptions(scheduler="synchronous", progress=False)
     first = run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
     # The same folder now holds another sequence (a re-render with another seed).
-    write_dataset(data, n=4, size=128, seed=9, step_rad=0.06)
+    _write_dataset(data, n=4, size=128, seed=9, max_step_rad=0.06)
     second = run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
     assert first[0]["dataset_digest"] != second[0]["dataset_digest"]
     assert first[0]["rmse_geodesic_rad"] != second[0]["rmse_geodesic_rad"]
