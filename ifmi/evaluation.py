@@ -15,16 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-from .io.results import jsonable, read_estimate_side_files, write_evaluation, write_motion_flow
+from .errors import InputError, OutputError
+from .io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
 from .io.tum import read_tum
-from .metrics import AXES, summary_from_errors, trajectory_errors
+from .metrics import AXES, EvaluationSummary, summary_from_errors, trajectory_errors
+from .trajectory import Trajectory
 
-__all__ = ["EvaluateOptions", "default_evaluation_dir", "evaluate_files", "format_summary_table",
-           "dataset_label", "dataset_provenance", "motion_flow_sample", "MOTION_FLOW_FILE"]
-
-# File name of the motion-flow sample written beside an iFMI evaluation.
-MOTION_FLOW_FILE = "motion_flow.npz"
+__all__ = ["EvaluateOptions", "GateVerdict", "default_evaluation_dir", "evaluate_files",
+           "format_summary_table", "dataset_label", "dataset_provenance", "gate_verdict",
+           "summary_of"]
 
 
 @dataclass(frozen=True)
@@ -36,20 +35,23 @@ class EvaluateOptions:
     max_time_difference : float
         Largest timestamp difference (timestamp units, frames or seconds)
         for two poses to be associated.
-    motion_flow : bool
-        For an iFMI run whose dataset images are at hand, also save the tile
-        flow of one frame pair (``motion_flow.npz``) for the report's figure.
-    motion_flow_frames : (int, int)
-        The frame pair of that sample.
+    min_matched : float
+        Smallest fraction of the ground-truth poses that must be associated
+        with an estimate pose; fewer is an error, not a summary of a few
+        frames. In [0, 1].
     """
 
     max_time_difference: float = 1e-3
-    motion_flow: bool = True
-    motion_flow_frames: tuple[int, int] = (0, 1)
+    min_matched: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not self.max_time_difference >= 0:
+            raise ValueError(f"expected max_time_difference >= 0, got {self.max_time_difference}")
+        if not 0 <= self.min_matched <= 1:
+            raise ValueError(f"expected min_matched in [0, 1], got {self.min_matched}")
 
     def to_dict(self) -> dict:
-        return {"max_time_difference": self.max_time_difference, "motion_flow": self.motion_flow,
-                "motion_flow_frames": list(self.motion_flow_frames)}
+        return {"max_time_difference": self.max_time_difference, "min_matched": self.min_matched}
 
 
 def default_evaluation_dir(estimate_path: str | os.PathLike) -> Path:
@@ -86,54 +88,6 @@ def dataset_label(dataset_dir: str | os.PathLike | None) -> tuple[str, str]:
     return name, scene
 
 
-def motion_flow_sample(dataset_dir: str | os.PathLike, *, config, frames: tuple[int, int] = (0, 1)) -> dict:
-    """Tile flow of the iFMI front end between two frames of a dataset (for Fig. 2-style plots).
-
-    Parameters
-    ----------
-    dataset_dir : path
-        DATASET folder.
-    config : ifmi.pipeline.EstimateConfig, keyword-only
-        Configuration of the run (its ``ifmi`` part is used).
-    frames : (int, int), keyword-only
-        Frame indices ``(a, b)``.
-
-    Returns
-    -------
-    dict of ndarray
-        ``panorama_a``, ``panorama_b`` (H, W) uint8; ``points_a``,
-        ``points_b`` (M, 2) panorama ``(row, col)`` of the kept tiles' centre
-        flow (b's tile centre and where the flow equation puts it in a);
-        ``tile_centers`` (T, 2) panorama ``(row, col)``; ``tile_size``;
-        ``tiles_kept``; ``frames``.
-    """
-    from .flow import flow_from_tile_motion, flow_sample_points
-    from .io.dataset import read_dataset, read_image
-    from .spectral_front_end import IfmiFrontEnd
-    from .unwarp import panorama_image_from_omni_image
-
-    dataset = read_dataset(dataset_dir)
-    a, b = (int(f) for f in frames)
-    if not (0 <= a < len(dataset.image_paths) and 0 <= b < len(dataset.image_paths)):
-        raise InputError(dataset_dir, f"frames {a}, {b} outside 0..{len(dataset.image_paths) - 1}")
-    image_a = read_image(dataset.image_paths[a], size=dataset.model.size)
-    image_b = read_image(dataset.image_paths[b], size=dataset.model.size)
-    front = IfmiFrontEnd(dataset.model, config.ifmi)
-    state_a, state_b = front.prepare(image_a), front.prepare(image_b)
-    motion, origins_b = front.register(state_a, state_b)
-    centre = flow_sample_points(front.layout.tile_size, points_per_tile=1)
-    pairs = flow_from_tile_motion(motion, front.layout, front.mapping, points_b=centre,
-                                  origins_b=origins_b)
-
-    def pano(image):
-        return np.clip(panorama_image_from_omni_image(front.mapping, image) + 0.5, 0, 255).astype(np.uint8)
-
-    return {"panorama_a": pano(image_a), "panorama_b": pano(image_b),
-            "points_a": pairs.panorama_a, "points_b": pairs.panorama_b,
-            "tile_centers": front.layout.centers, "tile_size": np.array(front.layout.tile_size),
-            "tiles_kept": np.array(int(motion.valid.sum())), "frames": np.array([a, b])}
-
-
 # Entries of a dataset's meta.json carried into evaluations (provenance shown in reports).
 DATASET_META_KEYS = ("scene_name", "frames", "resolution", "spp", "seed", "variant")
 
@@ -151,10 +105,74 @@ def dataset_provenance(dataset_dir: str | os.PathLike | None) -> dict:
     return {k: meta[k] for k in DATASET_META_KEYS if k in meta}
 
 
+def _check_unique_timestamps(path: Path, trajectory: Trajectory) -> None:
+    values, counts = np.unique(trajectory.timestamps, return_counts=True)
+    if np.any(counts > 1):
+        first = int(np.argmax(counts > 1))
+        raise InputError(path, f"duplicate timestamp {values[first]:g} ({counts[first]} poses); "
+                               "expected one pose per timestamp")
+
+
+def _check_side_files(est_path: Path, est: Trajectory, side: EstimateSideFiles) -> None:
+    """The side files must belong to this trajectory: one frames.csv row per pose."""
+    if side.frames is not None and len(side.frames) != len(est):
+        raise InputError(side.frames_path, f"{len(side.frames)} frames, but {est_path.name} has "
+                                           f"{len(est)} poses; the estimate and its side files "
+                                           "come from different runs")
+
+
+def _reference_timestamps(est: Trajectory, side: EstimateSideFiles) -> np.ndarray | None:
+    """Timestamp of the frame each pose was estimated against (NaN: none), from frames.csv."""
+    frames = side.frames
+    if frames is None or frames.reference_frame is None or len(frames) != len(est):
+        return None
+    # Frame k of the estimate file is row k; map reference rows to timestamps.
+    ref_rows = np.asarray(frames.reference_frame, dtype=np.float64)
+    ok = np.isfinite(ref_rows) & (ref_rows >= 0) & (ref_rows < len(est))
+    reference_t = np.full(len(est), np.nan)
+    order = np.argsort(frames.frame)
+    row_of_frame = {int(f): i for i, f in enumerate(frames.frame[order])}
+    for i in np.flatnonzero(ok):
+        j = row_of_frame.get(int(ref_rows[i]))
+        if j is not None and j != i:
+            reference_t[i] = est.timestamps[j]
+    return reference_t
+
+
+def _check_matched(est_path: Path, n_matched: int, n_gt: int, options: EvaluateOptions) -> None:
+    if n_matched < options.min_matched * n_gt:
+        raise InputError(est_path, f"only {n_matched} of {n_gt} ground-truth poses have an "
+                                   f"estimate pose within {options.max_time_difference:g} "
+                                   f"(expected at least {options.min_matched:.0%}; "
+                                   "--min-matched lowers the bar)")
+
+
+def _run_meta(gt_path: Path, est_path: Path, side: EstimateSideFiles, summary: EvaluationSummary,
+              options: EvaluateOptions) -> dict:
+    config = side.config or {}
+    dataset_dir = config.get("dataset") or str(gt_path.parent)
+    dataset, scene = dataset_label(dataset_dir)
+    return {
+        "summary": summary.to_dict(),
+        "method": config.get("method", "unknown"),
+        "dataset": dataset,
+        "scene": scene,
+        "dataset_path": str(dataset_dir),
+        "dataset_meta": dataset_provenance(dataset_dir),
+        "groundtruth_path": str(gt_path.resolve()),
+        "estimate_path": str(est_path.resolve()),
+        "options": options.to_dict(),
+        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    }
+
+
 def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
                    out_dir: str | os.PathLike | None = None,
                    options: EvaluateOptions = EvaluateOptions()) -> dict:
     """Evaluate ``est_path`` against ``gt_path`` and write an evaluation folder.
+
+    Only reads the trajectories and the estimate's side files; nothing is
+    estimated again.
 
     Parameters
     ----------
@@ -167,76 +185,105 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     Returns
     -------
     dict
-        The content of ``evaluation.json`` (``summary`` holds the statistics).
+        The content of ``evaluation.json`` (``summary`` holds the statistics,
+        :func:`summary_of` reads them back typed) and ``path``.
 
     Raises
     ------
     InputError
-        Missing or malformed input files, or no frame in common.
+        Missing or malformed input files, duplicate timestamps, side files
+        that do not belong to the estimate, or fewer associated poses than
+        ``options.min_matched`` of the ground truth.
+    OutputError
+        The evaluation folder cannot be written.
     """
     gt_path, est_path = Path(gt_path), Path(est_path)
     gt = read_tum(gt_path)
     est = read_tum(est_path)
+    _check_unique_timestamps(gt_path, gt)
+    _check_unique_timestamps(est_path, est)
     side = read_estimate_side_files(est_path)
-    reference_t = None
-    success = seconds = None
-    if side.frames is not None:
-        frames = side.frames
-        success, seconds = frames.success, frames.seconds
-        ref = frames.reference_frame
-        if ref is not None and len(frames) == len(est):
-            # Frame k of the estimate file is row k; map reference rows to timestamps.
-            ref_rows = np.asarray(ref, dtype=np.float64)
-            ok = np.isfinite(ref_rows) & (ref_rows >= 0) & (ref_rows < len(est))
-            reference_t = np.full(len(est), np.nan)
-            order = np.argsort(frames.frame)
-            row_of_frame = {int(f): i for i, f in enumerate(frames.frame[order])}
-            for i in np.flatnonzero(ok):
-                j = row_of_frame.get(int(ref_rows[i]))
-                if j is not None and j != i:
-                    reference_t[i] = est.timestamps[j]
+    _check_side_files(est_path, est, side)
     try:
         errors = trajectory_errors(gt, est, max_time_difference=options.max_time_difference,
-                                   reference_timestamps=reference_t)
+                                   reference_timestamps=_reference_timestamps(est, side))
     except ValueError as exc:
         raise InputError(est_path, str(exc)) from None
-    summary = summary_from_errors(errors, n_gt=len(gt), n_est=len(est), frame_success=success,
-                                  frame_seconds=seconds)
-    config = side.config or {}
-    dataset_dir = config.get("dataset") or str(gt_path.parent)
-    dataset, scene = dataset_label(dataset_dir)
-    meta = {
-        "summary": summary,
-        "method": config.get("method", "unknown"),
-        "dataset": dataset,
-        "scene": scene,
-        "dataset_path": str(dataset_dir),
-        "dataset_meta": dataset_provenance(dataset_dir),
-        "groundtruth_path": str(gt_path.resolve()),
-        "estimate_path": str(est_path.resolve()),
-        "options": options.to_dict(),
-        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "per_frame_columns": list(errors.arrays()),
-    }
+    _check_matched(est_path, len(errors), len(gt), options)
+    frames = side.frames
+    summary = summary_from_errors(errors, n_gt=len(gt), n_est=len(est),
+                                  frame_success=None if frames is None else frames.success,
+                                  frame_seconds=None if frames is None else frames.seconds)
+    meta = _run_meta(gt_path, est_path, side, summary, options)
+    meta["per_frame_columns"] = list(errors.arrays())
     out = Path(out_dir) if out_dir is not None else default_evaluation_dir(est_path)
-    flow = None
-    if options.motion_flow and meta["method"] == "ifmi" and config.get("config") is not None \
-            and Path(dataset_dir, "images").is_dir():
-        from .pipeline import EstimateConfig
-
-        try:
-            flow = motion_flow_sample(dataset_dir, config=EstimateConfig.from_dict(config["config"]),
-                                      frames=options.motion_flow_frames)
-            meta["motion_flow"] = MOTION_FLOW_FILE
-        except Exception as exc:  # the figure's data is optional; the evaluation stands
-            meta["motion_flow"] = None
-            meta["motion_flow_error"] = f"{type(exc).__name__}: {exc}"
-    write_evaluation(out, meta=meta, arrays=errors.arrays(), side_files=side)
-    if flow is not None:
-        write_motion_flow(out / MOTION_FLOW_FILE, flow)
+    try:
+        write_evaluation(out, meta=meta, arrays=errors.arrays(), side_files=side)
+    except OutputError:
+        raise
+    except OSError as exc:  # e.g. the folder cannot be made: a regular file in the way
+        raise OutputError.from_os_error(out, exc) from None
     meta = jsonable(meta)
     meta["path"] = str(out)
     return meta
+
+
+def summary_of(meta: dict) -> EvaluationSummary:
+    """The typed summary of an evaluation (``evaluate_files``'s result or ``evaluation.json``)."""
+    return EvaluationSummary.from_dict(meta["summary"])
+
+
+@dataclass(frozen=True)
+class GateVerdict:
+    """Outcome of a pass/fail check of an evaluation (``ifmi evaluate --max-rmse``).
+
+    Attributes
+    ----------
+    passed : bool
+    line : str
+        One line, ``PASS: ...`` or ``FAIL: ...``, with the measured values and bounds.
+    """
+
+    passed: bool
+    line: str
+
+
+def gate_verdict(summary: EvaluationSummary, *, max_rmse_rad: float,
+                 max_failed: int | None = None) -> GateVerdict:
+    """Check the geodesic RMSE (and the failed-frame count) against bounds.
+
+    Parameters
+    ----------
+    summary : EvaluationSummary
+    max_rmse_rad : float, keyword-only
+        Largest accepted geodesic RMSE (radians); a NaN RMSE fails.
+    max_failed : int, optional, keyword-only
+        Largest accepted number of failed frames; needs the run's
+        ``frames.csv`` (``summary.failures``).
+
+    Returns
+    -------
+    GateVerdict
+
+    Raises
+    ------
+    ValueError
+        ``max_failed`` given but the failed-frame count is unknown.
+    """
+    rmse = summary.geodesic.rmse
+    rmse_ok = bool(np.isfinite(rmse) and rmse <= max_rmse_rad)
+    parts = [f"geodesic RMSE {rmse:.4f} rad {'<=' if rmse_ok else '>'} {max_rmse_rad:.4f} rad"]
+    failed_ok = True
+    if max_failed is not None:
+        if summary.failures is None:
+            raise ValueError("the failed-frame count is unknown (no frames.csv beside the "
+                             "estimate); expected one for --max-failed")
+        failed_ok = summary.failures <= max_failed
+        parts.append(f"{summary.failures} failed frames {'<=' if failed_ok else '>'} {max_failed}")
+    elif summary.failures is not None:
+        parts.append(f"{summary.failures} failed frames")
+    passed = rmse_ok and failed_ok
+    return GateVerdict(passed, ("PASS: " if passed else "FAIL: ") + ", ".join(parts))
 
 
 def _fmt(v, scale: float = 1.0, digits: int = 4) -> str:
@@ -247,26 +294,26 @@ def _fmt(v, scale: float = 1.0, digits: int = 4) -> str:
 
 def format_summary_table(meta: dict) -> str:
     """Readable plain-text table of an evaluation summary (radians and degrees)."""
-    s = meta["summary"]
+    s = summary_of(meta)
     deg = 180.0 / np.pi
     lines = [f"method {meta.get('method')}  dataset {meta.get('dataset')}  "
-             f"frames {s['frames']['associated']}/{s['frames']['ground_truth']} associated",
+             f"frames {s.frames_associated}/{s.frames_ground_truth} associated",
              f"{'error':<24}{'RMSE rad':>10}{'mean rad':>10}{'std rad':>10}{'max rad':>10}"
              f"{'RMSE deg':>10}"]
 
     def row(name, st):
-        lines.append(f"{name:<24}{_fmt(st['rmse']):>10}{_fmt(st['mean']):>10}{_fmt(st['std']):>10}"
-                     f"{_fmt(st['max']):>10}{_fmt(st['rmse'], deg, 3):>10}")
+        lines.append(f"{name:<24}{_fmt(st.rmse):>10}{_fmt(st.mean):>10}{_fmt(st.std):>10}"
+                     f"{_fmt(st.max):>10}{_fmt(st.rmse, deg, 3):>10}")
 
     for axis in AXES:
-        row(axis, s["axes"][axis])
-    lines.append(f"{'mean of roll/pitch/yaw':<24}{_fmt(s['mean_rmse']):>10}")
-    row("geodesic", s["geodesic"])
-    row("relative (per frame)", s["relative_geodesic"])
-    row("translation direction", s["translation_direction"])
-    if s.get("failures") is not None:
-        lines.append(f"failed frames: {s['failures']['count']} of {s['failures']['frames']}")
-    if s.get("time") is not None:
-        lines.append(f"time per frame: {s['time']['mean_s'] * 1e3:.2f} ms mean, "
-                     f"{s['time']['median_s'] * 1e3:.2f} ms median")
+        row(axis, s.axis(axis))
+    lines.append(f"{'mean of roll/pitch/yaw':<24}{_fmt(s.mean_rmse):>10}")
+    row("geodesic", s.geodesic)
+    row("relative (per frame)", s.relative_geodesic)
+    row("translation direction", s.translation_direction)
+    if s.failures is not None:
+        lines.append(f"failed frames: {s.failures} of {s.failure_frames}")
+    if s.time is not None:
+        lines.append(f"time per frame: {s.time.mean_s * 1e3:.2f} ms mean, "
+                     f"{s.time.median_s * 1e3:.2f} ms median")
     return "\n".join(lines)

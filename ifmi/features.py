@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from .camera import OcamModel, radius_from_pixels, rays_from_pixels
+from .front_end import Correspondences
 from .options import options_from_dict
 
 __all__ = [
@@ -290,8 +291,6 @@ class FeatureFrontEnd:
         ifmi.pipeline.Correspondences
             Flagged as failed when fewer than ``config.min_matches`` survive.
         """
-        from .pipeline import Correspondences
-
         pairs = match_descriptors(state_a.descriptors, state_b.descriptors,
                                   ratio=self.config.ratio, cross_check=self.config.cross_check)
         diagnostics = {"n_keypoints_a": len(state_a), "n_keypoints_b": len(state_b),

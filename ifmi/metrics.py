@@ -31,6 +31,8 @@ __all__ = [
     "error_stats",
     "trajectory_errors",
     "translation_direction_errors",
+    "TimeStats",
+    "EvaluationSummary",
     "summary_from_errors",
 ]
 
@@ -234,6 +236,18 @@ class TrajectoryErrors:
         return out
 
 
+def _reference_rows(reference_t: np.ndarray, timestamps: np.ndarray,
+                   max_time_difference: float) -> np.ndarray:
+    """Row of ``timestamps`` (sorted) at each reference time; -1 where none is within reach."""
+    reference = np.full(len(reference_t), -1)
+    finite = np.isfinite(reference_t)
+    if finite.any():
+        pos = np.clip(np.searchsorted(timestamps, reference_t[finite]), 0, len(timestamps) - 1)
+        hit = np.abs(timestamps[pos] - reference_t[finite]) <= max_time_difference
+        reference[np.flatnonzero(finite)[hit]] = pos[hit]
+    return reference
+
+
 def trajectory_errors(gt: Trajectory, est: Trajectory, *, max_time_difference: float = 1e-3,
                       reference_timestamps: np.ndarray | None = None) -> TrajectoryErrors:
     """Associate ``est`` with ``gt`` by timestamp and compute per-frame errors.
@@ -281,15 +295,8 @@ def trajectory_errors(gt: Trajectory, est: Trajectory, *, max_time_difference: f
     if reference_timestamps is None:
         reference = np.arange(len(gi)) - 1
     else:
-        ref_t = np.asarray(reference_timestamps, dtype=np.float64)[ei]
-        t_rows = sub_est.timestamps
-        reference = np.full(len(gi), -1)
-        finite = np.isfinite(ref_t)
-        if finite.any():
-            pos = np.searchsorted(t_rows, ref_t[finite])
-            pos = np.clip(pos, 0, len(t_rows) - 1)
-            hit = np.abs(t_rows[pos] - ref_t[finite]) <= max_time_difference
-            reference[np.flatnonzero(finite)[hit]] = pos[hit]
+        reference = _reference_rows(np.asarray(reference_timestamps, dtype=np.float64)[ei],
+                                    sub_est.timestamps, max_time_difference)
     translation = translation_direction_errors(sub_gt, sub_est, reference)
     return TrajectoryErrors(timestamps=est.timestamps[ei], gt_index=gi, est_index=ei,
                             rpy_gt=rpy_gt, rpy_est=rpy_est, rpy_error=rpy_error,
@@ -297,10 +304,149 @@ def trajectory_errors(gt: Trajectory, est: Trajectory, *, max_time_difference: f
                             translation_direction=translation)
 
 
+@dataclass(frozen=True)
+class TimeStats:
+    """Wall time per frame of an estimate run (seconds).
+
+    Attributes
+    ----------
+    mean_s, median_s, total_s : float
+    frames : int
+        Frames with a finite time.
+    """
+
+    mean_s: float
+    median_s: float
+    total_s: float
+    frames: int
+
+    def to_dict(self) -> dict:
+        return {"mean_s": self.mean_s, "median_s": self.median_s, "total_s": self.total_s,
+                "frames": self.frames}
+
+
+def _stats_from_dict(data: dict) -> ErrorStats:
+    nan = float("nan")
+    return ErrorStats(*(nan if data.get(k) is None else float(data[k])
+                        for k in ("rmse", "mean", "std", "median", "max")),
+                      count=int(data.get("count") or 0))
+
+
+@dataclass(frozen=True)
+class EvaluationSummary:
+    """Summary statistics of an evaluation (Table-1 style), all angles in radians.
+
+    Stored nested in ``evaluation.json`` (:meth:`to_dict`,
+    :meth:`from_dict`); :meth:`flat` gives the one set of flat column names
+    that sweep tables and report tables use.
+
+    Attributes
+    ----------
+    roll, pitch, yaw : ErrorStats
+        Per-axis errors (wrapped ``est - gt``).
+    geodesic, relative_geodesic, translation_direction : ErrorStats
+    frames_ground_truth, frames_estimate, frames_associated : int
+        Poses in the ground-truth file, in the estimate file, and associated.
+    failures : int or None
+        Failed frames of the run (from its ``frames.csv``), None if unknown.
+    failure_frames : int or None
+        Frames of the run's ``frames.csv``.
+    time : TimeStats or None
+    """
+
+    roll: ErrorStats
+    pitch: ErrorStats
+    yaw: ErrorStats
+    geodesic: ErrorStats
+    relative_geodesic: ErrorStats
+    translation_direction: ErrorStats
+    frames_ground_truth: int
+    frames_estimate: int
+    frames_associated: int
+    failures: int | None = None
+    failure_frames: int | None = None
+    time: TimeStats | None = None
+
+    @property
+    def mean_rmse(self) -> float:
+        """Mean of the roll, pitch and yaw RMSEs (radians)."""
+        return float(np.mean([self.roll.rmse, self.pitch.rmse, self.yaw.rmse]))
+
+    def axis(self, name: str) -> ErrorStats:
+        """Errors of the axis ``name`` (one of :data:`AXES`)."""
+        if name not in AXES:
+            raise ValueError(f"expected an axis of {AXES}, got {name!r}")
+        return getattr(self, name)
+
+    def to_dict(self) -> dict:
+        """Nested JSON-ready dict (the ``summary`` of ``evaluation.json``)."""
+        return {
+            "axes": {a: self.axis(a).to_dict() for a in AXES},
+            "mean_rmse": self.mean_rmse,
+            "geodesic": self.geodesic.to_dict(),
+            "relative_geodesic": self.relative_geodesic.to_dict(),
+            "translation_direction": self.translation_direction.to_dict(),
+            "frames": {"ground_truth": self.frames_ground_truth, "estimate": self.frames_estimate,
+                       "associated": self.frames_associated},
+            "failures": None if self.failures is None else {"count": self.failures,
+                                                            "frames": self.failure_frames},
+            "time": None if self.time is None else self.time.to_dict(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "EvaluationSummary":
+        """Inverse of :meth:`to_dict` (JSON nulls read as NaN)."""
+        failures, time = data.get("failures"), data.get("time")
+        frames = data["frames"]
+        return cls(
+            **{a: _stats_from_dict(data["axes"][a]) for a in AXES},
+            geodesic=_stats_from_dict(data["geodesic"]),
+            relative_geodesic=_stats_from_dict(data["relative_geodesic"]),
+            translation_direction=_stats_from_dict(data["translation_direction"]),
+            frames_ground_truth=int(frames["ground_truth"]), frames_estimate=int(frames["estimate"]),
+            frames_associated=int(frames["associated"]),
+            failures=None if failures is None else int(failures["count"]),
+            failure_frames=None if failures is None else int(failures["frames"]),
+            time=None if time is None else TimeStats(**{k: time[k] for k in
+                                                       ("mean_s", "median_s", "total_s", "frames")}),
+        )
+
+    def flat(self) -> dict:
+        """One row of named scalars; the column names of sweep and report tables.
+
+        Returns
+        -------
+        dict
+            ``rmse_<axis>_rad``, ``mean_<axis>_rad``, ``std_<axis>_rad`` per
+            axis, ``rmse_mean_rad``, ``rmse_geodesic_rad``,
+            ``max_geodesic_rad``, ``rmse_relative_rad``,
+            ``mean_translation_direction_rad``, ``time_per_frame_s`` (None if
+            unknown), ``failures`` (None if unknown), ``frames`` (poses in
+            the estimate) and ``associated``.
+        """
+        row = {}
+        for a in AXES:
+            stats = self.axis(a)
+            row.update({f"rmse_{a}_rad": stats.rmse, f"mean_{a}_rad": stats.mean,
+                        f"std_{a}_rad": stats.std})
+        row.update({
+            "rmse_mean_rad": self.mean_rmse,
+            "rmse_geodesic_rad": self.geodesic.rmse,
+            "max_geodesic_rad": self.geodesic.max,
+            "rmse_relative_rad": self.relative_geodesic.rmse,
+            "mean_translation_direction_rad": self.translation_direction.mean,
+            "time_per_frame_s": None if self.time is None else self.time.mean_s,
+            "failures": self.failures,
+            "frames": self.frames_estimate,
+            "associated": self.frames_associated,
+        })
+        return row
+
+
 def summary_from_errors(errors: TrajectoryErrors, *, n_gt: int, n_est: int,
                         frame_success: np.ndarray | None = None,
-                        frame_seconds: np.ndarray | None = None) -> dict:
-    """JSON-ready summary statistics of per-frame errors (Table-1 style).
+                        frame_seconds: np.ndarray | None = None) -> EvaluationSummary:
+    """Summary statistics of per-frame errors (Table-1 style).
 
     Parameters
     ----------
@@ -314,32 +460,22 @@ def summary_from_errors(errors: TrajectoryErrors, *, n_gt: int, n_est: int,
 
     Returns
     -------
-    dict
-        ``axes`` (roll/pitch/yaw :class:`ErrorStats` dicts), ``mean_rmse``
-        (mean of the three axis RMSEs), ``geodesic``, ``relative_geodesic``,
-        ``translation_direction``, ``frames`` (counts), ``failures`` and
-        ``time`` (seconds per frame), NaN/None where unknown.
+    EvaluationSummary
     """
-    axes = {axis: error_stats(errors.rpy_error[:, i]).to_dict() for i, axis in enumerate(AXES)}
-    summary = {
-        "axes": axes,
-        "mean_rmse": float(np.mean([axes[a]["rmse"] for a in AXES])),
-        "geodesic": error_stats(errors.geodesic).to_dict(),
-        "relative_geodesic": error_stats(errors.relative_geodesic).to_dict(),
-        "translation_direction": error_stats(errors.translation_direction).to_dict(),
-        "frames": {"ground_truth": int(n_gt), "estimate": int(n_est),
-                   "associated": int(len(errors))},
-    }
+    failures = failure_frames = time = None
     if frame_success is not None:
         ok = np.asarray(frame_success, dtype=bool)
-        summary["failures"] = {"count": int((~ok).sum()), "frames": int(ok.size)}
-    else:
-        summary["failures"] = None
+        failures, failure_frames = int((~ok).sum()), int(ok.size)
     if frame_seconds is not None and len(frame_seconds) > 0:
         s = np.asarray(frame_seconds, dtype=np.float64)
         s = s[np.isfinite(s)]
-        summary["time"] = {"mean_s": float(s.mean()), "median_s": float(np.median(s)),
-                           "total_s": float(s.sum()), "frames": int(s.size)}
-    else:
-        summary["time"] = None
-    return summary
+        time = TimeStats(mean_s=float(s.mean()), median_s=float(np.median(s)),
+                         total_s=float(s.sum()), frames=int(s.size))
+    return EvaluationSummary(
+        **{axis: error_stats(errors.rpy_error[:, i]) for i, axis in enumerate(AXES)},
+        geodesic=error_stats(errors.geodesic),
+        relative_geodesic=error_stats(errors.relative_geodesic),
+        translation_direction=error_stats(errors.translation_direction),
+        frames_ground_truth=int(n_gt), frames_estimate=int(n_est),
+        frames_associated=int(len(errors)), failures=failures, failure_frames=failure_frames,
+        time=time)

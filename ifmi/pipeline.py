@@ -1,33 +1,23 @@
-"""Estimation pipeline: front-end protocol, method registry and sequence estimation.
+"""Estimation pipeline: configuration and sequence estimation for any method.
 
-A *front end* turns images into ray correspondences; the relative-pose back
-end (:mod:`ifmi.relative_pose`) and the trajectory chaining
-(:mod:`ifmi.odometry`) are shared by every method, so comparisons isolate the
-front end. A front end is an object with
-
-``prepare(image) -> state``
-    per-frame work that does not depend on the other frame (panorama, tile
-    spectra, keypoints); ``image`` is ``(H, W)`` or ``(H, W, 3)`` uint8. The
-    odometry keeps the state of a keyframe, so it is prepared once;
-``correspondences(state_a, state_b) -> Correspondences``
-    matching of a reference frame ``a`` against frame ``b``. A front end
-    whose ``uses_prior_rotation`` attribute is true is called with the
-    keyword ``prior_rotation`` (a predicted ``R_ab``) as well.
-
-Methods are created by name through :func:`create_front_end`; a factory
-receives the camera model and the whole :class:`EstimateConfig` and reads the
-part that concerns it (``config.ifmi`` for ``"ifmi"``, ``config.features`` for
-the feature baselines).
+A method's front end (:mod:`ifmi.front_end`) turns images into ray
+correspondences; the relative-pose back end (:mod:`ifmi.relative_pose`) and
+the trajectory chaining (:mod:`ifmi.odometry`) are shared by every method, so
+comparisons isolate the front end. Methods are found by name
+(:mod:`ifmi.methods`: built in, installed plugins, or
+``package.module:factory``); a factory receives the camera model and the
+whole :class:`EstimateConfig` and reads the part that concerns it
+(``config.ifmi`` for ``"ifmi"``, ``config.features`` for the feature
+baselines).
 """
 
 from __future__ import annotations
 
-import importlib
 import os
 import sys
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -35,6 +25,9 @@ from tqdm import tqdm
 from .camera import OcamModel
 from .config_limits import check_config_for_model
 from .errors import CalibrationFitError, InputError
+from .features import FeatureConfig
+from .front_end import Correspondences, FrontEnd
+from .methods import create_front_end, method_names
 from .trajectory import Trajectory
 from .options import options_from_dict
 from .odometry import FrameRecord, KeyframeOptions, track_sequence
@@ -48,7 +41,6 @@ __all__ = [
     "EstimateConfig",
     "SequenceEstimate",
     "FrameRecord",
-    "METHODS",
     "method_names",
     "create_front_end",
     "estimate_sequence",
@@ -57,51 +49,6 @@ __all__ = [
     "resolved_config",
     "check_config_for_model",
 ]
-
-
-@dataclass(frozen=True)
-class Correspondences:
-    """Matched points of a frame pair.
-
-    Attributes
-    ----------
-    pixels_a, pixels_b : (N, 2) ndarray
-        Omni-image ``(row, col)`` of each match in frame a and frame b.
-    rays_a, rays_b : (N, 3) ndarray
-        Unit rays of those pixels in the camera frame.
-    diagnostics : dict
-        JSON-serialisable scalars (counts, quality figures).
-    success : bool
-    reason : str
-        Empty on success, else why matching failed.
-    rays_per_measurement : int
-        Consecutive matches that come from one measurement and share its
-        error (flow points of one tile); 1 for keypoint matches.
-    """
-
-    pixels_a: np.ndarray
-    pixels_b: np.ndarray
-    rays_a: np.ndarray
-    rays_b: np.ndarray
-    diagnostics: dict = field(default_factory=dict)
-    success: bool = True
-    reason: str = ""
-    rays_per_measurement: int = 1
-
-    @staticmethod
-    def failed(reason: str, diagnostics: dict | None = None) -> "Correspondences":
-        """Empty correspondences flagged as failed with ``reason``."""
-        empty2, empty3 = np.zeros((0, 2)), np.zeros((0, 3))
-        return Correspondences(empty2, empty2, empty3, empty3, dict(diagnostics or {}),
-                               success=False, reason=reason)
-
-
-class FrontEnd(Protocol):
-    """Per-frame preparation and pairwise matching (see the module docstring)."""
-
-    def prepare(self, image: np.ndarray) -> Any: ...
-
-    def correspondences(self, state_a: Any, state_b: Any) -> Correspondences: ...
 
 
 @dataclass(frozen=True)
@@ -114,13 +61,13 @@ class EstimateConfig:
         Options of the ``"ifmi"`` front end.
     features : FeatureConfig or None
         Options of the ``"orb"``/``"akaze"`` front ends (:mod:`ifmi.features`);
-        ``None`` means that module's defaults.
+        ``None`` means :class:`FeatureConfig`'s defaults.
     relative_pose : RelativePoseOptions
     keyframe : KeyframeOptions
     """
 
     ifmi: IfmiConfig = field(default_factory=IfmiConfig)
-    features: Any = None
+    features: FeatureConfig | None = None
     relative_pose: RelativePoseOptions = field(default_factory=RelativePoseOptions)
     keyframe: KeyframeOptions = field(default_factory=KeyframeOptions)
 
@@ -147,9 +94,7 @@ class EstimateConfig:
             message names the key path (``ifmi.tiling.overlap``), what was
             expected and what was got.
         """
-        feature_config = importlib.import_module("ifmi.features").FeatureConfig
-        return options_from_dict(cls, data, what="",
-                                 types_override={"features": feature_config | None})
+        return options_from_dict(cls, data, what="")
 
 
 @dataclass(frozen=True)
@@ -172,45 +117,6 @@ class SequenceEstimate:
     method: str
 
 
-def _ifmi_factory(model: OcamModel, config: EstimateConfig):
-    from .spectral_front_end import IfmiFrontEnd
-
-    return IfmiFrontEnd(model, config.ifmi)
-
-
-def _orb_factory(model: OcamModel, config: EstimateConfig):
-    from .features import orb_front_end
-
-    return orb_front_end(model, config)
-
-
-def _akaze_factory(model: OcamModel, config: EstimateConfig):
-    from .features import akaze_front_end
-
-    return akaze_front_end(model, config)
-
-
-# Method name -> factory(model, config) -> front end. Other front ends register
-# here; factories import their module lazily so that importing the pipeline stays cheap.
-METHODS: dict[str, Callable[[OcamModel, EstimateConfig], FrontEnd]] = {
-    "ifmi": _ifmi_factory,
-    "orb": _orb_factory,
-    "akaze": _akaze_factory,
-}
-
-
-def method_names() -> tuple[str, ...]:
-    """Registered method names, for command-line choices."""
-    return tuple(METHODS)
-
-
-def create_front_end(method: str, model: OcamModel, config: EstimateConfig) -> FrontEnd:
-    """Instantiate the front end registered as ``method``."""
-    try:
-        factory = METHODS[method]
-    except KeyError:
-        raise ValueError(f"unknown method {method!r}; expected one of {method_names()}") from None
-    return factory(model, config)
 
 
 def resolved_config(config: EstimateConfig, model: OcamModel) -> EstimateConfig:
@@ -243,7 +149,8 @@ def estimate_sequence(images: Iterable[np.ndarray], model: OcamModel, *, method:
     model : OcamModel
         Calibration of every frame.
     method : str, keyword-only
-        A name of :func:`method_names`.
+        A name of :func:`method_names`, or ``package.module:factory``
+        (:func:`ifmi.methods.load_factory`).
     config : EstimateConfig, keyword-only
         A relative-pose threshold given in pixels is converted to radians for
         ``model`` (:func:`resolved_config`); the result's ``config`` holds the

@@ -18,12 +18,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from .io.atomic import atomic_write_bytes  # noqa: E402
+from .methods import method_colors  # noqa: E402
 
-__all__ = ["save_figure", "rpy_over_frames", "sweep_heatmap", "motion_flow_figure",
-           "METHOD_COLORS"]
+__all__ = ["save_figure", "rpy_over_frames", "sweep_heatmap", "motion_flow_figure"]
 
-# Colours of the methods in every figure (ground truth is black).
-METHOD_COLORS = {"ifmi": "tab:red", "orb": "tab:blue", "akaze": "tab:green"}
 # Resolution of saved figures, dots per inch.
 DPI = 110
 
@@ -46,7 +44,8 @@ def rpy_over_frames(series: Mapping[str, Mapping[str, np.ndarray]], *, title: st
     series : mapping method -> mapping
         Per method: ``timestamp`` (N,), ``roll_est``/``pitch_est``/``yaw_est``
         (N,) and ``roll_gt``/``pitch_gt``/``yaw_gt`` (N,), radians; the
-        ground truth is drawn from the first method.
+        ground truth is drawn from the first method. Any method name is drawn,
+        in its colour of :func:`ifmi.methods.method_colors`.
     title : str, keyword-only
     path : path, keyword-only
         PNG to write.
@@ -54,6 +53,7 @@ def rpy_over_frames(series: Mapping[str, Mapping[str, np.ndarray]], *, title: st
         Per-axis RMSE (radians) shown in the legend.
     """
     axes_names = ("roll", "pitch", "yaw")
+    colors = method_colors(series)
     fig, axes = plt.subplots(1, 3, figsize=(14, 3.6), sharex=True)
     first = next(iter(series.values()))
     for i, (ax, axis) in enumerate(zip(axes, axes_names)):
@@ -63,7 +63,7 @@ def rpy_over_frames(series: Mapping[str, Mapping[str, np.ndarray]], *, title: st
             if rmse is not None and method in rmse:
                 label = f"{method} (RMSE {rmse[method][i]:.4f} rad)"
             ax.plot(data["timestamp"], data[f"{axis}_est"], lw=1.2,
-                    color=METHOD_COLORS.get(method), label=label)
+                    color=colors[method], label=label)
         ax.set_title(axis)
         ax.set_xlabel("frame")
         ax.set_ylabel(f"{axis} [rad]")

@@ -739,6 +739,92 @@ def _gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int,
     return float(capped + np.log(4.0) * dimension * n + np.log(4.0 * n) * parameters)
 
 
+def _checked_inputs(rays_a, rays_b, options: RelativePoseOptions,
+                    rays_per_measurement) -> tuple[np.ndarray, np.ndarray, int]:
+    """Rays as float arrays and the group size, checked (see :func:`relative_pose_from_rays`)."""
+    rays_a = np.asarray(rays_a, dtype=np.float64)
+    rays_b = np.asarray(rays_b, dtype=np.float64)
+    if rays_a.ndim != 2 or rays_a.shape[1:] != (3,) or rays_a.shape != rays_b.shape:
+        raise ValueError(
+            f"expected rays_a and rays_b of equal shape (N, 3), got {rays_a.shape} and {rays_b.shape}")
+    if options.ransac_threshold_rad is None:
+        raise ValueError("ransac_threshold_rad is None; set it or resolve the pixel threshold with "
+                         "RelativePoseOptions.resolved(pixel_angle_rad)")
+    if isinstance(rays_per_measurement, bool) or int(rays_per_measurement) != rays_per_measurement \
+            or rays_per_measurement < 1:
+        raise ValueError(f"expected rays_per_measurement to be an integer >= 1, got {rays_per_measurement!r}")
+    if not (np.isfinite(rays_a).all() and np.isfinite(rays_b).all()):
+        finite = np.all(np.isfinite(rays_a), axis=1) & np.all(np.isfinite(rays_b), axis=1)
+        raise ValueError(f"rays must be finite; {int((~finite).sum())} of {len(rays_a)} rows are not")
+    return rays_a, rays_b, int(rays_per_measurement)
+
+
+def _fit_rotation(rays_a, rays_b, products, rays, options: RelativePoseOptions, rng):
+    """Rotation-only model: RANSAC, refinement on its inliers, noise level of its residuals.
+
+    Returns
+    -------
+    rotation : (3, 3) ndarray
+    errors : (N,) ndarray
+        Rotation residual angles of every correspondence.
+    mask : (N,) ndarray of bool
+        Inliers under the rotation threshold.
+    sigma : float
+        Noise level (radians) for the model selection.
+    """
+    rot_threshold = options.rotation_threshold_factor * options.ransac_threshold_rad
+    rotation = _ransac_rotation(rays, products, rot_threshold, options, rng)
+    rot_errors = rotation_angles(rays_a, rays_b, rotation)
+    rot_mask = rot_errors < rot_threshold
+    if options.refine and rot_mask.sum() >= _SAMPLE_ROTATION:
+        rotation = _kabsch(products[rot_mask].sum(axis=0).reshape(3, 3))
+        rot_errors = rotation_angles(rays_a, rays_b, rotation)
+        rot_mask = rot_errors < rot_threshold
+    sigma = options.noise_sigma_rad or noise_sigma_from_residuals(rot_errors[rot_mask], rot_threshold)
+    if options.refine and options.robust_iterations and rot_mask.sum() >= _SAMPLE_ROTATION:
+        rotation = _reweighted_rotation(rays_a[rot_mask], rays_b[rot_mask], products[rot_mask], rotation,
+                                        options.robust_scale * sigma, options.robust_iterations)
+        rot_errors = rotation_angles(rays_a, rays_b, rotation)
+        rot_mask = rot_errors < rot_threshold
+    return rotation, rot_errors, rot_mask, sigma
+
+
+def _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options: RelativePoseOptions,
+                       rng, group: int):
+    """The 5-point model ``(rotation, unit translation, inlier mask)`` when GRIC prefers it, else None.
+
+    GRIC compares the models on the correspondences that either explains: a
+    gross outlier costs the 5-point model less than the rotation model (its
+    residual cap is lower), so counting the outliers of both would hand
+    heavily contaminated pairs to the 5-point model. The noise level is
+    :func:`_selection_noise`'s (given options win); taken from the 5-point
+    model, that model must win by ``_NOISE_5PT_MARGIN`` per measurement.
+    """
+    threshold = options.ransac_threshold_rad
+    _, rot_errors, rot_mask, sigma = rotation_fit
+    rotation_5pt, translation = _ransac_5pt(rays, products, threshold, options, rng)
+    if rotation_5pt is None:
+        return None
+    errors_5pt = _epipolar_angles_of_essentials(
+        products, rays_b, (_skew(translation) @ rotation_5pt)[None])[0]
+    mask = errors_5pt < threshold
+    if options.refine and mask.sum() >= _SAMPLE_5PT:
+        rotation_5pt, translation = _refine_5pt(rays_a[mask], rays_b[mask], rotation_5pt,
+                                                translation, options.refine_iterations)
+        errors_5pt = _epipolar_angles_of_essentials(
+            products, rays_b, (_skew(translation) @ rotation_5pt)[None])[0]
+    either = rot_mask | (errors_5pt < threshold)
+    noise, from_5pt = options.noise_sigma_rad, False
+    if noise is None:
+        noise, from_5pt = _selection_noise(_noise_sigma_of_5pt(errors_5pt, threshold, group), sigma,
+                                           threshold, options.rotation_threshold_factor * threshold)
+    margin = _NOISE_5PT_MARGIN * either.sum() / group if from_5pt else 0.0
+    if (_gric(errors_5pt[either], noise, dimension=3, parameters=5, group=group) + margin
+            >= _gric(rot_errors[either], noise, dimension=2, parameters=3, group=group)):
+        return None
+    return rotation_5pt, translation / np.linalg.norm(translation), errors_5pt < threshold
+
+
 def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
                             options: RelativePoseOptions,
                             rays_per_measurement: int = 1) -> tuple[RelativePose, RelativePoseInfo]:
@@ -765,75 +851,25 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     info : RelativePoseInfo
         Success flag with a reason, inlier mask and the model chosen.
     """
-    rays_a = np.asarray(rays_a, dtype=np.float64)
-    rays_b = np.asarray(rays_b, dtype=np.float64)
-    if rays_a.ndim != 2 or rays_a.shape[1:] != (3,) or rays_a.shape != rays_b.shape:
-        raise ValueError(
-            f"expected rays_a and rays_b of equal shape (N, 3), got {rays_a.shape} and {rays_b.shape}")
-    if options.ransac_threshold_rad is None:
-        raise ValueError("ransac_threshold_rad is None; set it or resolve the pixel threshold with "
-                         "RelativePoseOptions.resolved(pixel_angle_rad)")
-    if isinstance(rays_per_measurement, bool) or int(rays_per_measurement) != rays_per_measurement \
-            or rays_per_measurement < 1:
-        raise ValueError(f"expected rays_per_measurement to be an integer >= 1, got {rays_per_measurement!r}")
-    rays_per_measurement = int(rays_per_measurement)
+    rays_a, rays_b, rays_per_measurement = _checked_inputs(rays_a, rays_b, options,
+                                                           rays_per_measurement)
     n = len(rays_a)
     rng = np.random.default_rng(options.seed)
     model = "rotation" if options.rotation_only else "5pt"
-    if not (np.isfinite(rays_a).all() and np.isfinite(rays_b).all()):
-        finite = np.all(np.isfinite(rays_a), axis=1) & np.all(np.isfinite(rays_b), axis=1)
-        raise ValueError(f"rays must be finite; {int((~finite).sum())} of {n} rows are not")
     needed = max(options.min_inliers, _SAMPLE_ROTATION if options.rotation_only else _SAMPLE_5PT)
     if n < needed:
         info = RelativePoseInfo(False, f"too few correspondences ({n} < {needed})", n, 0,
                                 np.zeros(n, dtype=bool), model)
         return RelativePose(), info
-
-    threshold = options.ransac_threshold_rad
-    rot_threshold = options.rotation_threshold_factor * threshold
     products = _ray_products(rays_a, rays_b)
     rays = np.stack([rays_a, rays_b])
-    rotation = _ransac_rotation(rays, products, rot_threshold, options, rng)
-    rot_errors = rotation_angles(rays_a, rays_b, rotation)
-    rot_mask = rot_errors < rot_threshold
-    if options.refine and rot_mask.sum() >= _SAMPLE_ROTATION:
-        rotation = _kabsch(products[rot_mask].sum(axis=0).reshape(3, 3))
-        rot_errors = rotation_angles(rays_a, rays_b, rotation)
-        rot_mask = rot_errors < rot_threshold
-    sigma = options.noise_sigma_rad or noise_sigma_from_residuals(rot_errors[rot_mask], rot_threshold)
-    if options.refine and options.robust_iterations and rot_mask.sum() >= _SAMPLE_ROTATION:
-        rotation = _reweighted_rotation(rays_a[rot_mask], rays_b[rot_mask], products[rot_mask], rotation,
-                                        options.robust_scale * sigma, options.robust_iterations)
-        rot_errors = rotation_angles(rays_a, rays_b, rotation)
-        rot_mask = rot_errors < rot_threshold
-    chosen = ("rotation", rotation, np.zeros(3), rot_mask)
-    # GRIC compares the models on the correspondences that either explains: a gross outlier
-    # costs the 5-point model less than the rotation model (its residual cap is lower), so
-    # counting the outliers of both would hand heavily contaminated pairs to the 5-point model.
+    rotation_fit = _fit_rotation(rays_a, rays_b, products, rays, options, rng)
+    model, rotation, translation, mask = "rotation", rotation_fit[0], np.zeros(3), rotation_fit[2]
     if not options.rotation_only:
-        rotation_5pt, translation = _ransac_5pt(rays, products, threshold, options, rng)
-        if rotation_5pt is not None:
-            errors_5pt = _epipolar_angles_of_essentials(
-                products, rays_b, (_skew(translation) @ rotation_5pt)[None])[0]
-            mask = errors_5pt < threshold
-            if options.refine and mask.sum() >= _SAMPLE_5PT:
-                rotation_5pt, translation = _refine_5pt(rays_a[mask], rays_b[mask], rotation_5pt,
-                                                        translation, options.refine_iterations)
-                errors_5pt = _epipolar_angles_of_essentials(
-                    products, rays_b, (_skew(translation) @ rotation_5pt)[None])[0]
-            either = rot_mask | (errors_5pt < threshold)
-            group = rays_per_measurement
-            noise, from_5pt = options.noise_sigma_rad, False
-            if noise is None:
-                noise, from_5pt = _selection_noise(_noise_sigma_of_5pt(errors_5pt, threshold, group), sigma,
-                                                   threshold, rot_threshold)
-            margin = _NOISE_5PT_MARGIN * either.sum() / group if from_5pt else 0.0
-            if (_gric(errors_5pt[either], noise, dimension=3, parameters=5, group=group) + margin
-                    < _gric(rot_errors[either], noise, dimension=2, parameters=3, group=group)):
-                chosen = ("5pt", rotation_5pt, translation / np.linalg.norm(translation),
-                          errors_5pt < threshold)
-
-    model, rotation, translation, mask = chosen
+        five_point = _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options, rng,
+                                        rays_per_measurement)
+        if five_point is not None:
+            model, (rotation, translation, mask) = "5pt", five_point
     count = int(mask.sum())
     if count < options.min_inliers:
         info = RelativePoseInfo(False, f"too few inliers ({count} < {options.min_inliers})", n,

@@ -1,10 +1,13 @@
 """Report assembly: Markdown and HTML from evaluation and sweep folders.
 
 The report reads what ``ifmi evaluate`` and ``ifmi sweep`` wrote (summary
-JSON, per-frame arrays, motion-flow samples, sweep tables) and never
-recomputes an estimate. It writes ``README.md``, ``index.html``,
-``report.json`` (every number shown, to rebuild tables and plots) and
-``figures/*.png`` into the output folder.
+JSON, per-frame arrays, sweep tables) and never recomputes an estimate. The
+one sample it computes, on request, is the iFMI motion flow between two
+frames of each scene for the Fig. 2-style figure (once per scene, kept in
+the report's data). It writes ``README.md``, ``index.html``, ``report.json``
+(every number shown, to rebuild tables and plots) and ``figures/*.png``: into
+a temporary folder beside the output folder, swapped in only when complete,
+so a failed report leaves the previous one intact.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import os
 import platform
 import shutil
 import sys
+import tempfile
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -21,13 +25,14 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import InputError
-from .evaluation import MOTION_FLOW_FILE
+from .errors import InputError, OutputError
 from .io.atomic import atomic_write_json, atomic_write_text
 from .io.provenance import package_versions as _package_versions
 from .io.results import (EvaluationRecord, is_evaluation_dir, jsonable, read_evaluation,
-                         read_motion_flow)
-from .metrics import AXES
+                         read_motion_flow, write_motion_flow)
+from .methods import method_sort_key
+from .metrics import AXES, EvaluationSummary
+from .motion_flow import MOTION_FLOW_FILE
 
 __all__ = [
     "ReportInputs",
@@ -36,12 +41,11 @@ __all__ = [
     "package_versions",
     "scene_tables",
     "average_table",
-    "target_ratios",
+    "baseline_ratios",
+    "ReportOptions",
     "build_report",
 ]
 
-# Methods in report order; others follow alphabetically.
-METHOD_ORDER = ("ifmi", "orb", "akaze")
 # Packages whose versions the report lists.
 PACKAGES = ("omnisim-ifmi", "numpy", "scipy", "opencv-python-headless", "poselib", "dask",
             "distributed", "pandas", "pyarrow", "matplotlib", "mitsuba", "drjit", "evo")
@@ -118,37 +122,25 @@ def package_versions() -> dict:
     return _package_versions(PACKAGES)
 
 
-def _method_key(method: str):
-    return (METHOD_ORDER.index(method) if method in METHOD_ORDER else len(METHOD_ORDER), method)
-
-
 def scene_tables(records: Sequence[EvaluationRecord]) -> dict:
-    """Per scene and method: per-axis RMSE and mean ± std of |error|, time, failures.
+    """Per scene and method: the evaluation's flat summary row.
 
     Returns
     -------
     dict
-        ``{scene: {method: row}}``; a row has ``roll``/``pitch``/``yaw`` dicts
-        (``rmse``, ``mean``, ``std`` in radians), ``mean_rmse``,
-        ``geodesic_rmse``, ``time_per_frame_s``, ``failures``, ``frames`` and
-        ``evaluation`` (the folder).
+        ``{scene: {method: row}}``; a row is
+        :meth:`ifmi.metrics.EvaluationSummary.flat` (``rmse_roll_rad``,
+        ``mean_roll_rad``, ``std_roll_rad``, ..., ``rmse_mean_rad``,
+        ``rmse_geodesic_rad``, ``time_per_frame_s``, ``failures``,
+        ``frames``) plus ``evaluation`` (the folder). Methods are in
+        :func:`ifmi.methods.method_sort_key` order, any name included.
     """
     tables: dict = {}
     for rec in records:
-        s = rec.summary
-        row = {axis: {k: s["axes"][axis][k] for k in ("rmse", "mean", "std")} for axis in AXES}
-        row.update({
-            "mean_rmse": s["mean_rmse"],
-            "geodesic_rmse": s["geodesic"]["rmse"],
-            "relative_rmse": s["relative_geodesic"]["rmse"],
-            "translation_direction_mean": s["translation_direction"]["mean"],
-            "time_per_frame_s": (s.get("time") or {}).get("mean_s"),
-            "failures": (s.get("failures") or {}).get("count"),
-            "frames": s["frames"]["estimate"],
-            "evaluation": str(rec.path),
-        })
+        row = EvaluationSummary.from_dict(rec.summary).flat()
+        row["evaluation"] = str(rec.path)
         tables.setdefault(rec.scene, {})[rec.method] = row
-    return {scene: dict(sorted(rows.items(), key=lambda kv: _method_key(kv[0])))
+    return {scene: dict(sorted(rows.items(), key=lambda kv: method_sort_key(kv[0])))
             for scene, rows in sorted(tables.items())}
 
 
@@ -160,28 +152,30 @@ def _mean_std(values) -> dict:
     return {"mean": float(v.mean()), "std": float(v.std()), "n": int(v.size)}
 
 
+# Columns of the scene rows averaged over scenes (paper Table 1).
+AVERAGE_COLUMNS = tuple(f"rmse_{a}_rad" for a in AXES) + ("rmse_mean_rad", "rmse_geodesic_rad",
+                                                           "time_per_frame_s")
+
+
 def average_table(tables: dict) -> dict:
     """Paper Table 1: per method, mean ± std over scenes of each axis RMSE, of their mean, and time.
 
     Returns
     -------
     dict
-        ``{method: {"roll"|"pitch"|"yaw"|"mean_rmse"|"time_per_frame_s": {mean, std, n}}}``.
+        ``{method: {column: {mean, std, n}}}`` for the columns of
+        :data:`AVERAGE_COLUMNS` (names of :meth:`EvaluationSummary.flat`).
     """
-    methods = sorted({m for rows in tables.values() for m in rows}, key=_method_key)
+    methods = sorted({m for rows in tables.values() for m in rows}, key=method_sort_key)
     out = {}
     for method in methods:
         rows = [rows[method] for rows in tables.values() if method in rows]
-        entry = {axis: _mean_std([r[axis]["rmse"] for r in rows]) for axis in AXES}
-        entry["mean_rmse"] = _mean_std([r["mean_rmse"] for r in rows])
-        entry["geodesic_rmse"] = _mean_std([r["geodesic_rmse"] for r in rows])
-        entry["time_per_frame_s"] = _mean_std([r["time_per_frame_s"] for r in rows])
-        out[method] = entry
+        out[method] = {col: _mean_std([r[col] for r in rows]) for col in AVERAGE_COLUMNS}
     return out
 
 
-def target_ratios(tables: dict, *, method: str = "ifmi",
-                  baselines: Sequence[str] = ("orb", "akaze")) -> dict:
+def baseline_ratios(tables: dict, *, method: str = "ifmi",
+                    baselines: Sequence[str] = ("orb", "akaze")) -> dict:
     """Accuracy and speed of ``method`` relative to the baselines, per scene.
 
     Returns
@@ -197,9 +191,9 @@ def target_ratios(tables: dict, *, method: str = "ifmi",
         if method not in rows:
             continue
         entry = {}
-        base = [rows[b]["mean_rmse"] for b in baselines if b in rows and rows[b]["mean_rmse"]]
+        base = [rows[b]["rmse_mean_rad"] for b in baselines if b in rows and rows[b]["rmse_mean_rad"]]
         if base:
-            entry["rmse_ratio_to_best_baseline"] = rows[method]["mean_rmse"] / min(base)
+            entry["rmse_ratio_to_best_baseline"] = rows[method]["rmse_mean_rad"] / min(base)
         for b in baselines:
             t_m, t_b = rows[method]["time_per_frame_s"], rows.get(b, {}).get("time_per_frame_s")
             if t_m and t_b:
@@ -293,8 +287,9 @@ def _scene_blocks(tables: dict) -> list:
         for method, r in rows.items():
             cells = [method]
             for axis in AXES:
-                cells.append(f"{_f(r[axis]['rmse'])} ({_f(r[axis]['mean'])} ± {_f(r[axis]['std'])})")
-            cells += [_f(r["mean_rmse"]), _f(r["geodesic_rmse"]), _ms(r["time_per_frame_s"]),
+                cells.append(f"{_f(r[f'rmse_{axis}_rad'])} ({_f(r[f'mean_{axis}_rad'])} ± "
+                             f"{_f(r[f'std_{axis}_rad'])})")
+            cells += [_f(r["rmse_mean_rad"]), _f(r["rmse_geodesic_rad"]), _ms(r["time_per_frame_s"]),
                       f"{r['failures'] if r['failures'] is not None else 'n/a'} / {r['frames']}"]
             body.append(cells)
         blocks.append(("h3", f"Scene: {scene}"))
@@ -309,41 +304,113 @@ def _average_blocks(avg: dict) -> list:
     header = ["", ""] + methods
     body = []
     for axis in AXES:
-        body.append([axis, "ε [rad]"] + [_pm(avg[m][axis]) for m in methods])
-    body.append(["μ(ε)", "[rad]"] + [_pm(avg[m]["mean_rmse"]) for m in methods])
-    body.append(["geodesic", "ε [rad]"] + [_pm(avg[m]["geodesic_rmse"]) for m in methods])
+        body.append([axis, "ε [rad]"] + [_pm(avg[m][f"rmse_{axis}_rad"]) for m in methods])
+    body.append(["μ(ε)", "[rad]"] + [_pm(avg[m]["rmse_mean_rad"]) for m in methods])
+    body.append(["geodesic", "ε [rad]"] + [_pm(avg[m]["rmse_geodesic_rad"]) for m in methods])
     body.append(["μ(t)", "[s]"] + [_pm(avg[m]["time_per_frame_s"]) for m in methods])
-    n = max((avg[m]["mean_rmse"]["n"] for m in methods), default=0)
+    n = max((avg[m]["rmse_mean_rad"]["n"] for m in methods), default=0)
     return [("table", header, body),
             ("p", f"Mean ± standard deviation over {n} scene(s) of each scene's RMSE "
                   "(and of the time per frame), as in the paper's Table 1.")]
 
 
-def _motion_flow(rec: EvaluationRecord, figures: Path) -> tuple[str, str] | None:
+def _ratio_blocks(ratios: dict) -> list:
+    if not ratios:
+        return []
+    header = ["scene", "iFMI RMSE / best baseline RMSE", "iFMI time / ORB time",
+              "iFMI time / AKAZE time"]
+    body = [[scene, _f(r.get("rmse_ratio_to_best_baseline"), 3),
+             _f(r.get("time_ratio_orb"), 3), _f(r.get("time_ratio_akaze"), 3)]
+            for scene, r in ratios.items()]
+    return [("h2", "iFMI against the baselines"), ("table", header, body),
+            ("p", "RMSE: mean of the roll, pitch and yaw RMSEs; time is end to end per frame "
+                  "(read, prepare, match, solve).")]
+
+
+def _rpy_blocks(records: Sequence[EvaluationRecord], figures: Path) -> tuple[list, dict]:
+    """Fig. 4-style orientation plots, one per scene with every method in it."""
+    from .plots import rpy_over_frames
+
+    by_scene: dict = {}
+    for rec in records:
+        by_scene.setdefault(rec.scene, []).append(rec)
+    blocks, plots = [], {}
+    if by_scene:
+        blocks.append(("h2", "Orientation over frames (Fig. 4 style)"))
+    for scene, recs in sorted(by_scene.items()):
+        recs = sorted(recs, key=lambda r: method_sort_key(r.method))
+        series = {r.method: r.arrays for r in recs}
+        rmse = {r.method: [r.summary["axes"][a]["rmse"] for a in AXES] for r in recs}
+        name = f"rpy_{scene}.png"
+        rpy_over_frames(series, title=f"{scene}: roll, pitch, yaw against ground truth",
+                        path=figures / name, rmse=rmse)
+        plots[scene] = f"figures/{name}"
+        blocks.append(("img", f"figures/{name}",
+                       f"{scene}: estimated roll, pitch and yaw (radians) over frames for each "
+                       "method, ground truth in black"))
+    return blocks, plots
+
+
+def _flow_sample(rec: EvaluationRecord, *, compute: bool, store: Path | None) -> dict | None:
+    """The motion-flow sample of an iFMI evaluation: stored beside it, or computed once now.
+
+    A computed sample is written to ``store`` (the report's copy of the
+    evaluation) so that a report rebuilt from its data has it. Without the
+    dataset's images there is no sample; a dataset that cannot be read is a
+    warning, not an error.
+    """
+    from .motion_flow import motion_flow_sample
+
+    stored = rec.path / MOTION_FLOW_FILE
+    if stored.is_file():
+        return read_motion_flow(stored)
+    dataset = rec.meta.get("dataset_path")
+    if (not compute or not rec.config or rec.config.get("config") is None or not dataset
+            or not Path(dataset, "images").is_dir()):
+        return None
+    from .pipeline import EstimateConfig
+
+    try:
+        sample = motion_flow_sample(dataset, config=EstimateConfig.from_dict(rec.config["config"]))
+    except (InputError, ValueError) as exc:
+        print(f"warning: no motion-flow figure for {rec.scene}: {exc}", file=sys.stderr)
+        return None
+    if store is not None:
+        write_motion_flow(store / MOTION_FLOW_FILE, sample)
+    return sample
+
+
+def _motion_flow_blocks(records: Sequence[EvaluationRecord], figures: Path, *, compute: bool,
+                        data: Path | None) -> list:
     from .plots import motion_flow_figure
 
-    path = rec.path / MOTION_FLOW_FILE
-    if not path.is_file():
-        return None
-    data = read_motion_flow(path)
-    name = f"motion_flow_{rec.scene}.png"
-    frames = data.get("frames", np.array([0, 1]))
-    motion_flow_figure(data["panorama_a"], data["panorama_b"], points_a=data["points_a"],
-                       points_b=data["points_b"], tile_centers=data["tile_centers"],
-                       tile_size=int(data["tile_size"]),
-                       title=f"{rec.scene}: iFMI motion flow, frames {int(frames[0])} → {int(frames[1])}",
-                       path=figures / name)
-    return f"figures/{name}", (f"Motion flow between panoramas of frames {int(frames[0])} and "
-                               f"{int(frames[1])} ({rec.scene}): red points in the first "
-                               "panorama, green their matches in the second, yellow tile outlines.")
+    blocks = []
+    for rec in records:
+        if rec.method != "ifmi":
+            continue
+        store = None if data is None else data / "eval" / rec.scene / rec.method
+        sample = _flow_sample(rec, compute=compute, store=store)
+        if sample is None:
+            continue
+        name = f"motion_flow_{rec.scene}.png"
+        a, b = (int(f) for f in sample.get("frames", np.array([0, 1])))
+        motion_flow_figure(sample["panorama_a"], sample["panorama_b"], points_a=sample["points_a"],
+                           points_b=sample["points_b"], tile_centers=sample["tile_centers"],
+                           tile_size=int(sample["tile_size"]),
+                           title=f"{rec.scene}: iFMI motion flow, frames {a} → {b}",
+                           path=figures / name)
+        blocks.append(("img", f"figures/{name}",
+                       f"Motion flow between panoramas of frames {a} and {b} ({rec.scene}): red "
+                       "points in the first panorama, green their matches in the second, yellow "
+                       "tile outlines."))
+    return ([("h2", "Motion flow (Fig. 2 style)")] + blocks) if blocks else []
 
 
 def _sweep_blocks(sweep_dir: Path, figures: Path) -> tuple[list, dict]:
     import pandas as pd
 
-    from .sweep import METRICS, read_cells
-
     from .plots import sweep_heatmap
+    from .sweep import METRICS, read_cells
 
     records = read_cells(sweep_dir)
     blocks = [("h3", f"Sweep: {sweep_dir.name}")]
@@ -356,7 +423,8 @@ def _sweep_blocks(sweep_dir: Path, figures: Path) -> tuple[list, dict]:
     body = []
     for r in records:
         ok = r.get("status") == "ok"
-        body.append([r["dataset"], r["method"], f"{r['tile_size']:g}", f"{r['overlap']:g}",
+        body.append([r.get("dataset", "?"), r.get("method", "?"), f"{r.get('tile_size', 0):g}",
+                     f"{r.get('overlap', 0):g}",
                      r.get("status", "?") if ok else f"failed: {r.get('error', '')}",
                      _f(r.get("rmse_mean_rad")) if ok else "", _f(r.get("rmse_geodesic_rad")) if ok else "",
                      _ms(r.get("time_per_frame_s")) if ok else "",
@@ -367,7 +435,7 @@ def _sweep_blocks(sweep_dir: Path, figures: Path) -> tuple[list, dict]:
         for metric in ("rmse_mean_rad", "time_per_frame_s"):
             if metric not in group or group[metric].isna().all():
                 continue
-            name = f"heatmap_{sweep_dir.name}_{dataset}_{method}_{metric}.png"
+            name = _file_name(f"heatmap_{sweep_dir.name}_{dataset}_{method}_{metric}") + ".png"
             sweep_heatmap(group, metric=metric, label=METRICS[metric],
                           title=f"{dataset} ({method}): {METRICS[metric]}", path=figures / name)
             blocks.append(("img", f"figures/{name}",
@@ -375,160 +443,201 @@ def _sweep_blocks(sweep_dir: Path, figures: Path) -> tuple[list, dict]:
     return blocks, {"path": str(sweep_dir), "cells": jsonable(table.to_dict(orient="records"))}
 
 
+def _file_name(text: str) -> str:
+    """``text`` with every character that is not safe in a file name replaced by ``_``."""
+    return "".join(c if c.isalnum() or c in "_.=-" else "_" for c in text)
+
+
+def _provenance_blocks(records: Sequence[EvaluationRecord]) -> tuple[list, dict]:
+    provenance = {}
+    for r in records:
+        provenance.setdefault(r.meta.get("dataset", r.scene), r.meta.get("dataset_meta") or {})
+    if not any(provenance.values()):
+        return [], provenance
+    keys = ["scene_name", "frames", "resolution", "spp", "seed", "variant"]
+    return [("h2", "Datasets"),
+            ("table", ["dataset"] + keys, [[name] + [_cell(meta.get(k)) for k in keys]
+                                           for name, meta in sorted(provenance.items())])], provenance
+
+
+def _machine_blocks(machine: dict, versions: dict) -> list:
+    return [("h2", "Machine and versions"),
+            ("table", ["machine", ""], [[k, v] for k, v in machine.items()]),
+            ("table", ["package", "version"],
+             [[k, v or "not installed"] for k, v in versions.items()])]
+
+
 # Files of a sweep folder copied into a report (not the per-cell runs).
 SWEEP_FILES = ("sweep.json", "sweep.csv", "sweep.parquet")
 
 
 def _copy_data(inputs: ReportInputs, records: Sequence[EvaluationRecord], data: Path) -> None:
-    """Copy evaluation folders and sweep tables under ``data`` (skipping ones already there)."""
-    data = data.resolve()
+    """Copy evaluation folders and sweep tables under ``data`` (a new, empty folder)."""
     for rec in records:
-        src = rec.path.resolve()
-        if data in src.parents:
-            continue
         dst = data / "eval" / rec.scene / rec.method
         if dst.exists():
             shutil.rmtree(dst)
-        shutil.copytree(src, dst)
+        shutil.copytree(rec.path, dst)
     for sweep in inputs.sweeps:
-        src = sweep.resolve()
-        if data in src.parents:
-            continue
         dst = data / "sweep" / sweep.name
         if dst.exists():
             shutil.rmtree(dst)
         (dst / "cells").mkdir(parents=True)
         for name in SWEEP_FILES:
-            if (src / name).is_file():
-                shutil.copy2(src / name, dst / name)
-        for cell in (src / "cells").glob("*.json"):
+            if (sweep / name).is_file():
+                shutil.copy2(sweep / name, dst / name)
+        for cell in (sweep / "cells").glob("*.json"):
             shutil.copy2(cell, dst / "cells" / cell.name)
 
 
+def _series(records: Sequence[EvaluationRecord]) -> dict:
+    keys = ["timestamp"] + [f"{a}_{k}" for a in AXES for k in ("gt", "est")] + ["geodesic_error"]
+    series = {r.scene: {} for r in records}
+    for r in records:
+        series[r.scene][r.method] = {k: np.asarray(r.arrays[k]).tolist() for k in keys if k in r.arrays}
+    return series
+
+
+@dataclass(frozen=True)
+class ReportOptions:
+    """What a report contains.
+
+    Attributes
+    ----------
+    title : str
+    command : str or None
+        Command line that regenerates the report, printed in it.
+    copy_data : bool
+        Copy the evaluation folders and sweep tables into ``OUT/data`` so
+        that the report is self-contained (``ifmi report OUT/data --out
+        OUT`` rebuilds it).
+    motion_flow : bool
+        For each iFMI evaluation without a stored motion-flow sample whose
+        dataset is at hand, compute the sample (frames 0 and 1) once for the
+        Fig. 2-style figure.
+    """
+
+    title: str = "Rotation estimation with omni-cameras: iFMI vs ORB vs AKAZE"
+    command: str | None = None
+    copy_data: bool = True
+    motion_flow: bool = True
+
+
+def _write_report(inputs: ReportInputs, out: Path, options: ReportOptions) -> None:
+    """Write every file of the report into the (new, empty) folder ``out``."""
+    figures = out / "figures"
+    figures.mkdir(parents=True)
+    records = [read_evaluation(p) for p in inputs.evaluations]
+    data = out / "data" if options.copy_data else None
+    if data is not None:
+        _copy_data(inputs, records, data)
+    tables = scene_tables(records)
+    avg, ratios = average_table(tables), baseline_ratios(tables)
+    blocks: list = [("h1", options.title),
+                    ("p", f"Generated {datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')} "
+                          f"from {len(records)} evaluation(s) and {len(inputs.sweeps)} sweep(s).")]
+    if options.command:
+        blocks += [("p", "Regenerate with:"), ("code", options.command)]
+    if records:
+        blocks += [("h2", "Average over scenes (Table 1 style)"), *_average_blocks(avg),
+                   ("h2", "Per scene"), *_scene_blocks(tables)]
+    blocks += _ratio_blocks(ratios)
+    rpy, plots = _rpy_blocks(records, figures)
+    blocks += rpy
+    blocks += _motion_flow_blocks(records, figures, compute=options.motion_flow, data=data)
+    sweeps = []
+    if inputs.sweeps:
+        blocks.append(("h2", "Tile size × overlap sweeps"))
+        for sweep_dir in inputs.sweeps:
+            b, sweep_data = _sweep_blocks(sweep_dir, figures)
+            blocks += b
+            sweeps.append(sweep_data)
+    provenance_blocks, provenance = _provenance_blocks(records)
+    machine, versions = machine_info(), package_versions()
+    blocks += provenance_blocks + _machine_blocks(machine, versions)
+    configs = {f"{r.scene}/{r.method}": r.config for r in records if r.config is not None}
+    if configs:
+        blocks += [("h2", "Configurations"),
+                   ("p", "Each estimate run's configuration is in its evaluation folder "
+                         "(config.json) and in report.json.")]
+    atomic_write_json(out / "report.json", jsonable({
+        "title": options.title, "command": options.command, "scenes": tables, "average": avg,
+        "ratios": ratios, "plots": plots, "series": _series(records), "sweeps": sweeps,
+        "datasets": provenance, "machine": machine, "versions": versions, "configs": configs,
+        "evaluations": [str(p) for p in inputs.evaluations],
+    }))
+    atomic_write_text(out / "index.html", _render_html(blocks, options.title))
+    atomic_write_text(out / "README.md", _render_markdown(blocks))
+
+
+# Entries of a report folder that a new report replaces; anything else in it is kept.
+REPORT_ENTRIES = ("README.md", "index.html", "report.json", "figures", "data")
+
+
+def _swap_in(staging: Path, out: Path) -> None:
+    """Replace the report in ``out`` by the finished one in ``staging`` (same parent folder).
+
+    Entries of an existing ``out`` that a report does not write are moved
+    into the new one, so nothing of the user's is lost; if the swap fails,
+    the old folder is put back.
+    """
+    if not out.exists():
+        os.rename(staging, out)
+        return
+    old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent)) / out.name
+    os.rename(out, old)
+    try:
+        os.rename(staging, out)
+    except OSError:
+        os.rename(old, out)
+        raise
+    for entry in old.iterdir():
+        if entry.name not in REPORT_ENTRIES:
+            os.rename(entry, out / entry.name)
+    shutil.rmtree(old.parent)
+
+
 def build_report(paths: Sequence[str | os.PathLike], *, out_dir: str | os.PathLike,
-                 title: str = "Rotation estimation with omni-cameras: iFMI vs ORB vs AKAZE",
-                 command: str | None = None, copy_data: bool = True) -> Path:
+                 options: ReportOptions = ReportOptions()) -> Path:
     """Write the report of the results found under ``paths`` into ``out_dir``.
+
+    The report is built in a temporary folder beside ``out_dir`` and swapped
+    in only when complete: a failure leaves an existing report unchanged.
 
     Parameters
     ----------
     paths : sequence of path
         Evaluation folders, sweep folders, or folders containing them.
     out_dir : path, keyword-only
-    title : str, keyword-only
-    command : str, optional, keyword-only
-        Command line that regenerates the report, printed in it.
-    copy_data : bool, keyword-only
-        Copy the evaluation folders and sweep tables into ``out_dir/data``
-        so that the report is self-contained (``ifmi report OUT/data --out
-        OUT`` rebuilds it).
+    options : ReportOptions, keyword-only
 
     Returns
     -------
     Path
         ``out_dir/README.md``.
+
+    Raises
+    ------
+    InputError
+        A results path that is missing or holds no results, or a malformed one.
+    OutputError
+        The report cannot be written (names ``out_dir`` and the OS reason).
     """
-    from .plots import rpy_over_frames
-
     inputs = find_results(paths)
-    out = Path(out_dir)
-    figures = out / "figures"
-    if figures.exists():
-        shutil.rmtree(figures)
-    figures.mkdir(parents=True)
-    records = [read_evaluation(p) for p in inputs.evaluations]
-    if copy_data:
-        _copy_data(inputs, records, out / "data")
-    tables = scene_tables(records)
-    avg = average_table(tables)
-    ratios = target_ratios(tables)
-
-    blocks: list = [("h1", title),
-                    ("p", f"Generated {datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')} "
-                          f"from {len(records)} evaluation(s) and {len(inputs.sweeps)} sweep(s).")]
-    if command:
-        blocks += [("p", "Regenerate with:"), ("code", command)]
-    if records:
-        blocks.append(("h2", "Average over scenes (Table 1 style)"))
-        blocks += _average_blocks(avg)
-        blocks.append(("h2", "Per scene"))
-        blocks += _scene_blocks(tables)
-    if ratios:
-        blocks.append(("h2", "iFMI against the baselines"))
-        header = ["scene", "iFMI RMSE / best baseline RMSE", "iFMI time / ORB time",
-                  "iFMI time / AKAZE time"]
-        body = [[scene, _f(r.get("rmse_ratio_to_best_baseline"), 3),
-                 _f(r.get("time_ratio_orb"), 3), _f(r.get("time_ratio_akaze"), 3)]
-                for scene, r in ratios.items()]
-        blocks.append(("table", header, body))
-        blocks.append(("p", "Targets: RMSE ratio at most 1/3 (0.333), time ratio at most 0.5 "
-                            "against ORB and 0.1 against AKAZE; time is end to end per frame "
-                            "(read, prepare, match, solve)."))
-
-    plots = {}
-    by_scene: dict = {}
-    for rec in records:
-        by_scene.setdefault(rec.scene, []).append(rec)
-    if by_scene:
-        blocks.append(("h2", "Orientation over frames (Fig. 4 style)"))
-    for scene, recs in sorted(by_scene.items()):
-        recs = sorted(recs, key=lambda r: _method_key(r.method))
-        series = {r.method: r.arrays for r in recs}
-        rmse = {r.method: [r.summary["axes"][a]["rmse"] for a in AXES] for r in recs}
-        name = f"rpy_{scene}.png"
-        rpy_over_frames(series, title=f"{scene}: roll, pitch, yaw against ground truth",
-                        path=figures / name, rmse=rmse)
-        plots[scene] = f"figures/{name}"
-        blocks.append(("img", f"figures/{name}",
-                       f"{scene}: estimated roll, pitch and yaw (radians) over frames for each "
-                       "method, ground truth in black"))
-
-    flows = [f for f in (_motion_flow(r, figures) for r in records if r.method == "ifmi") if f]
-    if flows:
-        blocks.append(("h2", "Motion flow (Fig. 2 style)"))
-        for src, caption in flows:
-            blocks.append(("img", src, caption))
-
-    sweeps = []
-    if inputs.sweeps:
-        blocks.append(("h2", "Tile size × overlap sweeps"))
-        for sweep_dir in inputs.sweeps:
-            b, data = _sweep_blocks(sweep_dir, figures)
-            blocks += b
-            sweeps.append(data)
-
-    provenance = {}
-    for r in records:
-        provenance.setdefault(r.meta.get("dataset", r.scene), r.meta.get("dataset_meta") or {})
-    if any(provenance.values()):
-        blocks.append(("h2", "Datasets"))
-        keys = ["scene_name", "frames", "resolution", "spp", "seed", "variant"]
-        blocks.append(("table", ["dataset"] + keys,
-                       [[name] + [_cell(meta.get(k)) for k in keys]
-                        for name, meta in sorted(provenance.items())]))
-    machine, versions = machine_info(), package_versions()
-    blocks.append(("h2", "Machine and versions"))
-    blocks.append(("table", ["machine", ""], [[k, v] for k, v in machine.items()]))
-    blocks.append(("table", ["package", "version"],
-                   [[k, v or "not installed"] for k, v in versions.items()]))
-    configs = {f"{r.scene}/{r.method}": r.config for r in records if r.config is not None}
-    if configs:
-        blocks.append(("h2", "Configurations"))
-        blocks.append(("p", "Each estimate run's configuration is in its evaluation folder "
-                            "(config.json) and in report.json."))
-    series_keys = ["timestamp"] + [f"{a}_{k}" for a in AXES for k in ("gt", "est")] + [
-        "geodesic_error"]
-    series = {r.scene: {} for r in records}
-    for r in records:
-        series[r.scene][r.method] = {k: np.asarray(r.arrays[k]).tolist()
-                                     for k in series_keys if k in r.arrays}
-    atomic_write_json(out / "report.json", jsonable({
-        "title": title, "command": command, "scenes": tables, "average": avg,
-        "ratios": ratios, "plots": plots, "series": series, "sweeps": sweeps,
-        "datasets": provenance, "machine": machine,
-        "versions": versions, "configs": configs,
-        "evaluations": [str(p) for p in inputs.evaluations],
-    }))
-    atomic_write_text(out / "index.html", _render_html(blocks, title))
-    atomic_write_text(out / "README.md", _render_markdown(blocks))
-    return out / "README.md"
+    out = Path(out_dir).resolve()  # a symlinked report folder is written through, not replaced
+    if out.exists() and not out.is_dir():
+        raise OutputError(out, "exists and is not a folder")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.new-", dir=out.parent))
+    except OSError as exc:
+        raise OutputError.from_os_error(out, exc) from None
+    try:
+        _write_report(inputs, staging, options)
+        _swap_in(staging, out)
+    except OSError as exc:
+        raise OutputError.from_os_error(out, exc) from None
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging, ignore_errors=True)
+    return Path(out_dir) / "README.md"

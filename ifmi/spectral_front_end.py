@@ -15,6 +15,7 @@ import numpy as np
 
 from .camera import OcamModel
 from .options import options_from_dict
+from .front_end import Correspondences
 from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
 from .global_motion import GlobalMotionConfig, GlobalMotionEstimator
 from .fourier_mellin import FourierMellin, TileRejection, FourierMellinConfig, PlacedTiles, TileSpectra
@@ -519,8 +520,6 @@ class IfmiFrontEnd:
         -------
         Correspondences
         """
-        from .pipeline import Correspondences
-
         min_tiles = self.config.min_tiles
         if not self.config.use_prior:
             prior_rotation = None

@@ -2,10 +2,14 @@
 
 Each cell of the grid (dataset, method, tile size, overlap) estimates the
 dataset's trajectory, evaluates it against its ``groundtruth.txt`` and writes
-one JSON record atomically to ``OUT/cells/<cell id>.json``. A failed cell is
-recorded with ``status: "failed"`` and the error message; a rerun skips every
-cell already recorded as ``"ok"`` with the same base configuration (failed
-cells are tried again). At the end
+one JSON record atomically to ``OUT/cells/<cell id>.json``. A cell is keyed
+by its dataset's identity: the resolved folder (in the cell id, so two
+datasets of one name never share a cell) and a digest of its content
+(``meta.json``, calibration, ground truth, and the image files' names,
+sizes and modification times). A failed cell is recorded with ``status:
+"failed"`` and the error message; a rerun skips every cell already recorded
+as ``"ok"`` with the same base configuration and dataset content (failed
+cells, changed datasets and unreadable records are computed again). At the end
 the records are gathered into one table (``sweep.csv``, ``sweep.parquet``)
 and heatmaps per dataset and metric (``heatmaps/*.png``).
 
@@ -16,7 +20,7 @@ Layout of ``OUT``::
     runs/<id>/estimate.txt        the cell's estimate (+ side files)
     runs/<id>/eval/               the cell's evaluation folder
     sweep.csv, sweep.parquet      all records
-    heatmaps/<dataset>__<metric>.png
+    heatmaps/<dataset>__<method>__<metric>.png
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable, Sequence
 
+from .errors import InputError, OutputError
 from .io.atomic import atomic_write_json
 
 __all__ = [
@@ -43,10 +48,15 @@ __all__ = [
     "run_cell",
     "run_sweep",
     "read_cells",
+    "read_cell_record",
     "write_sweep_table",
     "config_digest",
+    "dataset_digest",
+    "dataset_labels",
 ]
 
+# Hex digits of the digests that identify a dataset folder and its content.
+_ID_DIGITS = 12
 # Allocations up to this size stay on the heap in local-cluster workers (see run_sweep).
 _WORKER_MMAP_THRESHOLD_BYTES = 64 * 2**20
 
@@ -60,7 +70,7 @@ METRICS = {
 
 
 # Leading columns of the sweep table, in this order; any others follow alphabetically.
-COLUMN_ORDER = ("dataset", "method", "tile_size", "overlap", "status", "rmse_roll_rad",
+COLUMN_ORDER = ("dataset", "dataset_path", "method", "tile_size", "overlap", "status", "rmse_roll_rad",
                 "rmse_pitch_rad", "rmse_yaw_rad", "rmse_mean_rad", "rmse_geodesic_rad",
                 "max_geodesic_rad", "rmse_relative_rad", "time_per_frame_s", "failures", "frames",
                 "wall_s", "error", "cell_id")
@@ -75,26 +85,33 @@ class SweepCell:
     dataset : str
         DATASET folder (calib_results.txt, images/, groundtruth.txt).
     method : str
-        Registered estimation method.
+        Estimation method (a name of ``ifmi methods`` or ``package.module:factory``).
     tile_size : float
         Tile side: pixels when >= 1, fraction of the panorama width when < 1.
     overlap : float
         Tile overlap fraction in [0, 1).
+    label : str or None
+        Name of the dataset in tables and figures (default its folder name);
+        :func:`sweep_cells` makes it unique within a sweep.
     """
 
     dataset: str
     method: str
     tile_size: float
     overlap: float
+    label: str | None = None
 
     @property
     def dataset_name(self) -> str:
-        return Path(self.dataset).name or str(self.dataset)
+        return self.label or Path(self.dataset).name or str(self.dataset)
 
     @property
     def cell_id(self) -> str:
-        """File-name-safe identifier, unique within a sweep."""
-        raw = f"{self.dataset_name}__{self.method}__tile{self.tile_size:g}__overlap{self.overlap:g}"
+        """File-name-safe identifier, unique per dataset folder (resolved path), method and tiling."""
+        folder = str(Path(self.dataset).resolve())
+        where = hashlib.sha256(folder.encode("utf-8")).hexdigest()[:_ID_DIGITS]
+        raw = (f"{Path(folder).name}-{where}__{self.method}__tile{self.tile_size:g}"
+               f"__overlap{self.overlap:g}")
         return re.sub(r"[^A-Za-z0-9_.=-]", "_", raw)
 
 
@@ -109,13 +126,13 @@ class SweepOptions:
         run cells in this process through Dask's synchronous scheduler;
         otherwise the address of a running Dask scheduler.
     n_workers : int
-        Worker processes of the local cluster.
+        Worker processes of the local cluster, >= 1.
     threads_per_worker : int
-        Threads per local worker.
+        Threads per local worker, >= 1.
     progress : bool
         Show a progress bar on stderr.
     connect_timeout_s : float
-        Seconds to wait for a remote scheduler before giving up.
+        Seconds to wait for a remote scheduler before giving up, > 0.
     """
 
     scheduler: str | None = None
@@ -124,12 +141,67 @@ class SweepOptions:
     progress: bool = True
     connect_timeout_s: float = 10.0
 
+    def __post_init__(self) -> None:
+        if self.n_workers < 1 or self.threads_per_worker < 1:
+            raise ValueError(f"expected n_workers >= 1 and threads_per_worker >= 1, got "
+                             f"{self.n_workers} and {self.threads_per_worker}")
+        if not self.connect_timeout_s > 0:
+            raise ValueError(f"expected connect_timeout_s > 0, got {self.connect_timeout_s}")
+
+
+def dataset_labels(datasets: Sequence[str]) -> dict[str, str]:
+    """Distinct display names of dataset folders: the folder name, with parents where needed.
+
+    Two folders of one name (``a/office``, ``b/office``) are told apart by
+    as many parent folders as it takes (``a/office``, ``b/office``).
+
+    Returns
+    -------
+    dict
+        Resolved folder (str) -> label.
+    """
+    folders = list(dict.fromkeys(str(Path(d).resolve()) for d in datasets))
+    depth = 1
+    while True:
+        labels = {f: "/".join(Path(f).parts[-depth:]) for f in folders}
+        if len(set(labels.values())) == len(folders) or depth > max(len(Path(f).parts) for f in folders):
+            return labels
+        depth += 1
+
 
 def sweep_cells(datasets: Sequence[str], *, method: str, tile_sizes: Sequence[float],
                 overlaps: Sequence[float]) -> list[SweepCell]:
-    """All cells of the grid, dataset-major."""
-    return [SweepCell(str(d), method, float(t), float(o))
+    """All cells of the grid, dataset-major; datasets labelled distinctly (:func:`dataset_labels`)."""
+    labels = dataset_labels([str(d) for d in datasets])
+    return [SweepCell(str(d), method, float(t), float(o), label=labels[str(Path(d).resolve())])
             for d in datasets for t in tile_sizes for o in overlaps]
+
+
+def dataset_digest(dataset: str | os.PathLike) -> str:
+    """Short digest of a dataset's content: a changed dataset gets another one.
+
+    Covers the bytes of ``meta.json``, the calibration and ``groundtruth.txt``
+    (where present) and the names, sizes and modification times of the files
+    in ``images/`` (reading every image would cost as much as estimating).
+    """
+    folder = Path(dataset)
+    h = hashlib.sha256()
+    for name in ("meta.json", "calib_results.txt", "camera.yaml", "groundtruth.txt"):
+        try:
+            h.update(name.encode() + b"\0" + (folder / name).read_bytes() + b"\0")
+        except OSError:
+            h.update(name.encode() + b"\0absent\0")
+    try:
+        entries = sorted(os.scandir(folder / "images"), key=lambda e: e.name)
+    except OSError:
+        entries = []
+    for entry in entries:
+        try:
+            st = entry.stat()
+        except OSError:
+            continue
+        h.update(f"{entry.name}\0{st.st_size}\0{st.st_mtime_ns}\0".encode())
+    return h.hexdigest()[:_ID_DIGITS]
 
 
 def config_with_tiling(config, *, tile_size: float, overlap: float):
@@ -150,14 +222,42 @@ def config_digest(base_config: dict) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
-def _finished(out_dir: Path, cell: SweepCell, digest: str) -> bool:
-    """True when the cell's record is ``ok`` and was made with the same base configuration."""
-    path = _cell_path(out_dir, cell)
+# Entries every cell record has (failed cells included).
+RECORD_KEYS = ("cell_id", "dataset", "method", "tile_size", "overlap", "status")
+
+
+def _warn(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr)
+
+
+def read_cell_record(path: Path, *, action: str) -> dict | None:
+    """A cell's record, or None when it is missing; a record that is not a JSON object
+    (truncated, ``[]``) or lacks an entry of :data:`RECORD_KEYS` is None too, with a
+    warning naming the file and ``action``."""
     try:
         record = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return False
-    return record.get("status") == "ok" and record.get("config_digest") == digest
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        _warn(f"{path}: unreadable sweep cell ({type(exc).__name__}); {action}")
+        return None
+    if not isinstance(record, dict):
+        _warn(f"{path}: expected a JSON object, got {type(record).__name__}; {action}")
+        return None
+    missing = [k for k in RECORD_KEYS if k not in record]
+    if missing:
+        _warn(f"{path}: sweep cell without {', '.join(missing)}; {action}")
+        return None
+    return record
+
+
+def _finished(out_dir: Path, cell: SweepCell, digest: str, data_digest: str) -> bool:
+    """True when the cell's record is ``ok`` and was made with the same base configuration
+    from the same dataset content."""
+    record = read_cell_record(_cell_path(out_dir, cell), action="computing the cell again")
+    return (record is not None and record.get("status") == "ok"
+            and record.get("config_digest") == digest
+            and record.get("dataset_digest") == data_digest)
 
 
 def run_cell(cell: SweepCell, *, out_dir: str, base_config: dict) -> dict:
@@ -178,12 +278,14 @@ def run_cell(cell: SweepCell, *, out_dir: str, base_config: dict) -> dict:
         The record written to ``cells/<id>.json``.
     """
     out = Path(out_dir)
-    record = {"cell_id": cell.cell_id, "dataset": cell.dataset_name, "dataset_path": cell.dataset,
+    record = {"cell_id": cell.cell_id, "dataset": cell.dataset_name,
+              "dataset_path": str(Path(cell.dataset).resolve()),
+              "dataset_digest": dataset_digest(cell.dataset),
               "method": cell.method, "tile_size": cell.tile_size, "overlap": cell.overlap,
               "config_digest": config_digest(base_config)}
     start = time.perf_counter()
     try:
-        from .evaluation import evaluate_files
+        from .evaluation import evaluate_files, summary_of
         from .io.results import write_estimate_run
         from .pipeline import EstimateConfig, estimate_dataset
 
@@ -197,21 +299,9 @@ def run_cell(cell: SweepCell, *, out_dir: str, base_config: dict) -> dict:
         est_path = run_dir / "estimate.txt"
         write_estimate_run(est_path, estimate, dataset_dir=cell.dataset)
         meta = evaluate_files(gt, est_path, out_dir=run_dir / "eval")
-        s = meta["summary"]
-        record.update({
-            "status": "ok", "error": "",
-            "rmse_roll_rad": s["axes"]["roll"]["rmse"],
-            "rmse_pitch_rad": s["axes"]["pitch"]["rmse"],
-            "rmse_yaw_rad": s["axes"]["yaw"]["rmse"],
-            "rmse_mean_rad": s["mean_rmse"],
-            "rmse_geodesic_rad": s["geodesic"]["rmse"],
-            "max_geodesic_rad": s["geodesic"]["max"],
-            "rmse_relative_rad": s["relative_geodesic"]["rmse"],
-            "time_per_frame_s": (s["time"] or {}).get("mean_s"),
-            "failures": (s["failures"] or {}).get("count"),
-            "frames": s["frames"]["estimate"],
-            "evaluation": str((run_dir / "eval").relative_to(out)),
-        })
+        record.update(summary_of(meta).flat())
+        record.update({"status": "ok", "error": "",
+                       "evaluation": str((run_dir / "eval").relative_to(out))})
     except Exception as exc:  # a failing cell is recorded, never lost
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
         record.update({"status": "failed", "error": f"{type(exc).__name__}: {message}",
@@ -246,7 +336,10 @@ def run_sweep(cells: Iterable[SweepCell], *, out_dir: str | os.PathLike, base_co
     """
     out = Path(out_dir)
     cells = list(cells)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError.from_os_error(out, exc) from None
     atomic_write_json(out / "sweep.json", {
         "kind": "ifmi-sweep",
         "cells": [c.__dict__ for c in cells],
@@ -254,7 +347,8 @@ def run_sweep(cells: Iterable[SweepCell], *, out_dir: str | os.PathLike, base_co
         "scheduler": options.scheduler or "local-cluster",
     })
     digest = config_digest(base_config)
-    pending = [c for c in cells if not _finished(out, c, digest)]
+    contents = {d: dataset_digest(d) for d in {c.dataset for c in cells}}
+    pending = [c for c in cells if not _finished(out, c, digest, contents[c.dataset])]
     skipped = len(cells) - len(pending)
     if skipped and options.progress:
         print(f"sweep: {skipped} of {len(cells)} cells already finished, skipped", file=sys.stderr)
@@ -295,8 +389,6 @@ def _execute(cells: list[SweepCell], *, out_dir: str, base_config: dict,
             try:
                 client = Client(options.scheduler, timeout=f"{options.connect_timeout_s}s")
             except (OSError, TimeoutError, ValueError) as exc:
-                from .errors import InputError
-
                 raise InputError(options.scheduler, f"cannot connect to a Dask scheduler "
                                  f"({type(exc).__name__})") from None
         try:
@@ -315,19 +407,18 @@ def _execute(cells: list[SweepCell], *, out_dir: str, base_config: dict,
 
 
 def read_cells(out_dir: str | os.PathLike, cells: Sequence[SweepCell] | None = None) -> list[dict]:
-    """Records of ``cells`` (default: every ``cells/*.json``) in grid order; missing ones skipped."""
+    """Records of ``cells`` (default: every ``cells/*.json``) in grid order.
+
+    Missing records are skipped; unreadable ones (truncated, not a JSON
+    object) too, with a warning naming the file.
+    """
     out = Path(out_dir)
     if cells is None:
         paths = sorted((out / "cells").glob("*.json"))
     else:
         paths = [_cell_path(out, c) for c in cells]
-    records = []
-    for path in paths:
-        try:
-            records.append(json.loads(path.read_text(encoding="utf-8")))
-        except (OSError, ValueError):
-            continue
-    return records
+    records = [read_cell_record(path, action="skipped") for path in paths]
+    return [r for r in records if r is not None]
 
 
 def write_sweep_table(out_dir: str | os.PathLike, records: list[dict]) -> None:
@@ -354,6 +445,7 @@ def write_sweep_table(out_dir: str | os.PathLike, records: list[dict]) -> None:
         for metric, label in METRICS.items():
             if metric not in group or group[metric].isna().all():
                 continue
+            name = re.sub(r"[^A-Za-z0-9_.=-]", "_", f"{dataset}__{method}__{metric}")
             sweep_heatmap(group, metric=metric, label=label,
                           title=f"{dataset} ({method}): {label}",
-                          path=out / "heatmaps" / f"{dataset}__{method}__{metric}.png")
+                          path=out / "heatmaps" / f"{name}.png")

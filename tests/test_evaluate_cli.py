@@ -129,13 +129,14 @@ def test_disjoint_timestamps_is_one_line_error(tmp_path, capsys):
     assert code == 2 and "no estimate timestamp" in err and len(err.splitlines()) == 1
 
 
-def test_ifmi_evaluation_saves_motion_flow_of_real_frames(tmp_path):
+def test_motion_flow_sample_of_real_frames_and_evaluation_stays_pure(tmp_path):
     import cv2
 
     from ifmi.evaluation import evaluate_files
     from ifmi.io.calib import write_calib
-    from ifmi.io.results import read_motion_flow, write_estimate_run
-    from ifmi.pipeline import estimate_dataset
+    from ifmi.io.results import write_estimate_run
+    from ifmi.motion_flow import motion_flow_sample
+    from ifmi.pipeline import EstimateConfig, estimate_dataset
     pytest.importorskip("skimage")
     from ifmi.synthetic import environment_texture, example_band_px, example_omni_model, omni_from_environment
 
@@ -155,8 +156,9 @@ def test_ifmi_evaluation_saves_motion_flow_of_real_frames(tmp_path):
     est = write_estimate_run(tmp_path / "ifmi.txt", estimate_dataset(data, method="ifmi"),
                              dataset_dir=data)
     meta = evaluate_files(data / "groundtruth.txt", est, out_dir=tmp_path / "eval")
-    assert meta["motion_flow"] == "motion_flow.npz"
-    flow = read_motion_flow(tmp_path / "eval" / "motion_flow.npz")
+    # The evaluation reads files only: no front end is run, no flow sample written.
+    assert "motion_flow" not in meta and not (tmp_path / "eval" / "motion_flow.npz").exists()
+    flow = motion_flow_sample(data, config=EstimateConfig(), frames=(0, 1))
     width = flow["panorama_a"].shape[1]
     assert flow["panorama_a"].shape == flow["panorama_b"].shape
     assert len(flow["points_a"]) >= 3 and len(flow["tile_centers"]) >= len(flow["points_a"])
@@ -166,3 +168,152 @@ def test_ifmi_evaluation_saves_motion_flow_of_real_frames(tmp_path):
     # Tile flow is sub-pixel; the median over tiles is within a quarter pixel.
     assert abs(np.median(d[:, 1]) - expected) < 0.25
     assert abs(np.median(d[:, 0])) < 0.25
+
+
+def _gate(tmp_path, *extra):
+    return ["evaluate", "--gt", str(tmp_path / "groundtruth.txt"), "--est", str(tmp_path / "est.txt"),
+            *extra]
+
+
+def test_gate_passes_within_bounds(tmp_path, capsys):
+    _write_run(tmp_path)  # geodesic error 0.01 rad on 19 of 20 frames, 2 failed frames
+    assert main(_gate(tmp_path, "--max-rmse", "0.0100", "--max-failed", "2")) == 0
+    out = capsys.readouterr().out.strip()
+    assert out == "PASS: geodesic RMSE 0.0097 rad <= 0.0100 rad, 2 failed frames <= 2"
+
+
+def test_gate_fails_on_rmse_with_one_line_and_exit_1(tmp_path, capsys):
+    _write_run(tmp_path, yaw_offset=0.0126)
+    assert main(_gate(tmp_path, "--max-rmse", "0.01")) == 1
+    out = capsys.readouterr().out.strip()
+    assert out == "FAIL: geodesic RMSE 0.0123 rad > 0.0100 rad, 2 failed frames"
+
+
+def test_gate_fails_on_failed_frames(tmp_path, capsys):
+    _write_run(tmp_path, failed=(1, 2, 3))
+    assert main(_gate(tmp_path, "--max-rmse", "0.1", "--max-failed", "2")) == 1
+    assert capsys.readouterr().out.strip() == ("FAIL: geodesic RMSE 0.0097 rad <= 0.1000 rad, "
+                                               "3 failed frames > 2")
+
+
+def test_gate_max_failed_without_frames_file_is_one_line_error(tmp_path, capsys):
+    _write_run(tmp_path)
+    (tmp_path / "est.frames.csv").unlink()
+    code, err = _run_error(_gate(tmp_path, "--max-rmse", "0.1", "--max-failed", "0"), capsys)
+    assert code == 2 and "failed-frame count is unknown" in err and len(err.splitlines()) == 1
+
+
+def test_gate_max_failed_needs_max_rmse(tmp_path, capsys):
+    _write_run(tmp_path)
+    code, err = _run_error(_gate(tmp_path, "--max-failed", "0"), capsys)
+    assert code == 2 and "--max-failed needs --max-rmse" in err
+
+
+def test_too_few_associated_poses_is_an_error_naming_both_counts(tmp_path, capsys):
+    gt, est = _write_run(tmp_path)
+    (tmp_path / "est.frames.csv").unlink()
+    # Only frames 0..8 of 20 have an estimate: 9 < 10.
+    write_tum(tmp_path / "est.txt", Trajectory(est.timestamps[:9], est.positions[:9],
+                                               est.rotations[:9]))
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and "only 9 of 20 ground-truth poses" in err and len(err.splitlines()) == 1
+    # The bar can be lowered.
+    assert main(_gate(tmp_path, "--min-matched", "0.4")) == 0
+
+
+def test_duplicate_timestamps_are_an_error(tmp_path, capsys):
+    gt, est = _write_run(tmp_path)
+    stamps = gt.timestamps.copy()
+    stamps[5] = 4.0
+    write_tum(tmp_path / "groundtruth.txt", Trajectory(stamps, gt.positions, gt.rotations))
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and "groundtruth.txt" in err and "duplicate timestamp 4" in err
+    _write_run(tmp_path)
+    write_tum(tmp_path / "est.txt", Trajectory(stamps, est.positions, est.rotations))
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and "est.txt" in err and "duplicate timestamp 4" in err
+
+
+def test_side_files_of_another_run_are_refused(tmp_path, capsys):
+    _write_run(tmp_path)
+    rows = (tmp_path / "est.frames.csv").read_text().splitlines()
+    (tmp_path / "est.frames.csv").write_text("\n".join(rows + rows[1:]) + "\n")
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and "est.frames.csv" in err and "40 frames, but est.txt has 20 poses" in err
+    assert len(err.splitlines()) == 1
+
+
+def test_unwritable_output_is_one_line_error(tmp_path, capsys):
+    _write_run(tmp_path)
+    (tmp_path / "file").write_text("x")
+    code, err = _run_error(_gate(tmp_path, "--out", str(tmp_path / "file" / "eval")), capsys)
+    assert code == 1 and len(err.splitlines()) == 1
+    assert "cannot write" in err and str(tmp_path / "file" / "eval") in err and ".tmp" not in err
+
+
+def test_read_only_output_folder_is_one_line_error(tmp_path, capsys):
+    import os
+
+    if os.geteuid() == 0:
+        pytest.skip("root writes into read-only folders")
+    _write_run(tmp_path)
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        code, err = _run_error(_gate(tmp_path, "--out", str(locked / "eval")), capsys)
+    finally:
+        locked.chmod(0o700)
+    assert code == 1 and len(err.splitlines()) == 1 and "Permission denied" in err
+
+
+def test_evaluate_options_are_checked():
+    from ifmi.evaluation import EvaluateOptions
+
+    with pytest.raises(ValueError, match="expected min_matched in \\[0, 1\\], got 1.5"):
+        EvaluateOptions(min_matched=1.5)
+    with pytest.raises(ValueError, match="expected max_time_difference >= 0, got -1"):
+        EvaluateOptions(max_time_difference=-1)
+
+
+def test_evaluate_cli_rejects_bad_min_matched(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(_gate(tmp_path, "--min-matched", "1.5"))
+    assert exc.value.code == 2 and "expected a fraction in [0, 1], got 1.5" in capsys.readouterr().err
+
+
+def test_gate_fails_on_nan_rmse():
+    from ifmi.evaluation import gate_verdict
+    from ifmi.metrics import ErrorStats, EvaluationSummary
+
+    nan = ErrorStats(*[float("nan")] * 5, count=0)
+    summary = EvaluationSummary(nan, nan, nan, nan, nan, nan, 3, 3, 0)
+    verdict = gate_verdict(summary, max_rmse_rad=0.1)
+    assert not verdict.passed and verdict.line == "FAIL: geodesic RMSE nan rad > 0.1000 rad"
+
+
+def test_summary_round_trips_through_its_dict(tmp_path, capsys):
+    from ifmi.evaluation import summary_of
+    from ifmi.metrics import EvaluationSummary
+
+    _write_run(tmp_path)
+    assert main(_gate(tmp_path, "--json")) == 0
+    meta = json.loads(capsys.readouterr().out)
+    summary = summary_of(meta)
+    assert EvaluationSummary.from_dict(summary.to_dict()) == summary
+    flat = summary.flat()
+    assert flat["rmse_yaw_rad"] == meta["summary"]["axes"]["yaw"]["rmse"]
+    assert flat["rmse_mean_rad"] == pytest.approx(meta["summary"]["mean_rmse"])
+    assert flat["failures"] == 2 and flat["frames"] == 20
+
+
+def test_motion_flow_sample_of_frames_outside_the_dataset_is_input_error(tmp_path):
+    from ifmi.errors import InputError
+    from ifmi.motion_flow import motion_flow_sample
+    from ifmi.pipeline import EstimateConfig
+    pytest.importorskip("skimage")
+    from ifmi.synthetic import example_omni_model, synthetic_sequence, write_synthetic_dataset
+
+    data = write_synthetic_dataset(tmp_path / "d", synthetic_sequence(example_omni_model(96), 2))
+    with pytest.raises(InputError, match=r"frames 0, 5 outside 0..1"):
+        motion_flow_sample(data, config=EstimateConfig(), frames=(0, 5))

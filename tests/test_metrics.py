@@ -48,7 +48,7 @@ def test_per_axis_errors_are_the_applied_offsets():
     est = Trajectory(gt.timestamps, gt.positions, matrix_from_rpy(rpy_gt + offset))
     err = trajectory_errors(gt, est)
     np.testing.assert_allclose(err.rpy_error, offset, atol=1e-12)
-    summary = summary_from_errors(err, n_gt=40, n_est=40)
+    summary = summary_from_errors(err, n_gt=40, n_est=40).to_dict()
     for i, axis in enumerate(("roll", "pitch", "yaw")):
         assert summary["axes"][axis]["rmse"] == pytest.approx(np.sqrt(np.mean(offset[:, i] ** 2)))
         assert summary["axes"][axis]["mean"] == pytest.approx(np.mean(np.abs(offset[:, i])))
@@ -134,7 +134,7 @@ def test_geodesic_matches_evo_ape(tmp_path):
 
     ours = trajectory_errors(read_tum(tmp_path / "gt.txt"), read_tum(tmp_path / "est.txt"))
     assert len(ours) == 58
-    summary = summary_from_errors(ours, n_gt=60, n_est=58)
+    summary = summary_from_errors(ours, n_gt=60, n_est=58).to_dict()
 
     traj_ref = file_interface.read_tum_trajectory_file(str(tmp_path / "gt.txt"))
     traj_est = file_interface.read_tum_trajectory_file(str(tmp_path / "est.txt"))

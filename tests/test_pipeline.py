@@ -210,3 +210,11 @@ def test_cubic_tile_resampling_removes_the_interpolation_bias(sequence):
     # Measured: rms 2.3e-4 rad (bilinear) against 3.7e-5 (bicubic) and 4.1e-5 rad (Lanczos).
     assert rms["cubic"] < rms["linear"] / 3
     assert rms["lanczos4"] < rms["linear"] / 3
+
+
+def test_config_with_unknown_feature_option_names_it():
+    with pytest.raises(ValueError, match=r"features: unknown key n_feature; expected n_features"):
+        EstimateConfig.from_dict({"features": {"n_feature": 10}})
+    config = EstimateConfig.from_dict({"features": {"n_features": 10}})
+    assert config.features.n_features == 10
+    assert EstimateConfig.from_dict(config.to_dict()) == config

@@ -43,20 +43,20 @@ def test_five_point_with_outliers_is_exact_at_zero_noise():
     assert np.array_equal(info.inlier_mask, ~outlier)
 
 
-def test_five_point_with_noise():
+def test_five_point_with_noise(assert_rotation_close):
     rays_a, rays_b, rotation, _, _ = _scene(noise_rad=2e-4, seed=1)
     pose, info = relative_pose_from_rays(rays_a, rays_b, options=_options(seed=1))
     assert info.success
     # 120 inliers with 2e-4 rad noise: the rotation is good to a few 1e-5 rad.
-    assert geodesic_angle(rotation, pose.rotation) < 1e-4
+    assert_rotation_close(pose.rotation, rotation, atol_rad=1e-4)
 
 
-def test_pure_rotation_selects_the_rotation_model():
+def test_pure_rotation_selects_the_rotation_model(assert_rotation_close):
     rays_a, rays_b, rotation, _, outlier = _scene(translation=(0.0, 0.0, 0.0), noise_rad=1e-4)
     pose, info = relative_pose_from_rays(rays_a, rays_b, options=_options())
     assert info.success and info.model == "rotation"
     assert np.all(pose.translation_direction == 0)
-    assert geodesic_angle(rotation, pose.rotation) < 1e-4
+    assert_rotation_close(pose.rotation, rotation, atol_rad=1e-4)
     assert not info.inlier_mask[outlier].any()
 
 
@@ -107,6 +107,21 @@ def test_unresolved_threshold_is_rejected():
     rays_a, rays_b, *_ = _scene()
     with pytest.raises(ValueError, match="ransac_threshold_rad is None"):
         relative_pose_from_rays(rays_a, rays_b, options=RelativePoseOptions())
+
+
+@pytest.mark.parametrize("group", [0, 1.5, True])
+def test_bad_group_size_is_rejected(group):
+    rays_a, rays_b, *_ = _scene()
+    with pytest.raises(ValueError, match=f"expected rays_per_measurement to be an integer >= 1, "
+                                         f"got {group!r}"):
+        relative_pose_from_rays(rays_a, rays_b, options=_options(), rays_per_measurement=group)
+
+
+def test_non_finite_rays_are_rejected():
+    rays_a, rays_b, *_ = _scene()
+    rays_b[[3, 7]] = np.nan
+    with pytest.raises(ValueError, match="rays must be finite; 2 of 150 rows are not"):
+        relative_pose_from_rays(rays_a, rays_b, options=_options())
 
 
 def test_pixel_threshold_resolves_and_explicit_threshold_wins():

@@ -11,7 +11,7 @@ from ifmi.cli import main
 from ifmi.evaluation import evaluate_files
 from ifmi.io.atomic import atomic_write_json
 from ifmi.io.tum import Trajectory, write_tum
-from ifmi.report import average_table, find_results, scene_tables, target_ratios
+from ifmi.report import average_table, baseline_ratios, find_results, scene_tables
 from ifmi.io.results import read_evaluation
 from ifmi.rotations import matrix_from_rpy
 
@@ -74,13 +74,13 @@ def test_tables_and_ratios(tmp_path):
     for s, scene in enumerate(("office", "lawn")):
         for method, (err, seconds) in METHODS.items():
             row = tables[scene][method]
-            assert row["yaw"]["rmse"] == pytest.approx(err * (1 + s) * np.sqrt((n - 1) / n), rel=1e-6)
+            assert row["rmse_yaw_rad"] == pytest.approx(err * (1 + s) * np.sqrt((n - 1) / n), rel=1e-6)
             assert row["time_per_frame_s"] == pytest.approx(seconds)
     avg = average_table(tables)
     yaw = [err * (1 + s) * np.sqrt(14 / 15) for s in range(2) for err in [METHODS["orb"][0]]]
-    assert avg["orb"]["yaw"]["mean"] == pytest.approx(np.mean(yaw), rel=1e-6)
-    assert avg["orb"]["yaw"]["std"] == pytest.approx(np.std(yaw), rel=1e-6)
-    ratios = target_ratios(tables)
+    assert avg["orb"]["rmse_yaw_rad"]["mean"] == pytest.approx(np.mean(yaw), rel=1e-6)
+    assert avg["orb"]["rmse_yaw_rad"]["std"] == pytest.approx(np.std(yaw), rel=1e-6)
+    ratios = baseline_ratios(tables)
     assert ratios["office"]["rmse_ratio_to_best_baseline"] == pytest.approx(0.2, rel=1e-6)
     assert ratios["office"]["time_ratio_akaze"] == pytest.approx(0.05)
 
@@ -92,6 +92,8 @@ def test_report_cli_writes_markdown_html_figures(tmp_path, capsys):
     md = (out / "README.md").read_text()
     html = (out / "index.html").read_text()
     assert "Table 1" in md and "| ifmi |" in md
+    # Results only: no thresholds of this project's own in a user's report.
+    assert "iFMI against the baselines" in md and "Target" not in md
     assert "μ(ε)" in md and "<table>" in html
     for scene in ("office", "lawn"):
         assert (out / "figures" / f"rpy_{scene}.png").stat().st_size > 1000
@@ -102,7 +104,7 @@ def test_report_cli_writes_markdown_html_figures(tmp_path, capsys):
     assert len(heatmaps) == 2
     doc = json.loads((out / "report.json").read_text())
     assert doc["machine"]["cores"] >= 1 and doc["versions"]["numpy"]
-    assert doc["scenes"]["office"]["ifmi"]["yaw"]["rmse"] == pytest.approx(
+    assert doc["scenes"]["office"]["ifmi"]["rmse_yaw_rad"] == pytest.approx(
         0.002 * np.sqrt(14 / 15), rel=1e-6)
     assert len(doc["sweeps"][0]["cells"]) == 4
     assert "Machine and versions" in md
@@ -114,7 +116,7 @@ def test_report_cli_writes_markdown_html_figures(tmp_path, capsys):
     rebuilt = tmp_path / "rebuilt"
     assert main(["report", str(out / "data"), "--out", str(rebuilt)]) == 0
     again = json.loads((rebuilt / "report.json").read_text())
-    assert again["scenes"]["office"]["orb"]["yaw"] == doc["scenes"]["office"]["orb"]["yaw"]
+    assert again["scenes"]["office"]["orb"]["rmse_yaw_rad"] == doc["scenes"]["office"]["orb"]["rmse_yaw_rad"]
     assert again["average"] == doc["average"]
     assert (rebuilt / "figures" / "motion_flow_office.png").is_file()
 
@@ -130,3 +132,144 @@ def test_report_of_folder_without_results_is_one_line_error(tmp_path, capsys):
     code = main(["report", str(tmp_path / "empty"), "--out", str(tmp_path / "r")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "no evaluation.json or sweep.json" in err
+
+
+def test_failed_report_leaves_the_old_one_intact(tmp_path, capsys, monkeypatch):
+    import ifmi.report
+
+    root = _make_results(tmp_path, scenes=("office",))
+    out = tmp_path / "report"
+    assert main(["report", str(root / "eval"), "--out", str(out)]) == 0
+    (out / "notes.txt").write_text("mine")
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def broken(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(ifmi.report, "_sweep_blocks", broken)
+    code = main(["report", str(root / "eval"), str(root / "sweep"), "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and err == f"ifmi report: error: cannot write {out}: No space left on device"
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "eval", "report", "runs", "sweep"]
+
+
+def test_rebuilt_report_keeps_files_it_does_not_write(tmp_path):
+    root = _make_results(tmp_path, scenes=("office",))
+    out = tmp_path / "report"
+    assert main(["report", str(root / "eval"), "--out", str(out)]) == 0
+    (out / "notes.txt").write_text("mine")
+    (out / "figures" / "stale.png").write_bytes(b"old")
+    assert main(["report", str(root / "eval"), str(root / "sweep"), "--out", str(out)]) == 0
+    assert (out / "notes.txt").read_text() == "mine"
+    assert not (out / "figures" / "stale.png").exists()
+    assert list((out / "figures").glob("heatmap_*.png"))
+
+
+def test_report_errors_name_the_subcommand(tmp_path, capsys):
+    root = _make_results(tmp_path, scenes=("office",))
+    (tmp_path / "file").write_text("x")
+    code = main(["report", str(root / "eval"), "--out", str(tmp_path / "file" / "r"),
+                 "--command", "make report"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and len(err.splitlines()) == 1
+    assert err.startswith("ifmi report: error: cannot write ") and "None" not in err
+
+
+def test_any_method_gets_a_row_and_a_colour(tmp_path):
+    from ifmi.methods import method_colors
+
+    root = _make_results(tmp_path, scenes=("office",))
+    est_dir = root / "runs" / "office"
+    est = est_dir / "ifmi.txt"
+    plugin = "sift_plugin:sift_front_end"
+    (est_dir / "sift.txt").write_bytes(est.read_bytes())
+    (est_dir / "sift.frames.csv").write_bytes((est_dir / "ifmi.frames.csv").read_bytes())
+    (est_dir / "sift.config.json").write_text(json.dumps(
+        {"method": plugin, "dataset": str(root / "data" / "office_20"), "config": {}}))
+    evaluate_files(root / "data" / "office_20" / "groundtruth.txt", est_dir / "sift.txt",
+                   out_dir=root / "eval" / "office" / "sift")
+    out = tmp_path / "report"
+    assert main(["report", str(root / "eval"), "--out", str(out)]) == 0
+    records = [read_evaluation(p) for p in find_results([root / "eval"]).evaluations]
+    assert list(scene_tables(records)["office"]) == ["ifmi", "orb", "akaze", plugin]
+    md = (out / "README.md").read_text()
+    assert f"| {plugin} |" in md and plugin in md.split("Average over scenes")[1].splitlines()[2]
+    colors = method_colors(["ifmi", "orb", "akaze", plugin, "zz"])
+    assert len(set(colors.values())) == 5 and colors["ifmi"] == "tab:red"
+    assert method_colors([plugin, "orb"])[plugin] == colors[plugin]
+
+
+def test_truncated_sweep_cell_is_skipped_with_a_warning(tmp_path, capsys):
+    root = _make_results(tmp_path)
+    (root / "sweep" / "cells" / "c1.json").write_text('{"cell_id": "c1", "dat')
+    (root / "sweep" / "cells" / "c2.json").write_text("[]")
+    (root / "sweep" / "cells" / "c3.json").write_text('{"cell_id": "c3", "status": "ok"}')
+    assert main(["report", str(root / "sweep"), "--out", str(tmp_path / "r")]) == 0
+    err = capsys.readouterr().err
+    assert "c1.json: unreadable sweep cell" in err and "c2.json: expected a JSON object" in err
+    assert "c3.json: sweep cell without dataset, method, tile_size, overlap; skipped" in err
+    doc = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert len(doc["sweeps"][0]["cells"]) == 1
+
+
+def test_report_computes_the_motion_flow_sample_once_on_request(tmp_path):
+    from ifmi.io.results import read_motion_flow, write_estimate_run
+    from ifmi.pipeline import EstimateConfig, SequenceEstimate
+    from ifmi.io.tum import read_tum
+    pytest.importorskip("skimage")
+    from ifmi.synthetic import (example_band_px, example_omni_model, synthetic_sequence,
+                                write_synthetic_dataset)
+
+    model = example_omni_model(160)
+    data = write_synthetic_dataset(tmp_path / "office", synthetic_sequence(
+        model, 3, seed=1, band_px=example_band_px(model)))
+    gt = read_tum(data / "groundtruth.txt")
+    # An exact "estimate" suffices: the sample is computed from the dataset and the config.
+    run = SequenceEstimate(trajectory=gt, frames=(), config=EstimateConfig(), method="ifmi")
+    est = write_estimate_run(tmp_path / "runs" / "ifmi.txt", run, dataset_dir=data)
+    (tmp_path / "runs" / "ifmi.frames.csv").unlink()
+    evaluate_files(data / "groundtruth.txt", est, out_dir=tmp_path / "eval" / "ifmi")
+    assert not (tmp_path / "eval" / "ifmi" / "motion_flow.npz").exists()
+    assert main(["report", str(tmp_path / "eval"), "--out", str(tmp_path / "plain"),
+                 "--no-motion-flow"]) == 0
+    assert not list((tmp_path / "plain" / "figures").glob("motion_flow_*"))
+    assert main(["report", str(tmp_path / "eval"), "--out", str(tmp_path / "r")]) == 0
+    assert (tmp_path / "r" / "figures" / "motion_flow_office.png").is_file()
+    stored = tmp_path / "r" / "data" / "eval" / "office" / "ifmi" / "motion_flow.npz"
+    assert len(read_motion_flow(stored)["points_a"]) >= 3
+
+
+def test_report_out_that_is_a_file_is_one_line_error(tmp_path, capsys):
+    root = _make_results(tmp_path, scenes=("office",))
+    (tmp_path / "r").write_text("not a folder")
+    code = main(["report", str(root / "eval"), "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and err == f"ifmi report: error: cannot write {tmp_path / 'r'}: exists and is not a folder"
+    assert (tmp_path / "r").read_text() == "not a folder"
+
+
+def test_report_into_a_symlinked_folder_writes_through_the_link(tmp_path):
+    root = _make_results(tmp_path, scenes=("office",))
+    real = tmp_path / "real_report"
+    real.mkdir()
+    (real / "notes.txt").write_text("mine")
+    (tmp_path / "link").symlink_to(real)
+    assert main(["report", str(root / "eval"), "--out", str(tmp_path / "link")]) == 0
+    assert (tmp_path / "link").is_symlink()
+    assert (real / "README.md").is_file() and (real / "notes.txt").read_text() == "mine"
+
+
+def test_unreadable_dataset_gives_a_motion_flow_warning_not_an_error(tmp_path, capsys):
+    root = _make_results(tmp_path, scenes=("lawn",))
+    data = root / "data" / "lawn_20"
+    (data / "images").mkdir()
+    # The iFMI evaluation of this scene has a configuration but no stored sample.
+    (root / "eval" / "lawn" / "ifmi" / "motion_flow.npz").unlink()
+    (root / "eval" / "lawn" / "ifmi" / "config.json").write_text(json.dumps(
+        {"method": "ifmi", "dataset": str(data), "config": {}}))
+    assert main(["report", str(root / "eval"), "--out", str(tmp_path / "r")]) == 0
+    err = capsys.readouterr().err
+    assert "warning: no motion-flow figure for lawn:" in err and "calib" in err
+    assert not list((tmp_path / "r" / "figures").glob("motion_flow_*"))

@@ -154,3 +154,99 @@ def test_sweep_through_existing_scheduler_address(datasets, tmp_path):
                             options=SweepOptions(scheduler=cluster.scheduler_address,
                                                  progress=False))
     assert [r["status"] for r in records] == ["ok"]
+
+
+def test_two_datasets_of_one_name_are_distinct_cells(tmp_path):
+    a = _write_dataset(tmp_path / "site_a" / "office", n=4, size=128, seed=5, max_step_rad=0.03)
+    b = _write_dataset(tmp_path / "site_b" / "office", n=4, size=128, seed=6, max_step_rad=0.06)
+    cells = sweep_cells([str(a), str(b)], method="ifmi", tile_sizes=[32], overlaps=[0.0])
+    out = tmp_path / "sweep"
+    records = run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(),
+                        options=SweepOptions(scheduler="synchronous", progress=False))
+    assert [r["dataset"] for r in records] == ["site_a/office", "site_b/office"]
+    assert [r["dataset_path"] for r in records] == [str(a.resolve()), str(b.resolve())]
+    assert len({r["cell_id"] for r in records}) == 2
+    # Each row holds its own dataset's numbers: the second sequence turns twice as fast.
+    assert records[0]["rmse_geodesic_rad"] != records[1]["rmse_geodesic_rad"]
+    table = pd.read_csv(out / "sweep.csv")
+    assert list(table["dataset"]) == ["site_a/office", "site_b/office"]
+    assert (out / "heatmaps" / "site_a_office__ifmi__rmse_mean_rad.png").is_file()
+    assert (out / "heatmaps" / "site_b_office__ifmi__rmse_mean_rad.png").is_file()
+
+
+def test_changed_dataset_is_recomputed_never_reused(tmp_path):
+    data = _write_dataset(tmp_path / "office", n=4, size=128, seed=5)
+    cells = sweep_cells([str(data)], method="ifmi", tile_sizes=[32], overlaps=[0.0])
+    out = tmp_path / "sweep"
+    options = SweepOptions(scheduler="synchronous", progress=False)
+    first = run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
+    # The same folder now holds another sequence (a re-render with another seed).
+    _write_dataset(data, n=4, size=128, seed=9, max_step_rad=0.06)
+    second = run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
+    assert first[0]["dataset_digest"] != second[0]["dataset_digest"]
+    assert first[0]["rmse_geodesic_rad"] != second[0]["rmse_geodesic_rad"]
+
+
+@pytest.mark.parametrize("content", ["[]", '{"status": "ok", "cell_'])
+def test_bad_cell_record_is_warned_and_recomputed(datasets, tmp_path, capsys, content):
+    good, _ = datasets
+    cells = sweep_cells([str(good)], method="ifmi", tile_sizes=[32], overlaps=[0.0])
+    out = tmp_path / "sweep"
+    options = SweepOptions(scheduler="synchronous", progress=False)
+    run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
+    path = next((out / "cells").glob("*.json"))
+    path.write_text(content)
+    capsys.readouterr()
+    records = run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
+    err = capsys.readouterr().err
+    assert str(path) in err and "computing the cell again" in err
+    assert records[0]["status"] == "ok" and json.loads(path.read_text())["status"] == "ok"
+
+
+def test_sweep_cli_rejects_zero_workers(datasets, tmp_path, capsys):
+    good, _ = datasets
+    with pytest.raises(SystemExit) as exc:
+        main(["sweep", str(good), "--tile-size", "32", "--overlap", "0", "--workers", "0",
+              "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    assert "expected an integer >= 1, got 0" in capsys.readouterr().err
+
+
+def test_sweep_options_reject_zero_workers():
+    with pytest.raises(ValueError, match="n_workers >= 1"):
+        SweepOptions(n_workers=0)
+
+
+def test_sweep_cli_unknown_method_is_one_line_error(datasets, tmp_path, capsys):
+    good, _ = datasets
+    code = main(["sweep", str(good), "--tile-size", "32", "--overlap", "0", "--method", "nosuch",
+                 "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "unknown method" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_sweep_cli_out_below_a_file_is_one_line_error(datasets, tmp_path, capsys):
+    good, _ = datasets
+    (tmp_path / "file").write_text("x")
+    code = main(["sweep", str(good), "--tile-size", "32", "--overlap", "0", "--scheduler",
+                 "synchronous", "--out", str(tmp_path / "file" / "sweep"), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and len(err.splitlines()) == 1
+    assert f"cannot write {tmp_path / 'file' / 'sweep'}" in err
+
+
+def test_sweep_cli_bad_base_config_is_one_line_error(datasets, tmp_path, capsys):
+    good, _ = datasets
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"keyframe": {"enabled": True, "bogus": 1}}))
+    code = main(["sweep", str(good), "--tile-size", "32", "--overlap", "0", "--config", str(bad),
+                 "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "bad.json" in err and "bogus" in err
+
+
+def test_sweep_cli_rejects_bad_tile_size(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["sweep", str(tmp_path), "--tile-size", "0", "--overlap", "0", "--out", "x"])
+    assert "tile size must be > 0" in capsys.readouterr().err

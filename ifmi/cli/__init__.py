@@ -17,7 +17,7 @@ from ..errors import InputError, InputWarning, OutputError
 __all__ = ["main"]
 
 # Subcommand modules, in the order ``ifmi --help`` lists them.
-_SUBCOMMANDS = ("estimate", "evaluate", "sweep", "report", "convert_calib")
+_SUBCOMMANDS = ("estimate", "evaluate", "sweep", "report", "convert_calib", "methods")
 
 
 def build_parser() -> argparse.ArgumentParser:

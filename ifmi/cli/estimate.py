@@ -14,7 +14,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..errors import InputError
-from ..pipeline import EstimateConfig, estimate_dataset, estimate_video, method_names
+from ..methods import load_factory
+from ..pipeline import EstimateConfig, estimate_dataset, estimate_video
 
 # Exit status when the outputs were written but more than half of the frames failed.
 EXIT_MOSTLY_FAILED = 3
@@ -39,7 +40,9 @@ def add_parser(subparsers) -> None:
                    help="dataset folder, or a video file (.mp4, .avi, ...; needs --calib)")
     p.add_argument("--calib", metavar="CALIB",
                    help="calib_results.txt of a video's camera (timestamps come from the video)")
-    p.add_argument("--method", default="ifmi", choices=method_names(), help="front end (default ifmi)")
+    p.add_argument("--method", default="ifmi", metavar="METHOD",
+                   help="front end: a name that 'ifmi methods' lists, or package.module:factory "
+                        "(default ifmi)")
     p.add_argument("--out", required=True, metavar="ESTIMATE", help="TUM file to write")
     p.add_argument("--config", metavar="JSON",
                    help="start from this configuration (an estimate's NAME.config.json or a "
@@ -124,6 +127,7 @@ def run(args) -> int:
     from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
     from ..io.video import is_video_path
 
+    load_factory(args.method)  # an unknown or broken method fails before any work
     config = config_from_args(args)
     out = Path(args.out)
     video = is_video_path(args.dataset)

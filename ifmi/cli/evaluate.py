@@ -1,34 +1,82 @@
-"""``ifmi evaluate``: errors of an estimate against ground truth, saved as files."""
+"""``ifmi evaluate``: errors of an estimate against ground truth, saved as files; a CI gate."""
 
 from __future__ import annotations
 
+import argparse
 import json
 
-from ..evaluation import EvaluateOptions, evaluate_files, format_summary_table
+from ..errors import InputError
+from ..evaluation import EvaluateOptions, evaluate_files, format_summary_table, gate_verdict, summary_of
 
 __all__ = ["add_parser", "run"]
+
+
+def _fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1], got {text!r}") from None
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1], got {text}")
+    return value
+
+
+def _non_negative(kind):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+        if not value >= 0:
+            raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
+        return value
+    return parse
 
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "evaluate",
-        help="orientation errors of an estimate against ground truth",
+        help="orientation errors of an estimate against ground truth (and a pass/fail gate)",
         description="Per-axis roll/pitch/yaw RMSE and mean ± std, geodesic, relative and "
                     "translation-direction errors, failures and time per frame. Results are "
-                    "written to --out (default: ESTIMATE.eval/ beside the estimate).",
+                    "written to --out (default: ESTIMATE.eval/ beside the estimate). With "
+                    "--max-rmse it is a CI gate: one PASS/FAIL line, exit 0 on PASS, 1 on FAIL.",
     )
     p.add_argument("--gt", required=True, metavar="GROUNDTRUTH", help="ground-truth TUM file")
     p.add_argument("--est", required=True, metavar="ESTIMATE", help="estimated TUM file")
     p.add_argument("--out", metavar="DIR", help="evaluation folder to write")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
-    p.add_argument("--max-time-difference", type=float, default=1e-3, metavar="T",
+    p.add_argument("--max-time-difference", type=_non_negative(float), default=1e-3, metavar="T",
                    help="largest timestamp difference for associating poses (default 1e-3)")
+    p.add_argument("--min-matched", type=_fraction, default=0.5, metavar="FRACTION",
+                   help="smallest fraction of ground-truth poses that must be associated "
+                        "(default 0.5)")
+    g = p.add_argument_group("pass/fail gate")
+    g.add_argument("--max-rmse", type=_non_negative(float), metavar="RAD",
+                   help="fail (exit 1) when the geodesic RMSE exceeds RAD radians")
+    g.add_argument("--max-failed", type=_non_negative(int), metavar="N",
+                   help="also fail when more than N frames failed (from the estimate's frames.csv)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.max_failed is not None and args.max_rmse is None:
+        raise InputError("command line", "--max-failed needs --max-rmse")
     meta = evaluate_files(args.gt, args.est, out_dir=args.out,
-                          options=EvaluateOptions(max_time_difference=args.max_time_difference))
+                          options=EvaluateOptions(max_time_difference=args.max_time_difference,
+                                                  min_matched=args.min_matched))
+    if args.max_rmse is not None:
+        try:
+            verdict = gate_verdict(summary_of(meta), max_rmse_rad=args.max_rmse,
+                                   max_failed=args.max_failed)
+        except ValueError as exc:
+            raise InputError(args.est, str(exc)) from None
+        if args.json:
+            print(json.dumps({**meta, "verdict": verdict.line, "passed": verdict.passed},
+                             indent=2, sort_keys=True, default=lambda v: None))
+        else:
+            print(verdict.line)
+        return 0 if verdict.passed else 1
     if args.json:
         print(json.dumps(meta, indent=2, sort_keys=True, default=lambda v: None))
     else:

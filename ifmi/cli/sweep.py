@@ -26,6 +26,16 @@ def _overlap(text: str) -> float:
     return value
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
+
+
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "sweep",
@@ -40,14 +50,16 @@ def add_parser(subparsers) -> None:
                    help="tile sides: pixels (>= 1) or fractions of the panorama width (< 1)")
     p.add_argument("--overlap", nargs="+", type=_overlap, required=True, metavar="F",
                    help="tile overlaps, fractions in [0, 1)")
-    p.add_argument("--method", default="ifmi", help="estimation method (default ifmi)")
+    p.add_argument("--method", default="ifmi", metavar="METHOD",
+                   help="estimation method: a name that 'ifmi methods' lists, or "
+                        "package.module:factory (default ifmi)")
     p.add_argument("--config", metavar="JSON",
                    help="base estimate configuration (EstimateConfig JSON, or an estimate's "
                         ".config.json); the grid replaces its tiling")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="address of a running Dask scheduler, or 'synchronous' to run in this "
                         "process (default: a local cluster)")
-    p.add_argument("--workers", type=int, default=2,
+    p.add_argument("--workers", type=_positive_int, default=2,
                    help="worker processes of the local cluster (default 2, 1 thread each)")
     p.add_argument("--out", required=True, metavar="DIR", help="sweep folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -56,10 +68,10 @@ def add_parser(subparsers) -> None:
 
 def _base_config(path: str | None, method: str) -> dict:
     from ..io.results import read_run_config
-    from ..pipeline import EstimateConfig, method_names
+    from ..methods import load_factory
+    from ..pipeline import EstimateConfig
 
-    if method not in method_names():
-        raise InputError(method, f"unknown method; expected one of {', '.join(method_names())}")
+    load_factory(method)  # an unknown or broken method fails before any cell runs
     if path is None:
         return EstimateConfig().to_dict()
     data = read_run_config(path)

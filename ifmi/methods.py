@@ -1,0 +1,249 @@
+"""Estimation methods by name: the built-in front ends, installed plugins and ``module:factory``.
+
+A method is a factory ``factory(model, config) -> FrontEnd``
+(:mod:`ifmi.front_end`). ``--method`` (of ``ifmi estimate`` and ``ifmi
+sweep``) names one of
+
+* a built-in method: :data:`BUILTIN_METHODS` is the one list of them (name,
+  factory, one-line summary, colour in figures);
+* a method an installed package registers under the entry-point group
+  ``ifmi.methods`` (``[project.entry-points."ifmi.methods"] sift =
+  "my_package.sift:front_end"`` in its ``pyproject.toml``);
+* any importable factory, written ``package.module:factory``.
+
+Every method name, known or not, gets a place in report tables
+(:func:`method_sort_key`) and a colour in figures (:func:`method_colors`).
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from importlib import metadata
+from typing import Any, Callable, Iterable
+
+from .errors import InputError
+
+__all__ = [
+    "ENTRY_POINT_GROUP",
+    "MethodInfo",
+    "BUILTIN_METHODS",
+    "builtin_method_names",
+    "plugin_methods",
+    "available_methods",
+    "method_names",
+    "load_factory",
+    "create_front_end",
+    "method_sort_key",
+    "method_colors",
+    "ifmi_front_end",
+]
+
+# Entry-point group under which installed packages register methods.
+ENTRY_POINT_GROUP = "ifmi.methods"
+
+
+@dataclass(frozen=True)
+class MethodInfo:
+    """A named method.
+
+    Attributes
+    ----------
+    name : str
+        What ``--method`` accepts.
+    target : str
+        Its factory, ``package.module:attribute``.
+    summary : str
+        One line saying what it does (a plugin's: the first line of its
+        factory's docstring, read when listed).
+    source : str
+        ``"built-in"`` or ``"plugin <distribution>"``.
+    color : str or None
+        Matplotlib colour of a built-in method in figures.
+    """
+
+    name: str
+    target: str
+    summary: str
+    source: str
+    color: str | None = None
+
+
+def ifmi_front_end(model, config):
+    """The extended iFMI front end: per-tile Fourier-Mellin registration on the panorama."""
+    from .spectral_front_end import IfmiFrontEnd
+
+    return IfmiFrontEnd(model, config.ifmi)
+
+
+# The built-in methods, in report order, with their colours in every figure.
+BUILTIN_METHODS = (
+    MethodInfo("ifmi", "ifmi.methods:ifmi_front_end",
+               "extended iFMI: per-tile Fourier-Mellin registration on the panorama, "
+               "flow rays", "built-in", "tab:red"),
+    MethodInfo("orb", "ifmi.features:orb_front_end",
+               "ORB keypoints in the mirror band, Hamming ratio-test matching", "built-in",
+               "tab:blue"),
+    MethodInfo("akaze", "ifmi.features:akaze_front_end",
+               "AKAZE keypoints in the mirror band, Hamming ratio-test matching", "built-in",
+               "tab:green"),
+)
+# Colours given to other methods, in turn (none of them a built-in method's colour).
+OTHER_COLORS = ("tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan",
+                "tab:gray")
+
+
+def builtin_method_names() -> tuple[str, ...]:
+    """Names of the built-in methods, in report order."""
+    return tuple(m.name for m in BUILTIN_METHODS)
+
+
+def _first_doc_line(obj) -> str:
+    doc = (getattr(obj, "__doc__", None) or "").strip()
+    return doc.splitlines()[0].strip() if doc else "(no description)"
+
+
+def plugin_methods(*, with_summary: bool = False) -> tuple[MethodInfo, ...]:
+    """Methods registered by installed packages under :data:`ENTRY_POINT_GROUP`.
+
+    Parameters
+    ----------
+    with_summary : bool, keyword-only
+        Import each factory to read its docstring's first line (a factory
+        that cannot be loaded says why instead).
+
+    Returns
+    -------
+    tuple of MethodInfo
+        Sorted by name; names of built-in methods are left out (the
+        built-in method wins).
+    """
+    builtin = set(builtin_method_names())
+    found = {}
+    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name in builtin or ep.name in found:
+            continue
+        dist = getattr(getattr(ep, "dist", None), "name", None) or "unknown distribution"
+        summary = ""
+        if with_summary:
+            try:
+                summary = _first_doc_line(_load_target(ep.value, method=ep.name))
+            except InputError as exc:
+                summary = f"(cannot be loaded: {exc.problem})"
+        found[ep.name] = MethodInfo(ep.name, ep.value, summary, f"plugin {dist}")
+    return tuple(found[name] for name in sorted(found))
+
+
+def available_methods(*, with_summary: bool = False) -> tuple[MethodInfo, ...]:
+    """Built-in methods, then installed plugins (see :func:`plugin_methods`)."""
+    return BUILTIN_METHODS + plugin_methods(with_summary=with_summary)
+
+
+def method_names() -> tuple[str, ...]:
+    """Names ``--method`` accepts as they are (``package.module:factory`` is accepted too)."""
+    return tuple(m.name for m in available_methods())
+
+
+def _load_target(target: str, *, method: str) -> Callable:
+    """The callable named ``package.module:attribute``; :class:`InputError` naming what is wrong."""
+    where = f"method {method}"
+    module_name, sep, attribute = target.partition(":")
+    if not sep or not module_name or not attribute:
+        raise InputError(where, f"expected a method name or package.module:factory, got {target!r}")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name and (module_name == exc.name or module_name.startswith(exc.name + ".")):
+            raise InputError(where, f"module {module_name} not found") from None
+        raise InputError(where, f"importing {module_name} failed: {type(exc).__name__}: "
+                                f"{exc}") from None
+    except Exception as exc:  # any error of a third-party module's import, reported in one line
+        raise InputError(where, f"importing {module_name} failed: {type(exc).__name__}: "
+                                f"{exc}") from None
+    obj: Any = module
+    for part in attribute.split("."):
+        if not hasattr(obj, part):
+            raise InputError(where, f"module {module_name} has no attribute {attribute}")
+        obj = getattr(obj, part)
+    if not callable(obj):
+        raise InputError(where, f"{target} is not callable (got {type(obj).__name__})")
+    return obj
+
+
+def load_factory(method: str) -> Callable:
+    """The factory ``factory(model, config) -> FrontEnd`` that ``method`` names.
+
+    Parameters
+    ----------
+    method : str
+        A built-in name, an installed plugin's name, or ``package.module:factory``.
+
+    Returns
+    -------
+    callable
+
+    Raises
+    ------
+    InputError
+        Unknown name, module not found, no such attribute, or not callable.
+    """
+    for info in BUILTIN_METHODS:
+        if info.name == method:
+            return _load_target(info.target, method=method)
+    if ":" not in method:
+        for info in plugin_methods():
+            if info.name == method:
+                return _load_target(info.target, method=method)
+        raise InputError(f"method {method}", f"unknown method; expected one of "
+                                             f"{', '.join(method_names())} or package.module:factory")
+    return _load_target(method, method=method)
+
+
+def create_front_end(method: str, model, config):
+    """Front end of ``method`` for the camera ``model`` and an ``EstimateConfig``.
+
+    A third-party factory that raises, or returns something without
+    ``prepare`` and ``correspondences``, is reported as an
+    :class:`InputError` naming the method (built-in factories' errors pass
+    unchanged).
+
+    Returns
+    -------
+    FrontEnd
+    """
+    factory = load_factory(method)
+    if method in builtin_method_names():
+        return factory(model, config)
+    try:
+        front_end = factory(model, config)
+    except InputError:
+        raise
+    except Exception as exc:  # a plugin's failure, reported in one line with its method
+        raise InputError(f"method {method}", f"factory raised {type(exc).__name__}: {exc}") from None
+    missing = [name for name in ("prepare", "correspondences")
+               if not callable(getattr(front_end, name, None))]
+    if missing:
+        raise InputError(f"method {method}", f"factory returned an object without "
+                                             f"{'() and '.join(missing)}(); expected prepare() and "
+                                             f"correspondences(), got {type(front_end).__name__}")
+    return front_end
+
+
+def method_sort_key(method: str) -> tuple[int, str]:
+    """Report order: the built-in methods in their order, then any other name alphabetically."""
+    names = builtin_method_names()
+    return (names.index(method) if method in names else len(names), method)
+
+
+def method_colors(methods: Iterable[str]) -> dict[str, str]:
+    """Colour of each of ``methods`` in a figure.
+
+    Built-in methods keep their fixed colours; the others take
+    :data:`OTHER_COLORS` in turn, in :func:`method_sort_key` order (cycling
+    when there are more of them), so the same set of methods is drawn alike
+    in every figure.
+    """
+    fixed = {m.name: m.color for m in BUILTIN_METHODS}
+    others = sorted({m for m in methods if m not in fixed}, key=method_sort_key)
+    colors = {m: OTHER_COLORS[i % len(OTHER_COLORS)] for i, m in enumerate(others)}
+    return {m: fixed.get(m) or colors[m] for m in methods}
