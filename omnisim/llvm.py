@@ -101,7 +101,7 @@ def _candidates(prefix: str, system_globs) -> list[Path]:
     return found + debian_paths
 
 
-def find_llvm(*, environ=None, prefix: str | None = None, system_globs=SYSTEM_GLOBS) -> Path:
+def find_llvm(*, environ=None, prefix: str | None = None, system_globs=None) -> Path:
     """Path of a usable LLVM (major version >= 16).
 
     Parameters
@@ -110,8 +110,9 @@ def find_llvm(*, environ=None, prefix: str | None = None, system_globs=SYSTEM_GL
         Environment to read ``DRJIT_LIBLLVM_PATH`` from (default ``os.environ``).
     prefix : str, optional, keyword-only
         Python prefix whose ``lib`` folder is searched (default ``sys.prefix``).
-    system_globs : sequence of str, keyword-only
-        Glob patterns of system LLVM libraries searched last.
+    system_globs : sequence of str, optional, keyword-only
+        Glob patterns of system LLVM libraries searched last (default
+        :data:`SYSTEM_GLOBS`, read when called).
 
     Raises
     ------
@@ -120,6 +121,7 @@ def find_llvm(*, environ=None, prefix: str | None = None, system_globs=SYSTEM_GL
     """
     environ = os.environ if environ is None else environ
     prefix = sys.prefix if prefix is None else prefix
+    system_globs = SYSTEM_GLOBS if system_globs is None else system_globs
     rejected = []
     explicit = environ.get(ENV_VAR)
     if explicit:
