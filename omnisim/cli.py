@@ -3,9 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 
 from ifmi.errors import InputError, OutputError
+
+from .config import EffectsSettings
+from .llvm import BackendError
+from .settings import SettingError, field_docs
 
 __all__ = ["main", "build_parser"]
 
@@ -41,60 +47,96 @@ def build_parser() -> argparse.ArgumentParser:
                              "(noise, JPEG, exposure drift) applied to its images")
     degrade.add_argument("dataset", help="source DATASET folder (rendered or real)")
     degrade.add_argument("--out", required=True, help="dataset folder to write (resumed if it exists)")
-    degrade.add_argument("--noise-sigma", type=float, default=0.0,
-                         help="Gaussian noise, standard deviation in 8-bit grey levels (default 0)")
-    degrade.add_argument("--jpeg-quality", type=int, default=0,
-                         help="JPEG quality 1..100 the frames pass through; 0 = off (default)")
-    degrade.add_argument("--exposure-stops", type=float, default=0.0,
-                         help="bound of the exposure random walk, stops (default 0 = off)")
-    degrade.add_argument("--exposure-step-stops", type=float, default=0.1,
-                         help="largest exposure change between frames, stops (default 0.1)")
+    # One option per effect; types, defaults and docs come from EffectsSettings.
+    for name, kind, default, doc in field_docs(EffectsSettings):
+        degrade.add_argument(f"--{name.replace('_', '-')}", dest=name, type=int if kind == "int" else float,
+                             help=f"{doc} (default {default})")
     degrade.add_argument("--seed", type=int, default=0, help="seed of noise and exposure walk (default 0)")
     degrade.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("check-llvm", help="print the LLVM drjit will use, or how to install one")
+    sub.add_parser("generators", help="list the [[objects]] generators of scene files and their parameters")
     return parser
 
 
 def _degrade(args) -> int:
-    from .config import EffectsSettings
     from .degrade import degrade_dataset
 
-    effects = EffectsSettings(noise_sigma=args.noise_sigma, exposure_stops=args.exposure_stops,
-                              exposure_step_stops=args.exposure_step_stops, jpeg_quality=args.jpeg_quality)
+    given = {name: getattr(args, name) for name, *_ in field_docs(EffectsSettings)
+             if getattr(args, name) is not None}
+    try:
+        effects = EffectsSettings(**given)
+    except SettingError as exc:
+        raise InputError(f"--{exc.key.replace('_', '-')}", f"{exc.key}: {exc.problem}") from None
     result = degrade_dataset(args.dataset, args.out, effects=effects, seed=args.seed,
                              progress=not args.no_progress)
     print(f"{result.out_dir}: {result.frames} frames ({result.written} written now)")
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    from .llvm import LlvmNotFoundError
+def _render(args) -> int:
+    from .render import render_dataset
 
+    result = render_dataset(args.scene, args.out, frames=args.frames, seed=args.seed, spp=args.spp,
+                            resolution=args.resolution, progress=not args.no_progress,
+                            variant=args.variant)
+    spf = (f", {result.seconds_per_frame:.2f} s/frame" if result.rendered else "")
+    print(f"{result.out_dir}: {result.frames} frames ({result.rendered} rendered now{spf})")
+    return 0
+
+
+def _generators(args) -> int:
+    from .generators import describe_generators
+
+    print(describe_generators(), end="")
+    return 0
+
+
+def _check_llvm(args) -> int:
+    from .llvm import main as llvm_main
+
+    return llvm_main([])
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """True when ``exc`` is, or was raised while handling, a KeyboardInterrupt.
+
+    Mitsuba and drjit turn an interrupt inside their C++ code into an
+    ImportError or RuntimeError chained to it.
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+class _InterruptFlag:
+    """SIGINT handler that remembers the interrupt, then raises KeyboardInterrupt as Python does."""
+
+    def __init__(self):
+        self.seen = False
+
+    def __call__(self, signum, frame):
+        self.seen = True
+        raise KeyboardInterrupt
+
+
+COMMANDS = {"render": _render, "degrade": _degrade, "generators": _generators, "check-llvm": _check_llvm}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status (0 ok, 1 cannot write or run, 2 bad input, 130 interrupted)."""
     args = build_parser().parse_args(argv)
+    flag = _InterruptFlag()
+    previous = signal.signal(signal.SIGINT, flag) if threading.current_thread() is threading.main_thread() else None
     try:
-        if args.command == "check-llvm":
-            from .llvm import main as llvm_main
-            return llvm_main([])
-        if args.command == "degrade":
-            return _degrade(args)
-        from .render import render_dataset
-        if args.frames is not None and args.frames < 1:
-            raise InputError(args.scene, f"--frames: expected >= 1, got {args.frames}")
-        if args.spp is not None and args.spp < 1:
-            raise InputError(args.scene, f"--spp: expected >= 1, got {args.spp}")
-        result = render_dataset(args.scene, args.out, frames=args.frames, seed=args.seed, spp=args.spp,
-                                resolution=args.resolution, progress=not args.no_progress,
-                                variant=args.variant)
-        spf = (f", {result.seconds_per_frame:.2f} s/frame" if result.rendered else "")
-        print(f"{result.out_dir}: {result.frames} frames ({result.rendered} rendered now{spf})")
-        return 0
+        return COMMANDS[args.command](args)
     except InputError as exc:
         print(f"omnisim {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except OutputError as exc:
-        print(f"omnisim {args.command}: error: {exc}", file=sys.stderr)
-        return 1
-    except LlvmNotFoundError as exc:
+    except (OutputError, BackendError) as exc:
         print(f"omnisim {args.command}: error: {exc}", file=sys.stderr)
         return 1
     except ModuleNotFoundError as exc:
@@ -103,9 +145,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"omnisim {args.command}: error: {exc.name} is not installed; "
               "install the simulator extra: pip install -e '.[sim]'", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
+    except BaseException as exc:
+        if not (flag.seen or _caused_by_interrupt(exc)):
+            raise
         print(f"omnisim {args.command}: interrupted (rerun the same command to resume)", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 __all__ = [
+    "BackendError",
     "LlvmNotFoundError",
     "MINIMUM_LLVM_MAJOR",
     "find_llvm",
@@ -36,7 +37,11 @@ FIX_HINT = ("install one with 'pip install karellen-llvm-core' (or 'apt-get inst
             f"or point {ENV_VAR} at a libLLVM.so of version >= {MINIMUM_LLVM_MAJOR}")
 
 
-class LlvmNotFoundError(RuntimeError):
+class BackendError(RuntimeError):
+    """Mitsuba cannot run the requested variant here; the message is one line saying why."""
+
+
+class LlvmNotFoundError(BackendError):
     """No LLVM >= 16 was found; the message is one line saying how to fix it."""
 
 
@@ -154,14 +159,28 @@ def cuda_available() -> bool:
     return ctypes.util.find_library("cuda") is not None
 
 
+def _cuda_works(mi) -> str:
+    """Empty when ``cuda_ad_rgb`` is set and a CUDA device computes, else the reason it does not."""
+    try:
+        mi.set_variant("cuda_ad_rgb")
+        import drjit
+
+        probe = drjit.cuda.Float([1.0, 2.0]) * 2.0  # fails without a working device
+        drjit.eval(probe)
+        return ""
+    except (ImportError, AttributeError, RuntimeError) as exc:
+        text = str(exc).strip()
+        return text.splitlines()[0] if text else exc.__class__.__name__
+
+
 def import_mitsuba(variant: str | None = None):
     """Import Mitsuba with a usable LLVM and set a vectorised variant.
 
     Parameters
     ----------
     variant : str, optional
-        Mitsuba variant; default ``cuda_ad_rgb`` where a CUDA GPU works,
-        else ``llvm_ad_rgb``.
+        ``llvm_ad_rgb`` or ``cuda_ad_rgb``; default ``cuda_ad_rgb`` where a
+        CUDA GPU works, else ``llvm_ad_rgb``.
 
     Returns
     -------
@@ -170,23 +189,28 @@ def import_mitsuba(variant: str | None = None):
 
     Raises
     ------
-    LlvmNotFoundError
-        No LLVM >= 16 (only checked when an LLVM variant is needed).
+    ValueError
+        ``variant`` is not one of the two.
+    BackendError
+        ``cuda_ad_rgb`` without a working CUDA device, or (as
+        :class:`LlvmNotFoundError`) no LLVM >= 16 for ``llvm_ad_rgb``.
     """
+    if variant not in (None, "llvm_ad_rgb", "cuda_ad_rgb"):
+        raise ValueError(f"expected the Mitsuba variant llvm_ad_rgb or cuda_ad_rgb, got {variant!r}")
     if variant is None and cuda_available():
         mi = importlib.import_module("mitsuba")
-        try:
-            mi.set_variant("cuda_ad_rgb")
-            import drjit
-
-            probe = drjit.cuda.Float([1.0, 2.0]) * 2.0  # fails without a working device
-            drjit.eval(probe)
+        if not _cuda_works(mi):
             return mi
-        except (ImportError, AttributeError, RuntimeError):
-            variant = "llvm_ad_rgb"
+        variant = "llvm_ad_rgb"
     variant = variant or "llvm_ad_rgb"
-    if variant.startswith("llvm"):
-        ensure_llvm()
+    if variant == "cuda_ad_rgb":
+        mi = importlib.import_module("mitsuba")
+        reason = _cuda_works(mi)
+        if reason:
+            raise BackendError(f"variant cuda_ad_rgb needs a working CUDA GPU ({reason}); "
+                               "use --variant llvm_ad_rgb")
+        return mi
+    ensure_llvm()
     mi = importlib.import_module("mitsuba")
     if mi.variant() != variant:
         mi.set_variant(variant)

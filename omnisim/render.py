@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ifmi.errors import InputError
+from ifmi.errors import InputError, OutputError
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_json
 from ifmi.io.calib import write_calib
 from ifmi.io.provenance import package_versions
@@ -136,12 +136,42 @@ class DatasetResult:
     seconds_per_frame: float
 
 
+def _differences(previous, current, prefix: str = "") -> list[str]:
+    """Dotted names of the entries where two identity dicts differ, with both values."""
+    if isinstance(previous, dict) and isinstance(current, dict):
+        out = []
+        for key in sorted(set(previous) | set(current), key=str):
+            out += _differences(previous.get(key), current.get(key), f"{prefix}{key}.")
+        return out
+    if previous == current:
+        return []
+    return [f"{prefix[:-1]} (folder: {json.dumps(previous)}, now: {json.dumps(current)})"]
+
+
+# Most differences named in a refusal.
+SHOWN_DIFFERENCES = 3
+
+
+def _has_written_frames(out_dir: Path, meta: dict | None) -> bool:
+    images = out_dir / "images"
+    if meta is not None and meta.get("images"):
+        return True
+    return images.is_dir() and any(images.iterdir())
+
+
 def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
     """The ``meta.json`` of an output folder written with the same ``identity``, or None if new.
 
-    Raises :class:`~ifmi.errors.InputError` when the folder holds anything
-    else: a different identity, an unreadable ``meta.json``, or files
-    without one.
+    Nothing is written. A folder whose ``meta.json`` records no frames and
+    whose ``images/`` is empty (a run that stopped before its first frame) is
+    treated as new, whatever settings it was started with.
+
+    Raises
+    ------
+    InputError
+        The folder holds anything else: frames made with a different
+        identity (the message names the settings that differ), an unreadable
+        ``meta.json``, or files without one.
     """
     meta_path = out_dir / "meta.json"
     if not out_dir.exists():
@@ -153,13 +183,19 @@ def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
             meta = json.loads(meta_path.read_text(encoding="utf-8"))
         except (OSError, ValueError):
             raise InputError(meta_path, "unreadable meta.json; remove the folder or choose another --out") from None
+        if not isinstance(meta, dict) or not isinstance(meta.get("images", {}), dict):
+            raise InputError(meta_path, "expected a JSON object with an 'images' table; remove the folder "
+                                        "or choose another --out")
         previous = meta.get("identity", {})
-        if previous != identity:
-            changed = sorted(k for k in set(previous) | set(identity) if previous.get(k) != identity.get(k))
-            raise InputError(out_dir, f"holds a dataset made with different {', '.join(changed) or 'settings'}; "
-                                      "refusing to mix (choose another --out or remove it)")
-        return meta
-    if any(out_dir.iterdir()):
+        if previous == identity:
+            return meta
+        if not _has_written_frames(out_dir, meta):
+            return None
+        changed = _differences(previous, identity)
+        shown = "; ".join(changed[:SHOWN_DIFFERENCES]) + (" ..." if len(changed) > SHOWN_DIFFERENCES else "")
+        raise InputError(out_dir, f"holds a dataset made with different {shown or 'settings'}; "
+                                  "refusing to mix (choose another --out or remove it)")
+    if any(p.name != "images" for p in out_dir.iterdir()) or _has_written_frames(out_dir, None):
         raise InputError(out_dir, "is not empty and has no meta.json; refusing to write a dataset into it")
     return None
 
@@ -169,9 +205,20 @@ def open_output_folder(out_dir: Path, identity: dict) -> dict:
 
     The meta is the folder's ``meta.json`` when it holds the same identity,
     else a fresh one with no images recorded.
+
+    Raises
+    ------
+    InputError
+        See :func:`check_output_folder`.
+    OutputError
+        The folder cannot be created (read-only parent, a regular file in
+        the way, ...): names ``out_dir`` and the OS reason.
     """
     meta = check_output_folder(out_dir, identity)
-    (out_dir / "images").mkdir(parents=True, exist_ok=True)
+    try:
+        (out_dir / "images").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError.from_os_error(out_dir, exc) from None
     return meta if meta is not None else {"identity": identity, "images": {}, "complete": False}
 
 
@@ -221,21 +268,25 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     Raises
     ------
     InputError
-        Bad scene file or values, or an output folder holding another render.
+        Bad scene file or values, or an output folder holding another render;
+        raised before anything is written.
+    OutputError
+        A file cannot be written (the message names it and the OS reason).
     """
-    config = load_scene_config(scene_path, spp=spp, resolution=resolution, frames=frames)
+    config = load_scene_config(scene_path, spp=spp, resolution=resolution, frames=frames, variant=variant)
     seed = config.layout_seed if seed is None else int(seed)
     if seed < 0:
         raise InputError(scene_path, f"seed: expected a non-negative integer, got {seed}")
     out_dir = Path(out_dir)
     poses = poses_for_settings(config.trajectory, seed=seed)
 
-    from .llvm import import_mitsuba
-    mi = import_mitsuba(variant or config.render.variant or None)
+    # Mitsuba is imported and the whole scene built and loaded (files, materials, lights)
+    # before the output folder is touched, so a scene error leaves nothing behind.
+    renderer = OmniRenderer(config)
     identity = {
         "scene_sha256": config.sha256,
         "seed": seed,
-        "variant": mi.variant(),
+        "variant": renderer.variant,
         "settings": json.loads(json.dumps(config.settings_dict())),
         "format": META_FORMAT,
         "renderer": RENDERER_VERSION,
@@ -249,7 +300,7 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         "spp": config.render.spp,
         "resolution": list(config.render.resolution),
         "frames": config.trajectory.frames,
-        "variant": mi.variant(),
+        "variant": renderer.variant,
         "versions": _versions(),
     })
     write_calib(out_dir / "calib_results.txt", config.camera.model)
@@ -264,7 +315,6 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     gains = exposure_gains(len(poses), config.effects, seed=seed)
     rendered, seconds = 0, 0.0
     if todo:
-        renderer = OmniRenderer(config, variant=variant)
         from tqdm import tqdm
 
         bar = tqdm(total=len(names), initial=len(names) - len(todo), disable=not progress,
