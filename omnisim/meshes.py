@@ -10,7 +10,8 @@ convention, :func:`ifmi.rotations.matrix_from_rpy`), then ``position``:
 Without ``material`` each geometry keeps the file's own appearance:
 
 * a texture image on its UVs (8-bit sRGB decoded to linear, as Mitsuba does
-  for 8-bit bitmaps), multiplied by a glTF base-colour factor;
+  for 8-bit bitmaps); colour factors beside a texture are ignored (tools
+  write arbitrary ones, trimesh a grey 0.4);
 * else per-vertex colours, 8-bit values mapped to [0, 1] (used as linear
   reflectance, which is what Mitsuba's own PLY loader expects);
 * else per-face colours (each face gets its own vertices);
@@ -67,13 +68,14 @@ def _texture_part(mesh, positions, faces) -> MeshPart:
     visual = mesh.visual
     material = getattr(visual, "material", None)
     uvs = None if visual.uv is None or len(visual.uv) != len(positions) else np.asarray(visual.uv, np.float64)
-    image = getattr(material, "image", None) if material is not None else None
+    image = None
+    if material is not None:
+        image = getattr(material, "image", None)
+        if image is None:
+            image = getattr(material, "baseColorTexture", None)  # glTF materials
     base = _material_color(material) if material is not None else None
     if uvs is not None and image is not None:
         texture = linear_texture_from_image(image)
-        factor = getattr(material, "baseColorFactor", None)
-        if factor is not None:
-            texture = texture * (np.asarray(factor, dtype=np.float32)[:3] / np.float32(UINT8_MAX))
         white = np.ones_like(positions)
         return MeshPart(positions, faces, uvs, white, np.ascontiguousarray(texture, dtype=np.float32))
     color = base if base is not None else np.asarray(DEFAULT_GREY)
