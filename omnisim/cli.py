@@ -9,9 +9,8 @@ import threading
 
 from ifmi.errors import InputError, OutputError
 
-from .config import EffectsSettings
-from .llvm import BackendError
-from .settings import SettingError, field_docs
+# Everything heavier (numpy, the scene settings, Mitsuba) is imported inside main(),
+# after its interrupt handler is in place.
 
 __all__ = ["main", "build_parser"]
 
@@ -30,6 +29,9 @@ def _resolution(text: str):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .config import EffectsSettings
+    from .settings import field_docs
+
     parser = argparse.ArgumentParser(prog="omnisim", description="Render catadioptric omni-image "
                                      "sequences with exact ground truth (Mitsuba 3).")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -59,7 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _degrade(args) -> int:
+    from .config import EffectsSettings
     from .degrade import degrade_dataset
+    from .settings import SettingError, field_docs
 
     given = {name: getattr(args, name) for name, *_ in field_docs(EffectsSettings)
              if getattr(args, name) is not None}
@@ -126,30 +130,45 @@ class _InterruptFlag:
 COMMANDS = {"render": _render, "degrade": _degrade, "generators": _generators, "check-llvm": _check_llvm}
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit status (0 ok, 1 cannot write or run, 2 bad input, 130 interrupted)."""
-    args = build_parser().parse_args(argv)
-    flag = _InterruptFlag()
-    previous = signal.signal(signal.SIGINT, flag) if threading.current_thread() is threading.main_thread() else None
-    try:
-        return COMMANDS[args.command](args)
-    except InputError as exc:
-        print(f"omnisim {args.command}: error: {exc}", file=sys.stderr)
+def _exit_status(exc: BaseException, *, interrupted: bool, command: str) -> int | None:
+    """Print the one-line report of ``exc`` and return the exit status, or None for a bug (re-raised)."""
+    from .llvm import BackendError
+
+    command = f"omnisim {command}".strip()
+    if interrupted or _caused_by_interrupt(exc):
+        print(f"{command}: interrupted (rerun the same command to resume)", file=sys.stderr)
+        return 130
+    if isinstance(exc, InputError):
+        print(f"{command}: error: {exc}", file=sys.stderr)
         return 2
-    except (OutputError, BackendError) as exc:
-        print(f"omnisim {args.command}: error: {exc}", file=sys.stderr)
+    if isinstance(exc, (OutputError, BackendError)):
+        print(f"{command}: error: {exc}", file=sys.stderr)
         return 1
-    except ModuleNotFoundError as exc:
-        if exc.name not in ("mitsuba", "drjit", "trimesh", "skimage"):
-            raise
-        print(f"omnisim {args.command}: error: {exc.name} is not installed; "
+    if isinstance(exc, ModuleNotFoundError) and exc.name in ("mitsuba", "drjit", "trimesh", "skimage"):
+        print(f"{command}: error: {exc.name} is not installed; "
               "install the simulator extra: pip install -e '.[sim]'", file=sys.stderr)
         return 1
+    return None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status.
+
+    0 done; 1 cannot write, or Mitsuba cannot run here; 2 bad input; 130 interrupted.
+    """
+    flag = _InterruptFlag()
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, flag) if in_main_thread else None
+    command = ""  # known once the arguments are parsed
+    try:
+        args = build_parser().parse_args(argv)
+        command = args.command
+        return COMMANDS[command](args)
     except BaseException as exc:
-        if not (flag.seen or _caused_by_interrupt(exc)):
+        status = _exit_status(exc, interrupted=flag.seen, command=command)
+        if status is None:
             raise
-        print(f"omnisim {args.command}: interrupted (rerun the same command to resume)", file=sys.stderr)
-        return 130
+        return status
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
