@@ -53,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, kind, default, doc in field_docs(EffectsSettings):
         degrade.add_argument(f"--{name.replace('_', '-')}", dest=name, type=int if kind == "int" else float,
                              help=f"{doc} (default {default})")
-    degrade.add_argument("--seed", type=int, default=0, help="seed of noise and exposure walk (default 0)")
+    degrade.add_argument("--seed", type=int, help="seed of noise and exposure walk (default 0)")
     degrade.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("check-llvm", help="print the LLVM drjit will use, or how to install one")
     sub.add_parser("generators", help="list the [[objects]] generators of scene files and their parameters")
@@ -71,8 +71,8 @@ def _degrade(args) -> int:
         effects = EffectsSettings(**given)
     except SettingError as exc:
         raise InputError(f"--{exc.key.replace('_', '-')}", f"{exc.key}: {exc.problem}") from None
-    result = degrade_dataset(args.dataset, args.out, effects=effects, seed=args.seed,
-                             progress=not args.no_progress)
+    seed = {} if args.seed is None else {"seed": args.seed}
+    result = degrade_dataset(args.dataset, args.out, effects=effects, progress=not args.no_progress, **seed)
     print(f"{result.out_dir}: {result.frames} frames ({result.written} written now)")
     return 0
 

@@ -390,3 +390,26 @@ scale = 0.5
     for azimuth in (-20.0, 20.0, 90.0):
         a = np.radians(azimuth)
         np.testing.assert_allclose(_seen(image, model, rotation, [np.cos(a), np.sin(a), 0.0]), 1.0, atol=0.03)
+
+
+def test_example_mesh_script_rebuilds_the_shipped_mesh(tmp_path):
+    """scripts/make_example_mesh.py writes a file whose geometry, colours and texture pixels equal the
+    shipped scenes/meshes/atelier.glb (compared after decoding, so PNG encoder versions do not matter)."""
+    import subprocess
+
+    from omnisim.meshes import mesh_parts_from_file
+
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / "atelier.glb"
+    subprocess.run([sys.executable, str(root / "scripts" / "make_example_mesh.py"), "--out", str(out)],
+                   check=True, capture_output=True, env={**__import__("os").environ, "PYTHONPATH": str(root)})
+    made, shipped = mesh_parts_from_file(out), mesh_parts_from_file(root / "scenes" / "meshes" / "atelier.glb")
+    assert len(made) == len(shipped) == 15
+    for a, b in zip(made, shipped):
+        np.testing.assert_allclose(a.positions, b.positions, atol=1e-6)
+        np.testing.assert_array_equal(a.faces, b.faces)
+        np.testing.assert_allclose(a.colors, b.colors, atol=1e-6)
+        assert (a.image is None) == (b.image is None)
+        if a.image is not None:
+            np.testing.assert_array_equal(a.image, b.image)
+    assert sum(p.image is not None for p in shipped) == 2  # walls and floor are textured
