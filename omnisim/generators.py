@@ -246,7 +246,13 @@ class GeneratorContext:
         self.groups.setdefault(appearance, MeshGroup()).add(*mesh, color=color)
 
     def add_appearance(self, name: str, appearance: Appearance) -> None:
-        """Declare a generated appearance (the name should include the object's index)."""
+        """Declare a generated appearance (the name should include the object's index).
+
+        Raises InputError when ``name`` is already taken (e.g. by a ``[materials.*]`` entry).
+        """
+        if name in self.appearances:
+            self.fail("generator", f"the appearance {name!r} it makes clashes with an existing one "
+                                   f"(rename [materials.{name}])")
         self.appearances[name] = appearance
 
     def color(self, lo: float = 0.1, hi: float = 0.9) -> np.ndarray:
