@@ -208,3 +208,56 @@ def test_interrupt_is_recognised_through_exception_chains():
     except RuntimeError as exc:
         assert _caused_by_interrupt(exc)
     assert not _caused_by_interrupt(RuntimeError("plain failure"))
+
+
+def test_mesh_parts_keep_each_file_appearance(tmp_path):
+    """STL: mid grey; PLY face colours: each face its own vertices and colour; vertex colours / 255."""
+    import numpy as np
+
+    trimesh = pytest.importorskip("trimesh")
+
+    from omnisim.meshes import DEFAULT_GREY, mesh_parts_from_file
+
+    box = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
+    box.export(tmp_path / "box.stl")
+    (stl,) = mesh_parts_from_file(tmp_path / "box.stl")
+    np.testing.assert_allclose(stl.colors, np.broadcast_to(DEFAULT_GREY, stl.colors.shape))
+    np.testing.assert_allclose(np.ptp(stl.positions, axis=0), [1.0, 2.0, 3.0])
+
+    faces = box.copy()
+    face_colors = np.zeros((len(faces.faces), 4), np.uint8)
+    face_colors[:, 3] = 255
+    face_colors[:, 0] = np.arange(len(faces.faces)) * 20
+    faces.visual.face_colors = face_colors
+    faces.export(tmp_path / "faces.ply")
+    (part,) = mesh_parts_from_file(tmp_path / "faces.ply")
+    assert part.positions.shape == (3 * len(box.faces), 3)
+    np.testing.assert_allclose(part.colors[::3, 0], face_colors[:, 0] / 255.0)
+    np.testing.assert_allclose(part.colors[1::3], part.colors[::3])
+
+    verts = box.copy()
+    verts.visual.vertex_colors = np.tile([255, 128, 0, 255], (len(box.vertices), 1)).astype(np.uint8)
+    verts.export(tmp_path / "verts.ply")
+    (part,) = mesh_parts_from_file(tmp_path / "verts.ply")
+    np.testing.assert_allclose(part.colors, np.broadcast_to([1.0, 128 / 255, 0.0], part.colors.shape))
+
+
+def test_unreadable_mesh_file_is_one_line_error(tmp_path):
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "empty.ply").write_text("ply\nformat ascii 1.0\nelement vertex 0\nend_header\n")
+    with pytest.raises(InputError, match=r"empty.ply: (mesh file holds no triangles|cannot read mesh file)"):
+        mesh_parts_from_file(tmp_path / "empty.ply")
+    (tmp_path / "junk.glb").write_bytes(b"\x00\x01junk")
+    with pytest.raises(InputError, match=r"junk.glb: cannot read mesh file"):
+        mesh_parts_from_file(tmp_path / "junk.glb")
+
+
+@pytest.mark.parametrize("content", ["[]", "{\"images\": []}", "{broken"])
+def test_meta_json_that_is_not_a_dataset_record_is_refused_in_one_line(tmp_path, content):
+    from omnisim.render import check_output_folder
+
+    (tmp_path / "meta.json").write_text(content)
+    with pytest.raises(InputError, match=r"meta.json: (expected a JSON object|unreadable meta.json)"):
+        check_output_folder(tmp_path, {"seed": 1})

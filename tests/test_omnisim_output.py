@@ -197,3 +197,13 @@ def test_sigint_during_import_or_first_frame_is_one_line_exit_130(tmp_path, dela
     assert process.returncode in (130, -signal.SIGINT), err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].endswith(": interrupted (rerun the same command to resume)"), err
+
+
+def test_broken_envmap_file_fails_before_the_output_folder_exists(tmp_path):
+    from omnisim.render import render_dataset
+
+    (tmp_path / "sky.exr").write_bytes(b"not an image")
+    scene = _scene(tmp_path, extra='\n[[lights]]\ntype = "envmap"\nfile = "sky.exr"\n')
+    with pytest.raises(InputError, match=r"sky.exr: \[\[lights\]\] #2"):
+        render_dataset(scene, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()
