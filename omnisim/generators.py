@@ -60,6 +60,9 @@ class Param:
     def __post_init__(self):
         if self.kind not in _SCALAR_TYPES and self.kind not in _LIST_TYPES and not _vector_kind(self.kind):
             raise ValueError(f"parameter {self.name}: unknown type {self.kind!r}")
+        if self.required and self.default is not None:
+            raise ValueError(f"parameter {self.name}: a required parameter has no default")
+        self.check(self.default)  # a declaration whose default does not fit is a bug of the generator
 
     def check(self, value):
         """``value`` checked against the declared type and bound, normalised (lists become tuples)."""

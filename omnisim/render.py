@@ -145,11 +145,17 @@ def _differences(previous, current, prefix: str = "") -> list[str]:
         return out
     if previous == current:
         return []
-    return [f"{prefix[:-1]} (folder: {json.dumps(previous)}, now: {json.dumps(current)})"]
+    return [f"{prefix[:-1]} (folder: {_shortened(previous)}, now: {_shortened(current)})"]
 
 
-# Most differences named in a refusal.
+# Most differences named in a refusal, and the longest value shown (characters).
 SHOWN_DIFFERENCES = 3
+SHOWN_VALUE_CHARS = 40
+
+
+def _shortened(value) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= SHOWN_VALUE_CHARS else text[:SHOWN_VALUE_CHARS - 3] + "..."
 
 
 def _has_written_frames(out_dir: Path, meta: dict | None) -> bool:
