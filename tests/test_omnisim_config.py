@@ -261,3 +261,19 @@ def test_meta_json_that_is_not_a_dataset_record_is_refused_in_one_line(tmp_path,
     (tmp_path / "meta.json").write_text(content)
     with pytest.raises(InputError, match=r"meta.json: (expected a JSON object|unreadable meta.json)"):
         check_output_folder(tmp_path, {"seed": 1})
+
+
+def test_hand_written_obj_with_two_materials_gives_two_base_coloured_parts(tmp_path):
+    """An OBJ written by hand (not by trimesh): each `usemtl` group keeps its Kd (stored as 8 bits)."""
+    import numpy as np
+
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "two.mtl").write_text("newmtl red\nKd 0.8 0.1 0.1\nnewmtl blue\nKd 0.1 0.2 0.9\n")
+    (tmp_path / "two.obj").write_text("mtllib two.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\n"
+                                      "usemtl red\nf 1 2 3\nf 1 3 4\nusemtl blue\nf 1 2 6\nf 1 6 5\n")
+    parts = mesh_parts_from_file(tmp_path / "two.obj")
+    colors = sorted(tuple(np.round(p.colors[0], 2)) for p in parts)
+    assert colors == [(0.1, 0.2, 0.9), (0.8, 0.1, 0.1)]
+    assert all(len(p.faces) == 2 and np.allclose(p.colors, p.colors[0], atol=1 / 255) for p in parts)
