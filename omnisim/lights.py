@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ifmi.rotations import matrix_from_rpy
 
 from .settings import check_fields, setting
 
@@ -116,6 +115,8 @@ def emitter_dict(mi, light) -> dict:
                 "irradiance": {"type": "rgb", "value": list(light.irradiance)}}
     if isinstance(light, ConstantLight):
         return {"type": "constant", "radiance": {"type": "rgb", "value": list(light.radiance)}}
+    from ifmi.rotations import matrix_from_rpy  # scipy: imported when a scene is built
+
     turn = np.eye(4)
     turn[:3, :3] = matrix_from_rpy(np.radians(np.asarray(light.rotation_deg, dtype=np.float64)))
     return {"type": "envmap", "filename": light.file, "scale": light.scale,

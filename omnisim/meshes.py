@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 
 from ifmi.errors import InputError
-from ifmi.rotations import matrix_from_rpy
 
 from .generators import GeneratorContext, Param, register_generator
 from .materials import Appearance, MaterialSettings
@@ -152,6 +151,8 @@ def _planar_uvs(positions: np.ndarray) -> np.ndarray:
 )
 def _mesh(ctx: GeneratorContext):
     """A mesh file placed in the world, with its own appearance or a scene material."""
+    from ifmi.rotations import matrix_from_rpy  # scipy: imported when a scene is built
+
     rotation = matrix_from_rpy(np.radians(np.asarray(ctx["rotation_deg"], dtype=np.float64)))
     offset = np.asarray(ctx["position"], dtype=np.float64)
     for k, part in enumerate(mesh_parts_from_file(ctx["file"])):
