@@ -137,6 +137,11 @@ def _exit_status(exc: BaseException, *, interrupted: bool, command: str) -> int 
     command = f"omnisim {command}".strip()
     if interrupted or _caused_by_interrupt(exc):
         print(f"{command}: interrupted (rerun the same command to resume)", file=sys.stderr)
+        # CPython marks an interrupt that escaped code run by exec() of a string (dataclasses
+        # and namedtuple build their methods so, e.g. while numpy imports) as unhandled, and
+        # `python -m` then ends the process by SIGINT instead of this status; the next exec()
+        # of a string clears that mark.
+        exec("pass")
         return 130
     if isinstance(exc, InputError):
         print(f"{command}: error: {exc}", file=sys.stderr)
