@@ -26,7 +26,7 @@ from ifmi.io.calib import write_calib
 from ifmi.io.provenance import package_versions
 from ifmi.io.tum import write_tum
 
-from .config import SceneConfig, load_scene_config
+from .config import CaptureSettings, SceneConfig, load_scene_config
 from .effects import apply_effects, exposure_gains, srgb_uint8_from_linear
 from .motion import poses_for_settings, relative_trajectory, world_trajectory
 from .scene import build_scene_dict
@@ -280,6 +280,11 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         A file cannot be written (the message names it and the OS reason).
     """
     config = load_scene_config(scene_path, spp=spp, resolution=resolution, frames=frames, variant=variant)
+    if config.capture != CaptureSettings():
+        # The [capture] table is read and checked, but its effects are not rendered yet: refuse
+        # rather than write sharp frames the user believes blurred.
+        raise InputError(scene_path, "[capture]: exposure, rolling_shutter and vignetting are not rendered "
+                                     "by this version; remove the table or set them to 0")
     seed = config.layout_seed if seed is None else int(seed)
     if seed < 0:
         raise InputError(scene_path, f"seed: expected a non-negative integer, got {seed}")
