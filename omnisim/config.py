@@ -124,20 +124,29 @@ class EffectsSettings:
 
 @dataclass(frozen=True)
 class CaptureSettings:
-    """``[capture]``: how the shutter sees motion; all off (an ideal instantaneous shutter) by default.
+    """``[capture]``: how the camera captures a frame; all off (an ideal instantaneous shutter) by default.
 
-    exposure : exposure time as a fraction of the frame interval (motion blur);
+    exposure : open-shutter time as a fraction of the frame interval (motion blur);
     rolling_shutter : readout time of the rows as a fraction of the frame interval;
     vignetting : strength of the radial fall-off (0 = none).
+    A frame's capture must end by the next frame: ``exposure + rolling_shutter <= 1``.
     """
 
-    exposure: float = setting(0.0, "exposure time, fraction of the frame interval", minimum=0.0, maximum=1.0)
+    exposure: float = setting(0.0, "open-shutter time, fraction of the frame interval", minimum=0.0, maximum=1.0)
     rolling_shutter: float = setting(0.0, "row readout time, fraction of the frame interval",
                                      minimum=0.0, maximum=1.0)
     vignetting: float = setting(0.0, "radial fall-off strength (0 = none)", minimum=0.0)
 
     def __post_init__(self):
         check_fields(self)
+        if self.exposure + self.rolling_shutter > 1.0:
+            raise SettingError("rolling_shutter", f"expected exposure + rolling_shutter <= 1 (a frame's capture "
+                                                  f"ends by the next frame), got {self.exposure + self.rolling_shutter!r}")
+
+    @property
+    def timed(self) -> bool:
+        """True when the rays of a frame are traced at different times (motion blur or rolling shutter)."""
+        return self.exposure > 0.0 or self.rolling_shutter > 0.0
 
 
 @dataclass(frozen=True)
@@ -203,17 +212,21 @@ class SceneConfig:
     assets: tuple = ()
 
     def settings_dict(self) -> dict:
-        """JSON-serialisable summary of everything that changes the rendered pixels."""
+        """JSON-serialisable summary of everything that changes the rendered pixels.
+
+        ``capture`` and ``assets`` appear only when set, so folders rendered
+        before they existed keep their identity.
+        """
         return {
             "render": asdict(self.render),
             "trajectory": asdict(self.trajectory),
             "effects": asdict(self.effects),
-            "capture": asdict(self.capture),
             "camera": {"pol": list(self.camera.model.pol), "invpol": list(self.camera.model.invpol),
                        "center": list(self.camera.model.center),
                        "affine": list(self.camera.model.affine), "size": list(self.camera.model.size),
                        "radius_min": self.camera.radius_min, "radius_max": self.camera.radius_max},
-            "assets": [[Path(file).name, sha] for file, sha in self.assets],
+            **({"capture": asdict(self.capture)} if self.capture != CaptureSettings() else {}),
+            **({"assets": [[Path(file).name, sha] for file, sha in self.assets]} if self.assets else {}),
         }
 
 

@@ -277,3 +277,15 @@ def test_hand_written_obj_with_two_materials_gives_two_base_coloured_parts(tmp_p
     colors = sorted(tuple(np.round(p.colors[0], 2)) for p in parts)
     assert colors == [(0.1, 0.2, 0.9), (0.8, 0.1, 0.1)]
     assert all(len(p.faces) == 2 and np.allclose(p.colors, p.colors[0], atol=1 / 255) for p in parts)
+
+
+def test_capture_must_end_by_the_next_frame(tmp_path):
+    with pytest.raises(SettingError, match=r"exposure \+ rolling_shutter <= 1"):
+        CaptureSettings(exposure=0.7, rolling_shutter=0.5)
+    assert CaptureSettings(exposure=0.5).timed and not CaptureSettings(vignetting=0.3).timed
+
+
+def test_identity_of_a_plain_scene_is_unchanged_by_the_new_tables(tmp_path):
+    """Folders rendered before [capture] and asset hashes existed keep their identity."""
+    settings = load_scene_config(_write(tmp_path, BASE)).settings_dict()
+    assert set(settings) == {"render", "trajectory", "effects", "camera"}
