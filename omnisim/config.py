@@ -41,6 +41,8 @@ __all__ = ["SceneSettings", "RenderSettings", "TrajectorySettings", "EffectsSett
 
 # Mitsuba variants the omni sensor and the dataset writer are made for (RGB output).
 SUPPORTED_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
+# Largest image side, pixels: a film this size holds 16384^2 RGBA float32 = 4 GiB.
+MAX_RESOLUTION = 16384
 # Samplers that can drive the sensor (low-discrepancy ones first).
 SAMPLERS = ("multijitter", "ldsampler", "stratified", "independent", "orthogonal")
 
@@ -69,7 +71,7 @@ class RenderSettings:
     """
 
     resolution: tuple[int, int] = setting((512, 512), "[height, width] pixels; the calibration is scaled to it",
-                                          minimum=8)
+                                          minimum=8, maximum=MAX_RESOLUTION)
     spp: int = setting(16, "samples per pixel", minimum=1)
     max_depth: int = setting(3, "path length of the path tracer (2 = direct light only)", minimum=1, maximum=64)
     sampler: str = setting("multijitter", "Mitsuba sampler", choices=SAMPLERS)

@@ -142,6 +142,8 @@ def test_settings_check_themselves_when_built_in_code():
     assert RenderSettings(resolution=96).resolution == (96, 96)
     with pytest.raises(SettingError, match="resolution: expected >= 8"):
         RenderSettings(resolution=(4, 4))
+    with pytest.raises(SettingError, match="resolution: expected <= 16384, got \\[1000000000, 1000000000\\]"):
+        RenderSettings(resolution=1_000_000_000)
 
 
 def test_register_generator_declares_and_checks_parameters(tmp_path, monkeypatch):
