@@ -265,8 +265,11 @@ def _read_toml(path: Path) -> tuple[bytes, dict]:
 
 
 def _relative_file(path: Path, name: str, where: str) -> str:
-    """Absolute path of a file named in the scene file (relative to its folder); it must exist."""
-    resolved = Path(name) if Path(name).is_absolute() else path.parent / name
+    """Absolute path of a file named in the scene file (relative to its folder; it must exist).
+
+    Absolute, so processes started elsewhere (cluster workers) find it too.
+    """
+    resolved = Path(name) if Path(name).is_absolute() else (path.parent / name).absolute()
     if not resolved.is_file():
         raise InputError(path, f"{where}: file not found: {resolved}")
     return str(resolved)

@@ -216,7 +216,7 @@ def _resolve(p: Param, value, *, path: Path, where: str, materials):
                 raise InputError(path, f"{where} {p.name}: unknown photo {name!r}; expected one of "
                                        f"{', '.join(BUNDLED_PHOTOS)}")
     if p.kind == "file":
-        resolved = Path(value) if Path(value).is_absolute() else path.parent / value
+        resolved = Path(value) if Path(value).is_absolute() else (path.parent / value).absolute()
         if not resolved.is_file():
             raise InputError(path, f"{where} {p.name}: file not found: {resolved}")
         return str(resolved)
