@@ -142,8 +142,9 @@ class CaptureSettings:
     def __post_init__(self):
         check_fields(self)
         if self.exposure + self.rolling_shutter > 1.0:
+            total = self.exposure + self.rolling_shutter
             raise SettingError("rolling_shutter", f"expected exposure + rolling_shutter <= 1 (a frame's capture "
-                                                  f"ends by the next frame), got {self.exposure + self.rolling_shutter!r}")
+                                                  f"ends by the next frame), got {total!r}")
 
     @property
     def timed(self) -> bool:

@@ -123,7 +123,8 @@ def _tables(ctx: GeneratorContext):
     for _ in range(count):
         w, d = ctx.rng.uniform(0.8, 1.6), ctx.rng.uniform(0.6, 0.9)
         h = ctx.rng.uniform(0.7, 0.78)
-        c = np.array([ctx.rng.uniform(-region[0] / 2, region[0] / 2), ctx.rng.uniform(-region[1] / 2, region[1] / 2), 0])
+        c = np.array([ctx.rng.uniform(-region[0] / 2, region[0] / 2),
+                      ctx.rng.uniform(-region[1] / 2, region[1] / 2), 0])
         if np.hypot(c[0], c[1]) < ctx["clear_radius"]:
             c[:2] *= ctx["clear_radius"] / max(np.hypot(c[0], c[1]), 1e-6)
         yaw = ctx.rng.uniform(0, math.pi)
@@ -160,7 +161,8 @@ def _boxes(ctx: GeneratorContext):
     clear = ctx["clear_radius"]
     for _ in range(count):
         size = ctx.rng.uniform(size_min, size_max)
-        c = np.array([ctx.rng.uniform(-region[0] / 2, region[0] / 2), ctx.rng.uniform(-region[1] / 2, region[1] / 2), 0.0])
+        c = np.array([ctx.rng.uniform(-region[0] / 2, region[0] / 2),
+                      ctx.rng.uniform(-region[1] / 2, region[1] / 2), 0.0])
         r = np.hypot(c[0], c[1])
         if r < clear:
             c[:2] = c[:2] / max(r, 1e-6) * clear
@@ -196,7 +198,8 @@ def _posters(ctx: GeneratorContext):
 
 @register_generator(
     "ceiling_lights",
-    Param("room", "float[3]", (6.0, 5.0, 3.0), "room extent x, y, z, metres (lights hang under its ceiling)", minimum=0.0),
+    Param("room", "float[3]", (6.0, 5.0, 3.0), "room extent x, y, z, metres (lights hang under its ceiling)",
+          minimum=0.0),
     Param("grid", "int[2]", (2, 2), "rows (along x) and columns (along y) of lights", minimum=0),
     Param("size", "float[2]", (1.2, 0.3), "x, y extent of one light, metres", minimum=0.0),
     Param("radiance", "float[3]", (6.0, 6.0, 5.5), "emitted linear RGB radiance", minimum=0.0),
