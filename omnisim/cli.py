@@ -45,6 +45,11 @@ def build_parser() -> argparse.ArgumentParser:
                         help="image size N or HEIGHTxWIDTH (default: the scene's); the calib is scaled")
     render.add_argument("--variant", help="Mitsuba variant (default: cuda_ad_rgb with a GPU, else llvm_ad_rgb)")
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
+    render.add_argument("--aov", default="", metavar="NAMES",
+                        help="per-pixel ground truth to write, comma-separated: depth, normal")
+    parallel = render.add_mutually_exclusive_group()
+    parallel.add_argument("--workers", type=int, help="render on a local Dask cluster of N processes")
+    parallel.add_argument("--scheduler", metavar="ADDRESS", help="render on the Dask cluster at ADDRESS")
     degrade = sub.add_parser("degrade", help="copy a dataset folder with capture effects "
                              "(noise, JPEG, exposure drift) applied to its images")
     degrade.add_argument("dataset", help="source DATASET folder (rendered or real)")
@@ -82,7 +87,8 @@ def _render(args) -> int:
 
     result = render_dataset(args.scene, args.out, frames=args.frames, seed=args.seed, spp=args.spp,
                             resolution=args.resolution, progress=not args.no_progress,
-                            variant=args.variant)
+                            variant=args.variant, aovs=args.aov, workers=args.workers,
+                            scheduler=args.scheduler)
     spf = (f", {result.seconds_per_frame:.2f} s/frame" if result.rendered else "")
     print(f"{result.out_dir}: {result.frames} frames ({result.rendered} rendered now{spf})")
     return 0

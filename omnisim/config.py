@@ -126,11 +126,11 @@ class EffectsSettings:
 
 @dataclass(frozen=True)
 class CaptureSettings:
-    """``[capture]``: how the camera captures a frame; all off (an ideal instantaneous shutter) by default.
+    """``[capture]``: how the camera captures a frame (see :mod:`omnisim.capture`); all off by default.
 
-    exposure : open-shutter time as a fraction of the frame interval (motion blur);
-    rolling_shutter : readout time of the rows as a fraction of the frame interval;
-    vignetting : strength of the radial fall-off (0 = none).
+    exposure : open-shutter time as a fraction of the frame interval, 0..1 (motion blur);
+    rolling_shutter : readout time of the rows (top to bottom) as a fraction of the frame interval, 0..1;
+    vignetting : strength ``v >= 0`` of the radial fall-off ``(1 + (v * rho / rho_max)**2)**-2``.
     A frame's capture must end by the next frame: ``exposure + rolling_shutter <= 1``.
     """
 
@@ -143,8 +143,8 @@ class CaptureSettings:
         check_fields(self)
         if self.exposure + self.rolling_shutter > 1.0:
             total = self.exposure + self.rolling_shutter
-            raise SettingError("rolling_shutter", f"expected exposure + rolling_shutter <= 1 (a frame's capture "
-                                                  f"ends by the next frame), got {total!r}")
+            raise SettingError("exposure + rolling_shutter", f"expected <= 1 (a frame's capture ends by the "
+                                                             f"next frame), got {total!r}")
 
     @property
     def timed(self) -> bool:

@@ -18,7 +18,8 @@ from ifmi.rotations import matrix_from_rpy
 from .config import TrajectorySettings
 
 __all__ = ["WorldPoses", "smooth_noise", "random_trajectory", "poses_from_tum",
-           "relative_trajectory", "world_trajectory", "poses_for_settings"]
+           "relative_trajectory", "world_trajectory", "poses_for_settings", "poses_at_times",
+           "trajectory_in_camera"]
 
 
 @dataclass(frozen=True)
@@ -149,3 +150,64 @@ def world_trajectory(poses: WorldPoses) -> Trajectory:
     """Camera-to-world poses as a TUM trajectory (frame indices as timestamps)."""
     return Trajectory(timestamps=np.arange(len(poses), dtype=np.float64),
                       positions=poses.positions.copy(), rotations=poses.rotations.copy())
+
+
+def poses_at_times(poses: WorldPoses, times) -> WorldPoses:
+    """Poses between the trajectory's samples: slerp for rotation, lerp for position.
+
+    Pose ``k`` of ``poses`` is the camera at time ``k`` (times in frame
+    intervals). At time ``t = k + f`` (``0 <= f < 1``) the rotation is
+    ``R_k exp(f log(R_k^T R_k+1))`` -- the slerp of the two unit quaternions
+    along the shorter arc -- and the position ``(1 - f) p_k + f p_k+1``. The
+    omni sensor interpolates exactly so per ray (:mod:`omnisim.capture`).
+
+    Parameters
+    ----------
+    poses : WorldPoses
+        Camera-to-world poses at integer times 0 .. N-1.
+    times : (M,) array_like
+        Times in frame intervals, within ``[0, N - 1]``.
+
+    Returns
+    -------
+    WorldPoses
+        M poses; a time on a sample returns that sample exactly.
+    """
+    from scipy.spatial.transform import Rotation
+
+    times = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    last = len(poses) - 1
+    if times.size and (times.min() < 0 or times.max() > last):
+        raise ValueError(f"expected times within [0, {last}], got [{times.min()}, {times.max()}]")
+    start = np.clip(np.floor(times).astype(int), 0, max(last - 1, 0))
+    fraction = times - start
+    end = np.minimum(start + 1, last)
+    r0, r1 = poses.rotations[start], poses.rotations[end]
+    relative = Rotation.from_matrix(np.einsum("nji,njk->nik", r0, r1)).as_rotvec()
+    step = Rotation.from_rotvec(relative * fraction[:, None]).as_matrix()
+    rotations = np.where((fraction == 0)[:, None, None], r0, r0 @ step)
+    p0, p1 = poses.positions[start], poses.positions[end]
+    positions = np.where((fraction == 0)[:, None], p0, p0 + fraction[:, None] * (p1 - p0))
+    return WorldPoses(rotations=rotations, positions=positions)
+
+
+def trajectory_in_camera(poses: WorldPoses, *, rotation: np.ndarray, position: np.ndarray,
+                         timestamps) -> Trajectory:
+    """Poses expressed in the frame of one camera: ``T_c^-1 T_k`` for each pose ``T_k``.
+
+    Parameters
+    ----------
+    poses : WorldPoses
+        Camera-to-world poses (N of them).
+    rotation : (3, 3) ndarray, keyword-only
+        Camera-to-world rotation of the reference camera ``c``.
+    position : (3,) ndarray, keyword-only
+        Its centre, metres.
+    timestamps : (N,) array_like, keyword-only
+        Timestamps written with the poses.
+    """
+    rotation = np.asarray(rotation, dtype=np.float64)
+    rotations = np.einsum("ji,njk->nik", rotation, poses.rotations)
+    positions = (poses.positions - np.asarray(position, dtype=np.float64)) @ rotation
+    return Trajectory(timestamps=np.asarray(timestamps, dtype=np.float64), positions=positions,
+                      rotations=rotations)

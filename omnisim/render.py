@@ -2,7 +2,12 @@
 
 A dataset folder holds ``calib_results.txt``, ``images/NNNNNN.png`` (8-bit
 RGB), ``groundtruth.txt`` (TUM, camera k in camera 0), ``poses_world.txt``
-(TUM, camera-to-world) and ``meta.json``. Rendering is deterministic for a
+(TUM, camera-to-world) and ``meta.json``; optionally ``depth/`` and
+``normal/`` (:mod:`omnisim.aov`) and, with rolling shutter, per-row poses in
+``rolling_shutter/`` (:mod:`omnisim.capture`). Frames are rendered by a
+:class:`FrameRenderer` in this process or on Dask workers
+(:mod:`omnisim.cluster`), which return file bytes; this process alone writes
+them, atomically, recording each file's SHA-256. Rendering is deterministic for a
 given scene file, seed and settings: each frame seeds Mitsuba's sampler from
 (seed, frame), so an interrupted render resumes where it stopped and a rerun
 reproduces the same bytes. A folder that holds a render with other settings
@@ -15,25 +20,29 @@ import hashlib
 import json
 import platform
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from ifmi.errors import InputError, OutputError
-from ifmi.io.atomic import atomic_write_bytes, atomic_write_json
+from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
 from ifmi.io.calib import write_calib
 from ifmi.io.provenance import package_versions
-from ifmi.io.tum import write_tum
+from ifmi.io.tum import format_tum, write_tum
 
-from .config import CaptureSettings, SceneConfig, load_scene_config
+from .aov import AOV_NAMES, aov_integrator_dict, aov_names_from_text, aov_sensor_dict, depth_normal_from_aov, npy_bytes
+from .capture import ground_truth_time, row_mid_times, sensor_timing_props, vignetting_from_pixels
+from .config import SceneConfig, load_scene_config
 from .effects import apply_effects, exposure_gains, srgb_uint8_from_linear
-from .motion import poses_for_settings, relative_trajectory, world_trajectory
+from .motion import (WorldPoses, poses_at_times, poses_for_settings, relative_trajectory, trajectory_in_camera,
+                     world_trajectory)
 from .scene import build_scene_dict
 from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
 
 __all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
-           "check_output_folder", "open_output_folder", "pending_images"]
+           "check_output_folder", "open_output_folder", "pending_images", "set_sensor_pose", "FramePlan",
+           "FrameRenderer", "frame_file_names", "render_frame_files", "frame_plan", "frame_results"]
 
 # Format version of meta.json; bumped when its meaning changes.
 META_FORMAT = 1
@@ -54,6 +63,7 @@ class OmniRenderer:
     Parameters
     ----------
     config : SceneConfig
+        Its ``[capture]`` table sets the sensor's timing (motion blur, rolling shutter).
     variant : str, optional, keyword-only
         Mitsuba variant; default from the scene file, else automatic
         (``cuda_ad_rgb`` with a GPU, else ``llvm_ad_rgb``).
@@ -73,7 +83,8 @@ class OmniRenderer:
         cam = config.camera
         sensor = sensor_dict(cam.model, to_world=np.eye(4), radius_min=cam.radius_min,
                              radius_max=cam.radius_max, spp=config.render.spp,
-                             sampler=sampler or config.render.sampler, mi=self.mi)
+                             sampler=sampler or config.render.sampler, mi=self.mi,
+                             timing=sensor_timing_props(config.capture))
         scene_dict = build_scene_dict(config, self.mi, sensor=sensor)
         if integrator is not None:
             scene_dict["integrator"] = integrator
@@ -86,18 +97,32 @@ class OmniRenderer:
     def variant(self) -> str:
         return self.mi.variant()
 
-    def set_pose(self, rotation: np.ndarray, position: np.ndarray) -> None:
-        """Place the camera: ``rotation`` (3,3) camera-to-world, ``position`` (3,) metres."""
-        matrix = to_world_matrix(rotation, position).astype(np.float32)
-        self.params["sensor.to_world"] = self.mi.Transform4f(np.ascontiguousarray(matrix))
-        self.params.update()
+    def set_pose(self, rotation: np.ndarray, position: np.ndarray, *, end=None) -> None:
+        """Place the camera: ``rotation`` (3,3) camera-to-world, ``position`` (3,) metres.
+
+        ``end`` = (rotation, position) is the pose one frame interval later,
+        towards which a timed capture (motion blur, rolling shutter) moves.
+        """
+        set_sensor_pose(self.mi, self.params, "sensor.", rotation, position, end=end)
 
     def render(self, rotation: np.ndarray, position: np.ndarray, *, seed: int,
-               spp: int | None = None) -> np.ndarray:
-        """Render one frame at a pose; returns linear RGB (H, W, C) float32 (rows, cols)."""
-        self.set_pose(rotation, position)
+               spp: int | None = None, end=None) -> np.ndarray:
+        """Render one frame at a pose; returns linear RGB (H, W, C) float32 (rows, cols).
+
+        ``end`` as in :meth:`set_pose`; without it a timed capture stands still.
+        """
+        self.set_pose(rotation, position, end=end)
         image = self.mi.render(self.scene, seed=int(seed), spp=int(spp or self.config.render.spp))
         return np.array(image, dtype=np.float32)
+
+
+def set_sensor_pose(mi, params, prefix: str, rotation, position, *, end=None) -> None:
+    """Set an omni sensor's frame pose (and the pose one frame interval later) through ``params``."""
+    end = end if end is not None else (rotation, position)
+    for key, (rot, pos) in (("to_world", (rotation, position)), ("to_world_end", end)):
+        matrix = to_world_matrix(rot, pos).astype(np.float32)
+        params[prefix + key] = mi.Transform4f(np.ascontiguousarray(matrix))
+    params.update()
 
 
 def encode_png(image: np.ndarray) -> bytes:
@@ -159,10 +184,11 @@ def _shortened(value) -> str:
 
 
 def _has_written_frames(out_dir: Path, meta: dict | None) -> bool:
-    images = out_dir / "images"
-    if meta is not None and meta.get("images"):
+    """True when ``meta`` records a frame file, or a frame folder (images, AOVs) holds a file."""
+    kinds = ("images",) + tuple(AOV_NAMES)
+    if meta is not None and any(meta.get(kind) for kind in kinds):
         return True
-    return images.is_dir() and any(images.iterdir())
+    return any((out_dir / kind).is_dir() and any((out_dir / kind).iterdir()) for kind in kinds)
 
 
 def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
@@ -201,7 +227,8 @@ def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
         shown = "; ".join(changed[:SHOWN_DIFFERENCES]) + (" ..." if len(changed) > SHOWN_DIFFERENCES else "")
         raise InputError(out_dir, f"holds a dataset made with different {shown or 'settings'}; "
                                   "refusing to mix (choose another --out or remove it)")
-    if any(p.name != "images" for p in out_dir.iterdir()) or _has_written_frames(out_dir, None):
+    if any(p.name not in ("images",) + tuple(AOV_NAMES) for p in out_dir.iterdir()) \
+            or _has_written_frames(out_dir, None):
         raise InputError(out_dir, "is not empty and has no meta.json; refusing to write a dataset into it")
     return None
 
@@ -243,9 +270,224 @@ def pending_images(out_dir: Path, meta: dict, names: list) -> list:
     return todo
 
 
+@dataclass(frozen=True)
+class FramePlan:
+    """Everything a process needs to render the frames of one dataset (picklable, sent to workers).
+
+    config : the scene; seed : sequence seed; variant : Mitsuba variant;
+    trajectory : camera-to-world poses at the frame times (one more than the
+    frames when the capture is timed: frame k moves towards pose k + 1);
+    gains : per-frame exposure gains; aovs : AOV names to write (:data:`omnisim.aov.AOV_NAMES`).
+    """
+
+    config: SceneConfig
+    seed: int
+    variant: str
+    trajectory: WorldPoses
+    gains: tuple
+    aovs: tuple = ()
+
+    @property
+    def key(self) -> str:
+        """Digest identifying the plan (a worker keeps one loaded scene per key)."""
+        text = json.dumps([self.config.sha256, self.config.settings_dict(), self.seed, self.variant,
+                           list(self.aovs)], sort_keys=True, default=str)
+        return hashlib.sha256(text.encode()).hexdigest()
+
+
+def frame_file_names(k: int) -> dict:
+    """Relative paths of frame ``k``'s files: image and each AOV."""
+    return {"images": f"images/{k:06d}.png", **{name: f"{name}/{k:06d}.npy" for name in AOV_NAMES}}
+
+
+class FrameRenderer:
+    """Renders the files of single frames of a :class:`FramePlan` (image, then AOVs).
+
+    The image is rendered at the plan's spp with the scene's capture timing,
+    vignetted in linear radiance, then exposure gain, sRGB 8-bit, effects and
+    PNG encoding follow. AOVs come from a one-ray-per-pixel-centre pass
+    (:mod:`omnisim.aov`).
+    """
+
+    def __init__(self, plan: FramePlan):
+        self.plan = plan
+        self.renderer = OmniRenderer(plan.config, variant=plan.variant)
+        cam, capture = plan.config.camera, plan.config.capture
+        self.vignetting = (vignetting_from_pixels(cam.model, strength=capture.vignetting,
+                                                  radius_max=cam.radius_max)
+                           if capture.vignetting > 0 else None)
+        self._aov_pass = None
+
+    def _poses(self, k: int):
+        traj = self.plan.trajectory
+        start = (traj.rotations[k], traj.positions[k])
+        end = (traj.rotations[k + 1], traj.positions[k + 1]) if self.plan.config.capture.timed else None
+        return start, end
+
+    def linear(self, k: int) -> np.ndarray:
+        """Frame ``k`` in linear RGB (H, W, 3) float32, vignetted (before gain and tone mapping)."""
+        (rotation, position), end = self._poses(k)
+        linear = self.renderer.render(rotation, position, seed=frame_seed(self.plan.seed, k), end=end)[..., :3]
+        return linear if self.vignetting is None else linear * self.vignetting[..., None]
+
+    def image_png(self, k: int) -> bytes:
+        """Frame ``k`` as PNG bytes (8-bit sRGB, effects applied)."""
+        image = srgb_uint8_from_linear(self.linear(k), gain=float(self.plan.gains[k]))
+        image = apply_effects(image, self.plan.config.effects, seed=self.plan.seed, frame=k)
+        return encode_png(image)
+
+    def aov_arrays(self, k: int) -> dict:
+        """Depth (H, W) and camera-frame normals (H, W, 3) of frame ``k``, float32 (:mod:`omnisim.aov`)."""
+        mi = self.renderer.mi
+        if self._aov_pass is None:
+            sensor = mi.load_dict(aov_sensor_dict(self.plan.config, mi), parallel=False)
+            self._aov_pass = (sensor, mi.load_dict(aov_integrator_dict()), mi.traverse(sensor))
+        sensor, integrator, params = self._aov_pass
+        (rotation, position), end = self._poses(k)
+        set_sensor_pose(mi, params, "", rotation, position, end=end)
+        image = np.array(mi.render(self.renderer.scene, sensor=sensor, integrator=integrator, spp=1, seed=0))
+        height = image.shape[0]
+        capture = self.plan.config.capture
+        if capture.timed:
+            rows = poses_at_times(self.plan.trajectory, k + row_mid_times(height, capture)).rotations
+        else:
+            rows = np.broadcast_to(rotation, (height, 3, 3))
+        depth, normal = depth_normal_from_aov(image, rows)
+        return {"depth": depth, "normal": normal}
+
+    def files(self, k: int, kinds) -> dict:
+        """Bytes of frame ``k``'s files of the given kinds ("images" and AOV names), by relative path."""
+        names = frame_file_names(k)
+        out = {}
+        if "images" in kinds:
+            out[names["images"]] = self.image_png(k)
+        if any(kind in AOV_NAMES for kind in kinds):
+            for name, array in self.aov_arrays(k).items():
+                if name in kinds:
+                    out[names[name]] = npy_bytes(array)
+        return out
+
+
+def render_frame_files(renderer: FrameRenderer, job) -> tuple:
+    """``(k, files)`` of one job ``(k, kinds)``: the unit of work of a render (local or on workers)."""
+    k, kinds = job
+    return k, renderer.files(k, kinds)
+
+
+def _trajectory_samples(config: SceneConfig, seed: int) -> WorldPoses:
+    """Poses at the frame times; a timed capture needs the pose after the last frame too."""
+    settings = config.trajectory
+    if not config.capture.timed:
+        return poses_for_settings(settings, seed=seed)
+    try:
+        return poses_for_settings(replace(settings, frames=settings.frames + 1), seed=seed)
+    except InputError as exc:
+        raise InputError(exc.path, f"{exc.problem} (motion blur and rolling shutter interpolate "
+                                   "towards the pose after the last frame)") from None
+
+
+def _write_ground_truth(out_dir: Path, config: SceneConfig, trajectory: WorldPoses) -> dict:
+    """groundtruth.txt, poses_world.txt and per-row poses; returns {file name: sha256} of the latter."""
+    n, capture = config.trajectory.frames, config.capture
+    when = ground_truth_time(capture)
+    truth = (poses_at_times(trajectory, np.arange(n) + when) if capture.timed
+             else WorldPoses(rotations=trajectory.rotations[:n], positions=trajectory.positions[:n]))
+    note = f" at time k + {when:g} frame intervals (mid-exposure of the middle row)" if capture.timed else ""
+    write_tum(out_dir / "groundtruth.txt", relative_trajectory(truth),
+              header=f"omnisim ground truth of {config.name}: T_0k, camera k in camera 0{note}")
+    write_tum(out_dir / "poses_world.txt", world_trajectory(truth),
+              header=f"omnisim world poses of {config.name}: camera-to-world, metres, z up{note}")
+    if capture.rolling_shutter <= 0:
+        return {}
+    offsets = row_mid_times(config.camera.model.size[0], capture)
+    records = {}
+    for k in range(n):
+        rows = poses_at_times(trajectory, k + offsets)
+        text = format_tum(trajectory_in_camera(rows, rotation=truth.rotations[0], position=truth.positions[0],
+                                               timestamps=k + offsets),
+                          header=f"omnisim rolling shutter of {config.name}, frame {k}: line r = row r at "
+                                 "its mid-exposure, T_0r in camera 0 of groundtruth.txt; time in frames")
+        name = f"{k:06d}.txt"
+        atomic_write_text(out_dir / "rolling_shutter" / name, text)
+        records[name] = hashlib.sha256(text.encode("utf-8")).hexdigest()
+    return records
+
+
+def _pending_jobs(out_dir: Path, meta: dict, frames: int, kinds: tuple) -> list:
+    """``(k, kinds)`` for each frame with a missing or altered file; stale records are dropped."""
+    jobs = []
+    for k in range(frames):
+        missing = []
+        for kind in kinds:
+            rel = frame_file_names(k)[kind]
+            name = rel.split("/", 1)[1]
+            recorded = meta.setdefault(kind, {}).get(name)
+            path = out_dir / rel
+            if recorded is None or not path.exists() or sha256_file(path) != recorded:
+                meta[kind].pop(name, None)
+                missing.append(kind)
+        if missing:
+            jobs.append((k, tuple(missing)))
+    return jobs
+
+
+def _store_frame(out_dir: Path, meta: dict, files: dict) -> None:
+    """Write a frame's files atomically and record their SHA-256 in meta.json (then rewritten)."""
+    for rel, data in files.items():
+        atomic_write_bytes(out_dir / rel, data)
+        kind, name = rel.split("/", 1)
+        meta.setdefault(kind, {})[name] = hashlib.sha256(data).hexdigest()
+        meta[kind] = dict(sorted(meta[kind].items()))
+    atomic_write_json(out_dir / "meta.json", meta)
+
+
+def frame_plan(scene_path, *, frames: int | None = None, seed: int | None = None, spp: int | None = None,
+               resolution=None, variant: str | None = None, aovs=()) -> FramePlan:
+    """The :class:`FramePlan` of a scene file with the command line's overrides (see :func:`render_dataset`).
+
+    Raises
+    ------
+    InputError
+        Bad scene file or values, a bad AOV name or a negative seed.
+    """
+    config = load_scene_config(scene_path, spp=spp, resolution=resolution, frames=frames, variant=variant)
+    seed = config.layout_seed if seed is None else int(seed)
+    if seed < 0:
+        raise InputError(scene_path, f"seed: expected a non-negative integer, got {seed}")
+    try:
+        aovs = aov_names_from_text(aovs)
+    except ValueError as exc:
+        raise InputError(scene_path, f"--aov: {exc}") from None
+    trajectory = _trajectory_samples(config, seed)
+    from .llvm import import_mitsuba
+    mi = import_mitsuba(config.render.variant or None)
+    n = config.trajectory.frames
+    return FramePlan(config=config, seed=seed, variant=mi.variant(), trajectory=trajectory,
+                     gains=tuple(float(g) for g in exposure_gains(n, config.effects, seed=seed)), aovs=aovs)
+
+
+def frame_results(plan: FramePlan, jobs: list, *, workers: int | None = None, scheduler: str | None = None,
+                  renderer: FrameRenderer | None = None):
+    """Iterator of ``(k, files)`` for the jobs ``(k, kinds)``: in this process, or on a Dask cluster.
+
+    ``files`` maps relative paths (``images/000003.png``, ``depth/000003.npy``) to bytes.
+    ``renderer`` (of ``plan``) is used in this process instead of loading the scene again.
+    """
+    if workers or scheduler:
+        from .cluster import map_on_cluster
+
+        yield from map_on_cluster(FrameRenderer, render_frame_files, plan, jobs, key=plan.key,
+                                  variant=plan.variant, workers=workers, scheduler=scheduler)
+        return
+    renderer = renderer if renderer is not None else FrameRenderer(plan)
+    for job in jobs:
+        yield render_frame_files(renderer, job)
+
+
 def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int | None = None,
                    spp: int | None = None, resolution=None, progress: bool = True,
-                   variant: str | None = None) -> DatasetResult:
+                   variant: str | None = None, aovs=(), workers: int | None = None,
+                   scheduler: str | None = None) -> DatasetResult:
     """Render a scene file into a dataset folder (resuming a previous, identical render).
 
     Parameters
@@ -266,6 +508,12 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         Show a progress bar.
     variant : str, optional, keyword-only
         Mitsuba variant (default automatic).
+    aovs : str or sequence of str, keyword-only
+        Per-pixel ground truth to write beside the images: "depth", "normal" (:mod:`omnisim.aov`).
+    workers : int, optional, keyword-only
+        Render on a local Dask cluster of this many worker processes.
+    scheduler : str, optional, keyword-only
+        Render on the Dask cluster at this scheduler address (workers must see the scene's files).
 
     Returns
     -------
@@ -279,31 +527,47 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     OutputError
         A file cannot be written (the message names it and the OS reason).
     """
-    config = load_scene_config(scene_path, spp=spp, resolution=resolution, frames=frames, variant=variant)
-    if config.capture != CaptureSettings():
-        # The [capture] table is read and checked, but its effects are not rendered yet: refuse
-        # rather than write sharp frames the user believes blurred.
-        raise InputError(scene_path, "[capture]: exposure, rolling_shutter and vignetting are not rendered "
-                                     "by this version; remove the table or set them to 0")
-    seed = config.layout_seed if seed is None else int(seed)
-    if seed < 0:
-        raise InputError(scene_path, f"seed: expected a non-negative integer, got {seed}")
+    if workers is not None and workers < 1:
+        raise InputError(scene_path, f"--workers: expected >= 1, got {workers}")
+    plan = frame_plan(scene_path, frames=frames, seed=seed, spp=spp, resolution=resolution,
+                      variant=variant, aovs=aovs)
+    config, seed, aovs, n = plan.config, plan.seed, plan.aovs, plan.config.trajectory.frames
+    # The whole scene is built and loaded here (files, materials, lights, a Mitsuba scene) before
+    # the output folder is touched, so a scene error leaves nothing behind; it also renders
+    # the frames unless a cluster does.
+    local = FrameRenderer(plan)
     out_dir = Path(out_dir)
-    poses = poses_for_settings(config.trajectory, seed=seed)
+    meta = _open_dataset(scene_path, out_dir, config, seed, plan.variant, plan.trajectory)
+    kinds = ("images",) + aovs
+    jobs = _pending_jobs(out_dir, meta, n, kinds)
+    rendered, start = 0, time.perf_counter()
+    if jobs:
+        from tqdm import tqdm
 
-    # Mitsuba is imported and the whole scene built and loaded (files, materials, lights)
-    # before the output folder is touched, so a scene error leaves nothing behind.
-    renderer = OmniRenderer(config)
+        with tqdm(total=n, initial=n - len(jobs), disable=not progress, unit="frame", desc=config.name) as bar:
+            for _, files in frame_results(plan, jobs, workers=workers, scheduler=scheduler, renderer=local):
+                _store_frame(out_dir, meta, files)
+                rendered += 1
+                bar.update(1)
+    seconds = time.perf_counter() - start
+    meta["complete"] = all(len(meta.get(kind, {})) == n for kind in kinds)
+    atomic_write_json(out_dir / "meta.json", meta)
+    return DatasetResult(out_dir=str(out_dir), frames=n, rendered=rendered,
+                         seconds_per_frame=seconds / rendered if rendered else float("nan"))
+
+
+def _open_dataset(scene_path, out_dir: Path, config: SceneConfig, seed: int, variant: str,
+                  trajectory: WorldPoses) -> dict:
+    """Check or create the folder, write calibration, ground truth and meta.json; return the meta."""
     identity = {
         "scene_sha256": config.sha256,
         "seed": seed,
-        "variant": renderer.variant,
+        "variant": variant,
         "settings": json.loads(json.dumps(config.settings_dict())),
         "format": META_FORMAT,
         "renderer": RENDERER_VERSION,
     }
     meta = open_output_folder(out_dir, identity)
-    images_dir = out_dir / "images"
     meta.update({
         "scene_file": str(Path(scene_path).resolve()),
         "scene_name": config.name,
@@ -311,40 +575,13 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         "spp": config.render.spp,
         "resolution": list(config.render.resolution),
         "frames": config.trajectory.frames,
-        "variant": renderer.variant,
+        "variant": variant,
         "versions": _versions(),
+        "capture": asdict(config.capture),
     })
     write_calib(out_dir / "calib_results.txt", config.camera.model)
-    write_tum(out_dir / "groundtruth.txt", relative_trajectory(poses),
-              header=f"omnisim ground truth of {config.name}: T_0k, camera k in camera 0")
-    write_tum(out_dir / "poses_world.txt", world_trajectory(poses),
-              header=f"omnisim world poses of {config.name}: camera-to-world, metres, z up")
+    rows = _write_ground_truth(out_dir, config, trajectory)
+    if rows:
+        meta["rolling_shutter"] = rows
     atomic_write_json(out_dir / "meta.json", meta)
-
-    names = [f"{k:06d}.png" for k in range(len(poses))]
-    todo = pending_images(out_dir, meta, names)
-    gains = exposure_gains(len(poses), config.effects, seed=seed)
-    rendered, seconds = 0, 0.0
-    if todo:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(names), initial=len(names) - len(todo), disable=not progress,
-                   unit="frame", desc=config.name)
-        for k in todo:
-            start = time.perf_counter()
-            linear = renderer.render(poses.rotations[k], poses.positions[k], seed=frame_seed(seed, k))
-            image = srgb_uint8_from_linear(linear[..., :3], gain=float(gains[k]))
-            image = apply_effects(image, config.effects, seed=seed, frame=k)
-            data = encode_png(image)
-            atomic_write_bytes(images_dir / names[k], data)
-            meta["images"][names[k]] = hashlib.sha256(data).hexdigest()
-            meta["images"] = dict(sorted(meta["images"].items()))
-            atomic_write_json(out_dir / "meta.json", meta)
-            seconds += time.perf_counter() - start
-            rendered += 1
-            bar.update(1)
-        bar.close()
-    meta["complete"] = len(meta["images"]) == len(names)
-    atomic_write_json(out_dir / "meta.json", meta)
-    return DatasetResult(out_dir=str(out_dir), frames=len(names), rendered=rendered,
-                         seconds_per_frame=seconds / rendered if rendered else float("nan"))
+    return meta

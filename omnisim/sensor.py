@@ -17,6 +17,11 @@ calibration values are opaque JIT variables, so a new calibration (of the
 same polynomial length) reuses the compiled kernel; ``to_world`` and the
 calibration are exposed through ``traverse`` so a frame's pose is set with
 ``mi.traverse(scene)`` and ``params.update()``.
+
+Capture timing (motion blur, rolling shutter) lives in :mod:`omnisim.capture`:
+with ``shutter_close > 0`` or ``rolling_shutter > 0`` each ray is traced at
+its own time, with the pose interpolated between ``to_world`` (the frame
+time) and ``to_world_end`` (one frame interval later).
 """
 
 from __future__ import annotations
@@ -45,7 +50,8 @@ def to_world_matrix(rotation: np.ndarray, position: np.ndarray) -> np.ndarray:
 
 
 def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: float,
-                spp: int, sampler: str = "multijitter", seed: int = 0, mi=None) -> dict:
+                spp: int, sampler: str = "multijitter", seed: int = 0, mi=None,
+                timing: dict | None = None) -> dict:
     """Mitsuba scene-dict entry of the omni sensor for an :class:`ifmi.camera.OcamModel`.
 
     Parameters
@@ -64,6 +70,9 @@ def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: f
         Sampler seed.
     mi : module
         The imported ``mitsuba`` module (variant already set).
+    timing : dict, optional, keyword-only
+        Capture timing properties (:func:`omnisim.capture.sensor_timing_props`);
+        none for an instantaneous global shutter.
     """
     height, width = model.size
     c, d, e = model.affine
@@ -82,12 +91,15 @@ def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: f
             "rfilter": {"type": "box"}, "pixel_format": "rgb",
         },
         "sampler": sampler_dict,
+        **(timing or {}),
     }
 
 
 def register_omni_sensor(mi) -> None:
     """Register the ``omnicam`` sensor plugin with the imported Mitsuba module."""
     import drjit as dr
+
+    from .capture import RayTiming
 
     class OmniSensor(mi.Sensor):
         """OCamCalib catadioptric camera as a Mitsuba sensor."""
@@ -112,6 +124,7 @@ def register_omni_sensor(mi) -> None:
             if "to_world" in props:
                 matrix = np.array(props["to_world"].matrix, dtype=np.float32)
             self.to_world = mi.Transform4f(np.ascontiguousarray(matrix))
+            self.timing = RayTiming(mi, props, self.film().size().y, matrix)
             self._make_opaque()
 
         def _make_opaque(self):
@@ -119,6 +132,8 @@ def register_omni_sensor(mi) -> None:
             # One width-1 opaque variable per coefficient: a kernel parameter, not a per-lane gather.
             self._coeffs = [dr.gather(mi.Float, self.pol, i) for i in range(self.n_coeffs)]
             dr.make_opaque(*self._coeffs)
+            if self.timing.enabled:
+                self.timing.update(self.to_world)
 
         def traverse(self, callback):
             callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
@@ -126,6 +141,7 @@ def register_omni_sensor(mi) -> None:
             callback.put("center", self.center, mi.ParamFlags.NonDifferentiable)
             callback.put("affine", self.affine, mi.ParamFlags.NonDifferentiable)
             callback.put("band", self.band, mi.ParamFlags.NonDifferentiable)
+            self.timing.traverse(callback)
 
         def parameters_changed(self, keys=None):
             if dr.width(self.pol) != self.n_coeffs:
@@ -158,8 +174,11 @@ def register_omni_sensor(mi) -> None:
             wavelengths, wav_weight = self.sample_wavelengths(
                 dr.zeros(mi.SurfaceInteraction3f), sample1, active)
             direction, in_band = self._camera_ray(sample2)
-            origin = self.to_world @ mi.Point3f(0.0, 0.0, 0.0)
-            world_dir = self.to_world @ direction
+            if self.timing.enabled:
+                origin, world_dir = self.timing.posed_ray(self.to_world, time, sample2, self.film(), direction)
+            else:
+                origin = self.to_world @ mi.Point3f(0.0, 0.0, 0.0)
+                world_dir = self.to_world @ direction
             maxt = dr.select(in_band, dr.largest(mi.Float), 0.0)
             ray = mi.Ray3f(origin, world_dir, maxt, time, wavelengths)
             weight = dr.select(in_band, wav_weight, 0.0)

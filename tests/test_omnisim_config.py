@@ -282,7 +282,7 @@ def test_hand_written_obj_with_two_materials_gives_two_base_coloured_parts(tmp_p
 
 
 def test_capture_must_end_by_the_next_frame(tmp_path):
-    with pytest.raises(SettingError, match=r"exposure \+ rolling_shutter <= 1"):
+    with pytest.raises(SettingError, match=r"exposure \+ rolling_shutter: expected <= 1"):
         CaptureSettings(exposure=0.7, rolling_shutter=0.5)
     assert CaptureSettings(exposure=0.5).timed and not CaptureSettings(vignetting=0.3).timed
 

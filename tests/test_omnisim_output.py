@@ -207,12 +207,3 @@ def test_broken_envmap_file_fails_before_the_output_folder_exists(tmp_path):
     with pytest.raises(InputError, match=r"sky.exr: \[\[lights\]\] #2"):
         render_dataset(scene, tmp_path / "out", progress=False)
     assert not (tmp_path / "out").exists()
-
-
-def test_capture_effects_not_rendered_yet_are_refused(tmp_path):
-    from omnisim.render import render_dataset
-
-    scene = _scene(tmp_path, extra="\n[capture]\nexposure = 0.5\n")
-    with pytest.raises(InputError, match=r"\[capture\]: exposure, rolling_shutter and vignetting are not rendered"):
-        render_dataset(scene, tmp_path / "out", progress=False)
-    assert not (tmp_path / "out").exists()

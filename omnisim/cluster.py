@@ -1,0 +1,117 @@
+"""Render frames in parallel processes on a Dask cluster (a local one, or one at a scheduler address).
+
+Workers only compute: each returns a frame's file bytes to the calling
+process, which writes them with the same atomic, resumable writer as a
+single-process render, so the folder and ``meta.json`` have one writer and
+the bytes do not depend on where a frame was rendered.
+
+Mitsuba's Python plugins are registered per process, so a worker plugin
+(:class:`OmnisimWorkerPlugin`) imports Mitsuba with the right LLVM and
+registers the omni sensor in every worker when it starts (and in workers
+that join later). The plugin also keeps the worker's loaded scene, so a
+scene is loaded once per worker, not once per frame.
+"""
+
+from __future__ import annotations
+
+from distributed import WorkerPlugin
+
+__all__ = ["OmnisimWorkerPlugin", "map_on_cluster"]
+
+PLUGIN_NAME = "omnisim"
+
+
+class OmnisimWorkerPlugin(WorkerPlugin):
+    """Registers the omni sensor in a worker and keeps that worker's per-plan state.
+
+    Parameters
+    ----------
+    variant : str
+        Mitsuba variant the workers use (the calling process's).
+    threads : int, optional
+        Render threads per worker (default: Dr.Jit's, all cores).
+    """
+
+    name = PLUGIN_NAME
+
+    def __init__(self, variant: str, threads: int | None = None):
+        self.variant = variant
+        self.threads = threads
+        self.states = {}
+
+    def setup(self, worker) -> None:
+        from .llvm import import_mitsuba
+        from .sensor import register_omni_sensor
+
+        register_omni_sensor(import_mitsuba(self.variant))
+        if self.threads:
+            import drjit as dr
+
+            dr.set_thread_count(int(self.threads))
+
+    def state(self, key: str, factory, plan):
+        """The state (e.g. a loaded scene) of ``plan``, built once per worker by ``factory(plan)``."""
+        if key not in self.states:
+            self.states.clear()  # one dataset at a time: free the previous scene
+            self.states[key] = factory(plan)
+        return self.states[key]
+
+
+def _run_on_worker(factory, run, plan, key: str, job):
+    from distributed import get_worker
+
+    plugin = get_worker().plugins[PLUGIN_NAME]
+    return run(plugin.state(key, factory, plan), job)
+
+
+def map_on_cluster(factory, run, plan, jobs: list, *, key: str, variant: str,
+                   workers: int | None = None, scheduler: str | None = None):
+    """Run ``run(factory(plan), job)`` for every job on Dask workers; yield results as they finish.
+
+    Parameters
+    ----------
+    factory : callable
+        ``factory(plan)`` builds a worker's state once (picklable by reference).
+    run : callable
+        ``run(state, job)`` computes one job's result (picklable by reference).
+    plan : object
+        Shared input, sent to each worker once.
+    jobs : list
+        Job descriptions.
+    key : str, keyword-only
+        Identifies ``plan``; a worker rebuilds its state when the key changes.
+    variant : str, keyword-only
+        Mitsuba variant for the workers.
+    workers : int, optional, keyword-only
+        Start a local cluster of this many worker processes, which share the
+        machine's cores (each renders with ``cores // workers`` threads, at least 1).
+    scheduler : str, optional, keyword-only
+        Address of an existing scheduler (used instead of ``workers``).
+
+    Yields
+    ------
+    object
+        The results, in completion order.
+    """
+    import os
+
+    from distributed import Client, LocalCluster, as_completed
+
+    threads = None
+    if scheduler:
+        cluster, client = None, Client(scheduler)
+    else:
+        threads = max(1, (os.cpu_count() or 1) // int(workers))
+        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+    try:
+        client.register_plugin(OmnisimWorkerPlugin(variant, threads))
+        [shared] = client.scatter([plan], broadcast=True)
+        futures = [client.submit(_run_on_worker, factory, run, shared, key, job, pure=False) for job in jobs]
+        for future in as_completed(futures):
+            yield future.result()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
