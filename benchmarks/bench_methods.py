@@ -27,14 +27,18 @@ median over the rounds is used for the ratios.
 Each timing round also reads and decodes the frames alone (no estimation),
 the part of every method's end-to-end time that no front end can remove;
 its time over AKAZE's (``read_vs_akaze``) is the lowest iFMI/AKAZE ratio
-possible on the machine.
+possible on the machine. And each round runs every method once more on
+the same frames already decoded into memory: that *compute* time per frame
+leaves the decoding out.
 
 Prints, per mode, scene and method, roll/pitch/yaw and mean RMSE, geodesic
 RMSE, the median per-frame ``seconds``, the wall time per frame of the full
 run, the interleaved wall time per frame and the failures, then per mode and
-scene the target ratios: iFMI RMSE / the better baseline's (mean of the
-axes and geodesic; target <= 1/3), iFMI time / ORB time (target <= 0.5) and
-iFMI time / AKAZE time (target <= 0.1).
+scene the ratios: iFMI RMSE / the better baseline's (mean of the axes and
+geodesic), iFMI time / ORB time end to end, and iFMI compute time / AKAZE
+compute time with the frames in memory; and last one summary table over
+all sets (geodesic ATE, failed frames, ms per frame end to end and in
+memory, and those ratios).
 """
 
 from __future__ import annotations
@@ -76,7 +80,9 @@ def interleaved_timing(dataset: str, methods, configs, *, frames: int, rounds: i
     data = read_dataset(dataset)
     n = min(frames, len(data.image_paths))
     walls = {m: [] for m in methods}
+    walls.update({f"{m}_memory": [] for m in methods})
     walls["read"] = []
+    in_memory = list(islice(data.iter_images(skip_unreadable=True), n))
     for _ in range(rounds):
         # Reading and decoding the images alone, in this thread: the share of every method's
         # end-to-end time that no front end can remove.
@@ -89,7 +95,109 @@ def interleaved_timing(dataset: str, methods, configs, *, frames: int, rounds: i
             estimate_sequence(islice(data.iter_images(prefetch=True), n), data.model,
                               method=method, config=configs[method])
             walls[method].append((time.perf_counter() - start) / n)
+            start = time.perf_counter()
+            estimate_sequence(in_memory, data.model, method=method, config=configs[method])
+            walls[f"{method}_memory"].append((time.perf_counter() - start) / n)
     return walls
+
+
+def print_summary(rows: list, ratios: dict, key: str) -> None:
+    """One line per mode and set: geodesic ATE, failures and times of each method, and the ratios."""
+    methods = [m for m in METHODS if any(r["method"] == m for r in rows)]
+    width = max([12] + [len(r["dataset"]) + 1 for r in rows])
+    head = "".join(f"{'ATE ' + m:>11}" for m in methods) + "".join(f"{'fail ' + m:>11}" for m in methods)
+    head += "".join(f"{'ms ' + m:>10}" for m in methods) + "".join(f"{'mem ' + m:>11}" for m in methods)
+    print(f"\nsummary (geodesic ATE RMSE in rad; ms per frame end to end ({key}) and with frames in memory)")
+    print(f"{'mode':<9}{'dataset':<{width}}{head}{'ATE/best':>9}{'e2e/ORB':>9}{'mem/AKAZE':>10}")
+    for mode, dataset in dict.fromkeys((r["mode"], r["dataset"]) for r in rows):
+        by = {r["method"]: r for r in rows if r["dataset"] == dataset and r["mode"] == mode}
+        line = "".join(f"{by[m]['geodesic_rmse']:>11.5f}" if m in by else f"{'-':>11}" for m in methods)
+        line += "".join(f"{str(by[m]['failures']) + '/' + str(by[m]['frames']):>11}" if m in by else f"{'-':>11}"
+                        for m in methods)
+        line += "".join(f"{by[m].get(key, float('nan')) * 1e3:>10.1f}" if m in by else f"{'-':>10}"
+                        for m in methods)
+        line += "".join(f"{by[m].get('memory_per_frame_s', float('nan')) * 1e3:>11.1f}" if m in by
+                        else f"{'-':>11}" for m in methods)
+        entry = ratios.get(f"{mode}/{dataset}", {})
+        line += "".join(f"{entry.get(k, float('nan')):>{w}.3f}" for k, w in
+                        (("rmse_geodesic_vs_best", 9), ("time_vs_orb", 9), ("compute_vs_akaze", 10)))
+        print(f"{mode:<9}{dataset:<{width}}{line}")
+
+
+def run_method(dataset: str, method: str, mode: str, config: EstimateConfig, out: Path) -> dict:
+    """One full run of ``method`` on ``dataset``, written and evaluated; its row of figures."""
+    name = Path(dataset).name
+    start = time.perf_counter()
+    estimate = estimate_dataset(dataset, method=method, config=config, progress=True)
+    wall = time.perf_counter() - start
+    est_path = out / mode / name / f"{method}.txt"
+    write_estimate_run(est_path, estimate, dataset_dir=dataset, extra={"wall_seconds": wall})
+    meta = evaluate_files(Path(dataset) / "groundtruth.txt", est_path, out_dir=out / mode / name / f"{method}.eval")
+    s = meta["summary"]
+    seconds = np.array([r.seconds for r in estimate.frames[1:]])
+    models = [r.model for r in estimate.frames[1:] if r.success]
+    return {"mode": mode, "dataset": name, "scene": meta["scene"], "method": method,
+            "mean_rmse": s["mean_rmse"], "geodesic_rmse": s["geodesic"]["rmse"],
+            "roll": s["axes"]["roll"]["rmse"], "pitch": s["axes"]["pitch"]["rmse"],
+            "yaw": s["axes"]["yaw"]["rmse"],
+            "median_s": float(np.median(seconds)), "mean_s": float(seconds.mean()),
+            "wall_per_frame_s": wall / len(estimate.frames),
+            "failures": s["failures"]["count"], "frames": len(estimate.frames),
+            "rotation_model_frames": models.count("rotation"), "five_point_frames": models.count("5pt"),
+            "references": len({r.reference_frame for r in estimate.frames}),
+            "ransac_threshold_rad": config.relative_pose.ransac_threshold_rad}
+
+
+def print_rows(rows: list, key: str) -> None:
+    """Per mode, set and method: the axes' and geodesic RMSE, times, failures, models, references."""
+    machine = machine_info()
+    print(f"machine: {machine['cpu']}, {machine['cores']} cores, {machine['ram_gib']} GiB, "
+          f"python {machine['python']}")
+    print("RMSE in radians; times in ms per frame; 'rot/5pt': frames solved by each model")
+    width = max([12] + [len(r["dataset"]) + 1 for r in rows])
+    print(f"{'mode':<9}{'dataset':<{width}}{'method':<7}{'roll':>8}{'pitch':>8}{'yaw':>8}{'mean':>8}"
+          f"{'geodesic':>9}{'run ms':>8}{'wall ms':>8}{'timed ms':>9}{'fail':>8}{'rot/5pt':>9}"
+          f"{'refs':>6}")
+    for r in rows:
+        print(f"{r['mode']:<9}{r['dataset']:<{width}}{r['method']:<7}{r['roll']:>8.4f}{r['pitch']:>8.4f}"
+              f"{r['yaw']:>8.4f}{r['mean_rmse']:>8.4f}{r['geodesic_rmse']:>9.4f}"
+              f"{r['median_s'] * 1e3:>8.1f}{r['wall_per_frame_s'] * 1e3:>8.1f}"
+              f"{r.get(key, float('nan')) * 1e3:>9.1f}{r['failures']:>4}/{r['frames']:<3}"
+              f"{r['rotation_model_frames']:>5}/{r['five_point_frames']:<3}{r['references']:>6}")
+    reads = {r["dataset"]: r["read_per_frame_s"] for r in rows if "read_per_frame_s" in r}
+    if reads:
+        print("reading + decoding the images alone (ms per frame, median of the timing rounds): "
+              + ", ".join(f"{k} {v * 1e3:.1f}" for k, v in reads.items()))
+    thresholds = {(r["dataset"]): r["ransac_threshold_rad"] for r in rows}
+    print("RANSAC threshold (rad, all methods): "
+          + ", ".join(f"{k} {v:.5f}" for k, v in thresholds.items()))
+
+
+def ratio_table(rows: list, key: str) -> dict:
+    """iFMI's ratios against the baselines per mode and set (printed, and returned by ``MODE/SET``)."""
+    width = max([12] + [len(r["dataset"]) + 1 for r in rows])
+    print(f"\nratios (time: {key}; compute: frames in memory)")
+    ratios = {}
+    for mode, dataset in dict.fromkeys((r["mode"], r["dataset"]) for r in rows):
+        by = {r["method"]: r for r in rows if r["dataset"] == dataset and r["mode"] == mode}
+        if "ifmi" not in by:
+            continue
+        entry = {}
+        if "read_per_frame_s" in by["ifmi"] and "akaze" in by:
+            # A time ratio cannot go below reading the image over the other method's time.
+            entry["read_vs_akaze"] = by["ifmi"]["read_per_frame_s"] / by["akaze"][key]
+        baselines = [m for m in ("orb", "akaze") if m in by]
+        if baselines:
+            entry["rmse_mean_vs_best"] = by["ifmi"]["mean_rmse"] / min(by[m]["mean_rmse"] for m in baselines)
+            entry["rmse_geodesic_vs_best"] = (by["ifmi"]["geodesic_rmse"]
+                                              / min(by[m]["geodesic_rmse"] for m in baselines))
+        for m in baselines:
+            entry[f"time_vs_{m}"] = by["ifmi"][key] / by[m][key]
+        if "akaze" in by and "memory_per_frame_s" in by["akaze"]:
+            entry["compute_vs_akaze"] = by["ifmi"]["memory_per_frame_s"] / by["akaze"]["memory_per_frame_s"]
+        ratios[f"{mode}/{dataset}"] = entry
+        print(f"{mode:<9}{dataset:<{width}}" + "  ".join(f"{k} {v:.3f}" for k, v in entry.items()))
+    return ratios
 
 
 def main(argv=None) -> int:
@@ -114,87 +222,27 @@ def main(argv=None) -> int:
     out = Path(args.out)
     rows = []
     for dataset in args.datasets:
-        name = Path(dataset).name
         model = read_calib(Path(dataset) / "calib_results.txt")
         for mode in modes:
             # One configuration for every method of this mode and dataset.
             config = resolved_config(mode_config(base, mode), model)
-            for method in args.methods:
-                start = time.perf_counter()
-                estimate = estimate_dataset(dataset, method=method, config=config, progress=True)
-                wall = time.perf_counter() - start
-                est_path = out / mode / name / f"{method}.txt"
-                write_estimate_run(est_path, estimate, dataset_dir=dataset,
-                                   extra={"wall_seconds": wall})
-                meta = evaluate_files(Path(dataset) / "groundtruth.txt", est_path,
-                                      out_dir=out / mode / name / f"{method}.eval")
-                s = meta["summary"]
-                seconds = np.array([r.seconds for r in estimate.frames[1:]])
-                models = [r.model for r in estimate.frames[1:] if r.success]
-                rows.append({"mode": mode, "dataset": name, "scene": meta["scene"], "method": method,
-                             "mean_rmse": s["mean_rmse"], "geodesic_rmse": s["geodesic"]["rmse"],
-                             "roll": s["axes"]["roll"]["rmse"], "pitch": s["axes"]["pitch"]["rmse"],
-                             "yaw": s["axes"]["yaw"]["rmse"],
-                             "median_s": float(np.median(seconds)), "mean_s": float(seconds.mean()),
-                             "wall_per_frame_s": wall / len(estimate.frames),
-                             "failures": s["failures"]["count"], "frames": len(estimate.frames),
-                             "rotation_model_frames": models.count("rotation"),
-                             "five_point_frames": models.count("5pt"),
-                             "references": len({r.reference_frame for r in estimate.frames}),
-                             "ransac_threshold_rad": config.relative_pose.ransac_threshold_rad})
+            these = [run_method(dataset, method, mode, config, out) for method in args.methods]
             if args.timing_rounds > 0:
-                configs = {m: config for m in args.methods}
-                walls = interleaved_timing(dataset, args.methods, configs, frames=args.timing_frames,
-                                           rounds=args.timing_rounds)
-                for r in rows:
-                    if r["dataset"] == name and r["mode"] == mode:
-                        r["timed_wall_per_frame_s"] = float(np.median(walls[r["method"]]))
-                        r["timed_runs_s"] = walls[r["method"]]
-                        r["read_per_frame_s"] = float(np.median(walls["read"]))
+                walls = interleaved_timing(dataset, args.methods, {m: config for m in args.methods},
+                                           frames=args.timing_frames, rounds=args.timing_rounds)
+                for r in these:
+                    r["timed_wall_per_frame_s"] = float(np.median(walls[r["method"]]))
+                    r["timed_runs_s"] = walls[r["method"]]
+                    r["memory_per_frame_s"] = float(np.median(walls[f"{r['method']}_memory"]))
+                    r["read_per_frame_s"] = float(np.median(walls["read"]))
+            rows += these
     key = "timed_wall_per_frame_s" if args.timing_rounds > 0 else "wall_per_frame_s"
-    machine = machine_info()
-    print(f"machine: {machine['cpu']}, {machine['cores']} cores, {machine['ram_gib']} GiB, "
-          f"python {machine['python']}")
-    print("RMSE in radians; times in ms per frame; 'rot/5pt': frames solved by each model")
-    width = max([12] + [len(r["dataset"]) + 1 for r in rows])
-    print(f"{'mode':<9}{'dataset':<{width}}{'method':<7}{'roll':>8}{'pitch':>8}{'yaw':>8}{'mean':>8}"
-          f"{'geodesic':>9}{'run ms':>8}{'wall ms':>8}{'timed ms':>9}{'fail':>8}{'rot/5pt':>9}"
-          f"{'refs':>6}")
-    for r in rows:
-        print(f"{r['mode']:<9}{r['dataset']:<{width}}{r['method']:<7}{r['roll']:>8.4f}{r['pitch']:>8.4f}"
-              f"{r['yaw']:>8.4f}{r['mean_rmse']:>8.4f}{r['geodesic_rmse']:>9.4f}"
-              f"{r['median_s'] * 1e3:>8.1f}{r['wall_per_frame_s'] * 1e3:>8.1f}"
-              f"{r.get(key, float('nan')) * 1e3:>9.1f}{r['failures']:>4}/{r['frames']:<3}"
-              f"{r['rotation_model_frames']:>5}/{r['five_point_frames']:<3}{r['references']:>6}")
-    reads = {r["dataset"]: r["read_per_frame_s"] for r in rows if "read_per_frame_s" in r}
-    if reads:
-        print("reading + decoding the images alone (ms per frame, median of the timing rounds): "
-              + ", ".join(f"{k} {v * 1e3:.1f}" for k, v in reads.items()))
-    thresholds = {(r["dataset"]): r["ransac_threshold_rad"] for r in rows}
-    print("RANSAC threshold (rad, all methods): "
-          + ", ".join(f"{k} {v:.5f}" for k, v in thresholds.items()))
-    print(f"\nratios (time: {key}; targets: rmse <= 0.333, time vs ORB <= 0.5, vs AKAZE <= 0.1)")
-    ratios = {}
-    for mode, dataset in dict.fromkeys((r["mode"], r["dataset"]) for r in rows):
-        by = {r["method"]: r for r in rows if r["dataset"] == dataset and r["mode"] == mode}
-        if "ifmi" not in by:
-            continue
-        entry = {}
-        if "read_per_frame_s" in by["ifmi"] and "akaze" in by:
-            # A time ratio cannot go below reading the image over the other method's time.
-            entry["read_vs_akaze"] = by["ifmi"]["read_per_frame_s"] / by["akaze"][key]
-        baselines = [m for m in ("orb", "akaze") if m in by]
-        if baselines:
-            entry["rmse_mean_vs_best"] = by["ifmi"]["mean_rmse"] / min(by[m]["mean_rmse"] for m in baselines)
-            entry["rmse_geodesic_vs_best"] = (by["ifmi"]["geodesic_rmse"]
-                                              / min(by[m]["geodesic_rmse"] for m in baselines))
-        for m in baselines:
-            entry[f"time_vs_{m}"] = by["ifmi"][key] / by[m][key]
-        ratios[f"{mode}/{dataset}"] = entry
-        print(f"{mode:<9}{dataset:<{width}}" + "  ".join(f"{k} {v:.3f}" for k, v in entry.items()))
+    print_rows(rows, key)
+    ratios = ratio_table(rows, key)
+    print_summary(rows, ratios, key)
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench_methods.json").write_text(json.dumps({"rows": rows, "ratios": ratios,
-                                                        "time_key": key, "machine": machine,
+                                                        "time_key": key, "machine": machine_info(),
                                                         "argv": sys.argv if argv is None else argv},
                                                        indent=2))
     return 0

@@ -52,10 +52,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-import ifmi.odometry
+from ifmi.odometry import track_sequence
 from ifmi.io.dataset import read_dataset, read_image
 from ifmi.io.tum import read_tum
-from ifmi.pipeline import EstimateConfig, create_front_end, estimate_dataset, method_names, resolved_config
+from ifmi.pipeline import EstimateConfig, create_front_end, method_names, resolved_config
 from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays
 from ifmi.rotations import geodesic_angle
 
@@ -182,22 +182,22 @@ def odometry_comparison(root: str, method: str, baseline, seeds: int) -> None:
     runs = [("baseline", baseline.relative_pose_from_rays), ("new", relative_pose_from_rays)]
     runs += [(f"baseline, rays +-1e-15 ({seed})", perturbed_solver(baseline.relative_pose_from_rays, seed))
              for seed in range(seeds)]
-    original = ifmi.odometry.relative_pose_from_rays
-    try:
-        for label, solver in runs:
-            ifmi.odometry.relative_pose_from_rays = solver
-            start = time.perf_counter()
-            estimate = estimate_dataset(root, method=method, config=EstimateConfig())
-            wall = (time.perf_counter() - start) / len(estimate.frames)
-            rotations = estimate.trajectory.rotations
-            step = [geodesic_angle(truth[k - 1].T @ truth[k], rotations[k - 1].T @ rotations[k])
-                    for k in range(1, len(rotations))]
-            absolute = [geodesic_angle(truth[k], rotations[k]) for k in range(len(rotations))]
-            name = f"{Path(root).name} {method} {label}"
-            print(f"{name:<48} {np.sqrt(np.mean(np.square(step))):>12.4e} "
-                  f"{np.sqrt(np.mean(np.square(absolute))):>12.4e} {1e3 * wall:>9.2f}")
-    finally:
-        ifmi.odometry.relative_pose_from_rays = original
+    data = read_dataset(root)
+    config = resolved_config(EstimateConfig(), data.model)
+    for label, solver in runs:
+        start = time.perf_counter()
+        trajectory, _ = track_sequence(data.iter_images(prefetch=True, skip_unreadable=True),
+                                       create_front_end(method, data.model, config),
+                                       pose_options=config.relative_pose, keyframe=config.keyframe,
+                                       pose_solver=solver)
+        wall = (time.perf_counter() - start) / len(trajectory)
+        rotations = trajectory.rotations
+        step = [geodesic_angle(truth[k - 1].T @ truth[k], rotations[k - 1].T @ rotations[k])
+                for k in range(1, len(rotations))]
+        absolute = [geodesic_angle(truth[k], rotations[k]) for k in range(len(rotations))]
+        name = f"{Path(root).name} {method} {label}"
+        print(f"{name:<48} {np.sqrt(np.mean(np.square(step))):>12.4e} "
+              f"{np.sqrt(np.mean(np.square(absolute))):>12.4e} {1e3 * wall:>9.2f}")
 
 
 def main(argv=None) -> int:

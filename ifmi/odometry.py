@@ -20,9 +20,10 @@ and never becomes a reference: its held pose is not its true pose, and its
 image may be what made it fail. The next frame is estimated against the
 keyframe and, if that fails, against the last successfully estimated frame;
 the constant-velocity prediction spans the failed frames. Only after
-``KeyframeOptions.max_failures`` failures in a row does the current frame
-become the reference with the held pose (tracking resumes with an offset
-equal to the rotation missed meanwhile).
+``KeyframeOptions.max_failures`` failures in a row (default 2) does the
+current frame become the reference with the held pose (tracking resumes
+with an offset equal to the rotation missed meanwhile), so the reference
+does not stay on a frame the camera has moved away from.
 
 Positions chain the estimated translation directions as unit-length steps
 per frame: monocular translation is known only up to scale.
@@ -41,7 +42,7 @@ from .errors import InputError
 from .relative_pose import RelativePoseOptions, relative_pose_from_rays
 from .trajectory import Trajectory
 
-__all__ = ["KeyframeOptions", "FrameRecord", "MissingFrame", "track_sequence"]
+__all__ = ["KeyframeOptions", "FrameRecord", "MissingFrame", "Tracker", "track_sequence"]
 
 
 @dataclass(frozen=True)
@@ -62,14 +63,16 @@ class KeyframeOptions:
     max_failures : int
         In both modes: after this many failed frames in a row the current
         frame becomes the reference with the held pose; 0 never gives up on
-        the last good frame.
+        the last good frame. Front ends with a coarse search re-acquire a
+        lost track against the last good frame themselves, so a short wait
+        suffices.
     """
 
     enabled: bool = False
     min_inliers: int = 40
     min_inlier_fraction: float = 0.6
     max_angle_rad: float = 0.25
-    max_failures: int = 10
+    max_failures: int = 2
 
     def __post_init__(self) -> None:
         if self.max_failures < 0:
@@ -161,20 +164,6 @@ def _angle(rotation: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
 
 
-def _solve(front_end, reference: _Reference, state, pose_options: RelativePoseOptions,
-           predicted: np.ndarray | None):
-    if predicted is not None and getattr(front_end, "uses_prior_rotation", False):
-        corr = front_end.correspondences(reference.state, state,
-                                         prior_rotation=reference.rotation.T @ predicted)
-    else:
-        corr = front_end.correspondences(reference.state, state)
-    if not corr.success:
-        return None, None, corr
-    pose, info = relative_pose_from_rays(corr.rays_a, corr.rays_b, options=pose_options,
-                                         rays_per_measurement=corr.rays_per_measurement)
-    return pose, info, corr
-
-
 def _predict(good: list, frame: int) -> np.ndarray:
     """Constant-velocity prediction of pose ``R_0k`` of ``frame``.
 
@@ -200,10 +189,159 @@ def _poor(info, pose, reference: _Reference, options: KeyframeOptions) -> bool:
     return reference.first_inliers > 0 and info.n_inliers < options.min_inlier_fraction * reference.first_inliers
 
 
+PoseSolver = Callable[..., tuple]
+
+
+class Tracker:
+    """Frame-by-frame chaining of relative rotations (see the module docstring).
+
+    Parameters
+    ----------
+    front_end : FrontEnd
+        Object with ``prepare`` and ``correspondences`` (:mod:`ifmi.pipeline`).
+    pose_options : RelativePoseOptions, keyword-only
+        With ``ransac_threshold_rad`` set.
+    keyframe : KeyframeOptions, keyword-only
+    pose_solver : callable, keyword-only
+        ``pose_solver(rays_a, rays_b, *, options, rays_per_measurement) -> (pose, info)``
+        like :func:`ifmi.relative_pose.relative_pose_from_rays` (the default);
+        another solver can be compared on the same front end.
+
+    Raises
+    ------
+    ValueError
+        ``pose_options.ransac_threshold_rad`` is not set (a threshold in
+        pixels must be converted for the camera first).
+    """
+
+    def __init__(self, front_end, *, pose_options: RelativePoseOptions,
+                 keyframe: KeyframeOptions = KeyframeOptions(),
+                 pose_solver: PoseSolver = relative_pose_from_rays):
+        if pose_options.ransac_threshold_rad is None:
+            raise ValueError("pose_options.ransac_threshold_rad is None; resolve it for the camera "
+                             "first (RelativePoseOptions.resolved or ifmi.pipeline.resolved_config)")
+        self.front_end = front_end
+        self.pose_options = pose_options
+        self.keyframe = keyframe
+        self.pose_solver = pose_solver
+        self.rotations: list = []
+        self.positions: list = []
+        self.records: list = []
+        # reference: the frame estimates are made against (the keyframe, or the last good
+        # frame); last_good: the last successfully estimated frame; good: its (frame, R_0k)
+        # history for the prediction.
+        self._reference: _Reference | None = None
+        self._last_good: _Reference | None = None
+        self._good: list = []
+        self._failures_in_row = 0
+
+    def _solve(self, reference: _Reference, state, predicted: np.ndarray):
+        if getattr(self.front_end, "uses_prior_rotation", False):
+            corr = self.front_end.correspondences(reference.state, state,
+                                                  prior_rotation=reference.rotation.T @ predicted)
+        else:
+            corr = self.front_end.correspondences(reference.state, state)
+        if not corr.success:
+            return None, None, corr
+        pose, info = self.pose_solver(corr.rays_a, corr.rays_b, options=self.pose_options,
+                                      rays_per_measurement=corr.rays_per_measurement)
+        return pose, info, corr
+
+    def _append(self, record: FrameRecord, rotation: np.ndarray, position: np.ndarray) -> FrameRecord:
+        self.rotations.append(rotation)
+        self.positions.append(position)
+        self.records.append(record)
+        return record
+
+    def step(self, image, *, started: float | None = None) -> FrameRecord:
+        """Estimate the next frame's pose and return its record.
+
+        Parameters
+        ----------
+        image : (H, W) or (H, W, 3) uint8 ndarray or MissingFrame
+            A :class:`MissingFrame` is flagged as failed and holds the pose.
+        started : float, optional, keyword-only
+            ``time.perf_counter()`` when work on this frame began (e.g.
+            before reading it); default now.
+
+        Raises
+        ------
+        InputError
+            The first frame is a :class:`MissingFrame`.
+        """
+        start = time.perf_counter() if started is None else started
+        k = len(self.records)
+        if isinstance(image, MissingFrame):
+            if self._reference is None:
+                raise InputError(image.source, f"first frame unusable: {image.reason}")
+            self._failures_in_row += 1
+            record = FrameRecord(k, self._reference.frame, False, f"image: {image.reason}", 0, 0,
+                                 time.perf_counter() - start)
+            return self._append(record, self.rotations[-1], self.positions[-1])
+        state = self.front_end.prepare(image)
+        if self._reference is None:
+            self._reference = self._last_good = _Reference(0, state, np.eye(3), np.zeros(3))
+            self._good = [(0, np.eye(3))]
+            return self._append(FrameRecord(0, 0, True, "", 0, 0, time.perf_counter() - start),
+                                np.eye(3), np.zeros(3))
+        record, rotation, position = self._estimate(k, state)
+        return self._append(replace(record, seconds=time.perf_counter() - start), rotation, position)
+
+    def _estimate(self, k: int, state) -> tuple[FrameRecord, np.ndarray, np.ndarray]:
+        keyframe = self.keyframe
+        predicted = _predict(self._good, k)
+        reference = self._reference
+        pose, info, corr = self._solve(reference, state, predicted)
+        if (self._last_good.frame != reference.frame
+                and (_poor(info, pose, reference, keyframe) if keyframe.enabled
+                     else info is None or not info.success)):
+            reference = self._reference = self._last_good
+            pose, info, corr = self._solve(reference, state, predicted)
+        if info is not None and info.success:
+            rotation = reference.rotation @ pose.rotation
+            position = reference.position + (k - reference.frame) * (reference.rotation @ pose.translation_direction)
+            if reference.first_inliers < 0:
+                reference.first_inliers = info.n_inliers
+            self._last_good = _Reference(k, state, rotation, position)
+            if not keyframe.enabled:
+                self._reference = self._last_good
+            self._good = [self._good[-1], (k, rotation)]
+            self._failures_in_row = 0
+            record = FrameRecord(k, reference.frame, True, "", info.n_correspondences, info.n_inliers,
+                                 0.0, info.model, _angle(pose.rotation), dict(corr.diagnostics))
+            return record, rotation, position
+        rotation, position = self.rotations[-1], self.positions[-1]
+        reason = corr.reason if info is None else f"relative pose: {info.reason}"
+        self._failures_in_row += 1
+        if keyframe.max_failures and self._failures_in_row >= keyframe.max_failures:
+            # Give up on the last good frame: restart from this one with the held pose.
+            self._reference = self._last_good = _Reference(k, state, rotation, position)
+            self._good = [(k, rotation)]
+            self._failures_in_row = 0
+            reason += f"; reference reset after {keyframe.max_failures} failures"
+        record = FrameRecord(k, reference.frame, False, reason, len(corr.rays_a),
+                             0 if info is None else info.n_inliers, 0.0,
+                             "" if info is None else info.model, 0.0, dict(corr.diagnostics))
+        return record, rotation, position
+
+    def trajectory(self, timestamps: Sequence[float] | None = None) -> Trajectory:
+        """Poses of the frames so far; ``timestamps`` default to the frame indices."""
+        n = len(self.rotations)
+        if timestamps is None:
+            stamps = np.arange(n, dtype=np.float64)
+        else:
+            stamps = np.asarray(timestamps, dtype=np.float64)
+            if stamps.shape != (n,):
+                raise ValueError(f"expected {n} timestamps, got {stamps.shape}")
+        return Trajectory(timestamps=stamps, positions=np.asarray(self.positions).reshape(n, 3),
+                          rotations=np.asarray(self.rotations).reshape(n, 3, 3))
+
+
 def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: RelativePoseOptions,
                    keyframe: KeyframeOptions = KeyframeOptions(),
                    on_frame: Callable[[FrameRecord], None] | None = None,
-                   timestamps: Sequence[float] | None = None) -> tuple[Trajectory, list[FrameRecord]]:
+                   timestamps: Sequence[float] | None = None,
+                   pose_solver: PoseSolver = relative_pose_from_rays) -> tuple[Trajectory, list[FrameRecord]]:
     """Estimate every frame's pose ``T_0k`` with ``front_end`` and the relative-pose back end.
 
     Parameters
@@ -219,6 +357,8 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
         progress display, a live log); default nothing.
     timestamps : (N,) sequence, optional, keyword-only
         Default: frame indices.
+    pose_solver : callable, keyword-only
+        See :class:`Tracker`.
 
     Returns
     -------
@@ -230,99 +370,17 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
     InputError
         The first frame is a :class:`MissingFrame`.
     ValueError
-        ``pose_options.ransac_threshold_rad`` is not set (a threshold in
-        pixels must be converted for the camera first).
+        ``pose_options.ransac_threshold_rad`` is not set.
     """
-    if pose_options.ransac_threshold_rad is None:
-        raise ValueError("pose_options.ransac_threshold_rad is None; resolve it for the camera "
-                         "first (RelativePoseOptions.resolved or ifmi.pipeline.resolved_config)")
-    rotations, positions, records = [], [], []
-    # reference: the frame estimates are made against (the keyframe, or the last good
-    # frame); last_good: the last successfully estimated frame; good: its (frame, R_0k)
-    # history for the prediction.
-    reference = last_good = None
-    good: list = []
-    failures_in_row = 0
+    tracker = Tracker(front_end, pose_options=pose_options, keyframe=keyframe, pose_solver=pose_solver)
     iterator = iter(images)
-    k = 0
     while True:
-        start = time.perf_counter()
+        started = time.perf_counter()  # the frame's time includes producing it (e.g. reading)
         try:
             image = next(iterator)
         except StopIteration:
             break
-        if isinstance(image, MissingFrame):
-            if reference is None:
-                raise InputError(image.source, f"first frame unusable: {image.reason}")
-            failures_in_row += 1
-            rotations.append(rotations[-1])
-            positions.append(positions[-1])
-            records.append(FrameRecord(k, reference.frame, False, f"image: {image.reason}", 0, 0,
-                                       time.perf_counter() - start))
-            if on_frame is not None:
-                on_frame(records[-1])
-            k += 1
-            continue
-        state = front_end.prepare(image)
-        if reference is None:
-            reference = last_good = _Reference(0, state, np.eye(3), np.zeros(3))
-            good.append((0, np.eye(3)))
-            rotations.append(np.eye(3))
-            positions.append(np.zeros(3))
-            records.append(FrameRecord(0, 0, True, "", 0, 0, time.perf_counter() - start))
-            if on_frame is not None:
-                on_frame(records[-1])
-            k += 1
-            continue
-
-        predicted = _predict(good, k)
-        pose, info, corr = _solve(front_end, reference, state, pose_options, predicted)
-        if (last_good.frame != reference.frame
-                and (_poor(info, pose, reference, keyframe) if keyframe.enabled
-                     else info is None or not info.success)):
-            reference = last_good
-            pose, info, corr = _solve(front_end, reference, state, pose_options, predicted)
-        used = reference
-        if info is not None and info.success:
-            rotation = used.rotation @ pose.rotation
-            position = used.position + (k - used.frame) * (used.rotation @ pose.translation_direction)
-            if used.first_inliers < 0:
-                used.first_inliers = info.n_inliers
-            last_good = _Reference(k, state, rotation, position)
-            if not keyframe.enabled:
-                reference = last_good
-            good = [good[-1], (k, rotation)]
-            failures_in_row = 0
-            record = FrameRecord(k, used.frame, True, "", info.n_correspondences, info.n_inliers,
-                                 0.0, info.model, _angle(pose.rotation), dict(corr.diagnostics))
-        else:
-            rotation, position = rotations[-1], positions[-1]
-            reason = corr.reason if info is None else f"relative pose: {info.reason}"
-            n_corr = len(corr.rays_a)
-            n_inl = 0 if info is None else info.n_inliers
-            failures_in_row += 1
-            if keyframe.max_failures and failures_in_row >= keyframe.max_failures:
-                # Give up on the last good frame: restart from this one with the held pose.
-                reference = last_good = _Reference(k, state, rotation, position)
-                good = [(k, rotation)]
-                failures_in_row = 0
-                reason += f"; reference reset after {keyframe.max_failures} failures"
-            record = FrameRecord(k, used.frame, False, reason, n_corr, n_inl, 0.0,
-                                 "" if info is None else info.model, 0.0, dict(corr.diagnostics))
-        rotations.append(rotation)
-        positions.append(position)
-        seconds = time.perf_counter() - start
-        records.append(replace(record, seconds=seconds))
+        record = tracker.step(image, started=started)
         if on_frame is not None:
-            on_frame(records[-1])
-        k += 1
-    n = len(rotations)
-    if timestamps is None:
-        stamps = np.arange(n, dtype=np.float64)
-    else:
-        stamps = np.asarray(timestamps, dtype=np.float64)
-        if stamps.shape != (n,):
-            raise ValueError(f"expected {n} timestamps, got {stamps.shape}")
-    trajectory = Trajectory(timestamps=stamps, positions=np.asarray(positions).reshape(n, 3),
-                            rotations=np.asarray(rotations).reshape(n, 3, 3))
-    return trajectory, records
+            on_frame(record)
+    return tracker.trajectory(timestamps), tracker.records

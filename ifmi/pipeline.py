@@ -33,6 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .camera import OcamModel
+from .errors import InputError
 from .trajectory import Trajectory
 from .options import options_from_dict
 from .odometry import FrameRecord, KeyframeOptions, track_sequence
@@ -50,6 +51,7 @@ __all__ = [
     "create_front_end",
     "estimate_sequence",
     "estimate_dataset",
+    "estimate_video",
     "angular_pixel_size",
     "resolved_config",
 ]
@@ -330,6 +332,11 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     the current one is estimated; a frame's ``seconds`` then holds the wait
     for its image instead of the whole decoding time.
 
+    The mirror band is decided from up to five frames spread over the
+    sequence (:func:`ifmi.unwarp.panorama_config_with_band`), so a dark
+    object in the first frame does not narrow it; the result's ``config``
+    holds the radii.
+
     Raises
     ------
     InputError
@@ -340,6 +347,54 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     from .io.dataset import read_dataset
 
     dataset = read_dataset(Path(dataset_dir))
+    # The RANSAC threshold is resolved on the calibration's band first, as for any sequence; the
+    # band the panorama uses is then decided from several frames (saved with the configuration).
+    config = resolved_config(config, dataset.model)
+    config = replace(config, ifmi=replace(config.ifmi, panorama=_panorama_with_band(dataset, config)))
     images = dataset.iter_images(prefetch=prefetch, skip_unreadable=True)
     return estimate_sequence(images, dataset.model, method=method,
                              config=config, progress=progress, total=len(dataset.image_paths))
+
+
+# Frames, spread evenly over a dataset, that decide the mirror band together.
+_BAND_FRAMES = 5
+
+
+def _panorama_with_band(dataset, config: EstimateConfig):
+    """The panorama options with the band decided from up to ``_BAND_FRAMES`` readable frames."""
+    from .io.dataset import read_image
+    from .unwarp import panorama_config_with_band
+
+    paths = dataset.image_paths
+    index = np.unique(np.linspace(0, len(paths) - 1, min(_BAND_FRAMES, len(paths))).round().astype(int))
+    frames = []
+    for k in index:
+        try:
+            frames.append(read_image(paths[k], size=dataset.model.size))
+        except InputError:
+            continue  # an unreadable frame is flagged when the sequence reaches it
+    return panorama_config_with_band(dataset.model, frames, config=config.ifmi.panorama)
+
+
+def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike, *, method: str,
+                   config: EstimateConfig = EstimateConfig(), progress: bool = False) -> SequenceEstimate:
+    """Estimate a video file's frames (decoded in order by OpenCV) with one calibration.
+
+    The trajectory's timestamps are the frames' presentation times from the
+    container, in seconds (:class:`ifmi.io.video.VideoFrames`).
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable calibration or video, or frames whose size
+        differs from the calibration's.
+    """
+    from .io.calib import read_calib
+    from .io.video import VideoFrames
+
+    model = read_calib(Path(calib_path))
+    frames = VideoFrames(video_path, size=model.size)
+    estimate = estimate_sequence(frames, model, method=method, config=config, progress=progress,
+                                 total=len(frames) or None)
+    trajectory = replace(estimate.trajectory, timestamps=np.asarray(frames.timestamps, dtype=np.float64))
+    return replace(estimate, trajectory=trajectory)

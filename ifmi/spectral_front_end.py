@@ -16,9 +16,10 @@ import numpy as np
 from .camera import OcamModel
 from .options import options_from_dict
 from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
-from .fourier_mellin import REJECT_REASONS, FourierMellin, FourierMellinConfig, PlacedTiles, TileSpectra
+from .global_motion import GlobalMotionConfig, GlobalMotionEstimator
+from .fourier_mellin import FourierMellin, TileRejection, FourierMellinConfig, PlacedTiles, TileSpectra
 from .tiling import TileLayout, TilingConfig, tile_layout, tiles_from_panorama
-from .unwarp import (PanoramaConfig, PanoramaMapping, panorama_from_omni, panorama_from_rays,
+from .unwarp import (PanoramaConfig, PanoramaMapping, gray_from_image, panorama_from_omni, panorama_from_rays,
                      panorama_mapping, rays_from_panorama, wrapped_panorama_maps)
 
 __all__ = ["IfmiConfig", "IfmiFrameState", "IfmiFrontEnd"]
@@ -56,6 +57,14 @@ class IfmiConfig:
         cancels along the trajectory instead of accumulating. Tiles that
         failed registration, left the panorama rows or became distorted
         are cut anew from the layout.
+    coarse_to_fine : bool
+        Before the tiles, estimate the large part of the rotation from whole
+        low-resolution panoramas (:mod:`ifmi.global_motion`), starting from
+        the predicted rotation, and cut the tiles where that estimate puts
+        them; when the tiles then fail, search again from the identity
+        (re-acquisition after a lost track). Needs ``use_prior``.
+    global_motion : GlobalMotionConfig
+        Options of the coarse stage.
     max_tile_distortion : float
         A tracked tile whose placement stretches or shrinks the panorama by
         more than this factor along any direction is cut anew.
@@ -78,6 +87,8 @@ class IfmiConfig:
     min_tiles: int = 3
     use_prior: bool = True
     track_tiles: bool = True
+    coarse_to_fine: bool = True
+    global_motion: GlobalMotionConfig = field(default_factory=GlobalMotionConfig)
     max_tile_distortion: float = 1.25
     anchor_templates: bool = True
 
@@ -94,7 +105,8 @@ class IfmiConfig:
     def from_dict(cls, data: Mapping[str, Any]) -> "IfmiConfig":
         """Inverse of ``dataclasses.asdict``; missing keys take defaults."""
         data = dict(data)
-        nested = {"panorama": PanoramaConfig, "tiling": TilingConfig, "registration": FourierMellinConfig}
+        nested = {"panorama": PanoramaConfig, "tiling": TilingConfig, "registration": FourierMellinConfig,
+                  "global_motion": GlobalMotionConfig}
         for key, kind in nested.items():
             if key in data and isinstance(data[key], Mapping):
                 data[key] = options_from_dict(kind, data[key], what=f"ifmi.{key} options")
@@ -122,10 +134,14 @@ class IfmiFrameState:
         ``P``.
     layout : TileLayout
     engine : FourierMellin
+    coarse_panorama : (h, w) float32 ndarray or None
+        Low-resolution panorama of the coarse stage (:mod:`ifmi.global_motion`).
     """
 
-    def __init__(self, padded_panorama: np.ndarray, pad: int, layout: TileLayout, engine: FourierMellin):
+    def __init__(self, padded_panorama: np.ndarray, pad: int, layout: TileLayout, engine: FourierMellin,
+                 coarse_panorama: np.ndarray | None = None):
         self.padded_panorama = padded_panorama
+        self.coarse_panorama = coarse_panorama
         self._pad = pad
         self._layout = layout
         self._engine = engine
@@ -166,6 +182,7 @@ class IfmiFrontEnd:
         self.mapping: PanoramaMapping | None = None
         self.layout: TileLayout | None = None
         self.engine: FourierMellin | None = None
+        self.global_stage: GlobalMotionEstimator | None = None
         self._points_b: np.ndarray | None = None
         self._padded_maps: tuple = ()
 
@@ -180,6 +197,8 @@ class IfmiFrontEnd:
         self.engine = FourierMellin(self.layout.tile_size, self.layout.count,
                                     config=self.config.registration)
         self._padded_maps = wrapped_panorama_maps(self.mapping, self._pad)
+        if self.config.coarse_to_fine and self.config.use_prior:
+            self.global_stage = GlobalMotionEstimator(self.mapping, config=self.config.global_motion)
         self._points_b = flow_sample_points(self.layout.tile_size,
                                             points_per_tile=self.config.points_per_tile,
                                             spread=self.config.point_spread)
@@ -194,8 +213,14 @@ class IfmiFrontEnd:
         """
         if self.mapping is None:
             self._setup(image)
-        padded = panorama_from_omni(image, self.mapping, maps=self._padded_maps)
-        return IfmiFrameState(padded, self._pad, self.layout, self.engine)
+        # Remapped as float: an 8-bit result would round every panorama pixel to a whole gray
+        # level (on sharp 1024 px images that noise doubled the frame-to-frame error).
+        gray = gray_from_image(image).astype(np.float32)
+        padded = panorama_from_omni(gray, self.mapping, maps=self._padded_maps)
+        coarse = None
+        if self.global_stage is not None:
+            coarse = self.global_stage.coarse_panorama(padded[:, self._pad:self._pad + self.mapping.width])
+        return IfmiFrameState(padded, self._pad, self.layout, self.engine, coarse)
 
     @property
     def _pad(self) -> int:
@@ -381,25 +406,46 @@ class IfmiFrontEnd:
 
     def _diagnostics(self, reason: np.ndarray, peak_ratio: np.ndarray, peak_to_noise: np.ndarray,
                      n_new: int) -> dict:
-        counts = np.bincount(reason, minlength=len(REJECT_REASONS))
+        counts = np.bincount(reason, minlength=len(TileRejection))
         return {
             "n_tiles": int(self.layout.count),
-            "n_tiles_kept": int((reason == 0).sum()),
-            **{f"n_tiles_{name.replace(' ', '_').replace('-', '_')}": int(counts[i])
-               for i, name in enumerate(REJECT_REASONS) if i > 0},
+            "n_tiles_kept": int((reason == TileRejection.KEPT).sum()),
+            **{f"n_tiles_{kind.label}": int(counts[kind]) for kind in TileRejection if kind},
             "n_tiles_new": int(n_new),
             "median_peak_ratio": float(np.median(peak_ratio)),
             "median_peak_to_noise": float(np.median(peak_to_noise)),
         }
 
+    def _coarse_rotation(self, state_a: IfmiFrameState, state_b: IfmiFrameState,
+                         starts: tuple) -> tuple[np.ndarray, dict]:
+        """``R_ab`` of the coarse stage from the best of ``starts`` (None: the identity), and its figures."""
+        first = np.eye(3) if starts[0] is None else starts[0]
+        if self.global_stage is None:
+            return first, {}
+        coarse = self.global_stage.estimate(state_a.coarse_panorama, state_b.coarse_panorama, priors=starts)
+        change = np.clip((np.trace(first.T @ coarse.rotation) - 1.0) / 2.0, -1.0, 1.0)
+        return coarse.rotation, {"coarse_success": bool(coarse.success),
+                                 "coarse_correction_rad": float(np.arccos(change)),
+                                 "coarse_sectors": coarse.n_sectors, "coarse_score": coarse.score}
+
+    def _match_predicted(self, state_a: IfmiFrameState, state_b: IfmiFrameState, starts: tuple):
+        """Coarse stage from ``starts``, then the tiles at the placements it predicts."""
+        rotation, coarse = self._coarse_rotation(state_a, state_b, starts)
+        offsets_a, linear_a, placed, n_new = self.register_predicted(state_a, state_b, prior_rotation=rotation)
+        diagnostics = self._diagnostics(placed.reason, placed.peak_ratio, placed.peak_to_noise, n_new)
+        return (offsets_a, linear_a, placed), {**diagnostics, **coarse}
+
     def correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
                         prior_rotation: np.ndarray | None = None):
         """Ray pairs of frame a (reference) and frame b from the kept tiles.
 
-        With a predicted rotation (and ``config.use_prior``) the reference's
-        tiles (tracked or from the layout) are looked for in frame b where
-        the prediction puts them, cut with its local affine map; frame b
-        then keeps the tiles it was registered with (``track_tiles``).
+        With a predicted rotation (and ``config.use_prior``) the coarse stage
+        (``config.coarse_to_fine``) corrects the prediction, and the
+        reference's tiles (tracked or from the layout) are looked for in
+        frame b where the corrected prediction puts them, cut with its local
+        affine map; frame b then keeps the tiles it was registered with
+        (``track_tiles``). If too few tiles pass, the coarse stage searches
+        again from the identity and the tiles are registered once more.
 
         Parameters
         ----------
@@ -413,6 +459,7 @@ class IfmiFrontEnd:
         """
         from .pipeline import Correspondences
 
+        min_tiles = self.config.min_tiles
         if not self.config.use_prior:
             prior_rotation = None
         if prior_rotation is None:
@@ -421,14 +468,18 @@ class IfmiFrontEnd:
                                             self.layout.count)
             valid = motion.valid
         else:
-            offsets_a, linear_a, placed, n_new = self.register_predicted(state_a, state_b,
-                                                                          prior_rotation=prior_rotation)
-            diagnostics = self._diagnostics(placed.reason, placed.peak_ratio, placed.peak_to_noise, n_new)
+            match, diagnostics = self._match_predicted(state_a, state_b, (prior_rotation, None))
+            if match[2].valid.sum() < min_tiles and self.global_stage is not None:
+                # Re-acquisition: the prediction may be far off after fast motion or a lost frame.
+                retry, retry_diagnostics = self._match_predicted(state_a, state_b, (None, prior_rotation))
+                if retry[2].valid.sum() > match[2].valid.sum():
+                    match, diagnostics = retry, {**retry_diagnostics, "reacquired": True}
+            offsets_a, linear_a, placed = match
             valid = placed.valid
-        if valid.sum() < self.config.min_tiles:
+        if valid.sum() < min_tiles:
             return Correspondences.failed(
                 f"only {int(valid.sum())} of {self.layout.count} tiles passed the noise filters "
-                f"(need {self.config.min_tiles})", diagnostics)
+                f"(need {min_tiles})", diagnostics)
         if prior_rotation is None:
             pairs = flow_from_tile_motion(motion, self.layout, self.mapping, points_b=self._points_b,
                                           origins_b=origins_b)

@@ -21,7 +21,9 @@ both the omni image and the panorama.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, replace
+from typing import Sequence
 
 import cv2
 import numpy as np
@@ -32,6 +34,7 @@ __all__ = [
     "PanoramaConfig",
     "PanoramaMapping",
     "radius_band",
+    "panorama_config_with_band",
     "panorama_mapping",
     "panorama_from_omni",
     "wrapped_panorama_maps",
@@ -62,7 +65,9 @@ class PanoramaConfig:
         rounded to a multiple of 64 and capped at ``max_auto_width``.
     max_auto_width : int
         Cap of the automatic width: larger images are downsampled, which
-        keeps the time per frame bounded.
+        keeps the time per frame bounded. 2048 keeps 1024 x 1024 images at
+        their resolution (on sharp 1024 px images a 1024 px panorama had
+        three times the frame-to-frame error).
     height : int or None
         Panorama height in pixels; ``None`` makes pixels square at the band's
         elevation closest to the horizon.
@@ -75,6 +80,15 @@ class PanoramaConfig:
         oversampled centre.
     dark_level : float
         Gray level (0..255) under which a pixel counts as outside the mirror.
+    rim_lit_fraction : float
+        A ring counts as dark (outside the mirror, or the camera's own
+        reflection) when fewer than this fraction of its pixels are lit, in
+        the median over the frames judged. Dark objects (clothing, shadows,
+        the operator) cover part of a ring, rarely all of it; the rim and
+        the central reflection cover all of it.
+    min_band_fraction : float
+        A detected band narrower than this fraction of the calibration's
+        band is not trusted: the calibration's band is used, with a warning.
     margin_px : float
         Band shrink at both detected edges, pixels.
     """
@@ -85,8 +99,10 @@ class PanoramaConfig:
     radius_max_px: float | None = None
     min_radius_fraction: float = 0.3
     dark_level: float = 12.0
+    rim_lit_fraction: float = 0.1
+    min_band_fraction: float = 0.25
     margin_px: float = 2.0
-    max_auto_width: int = 1024
+    max_auto_width: int = 2048
 
     def __post_init__(self) -> None:
         if (self.width is not None and self.width < 8) or (self.height is not None and self.height < 8) \
@@ -99,6 +115,9 @@ class PanoramaConfig:
             raise ValueError(f"expected 0 <= radius_min_px < radius_max_px, got {lo}, {hi}")
         if not 0 <= self.min_radius_fraction < 1:
             raise ValueError(f"min_radius_fraction must be in [0, 1), got {self.min_radius_fraction}")
+        if not 0 < self.rim_lit_fraction < 1 or not 0 <= self.min_band_fraction < 1:
+            raise ValueError("expected 0 < rim_lit_fraction < 1 and 0 <= min_band_fraction < 1, got "
+                             f"{self.rim_lit_fraction}, {self.min_band_fraction}")
 
 
 @dataclass(frozen=True)
@@ -170,17 +189,40 @@ def _monotonic_radius(model: OcamModel, limit: float) -> float:
     return float(r[int(np.argmin(grows))])
 
 
+def _ring_lit_fractions(model: OcamModel, image: np.ndarray, radii: np.ndarray,
+                        dark_level: float) -> np.ndarray:
+    """Fraction of each ring's pixels brighter than ``dark_level`` (median-filtered image)."""
+    # Median filtering removes isolated noisy pixels (sensor noise in the black regions,
+    # JPEG ringing) before rings are judged; the band's edges move by less than a pixel.
+    gray = cv2.medianBlur(np.clip(gray_from_image(image), 0, 255).astype(np.uint8),
+                          _NOISE_MEDIAN_PX).astype(np.float32)
+    phi = np.linspace(0.0, 2 * np.pi, _PROFILE_AZIMUTHS, endpoint=False)
+    c, d, e = model.affine
+    u = radii[:, None] * np.cos(phi)[None]
+    v = radii[:, None] * np.sin(phi)[None]
+    rows = (u * c + v * d + model.center[0]).astype(np.float32)
+    cols = (u * e + v + model.center[1]).astype(np.float32)
+    ring = cv2.remap(gray, cols, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    return (ring > dark_level).mean(axis=1)
+
+
 def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
-                config: PanoramaConfig = PanoramaConfig()) -> tuple[float, float]:
+                config: PanoramaConfig = PanoramaConfig(), frames: Sequence[np.ndarray] = ()) -> tuple[float, float]:
     """Sensor-radius band ``(r_min, r_max)`` in pixels that the mirror images.
 
-    The outer radius is the largest circle inside the image (and inside the
-    calibration's monotonic range); with an image, it shrinks to the last
-    radius whose ring is mostly brighter than ``config.dark_level`` (black
+    The calibration's band runs from ``config.min_radius_fraction`` of the
+    outer radius to the largest circle inside the image (and inside the
+    calibration's monotonic range). With images (``image`` and/or
+    ``frames``), the outer radius shrinks to the last lit ring (black
     outside the mirror) and the inner radius grows past a dark central disk
-    (the camera's reflection); rings are judged on the median-filtered
-    image, so noisy pixels in the black regions do not count as lit. The inner radius is at least
-    ``config.min_radius_fraction`` of the outer one. Explicit radii in
+    (the camera's reflection). A ring is dark when fewer than
+    ``config.rim_lit_fraction`` of its pixels are brighter than
+    ``config.dark_level``, in the median over the frames; so a dark object
+    crossing the ring, or a dark-clothed operator filling part of it, does
+    not end the band. Rings are judged on median-filtered images, so noisy
+    pixels in the black regions do not count as lit. A detected band
+    narrower than ``config.min_band_fraction`` of the calibration's falls
+    back to the calibration's band with a warning. Explicit radii in
     ``config`` override the detection.
 
     Parameters
@@ -188,6 +230,8 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
     model : OcamModel
     image : (H, W) or (H, W, 3) ndarray, optional
     config : PanoramaConfig, keyword-only
+    frames : sequence of (H, W) or (H, W, 3) ndarray, keyword-only
+        More frames of the sequence to judge the rings on.
 
     Returns
     -------
@@ -195,32 +239,20 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
         Inner and outer sensor radius, pixels.
     """
     outer = _monotonic_radius(model, _inscribed_radius(model))
+    calib_inner = config.min_radius_fraction * outer
     inner = 0.0
-    if image is not None:
-        # Median filtering removes isolated noisy pixels (sensor noise in the black regions,
-        # JPEG ringing) before rings are judged; the band's edges move by less than a pixel.
-        gray = cv2.medianBlur(np.clip(gray_from_image(image), 0, 255).astype(np.uint8),
-                              _NOISE_MEDIAN_PX).astype(np.float32)
+    images = ([] if image is None else [image]) + list(frames)
+    if images:
         radii = np.linspace(0.0, outer, _PROFILE_RADII)
-        phi = np.linspace(0.0, 2 * np.pi, _PROFILE_AZIMUTHS, endpoint=False)
-        c, d, e = model.affine
-        u = radii[:, None] * np.cos(phi)[None]
-        v = radii[:, None] * np.sin(phi)[None]
-        rows = (u * c + v * d + model.center[0]).astype(np.float32)
-        cols = (u * e + v + model.center[1]).astype(np.float32)
-        ring = cv2.remap(gray, cols, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        lit = (ring > config.dark_level).mean(axis=1) >= 0.5
-        if lit.any():
-            first = int(np.argmax(lit))
-            last = int(len(lit) - 1 - np.argmax(lit[::-1]))
-            # The inner edge is the end of the dark disk around the centre, the outer edge
-            # the last lit ring that is connected to it.
-            dark_after = np.flatnonzero(~lit[first:])
-            if dark_after.size:
-                last = min(last, first + int(dark_after[0]) - 1)
-            inner = float(radii[first]) + config.margin_px if first > 0 else 0.0
-            if last < len(lit) - 1:
-                outer = float(radii[last]) - config.margin_px
+        lit_fraction = np.median([_ring_lit_fractions(model, im, radii, config.dark_level) for im in images],
+                                 axis=0)
+        detected = _band_from_lit_rings(lit_fraction >= config.rim_lit_fraction, radii, config.margin_px)
+        if detected is None or detected[1] - max(detected[0], calib_inner) < \
+                config.min_band_fraction * (outer - calib_inner):
+            warnings.warn(f"no clear mirror band in the image (detected {detected}); using the "
+                          f"calibration's band {calib_inner:.1f}..{outer:.1f} px", stacklevel=2)
+        else:
+            inner, outer = detected[0], min(outer, detected[1])
     inner = max(inner, config.min_radius_fraction * outer)
     if config.radius_min_px is not None:
         inner = float(config.radius_min_px)
@@ -228,6 +260,51 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
         outer = float(config.radius_max_px)
     if not 0 <= inner < outer:
         raise ValueError(f"empty radius band: inner {inner:.1f} px >= outer {outer:.1f} px")
+    return inner, outer
+
+
+def panorama_config_with_band(model: OcamModel, frames: Sequence[np.ndarray], *,
+                              config: PanoramaConfig = PanoramaConfig()) -> PanoramaConfig:
+    """``config`` with the radius band decided from several frames of a sequence.
+
+    The band is :func:`radius_band` of all ``frames`` (rings judged on the
+    median over the frames, calibration's band as fallback), written into
+    ``radius_min_px`` and ``radius_max_px`` so that every method of a run
+    uses it and it is saved with the run's configuration. Radii the
+    configuration already fixes are kept; without frames ``config`` is
+    returned unchanged.
+
+    Parameters
+    ----------
+    model : OcamModel
+    frames : sequence of (H, W) or (H, W, 3) ndarray
+        A few frames spread over the sequence.
+    config : PanoramaConfig, keyword-only
+
+    Returns
+    -------
+    PanoramaConfig
+    """
+    if not len(frames) or (config.radius_min_px is not None and config.radius_max_px is not None):
+        return config
+    inner, outer = radius_band(model, frames[0], config=config, frames=frames[1:])
+    return replace(config, radius_min_px=inner if config.radius_min_px is None else config.radius_min_px,
+                   radius_max_px=outer if config.radius_max_px is None else config.radius_max_px)
+
+
+def _band_from_lit_rings(lit: np.ndarray, radii: np.ndarray, margin: float) -> tuple[float, float] | None:
+    """Inner and outer radius of the lit rings connected to the first one, or None if none is lit."""
+    if not lit.any():
+        return None
+    first = int(np.argmax(lit))
+    last = int(len(lit) - 1 - np.argmax(lit[::-1]))
+    # The inner edge is the end of the dark disk around the centre, the outer edge the last
+    # lit ring that is connected to it.
+    dark_after = np.flatnonzero(~lit[first:])
+    if dark_after.size:
+        last = min(last, first + int(dark_after[0]) - 1)
+    inner = float(radii[first]) + margin if first > 0 else 0.0
+    outer = float(radii[last]) - margin if last < len(lit) - 1 else float(radii[-1])
     return inner, outer
 
 

@@ -60,6 +60,18 @@ def build_parser() -> argparse.ArgumentParser:
                              help=f"{doc} (default {default})")
     degrade.add_argument("--seed", type=int, help="seed of noise and exposure walk (default 0)")
     degrade.add_argument("--no-progress", action="store_true", help="no progress bar")
+    warp = sub.add_parser("warp", help="turn one omni image into a pure-rotation sequence with exact "
+                          "ground truth (no Mitsuba needed)")
+    warp.add_argument("image", help="omni image (PNG/JPEG) of the calibration's size: frame 0")
+    warp.add_argument("--calib", required=True, help="its calib_results.txt (OCamCalib)")
+    warp.add_argument("--out", required=True, help="dataset folder to write (resumed if it exists)")
+    warp.add_argument("--frames", type=int, required=True, help="number of frames")
+    warp.add_argument("--seed", type=int, default=0, help="motion seed (default 0)")
+    warp.add_argument("--max-step-deg", type=float, default=3.0,
+                      help="largest rotation between frames, degrees (default 3)")
+    warp.add_argument("--max-tilt-deg", type=float, default=10.0,
+                      help="bound of roll and pitch, degrees (default 10)")
+    warp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("check-llvm", help="print the LLVM drjit will use, or how to install one")
     sub.add_parser("generators", help="list the [[objects]] generators of scene files and their parameters")
     return parser
@@ -91,6 +103,19 @@ def _render(args) -> int:
                             scheduler=args.scheduler)
     spf = (f", {result.seconds_per_frame:.2f} s/frame" if result.rendered else "")
     print(f"{result.out_dir}: {result.frames} frames ({result.rendered} rendered now{spf})")
+    return 0
+
+
+def _warp(args) -> int:
+    from .warp import WarpSettings, warp_dataset
+
+    try:
+        settings = WarpSettings(frames=args.frames, seed=args.seed, max_step_deg=args.max_step_deg,
+                                max_tilt_deg=args.max_tilt_deg)
+    except ValueError as exc:
+        raise InputError(args.image, str(exc)) from None
+    result = warp_dataset(args.image, args.calib, args.out, settings=settings, progress=not args.no_progress)
+    print(f"{result.out_dir}: {result.frames} frames ({result.written} written now)")
     return 0
 
 
@@ -133,7 +158,8 @@ class _InterruptFlag:
         raise KeyboardInterrupt
 
 
-COMMANDS = {"render": _render, "degrade": _degrade, "generators": _generators, "check-llvm": _check_llvm}
+COMMANDS = {"render": _render, "degrade": _degrade, "warp": _warp, "generators": _generators,
+            "check-llvm": _check_llvm}
 
 
 def _exit_status(exc: BaseException, *, interrupted: bool, command: str) -> int | None:

@@ -103,7 +103,8 @@ class CorruptFrontEnd(ExactFrontEnd):
 def test_consecutive_failures_never_become_references(keyframes):
     frames, truth = _frames(12, step=0.03)
     fe = CorruptFrontEnd(corrupt={4, 5, 6})
-    options = KeyframeOptions(enabled=keyframes, min_inliers=10, max_angle_rad=0.5)
+    # Three failures in a row stay below max_failures: the last good frame stays the reference.
+    options = KeyframeOptions(enabled=keyframes, min_inliers=10, max_angle_rad=0.5, max_failures=4)
     traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=options)
     assert [r.success for r in records] == [True] * 4 + [False] * 3 + [True] * 5
     # Failed frames hold the last good pose ...
@@ -127,7 +128,7 @@ def test_prediction_spans_failed_frames():
     frames, truth = _frames(9, step=0.03)
     fe = Recording(corrupt={4, 5})
     fe.priors = []
-    track_sequence(frames, fe, pose_options=POSE)
+    track_sequence(frames, fe, pose_options=POSE, keyframe=KeyframeOptions(max_failures=3))
     # Constant angular velocity: the prediction for frame 6 from frame 3 is exact.
     a, b, prior = [p for p in fe.priors if p[:2] == (3, 6)][0]
     assert geodesic_angle(truth[3].T @ truth[6], prior) < 1e-9
@@ -160,3 +161,21 @@ def test_each_finished_frame_is_reported_in_order():
                                    on_frame=seen.append)
     assert [r.frame for r in seen] == [0, 1, 2, 3, 4]
     assert seen == records and not seen[2].success
+
+
+def test_tracker_steps_frame_by_frame_with_a_given_pose_solver():
+    from ifmi.odometry import Tracker
+    from ifmi.relative_pose import relative_pose_from_rays
+
+    calls = []
+
+    def counting_solver(rays_a, rays_b, **kwargs):
+        calls.append(len(rays_a))
+        return relative_pose_from_rays(rays_a, rays_b, **kwargs)
+
+    frames, truth = _frames(6)
+    tracker = Tracker(ExactFrontEnd(), pose_options=POSE, pose_solver=counting_solver)
+    records = [tracker.step(frame) for frame in frames]
+    assert [r.frame for r in records] == list(range(6)) and all(r.success for r in records)
+    assert len(calls) == 5
+    assert np.max(geodesic_angle(truth, tracker.trajectory().rotations)) < 1e-9

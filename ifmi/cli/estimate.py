@@ -12,7 +12,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..errors import InputError
-from ..pipeline import EstimateConfig, estimate_dataset, method_names
+from ..pipeline import EstimateConfig, estimate_dataset, estimate_video, method_names
 
 __all__ = ["add_parser", "run", "config_from_args"]
 
@@ -25,7 +25,10 @@ def add_parser(subparsers) -> None:
                     "write a TUM trajectory plus NAME.frames.csv and NAME.config.json beside it. "
                     "A frame that fails keeps the previous orientation and is flagged.",
     )
-    p.add_argument("dataset", metavar="DATASET", help="dataset folder")
+    p.add_argument("dataset", metavar="DATASET",
+                   help="dataset folder, or a video file (.mp4, .avi, ...; needs --calib)")
+    p.add_argument("--calib", metavar="CALIB",
+                   help="calib_results.txt of a video's camera (timestamps come from the video)")
     p.add_argument("--method", default="ifmi", choices=method_names(), help="front end (default ifmi)")
     p.add_argument("--out", required=True, metavar="ESTIMATE", help="TUM file to write")
     p.add_argument("--config", metavar="JSON",
@@ -33,7 +36,7 @@ def add_parser(subparsers) -> None:
                         "to_dict() JSON); the options below override it")
     g = p.add_argument_group("panorama")
     g.add_argument("--width", type=int,
-                   help="panorama width in pixels (default: the band's circumference, at most 1024)")
+                   help="panorama width in pixels (default: the band's circumference, at most 2048)")
     g.add_argument("--height", type=int, help="panorama height in pixels (default: square pixels)")
     g.add_argument("--radius-min", type=float, metavar="PX", help="inner sensor radius of the band")
     g.add_argument("--radius-max", type=float, metavar="PX", help="outer sensor radius of the band")
@@ -67,7 +70,7 @@ def add_parser(subparsers) -> None:
                    help="switch keyframes past this rotation from the keyframe")
     g.add_argument("--max-failures", type=int, metavar="N",
                    help="after N failed frames in a row, restart from the current frame "
-                        "(default 10; 0 never)")
+                        "(default 2; 0 never)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -127,14 +130,23 @@ def run(args) -> int:
     out = Path(args.out)
     if out.is_dir():
         raise InputError(out, "output path is a folder; expected a TUM file name")
+    from ..io.video import is_video_path
+
+    video = is_video_path(args.dataset)
+    if video and not args.calib:
+        raise InputError(args.dataset, "a video needs --calib CALIB (calib_results.txt)")
     try:
-        estimate = estimate_dataset(args.dataset, method=args.method, config=config,
-                                    progress=not args.no_progress)
+        if video:
+            estimate = estimate_video(args.dataset, args.calib, method=args.method, config=config,
+                                      progress=not args.no_progress)
+        else:
+            estimate = estimate_dataset(args.dataset, method=args.method, config=config,
+                                        progress=not args.no_progress)
     except ValueError as exc:
         if isinstance(exc, InputError):
             raise
         raise InputError(args.dataset, str(exc)) from None
-    write_estimate_run(out, estimate, dataset_dir=args.dataset)
+    write_estimate_run(out, estimate, dataset_dir=None if video else args.dataset)
     failed = sum(not r.success for r in estimate.frames)
     print(f"{out}: {len(estimate.frames)} frames, {failed} failed")
     return 0

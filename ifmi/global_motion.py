@@ -1,0 +1,313 @@
+"""Coarse stage: the large part of a frame pair's rotation from whole low-resolution panoramas.
+
+Phase correlation on a tile only measures shifts below half a tile, so fast
+motion has to be removed before the tiles look. The panorama makes this
+cheap: a rotation about the mirror axis (yaw) is a circular horizontal
+shift of the whole panorama, and a tilt moves each azimuth sector up or down
+along a sinusoid of the azimuth. The coarse stage works on panoramas
+downsampled to ``GlobalMotionConfig.width`` columns:
+
+1. *yaw search*: frame b's panorama, warped by the current rotation, is
+   phase-correlated with frame a's over its whole width (Hann window along
+   the rows only, so the circular column shift of any yaw is found);
+2. *sector refinement*: the panoramas are cut into ``sectors`` full-height
+   azimuth sectors; each sector's shift ``(row, col)`` between a and b
+   (warped by the current rotation) turns its centre into a ray pair, and
+   the rotation follows from all pairs by a weighted least-squares fit
+   (Kabsch); sectors whose residual is far above the others' (parallax,
+   moving objects) are left out. Frame b is warped again with the new
+   rotation and the sectors measured again, ``iterations`` times.
+
+A rotation ``R_ab`` (frame-b directions to frame-a directions) is found
+whatever the yaw, and tilts up to about a quarter of the band's height per
+pass. Its accuracy is a fraction of a coarse pixel, enough for the tiles,
+which measure the remaining motion at full resolution.
+
+Panorama pixels are ``(row, col)``; the coarse panorama's pixel ``(i, j)``
+covers full-resolution ``((i + 0.5) s_r - 0.5, (j + 0.5) s_c - 0.5)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import scipy.fft
+
+from .phase_correlation import correlation_surface, find_peaks, normalized_cross_power, phase_correlation
+from .unwarp import PanoramaMapping, rays_from_panorama
+
+__all__ = ["GlobalMotionConfig", "GlobalMotion", "GlobalMotionEstimator", "rotation_from_ray_pairs"]
+
+
+@dataclass(frozen=True)
+class GlobalMotionConfig:
+    """Options of the coarse stage.
+
+    Attributes
+    ----------
+    width : int
+        Columns of the coarse panorama (360 degrees); the height keeps the
+        panorama's aspect. Capped at the panorama's own width.
+    sectors : int
+        Azimuth sectors measured for the tilt (at least 3 are needed for
+        a rotation; more average parallax and texture gaps).
+    iterations : int
+        Sector passes after the yaw search.
+    min_peak_ratio : float
+        A sector (or the yaw search) whose correlation peak ratio is below
+        this does not count.
+    min_sectors : int
+        Fewer counted sectors than this keeps the yaw search's rotation.
+    outlier_factor : float
+        A sector whose residual exceeds this many times the median residual
+        (and one coarse pixel) is left out of the final fit.
+    confirm_angle_rad : float
+        When the search from the first starting rotation moves it by more
+        than this (radians), the other starts are searched too and the best
+        match wins; a good prediction is only corrected by a few degrees,
+        while a wrong peak of a repetitive scene moves it far.
+    settled_shift_px : float
+        When the whole-panorama shift from a start is below this (coarse
+        pixels) along both axes, the start is returned as it is and the
+        sector passes are skipped (the usual case while tracking, which
+        keeps the stage cheap); a tilt error the whole-panorama shift does
+        not show is then left to the tiles, whose failure triggers the
+        search from the identity.
+    """
+
+    width: int = 128
+    sectors: int = 12
+    iterations: int = 2
+    min_peak_ratio: float = 1.2
+    min_sectors: int = 4
+    outlier_factor: float = 3.0
+    confirm_angle_rad: float = 0.1
+    settled_shift_px: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.width < 32 or self.sectors < 3 or self.iterations < 0:
+            raise ValueError(f"expected width >= 32, sectors >= 3, iterations >= 0; got "
+                             f"{self.width}, {self.sectors}, {self.iterations}")
+        if not 3 <= self.min_sectors <= self.sectors:
+            raise ValueError(f"expected 3 <= min_sectors <= sectors, got {self.min_sectors}, {self.sectors}")
+        if self.min_peak_ratio < 0 or not self.outlier_factor > 1 or not self.confirm_angle_rad > 0 \
+                or self.settled_shift_px < 0:
+            raise ValueError(f"expected min_peak_ratio >= 0, outlier_factor > 1, confirm_angle_rad > 0; got "
+                             f"{self.min_peak_ratio}, {self.outlier_factor}, {self.confirm_angle_rad}")
+
+
+@dataclass(frozen=True)
+class GlobalMotion:
+    """Result of :meth:`GlobalMotionEstimator.estimate`.
+
+    Attributes
+    ----------
+    rotation : (3, 3) ndarray
+        ``R_ab``; the starting rotation when ``success`` is false.
+    success : bool
+    reason : str
+        Empty on success.
+    yaw_peak_ratio : float
+        Peak ratio of the whole-panorama correlation.
+    n_sectors : int
+        Sectors used in the last fit (0 when only the yaw search counted).
+    score : float
+        Normalised cross-correlation of panorama a with panorama b warped
+        by ``rotation`` (1 for a perfect match of a pure rotation).
+    """
+
+    rotation: np.ndarray
+    success: bool
+    reason: str
+    yaw_peak_ratio: float
+    n_sectors: int
+    score: float
+
+
+def _angle(rotation: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def rotation_from_ray_pairs(rays_a: np.ndarray, rays_b: np.ndarray,
+                            weights: np.ndarray | None = None) -> np.ndarray:
+    """Rotation ``R`` minimising ``sum w |r_a - R r_b|^2`` (Kabsch).
+
+    Parameters
+    ----------
+    rays_a, rays_b : (N, 3) ndarray
+        Unit rays, ``N >= 2`` not all parallel.
+    weights : (N,) ndarray, optional
+        Non-negative; default all 1.
+
+    Returns
+    -------
+    (3, 3) ndarray
+    """
+    w = np.ones(len(rays_a)) if weights is None else np.asarray(weights, dtype=np.float64)
+    h = (rays_b * w[:, None]).T @ rays_a
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+
+
+class GlobalMotionEstimator:
+    """Coarse rotation between two panoramas of one :class:`~ifmi.unwarp.PanoramaMapping`.
+
+    Parameters
+    ----------
+    mapping : PanoramaMapping
+    config : GlobalMotionConfig, keyword-only
+    """
+
+    def __init__(self, mapping: PanoramaMapping, *, config: GlobalMotionConfig = GlobalMotionConfig()):
+        self.mapping = mapping
+        self.config = config
+        width = min(config.width, mapping.width)
+        height = max(8, int(round(mapping.height * width / mapping.width)))
+        self.shape = (height, width)
+        self.scale = np.array([mapping.height / height, mapping.width / width])
+        rows, cols = np.mgrid[0:height, 0:width].astype(np.float64)
+        self.rays32 = rays_from_panorama(mapping, self._full_from_coarse(np.stack([rows, cols], axis=-1))).astype(
+            np.float32)
+        self.sector_width = width // config.sectors
+        self.row_window = np.sin(np.pi * (np.arange(height) + 0.5) / height).astype(np.float32)[:, None] ** 2
+        # Sector centres (coarse (row, col)) and the sectors' first column.
+        self.sector_cols = (np.arange(config.sectors) * width) // config.sectors
+        self.sector_centres = np.stack([np.full(config.sectors, (height - 1) / 2.0),
+                                        self.sector_cols + (self.sector_width - 1) / 2.0], axis=1)
+
+    def _full_from_coarse(self, coarse: np.ndarray) -> np.ndarray:
+        return (coarse + 0.5) * self.scale - 0.5
+
+    def _coarse_from_full(self, full: np.ndarray) -> np.ndarray:
+        return (full + 0.5) / self.scale - 0.5
+
+    def coarse_panorama(self, panorama: np.ndarray) -> np.ndarray:
+        """Downsampled panorama ``(h, w)`` float32 of a full ``(height, width)`` one (area averaging)."""
+        if panorama.shape != (self.mapping.height, self.mapping.width):
+            raise ValueError(f"expected a panorama of shape {(self.mapping.height, self.mapping.width)}, "
+                             f"got {panorama.shape}")
+        return cv2.resize(panorama, self.shape[::-1], interpolation=cv2.INTER_AREA).astype(np.float32)
+
+    def warped(self, coarse_b: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+        """Coarse panorama of b resampled onto a's grid under ``R_ab`` (bilinear; rows past the band replicated)."""
+        if np.array_equal(rotation, np.eye(3)):
+            return coarse_b
+        # panorama_from_rays in float32 (a coarse pixel is far above its rounding), then coarse pixels.
+        rays = self.rays32 @ rotation.astype(np.float32)
+        x, y, z = rays[..., 0], rays[..., 1], rays[..., 2]
+        m = self.mapping
+        theta = np.arctan2(z, np.hypot(x, y))
+        rows = ((m.elevation_top_rad - theta) / m.elevation_step_rad + 0.5) / self.scale[0] - 0.5
+        cols = np.mod(np.arctan2(y, x) * (self.shape[1] / (2 * np.pi)), self.shape[1])
+        # Column of the coarse grid: (full + 0.5) / s - 0.5 with full = phi W / (2 pi).
+        cols = cols - 0.5 / self.scale[1] * (self.scale[1] - 1)
+        pad = 2
+        wrapped = np.concatenate([coarse_b[:, -pad:], coarse_b, coarse_b[:, :pad]], axis=1)
+        return cv2.remap(wrapped, (cols + pad).astype(np.float32), rows.astype(np.float32),
+                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    def _ray_pairs(self, centres: np.ndarray, shifts: np.ndarray, rotation: np.ndarray):
+        """Rays of a at ``centres`` and of b where a warped b shows them (``centres + shifts``)."""
+        rays_a = rays_from_panorama(self.mapping, self._full_from_coarse(centres))
+        rays_b = rays_from_panorama(self.mapping, self._full_from_coarse(centres + shifts)) @ rotation
+        return rays_a, rays_b
+
+    def _yaw_search(self, coarse_a: np.ndarray, warped_b: np.ndarray) -> tuple[np.ndarray, float]:
+        """Whole-panorama shift ``(row, col)`` of warped b against a, and its peak ratio."""
+        spectra = []
+        for image in (coarse_a, warped_b):
+            centred = (image - image.mean()) * self.row_window
+            spectra.append(scipy.fft.rfft2(centred)[None])
+        peaks = find_peaks(correlation_surface(normalized_cross_power(*spectra), self.shape))
+        return peaks.shift[0], float(peaks.peak_ratio[0])
+
+    def _sector_fit(self, coarse_a: np.ndarray, warped_b: np.ndarray, rotation: np.ndarray):
+        """Refined ``R_ab`` from the sector shifts, and the number of sectors used (None if too few)."""
+        c = self.config
+        cols = self.sector_cols[:, None] + np.arange(self.sector_width)
+        sectors_a = np.moveaxis(coarse_a[:, cols], 1, 0)
+        sectors_b = np.moveaxis(warped_b[:, cols], 1, 0)
+        shifts, peaks = phase_correlation(sectors_a, sectors_b, refine=False)
+        limit = np.array(self.shape[0:1] + (self.sector_width,)) / 2.0
+        ok = (peaks.peak_ratio >= c.min_peak_ratio) & np.all(np.abs(shifts) < limit, axis=1)
+        if ok.sum() < c.min_sectors:
+            return None, int(ok.sum())
+        rays_a, rays_b = self._ray_pairs(self.sector_centres[ok], shifts[ok], rotation)
+        weights = peaks.value[ok]
+        fitted = rotation_from_ray_pairs(rays_a, rays_b, weights)
+        residual = np.linalg.norm(rays_a - rays_b @ fitted.T, axis=1)
+        pixel = self.mapping.elevation_step_rad * self.scale[0]
+        keep = residual <= max(c.outlier_factor * np.median(residual), pixel)
+        if keep.sum() >= c.min_sectors and not keep.all():
+            fitted = rotation_from_ray_pairs(rays_a[keep], rays_b[keep], weights[keep])
+        return fitted, int(keep.sum())
+
+    def score(self, coarse_a: np.ndarray, warped_b: np.ndarray) -> float:
+        """Normalised cross-correlation of two coarse panoramas on one grid."""
+        a = coarse_a - coarse_a.mean()
+        b = warped_b - warped_b.mean()
+        norm = float(np.sqrt(np.vdot(a, a) * np.vdot(b, b)))
+        return float(np.vdot(a, b)) / norm if norm > 0 else 0.0
+
+    def estimate(self, coarse_a: np.ndarray, coarse_b: np.ndarray, *,
+                 priors: tuple = (None,)) -> GlobalMotion:
+        """Coarse ``R_ab`` of two coarse panoramas (:meth:`coarse_panorama`).
+
+        The search runs from the first starting rotation in ``priors``, and
+        from the others when it moved the first by more than
+        ``config.confirm_angle_rad``; the result whose warped panorama b
+        matches a best (:meth:`score`) is returned, and a start that matches
+        better than every search result is kept unchanged (a search that
+        locked onto a wrong peak of a repetitive scene does not replace a
+        good prediction).
+
+        Parameters
+        ----------
+        coarse_a, coarse_b : (h, w) float32 ndarray
+        priors : tuple of (3, 3) ndarray or None, keyword-only
+            Starting ``R_ab`` values (predictions); None is the identity.
+
+        Returns
+        -------
+        GlobalMotion
+        """
+        results = []
+        for prior in priors:
+            start = np.eye(3) if prior is None else np.asarray(prior, dtype=np.float64)
+            found = self._search(coarse_a, coarse_b, start)
+            results.append(found)
+            if len(results) == 1 and _angle(start.T @ found.rotation) <= self.config.confirm_angle_rad:
+                break
+            start_score = self.score(coarse_a, self.warped(coarse_b, start))
+            if start_score > found.score:
+                results.append(GlobalMotion(start, found.success, found.reason, found.yaw_peak_ratio, 0,
+                                            start_score))
+        return max(results, key=lambda result: (result.success, result.score))
+
+    def _search(self, coarse_a: np.ndarray, coarse_b: np.ndarray, start: np.ndarray) -> GlobalMotion:
+        """Yaw search and sector passes from ``start``."""
+        rotation = start
+        warped_b = self.warped(coarse_b, rotation)
+        shift, yaw_ratio = self._yaw_search(coarse_a, warped_b)
+        if yaw_ratio >= self.config.min_peak_ratio and np.all(np.abs(shift) < self.config.settled_shift_px):
+            # The start already lines the panoramas up; the tiles measure what is left.
+            return GlobalMotion(start, True, "", yaw_ratio, 0, self.score(coarse_a, warped_b))
+        shifts = np.broadcast_to(shift, self.sector_centres.shape)
+        rotation = rotation_from_ray_pairs(*self._ray_pairs(self.sector_centres, shifts, rotation))
+        used = 0
+        warped_b = self.warped(coarse_b, rotation)
+        for _ in range(self.config.iterations):
+            fitted, count = self._sector_fit(coarse_a, warped_b, rotation)
+            if fitted is None:
+                break
+            rotation, used = fitted, count
+            warped_b = self.warped(coarse_b, rotation)
+        score = self.score(coarse_a, warped_b)
+        if used == 0 and yaw_ratio < self.config.min_peak_ratio:
+            # Neither the whole panorama nor enough sectors agree on a motion.
+            return GlobalMotion(start, False, f"no clear whole-panorama peak (ratio {yaw_ratio:.2f}) "
+                                f"and fewer than {self.config.min_sectors} clear sectors", yaw_ratio, 0, score)
+        return GlobalMotion(rotation, True, "", yaw_ratio, used, score)
