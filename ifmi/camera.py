@@ -1,6 +1,24 @@
-"""OCamCalib (Scaramuzza) omnidirectional camera model.
+"""Camera-model protocol, and the OCamCalib (Scaramuzza) omnidirectional model.
 
-The model maps image pixels, given as ``(row, col)`` with 0-based integer pixel
+Every camera model of the project (this OCamCalib model and the Kalibr and
+equirectangular models of :mod:`ifmi.camera_models`) is a frozen object with
+
+* ``size`` ``(height, width)``, ``height``, ``width``;
+* ``rays_from_pixels(pixels)``: ``(..., 2)`` ``(row, col)`` -> ``(..., 3)``
+  unit rays in the model's own camera frame (NaN outside its domain);
+* ``pixels_from_rays(rays)``: ``(..., 3)`` -> ``(..., 2)`` ``(row, col)``
+  (NaN for rays it cannot image);
+* ``valid_pixels(pixels)``: ``(..., 2)`` -> ``(...,)`` bool, the valid image
+  region;
+* ``field_of_view_rad``: full angle of the cone about ``optical_axis`` that
+  the valid region sees (above pi for fisheyes beyond 180 degrees);
+* ``optical_axis``: ``(3,)`` camera-frame direction of the central ray;
+* ``scaled(factor)``: the same camera at another resolution.
+
+The module-level :func:`rays_from_pixels` and :func:`pixels_from_rays`
+accept any model (see :class:`CameraModel`).
+
+The OCamCalib model maps image pixels, given as ``(row, col)`` with 0-based integer pixel
 centres, to unit rays in the camera frame and back:
 
 * camera frame: x along image rows, y along image columns, z = x × y; for a
@@ -17,11 +35,17 @@ This module is pure math: reading and writing calibration files lives in
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 __all__ = [
+    "CameraModel",
     "OcamModel",
+    "valid_mask",
+    "measured_field_of_view",
+    "angles_from_axis",
     "rays_from_pixels",
     "pixels_from_rays",
     "elevation_from_radius",
@@ -31,6 +55,70 @@ __all__ = [
     "max_image_radius",
     "radius_from_pixels",
 ]
+
+
+@runtime_checkable
+class CameraModel(Protocol):
+    """What every camera model provides (see the module docstring)."""
+
+    size: tuple[int, int]
+
+    @property
+    def height(self) -> int: ...
+
+    @property
+    def width(self) -> int: ...
+
+    @property
+    def optical_axis(self) -> np.ndarray: ...
+
+    @property
+    def field_of_view_rad(self) -> float: ...
+
+    def rays_from_pixels(self, pixels) -> np.ndarray: ...
+
+    def pixels_from_rays(self, rays) -> np.ndarray: ...
+
+    def valid_pixels(self, pixels) -> np.ndarray: ...
+
+    def scaled(self, factor: float) -> "CameraModel": ...
+
+
+# Pixels whose lifted ray re-projects farther than this (px) are outside a model's valid region.
+VALID_ROUND_TRIP_PX = 1e-3
+
+
+def _image_grid(size: tuple[int, int]) -> np.ndarray:
+    rows, cols = np.mgrid[0:size[0], 0:size[1]]
+    return np.stack([rows, cols], axis=-1).astype(np.float64)
+
+
+def valid_mask(model) -> np.ndarray:
+    """``(H, W)`` bool mask of the valid image region of any camera model (rows, cols)."""
+    return model.valid_pixels(_image_grid(model.size))
+
+
+def angles_from_axis(rays: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Angle (radians) between ``(..., 3)`` rays and a ``(3,)`` axis; ``(...,)``; NaN stays NaN."""
+    rays = np.asarray(rays, dtype=np.float64)
+    norm = np.linalg.norm(rays, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = np.clip(rays @ np.asarray(axis, dtype=np.float64) / norm, -1.0, 1.0)
+    return np.arccos(cosine)
+
+
+def measured_field_of_view(model) -> float:
+    """Twice the largest angle between ``model.optical_axis`` and a valid pixel's ray (radians).
+
+    Every pixel centre of the image is lifted, so the value is exact to
+    within the angle of half a pixel.
+    """
+    grid = _image_grid(model.size)
+    valid = model.valid_pixels(grid)
+    if not valid.any():
+        raise ValueError("the camera model has no valid pixel in its image")
+    angles = angles_from_axis(model.rays_from_pixels(grid[valid]), model.optical_axis)
+    return float(2.0 * np.nanmax(angles))
 
 
 @dataclass(frozen=True)
@@ -89,6 +177,54 @@ class OcamModel:
     def width(self) -> int:
         return self.size[1]
 
+    @property
+    def optical_axis(self) -> np.ndarray:
+        """(3,) ray of the distortion centre: ``(0, 0, sign pol(0))`` (the mirror axis)."""
+        return np.array([0.0, 0.0, 1.0 if self.pol[0] >= 0 else -1.0])
+
+    def rays_from_pixels(self, pixels) -> np.ndarray:
+        """Unit rays ``(..., 3)`` of ``(row, col)`` pixels ``(..., 2)`` (:func:`rays_from_pixels`)."""
+        return rays_from_pixels(self, pixels)
+
+    def pixels_from_rays(self, rays) -> np.ndarray:
+        """``(row, col)`` pixels ``(..., 2)`` of rays ``(..., 3)`` (:func:`pixels_from_rays`)."""
+        return pixels_from_rays(self, rays)
+
+    def valid_pixels(self, pixels) -> np.ndarray:
+        """Valid image region: inside the image and within the calibration's invertible range.
+
+        Parameters
+        ----------
+        pixels : (..., 2) array_like
+            ``(row, col)``.
+
+        Returns
+        -------
+        (...,) bool ndarray
+            True inside the image whose sensor radius lies where the ray's
+            elevation grows with the radius (the direct polynomial is
+            invertible there) and whose ray re-projects onto it to 1e-3 px.
+        """
+        pixels = np.asarray(pixels, dtype=np.float64)
+        inside = ((pixels[..., 0] >= -0.5) & (pixels[..., 0] <= self.height - 0.5)
+                  & (pixels[..., 1] >= -0.5) & (pixels[..., 1] <= self.width - 0.5))
+        back = pixels_from_rays(self, rays_from_pixels(self, pixels))
+        close = np.hypot(back[..., 0] - pixels[..., 0], back[..., 1] - pixels[..., 1]) < VALID_ROUND_TRIP_PX
+        return inside & (radius_from_pixels(self, pixels) <= self.monotonic_radius) & close
+
+    @cached_property
+    def monotonic_radius(self) -> float:
+        """Largest sensor radius (px, up to the farthest image corner) where elevation still grows."""
+        limit = max_image_radius(self.size, self.center, self.affine)
+        r = np.linspace(0.0, limit, 4096)
+        grows = np.diff(elevation_from_radius(np.asarray(self.pol), r)) > 0
+        return limit if grows.all() else float(r[int(np.argmin(grows))])
+
+    @cached_property
+    def field_of_view_rad(self) -> float:
+        """Full angle (radians) about :attr:`optical_axis` seen by the valid region."""
+        return measured_field_of_view(self)
+
     def scaled(self, factor: float) -> "OcamModel":
         """Return the model of the same camera imaged at ``factor`` times the resolution.
 
@@ -134,11 +270,11 @@ def radius_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
 
 
 def rays_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
-    """Lift pixels to unit rays (OCamCalib ``cam2world``).
+    """Lift pixels to unit rays (OCamCalib ``cam2world``; other models: their own lifting).
 
     Parameters
     ----------
-    model : OcamModel
+    model : OcamModel or CameraModel
     pixels : (..., 2) array_like
         ``(row, col)`` coordinates, 0-based, pixel centres at integers.
 
@@ -147,6 +283,8 @@ def rays_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
     (..., 3) ndarray
         Unit rays ``(x, y, z)`` in the camera frame.
     """
+    if not isinstance(model, OcamModel):
+        return model.rays_from_pixels(pixels)
     pixels = np.asarray(pixels, dtype=np.float64)
     if pixels.shape[-1:] != (2,):
         raise ValueError(f"expected pixels of shape (..., 2), got {pixels.shape}")
@@ -158,11 +296,11 @@ def rays_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
 
 
 def pixels_from_rays(model: OcamModel, rays: np.ndarray) -> np.ndarray:
-    """Project rays to pixels (OCamCalib ``world2cam``).
+    """Project rays to pixels (OCamCalib ``world2cam``; other models: their own projection).
 
     Parameters
     ----------
-    model : OcamModel
+    model : OcamModel or CameraModel
     rays : (..., 3) array_like
         Directions in the camera frame; need not be normalised.
 
@@ -172,6 +310,8 @@ def pixels_from_rays(model: OcamModel, rays: np.ndarray) -> np.ndarray:
         ``(row, col)`` pixel coordinates. Rays along the z axis land on the
         centre.
     """
+    if not isinstance(model, OcamModel):
+        return model.pixels_from_rays(rays)
     rays = np.asarray(rays, dtype=np.float64)
     if rays.shape[-1:] != (3,):
         raise ValueError(f"expected rays of shape (..., 3), got {rays.shape}")

@@ -73,7 +73,8 @@ class FeatureConfig:
     radius_band : (2,) tuple of float or None
         Override of the mirror band ``(inner, outer)`` radius in sensor
         pixels; ``None`` uses the iFMI front end's default band for the
-        calibration and images.
+        calibration and images. OCamCalib models only: other models detect
+        in their panorama's band (:func:`ifmi.unwarp.band_mask`).
     mask_margin_px : float
         Keypoints are detected only this far (pixels) inside the band's
         edges, so no descriptor window reaches the black border or the
@@ -197,8 +198,8 @@ class FeatureFrontEnd:
 
     Parameters
     ----------
-    model : OcamModel
-        Calibration of the omni images.
+    model : OcamModel or ifmi.camera.CameraModel
+        Calibration of the images; keypoints are lifted to rays through it.
     detector : {"orb", "akaze"}
     config : FeatureConfig, keyword-only
     panorama : ifmi.unwarp.PanoramaConfig, optional, keyword-only
@@ -237,6 +238,12 @@ class FeatureFrontEnd:
 
     def mask(self, image: np.ndarray) -> np.ndarray:
         """``(H, W)`` uint8 detection mask: 255 inside the mirror band, 0 elsewhere."""
+        if self._mask is None and not isinstance(self.model, OcamModel):
+            # Other models: the pixels whose rays lie in the panorama's band (valid region, FOV).
+            from .unwarp import band_mask
+
+            self._mask = np.where(band_mask(self._panorama_mapping(image),
+                                            margin_px=self.config.mask_margin_px), 255, 0).astype(np.uint8)
         if self._mask is None:
             inner, outer = self.band(image)
             h, w = self.model.size
@@ -311,19 +318,28 @@ class FeatureFrontEnd:
         return xy[:, ::-1].copy(), descriptors
 
     def _detect_on_panorama(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        from dataclasses import replace
+        from .unwarp import omni_from_panorama, panorama_from_omni
 
-        from .unwarp import omni_from_panorama, panorama_from_omni, panorama_mapping
-
-        if self._mapping is None:
-            inner, outer = self.band(gray)
-            band_config = replace(self.panorama_config, radius_min_px=inner, radius_max_px=outer)
-            self._mapping = panorama_mapping(self.model, gray, config=band_config)
-        panorama = np.clip(panorama_from_omni(gray, self._mapping) + 0.5, 0, 255).astype(np.uint8)
+        mapping = self._panorama_mapping(gray)
+        panorama = np.clip(panorama_from_omni(gray, mapping) + 0.5, 0, 255).astype(np.uint8)
         pano_pixels, descriptors = self._detect(panorama, None)
         if not len(pano_pixels):
             return pano_pixels, descriptors
-        return omni_from_panorama(self._mapping, pano_pixels), descriptors
+        return omni_from_panorama(mapping, pano_pixels), descriptors
+
+    def _panorama_mapping(self, gray: np.ndarray):
+        """The band's panorama (built on first use): OCamCalib from the radius band, others from the model."""
+        from dataclasses import replace
+
+        from .unwarp import panorama_mapping
+
+        if self._mapping is None:
+            config = self.panorama_config
+            if isinstance(self.model, OcamModel):
+                inner, outer = self.band(gray)
+                config = replace(config, radius_min_px=inner, radius_max_px=outer)
+            self._mapping = panorama_mapping(self.model, gray, config=config)
+        return self._mapping
 
 
 def _feature_config(config) -> FeatureConfig:

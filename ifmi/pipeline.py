@@ -245,6 +245,9 @@ def angular_pixel_size(model: OcamModel, *, band: tuple[float, float] | None = N
     from .camera import rays_from_pixels
     from .unwarp import PanoramaConfig, radius_band
 
+    if not isinstance(model, OcamModel):  # other camera models: over their panorama's band
+        from .unwarp import angular_pixel_size_in_band
+        return angular_pixel_size_in_band(model, config=panorama if panorama is not None else PanoramaConfig())
     if band is None:
         band = radius_band(model, config=panorama if panorama is not None else PanoramaConfig())
     inner, outer = (float(v) for v in band)
@@ -389,10 +392,10 @@ def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike,
         Missing or unreadable calibration or video, or frames whose size
         differs from the calibration's.
     """
-    from .io.calib import read_calib
+    from .io.camera_file import read_camera
     from .io.video import VideoFrames
 
-    model = read_calib(Path(calib_path))
+    model = read_camera(Path(calib_path))  # calib_results.txt or a Kalibr camera.yaml
     frames = VideoFrames(video_path, size=model.size)
     estimate = estimate_sequence(frames, model, method=method, config=config, progress=progress,
                                  total=len(frames) or None)

@@ -17,6 +17,16 @@ scale follows the mirror's distortion.
 
 Pixel coordinates are ``(row, col)``, 0-based, pixel centres at integers, in
 both the omni image and the panorama.
+
+Other camera models (:mod:`ifmi.camera_models`: Kalibr fisheyes, pinhole,
+equirectangular) are sampled the same way along their own rays: azimuth and
+elevation are taken about the model's ``panorama_axis`` (its optical axis,
+or up for an equirectangular camera), and the band of elevations follows
+from the model's valid region and field of view instead of a radius band.
+A fisheye looking along z sees elevations from ``90 deg - FOV/2`` (below the
+horizon when the field of view exceeds 180 degrees) up to the band's inner
+edge, at ``min_radius_fraction`` of the way out from the axis. See
+:func:`off_axis_band`.
 """
 
 from __future__ import annotations
@@ -28,13 +38,17 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from .camera import OcamModel, elevation_from_radius, pixels_from_rays, rays_from_pixels
+from .camera import OcamModel, angles_from_axis, elevation_from_radius, pixels_from_rays, rays_from_pixels
 
 __all__ = [
     "PanoramaConfig",
     "PanoramaMapping",
     "radius_band",
     "panorama_config_with_band",
+    "off_axis_band",
+    "panorama_axis_rotation",
+    "band_mask",
+    "angular_pixel_size_in_band",
     "panorama_mapping",
     "panorama_from_omni",
     "wrapped_panorama_maps",
@@ -50,6 +64,9 @@ _PROFILE_AZIMUTHS = 256
 _PROFILE_RADII = 256
 # Aperture (pixels) of the median filter applied before the band is detected.
 _NOISE_MEDIAN_PX = 5
+# Off-axis angles and azimuths probed to find the band a general camera model images fully.
+_BAND_ANGLES = 721
+_BAND_AZIMUTHS = 360
 
 
 @dataclass(frozen=True)
@@ -134,11 +151,15 @@ class PanoramaMapping:
     elevation_step_rad : float
         Elevation decrease per row, radians (> 0).
     radius_band_px : (float, float)
-        Sensor radii of the band's inner and outer edge, pixels.
+        Sensor radii of the band's inner and outer edge, pixels (OCamCalib
+        models; NaN for other models, whose band is ``off_axis_band_rad``).
     map_rows, map_cols : (height, width) float32 ndarray
         Omni-image ``(row, col)`` sampled by each panorama pixel (remap maps).
     fixed_maps : tuple of ndarray
         The same maps in OpenCV's fixed-point form (faster remapping).
+    camera_from_panorama : (3, 3) ndarray or None
+        Rotation from the panorama's frame (z the azimuth axis) to the
+        camera frame; None is the identity (OCamCalib: the mirror axis z).
     """
 
     model: OcamModel
@@ -150,6 +171,7 @@ class PanoramaMapping:
     map_rows: np.ndarray
     map_cols: np.ndarray
     fixed_maps: tuple = ()
+    camera_from_panorama: np.ndarray | None = None
 
 
 def gray_from_image(image: np.ndarray) -> np.ndarray:
@@ -276,7 +298,9 @@ def panorama_config_with_band(model: OcamModel, frames: Sequence[np.ndarray], *,
 
     Parameters
     ----------
-    model : OcamModel
+    model : OcamModel or CameraModel
+        Other models than OCamCalib get ``config`` back unchanged: their
+        band comes from their valid region (:func:`off_axis_band`).
     frames : sequence of (H, W) or (H, W, 3) ndarray
         A few frames spread over the sequence.
     config : PanoramaConfig, keyword-only
@@ -286,6 +310,8 @@ def panorama_config_with_band(model: OcamModel, frames: Sequence[np.ndarray], *,
     PanoramaConfig
     """
     if not len(frames) or (config.radius_min_px is not None and config.radius_max_px is not None):
+        return config
+    if not isinstance(model, OcamModel):  # other models: the band follows from the model (off_axis_band)
         return config
     inner, outer = radius_band(model, frames[0], config=config, frames=frames[1:])
     return replace(config, radius_min_px=inner if config.radius_min_px is None else config.radius_min_px,
@@ -323,6 +349,8 @@ def panorama_mapping(model: OcamModel, image: np.ndarray | None = None, *,
     -------
     PanoramaMapping
     """
+    if not isinstance(model, OcamModel):
+        return _model_panorama_mapping(model, config)
     inner, outer = radius_band(model, image, config=config)
     pol = np.asarray(model.pol)
     theta_lo, theta_hi = (float(v) for v in elevation_from_radius(pol, np.array([inner, outer])))
@@ -433,7 +461,10 @@ def rays_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.
     theta = mapping.elevation_top_rad - pano_pixels[..., 0] * mapping.elevation_step_rad
     phi = pano_pixels[..., 1] * (2 * np.pi / mapping.width)
     ct = np.cos(theta)
-    return np.stack([ct * np.cos(phi), ct * np.sin(phi), np.sin(theta)], axis=-1)
+    rays = np.stack([ct * np.cos(phi), ct * np.sin(phi), np.sin(theta)], axis=-1)
+    if mapping.camera_from_panorama is not None:
+        rays = rays @ mapping.camera_from_panorama.T
+    return rays
 
 
 def panorama_from_rays(mapping: PanoramaMapping, rays: np.ndarray) -> np.ndarray:
@@ -451,6 +482,8 @@ def panorama_from_rays(mapping: PanoramaMapping, rays: np.ndarray) -> np.ndarray
         Rows outside ``[0, height - 1]`` are outside the band.
     """
     rays = np.asarray(rays, dtype=np.float64)
+    if mapping.camera_from_panorama is not None:
+        rays = rays @ mapping.camera_from_panorama
     theta = np.arctan2(rays[..., 2], np.hypot(rays[..., 0], rays[..., 1]))
     phi = np.mod(np.arctan2(rays[..., 1], rays[..., 0]), 2 * np.pi)
     row = (mapping.elevation_top_rad - theta) / mapping.elevation_step_rad
@@ -487,3 +520,160 @@ def panorama_from_omni_pixels(mapping: PanoramaMapping, omni_pixels: np.ndarray)
         Rows outside ``[0, height - 1]`` are outside the band.
     """
     return panorama_from_rays(mapping, rays_from_pixels(mapping.model, omni_pixels))
+
+
+def panorama_axis_rotation(model) -> np.ndarray:
+    """Rotation (3, 3) from a panorama frame whose z is ``model``'s panorama axis to the camera frame.
+
+    The axis is ``model.panorama_axis`` when the model names one (up for an
+    equirectangular camera), else its ``optical_axis``. Columns of the
+    result are the panorama frame's x, y, z in camera coordinates; for an
+    axis along +z it is the identity, for -z a half turn about x.
+    """
+    axis = np.asarray(getattr(model, "panorama_axis", model.optical_axis), dtype=np.float64)
+    z = axis / np.linalg.norm(axis)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    x = helper - z * (helper @ z)
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def _circle_pixels(model, rotation: np.ndarray, angles: np.ndarray, azimuths: np.ndarray) -> np.ndarray:
+    """Pixels ``(A, Z, 2)`` of the rays at off-axis ``angles`` (A,) and ``azimuths`` (Z,) about the axis."""
+    sa, ca = np.sin(angles)[:, None], np.cos(angles)[:, None]
+    local = np.stack([sa * np.cos(azimuths)[None], sa * np.sin(azimuths)[None],
+                      np.broadcast_to(ca, (len(angles), len(azimuths)))], axis=-1)
+    return model.pixels_from_rays(local @ rotation.T)
+
+
+def off_axis_band(model, *, config: PanoramaConfig = PanoramaConfig()) -> tuple[float, float]:
+    """Off-axis angles ``(inner, outer)`` (radians) of the band a non-OCamCalib model images fully.
+
+    Rings of rays at a fixed angle from the panorama axis are probed from 0
+    to pi; a ring counts when every ray of it projects to a valid pixel at
+    least ``config.margin_px`` inside the image. The band is the longest run
+    of such rings, trimmed so that its inner edge is at least
+    ``config.min_radius_fraction`` of a right angle (nor of the run's
+    extent) from the axis and its outer edge as far from the opposite pole:
+    near either pole a panorama row would oversample a tiny circle. For a
+    fisheye along z the outer edge is half its field of view (less than
+    90 degrees below 180 degrees of view, more above it).
+
+    Returns
+    -------
+    (float, float)
+        Inner and outer angle from the axis, radians.
+    """
+    if config.radius_min_px is not None or config.radius_max_px is not None:
+        raise ValueError("radius_min_px / radius_max_px apply to OCamCalib models only")
+    rotation = panorama_axis_rotation(model)
+    angles = np.linspace(0.0, np.pi, _BAND_ANGLES)
+    azimuths = np.linspace(0.0, 2 * np.pi, _BAND_AZIMUTHS, endpoint=False)
+    pixels = _circle_pixels(model, rotation, angles, azimuths)
+    m = config.margin_px
+    # Columns of a 360-degree image wrap around, so its left and right edges are no border.
+    m_col = -0.5 if getattr(model, "wraps_columns", False) else m
+    with np.errstate(invalid="ignore"):
+        inside = ((pixels[..., 0] >= m - 0.5) & (pixels[..., 0] <= model.height - 0.5 - m)
+                  & (pixels[..., 1] >= m_col - 0.5) & (pixels[..., 1] <= model.width - 0.5 - m_col))
+    ok = inside.copy()
+    ok[inside] = model.valid_pixels(pixels[inside])
+    ring_ok = ok.all(axis=1)
+    if not ring_ok.any():
+        raise ValueError("the camera model images no full ring of rays about its axis")
+    # Longest run of consecutive good rings.
+    edges = np.diff(np.concatenate([[0], ring_ok.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    best = int(np.argmax(stops - starts))
+    first, last = float(angles[starts[best]]), float(angles[stops[best]])
+    pole_gap = config.min_radius_fraction * min(last, 0.5 * np.pi)
+    inner = max(first, pole_gap)
+    outer = min(last, np.pi - pole_gap)
+    if not inner < outer:
+        raise ValueError(f"empty band: inner {np.degrees(inner):.1f} deg >= outer {np.degrees(outer):.1f} deg")
+    return inner, outer
+
+
+def _panorama_size(config: PanoramaConfig, circumference: float, theta_lo: float,
+                   theta_hi: float) -> tuple[int, int]:
+    if config.width is None:
+        width = int(min(config.max_auto_width, max(64, 64 * round(circumference / 64))))
+    else:
+        width = int(config.width)
+    if config.height is None:
+        closest = 0.0 if theta_lo <= 0 <= theta_hi else min(abs(theta_lo), abs(theta_hi))
+        height = int(round(width * (theta_hi - theta_lo) / (2 * np.pi * np.cos(closest))))
+        height = max(8, min(height, width))
+    else:
+        height = int(config.height)
+    return width, height
+
+
+def _model_panorama_mapping(model, config: PanoramaConfig) -> PanoramaMapping:
+    """Panorama grid of a non-OCamCalib model along its own rays (see :func:`off_axis_band`)."""
+    inner, outer = off_axis_band(model, config=config)
+    rotation = panorama_axis_rotation(model)
+    # Image circumference of the band's middle ring sets the automatic width.
+    ring = _circle_pixels(model, rotation, np.array([0.5 * (inner + outer)]),
+                          np.linspace(0.0, 2 * np.pi, _BAND_AZIMUTHS + 1))[0]
+    circumference = float(np.sum(np.hypot(*np.diff(ring, axis=0).T)))
+    theta_lo, theta_hi = 0.5 * np.pi - outer, 0.5 * np.pi - inner
+    width, height = _panorama_size(config, circumference, theta_lo, theta_hi)
+    step = (theta_hi - theta_lo) / max(height - 1, 1)
+    mapping = PanoramaMapping(
+        model=model, width=width, height=height, elevation_top_rad=theta_hi, elevation_step_rad=step,
+        radius_band_px=(float("nan"), float("nan")), map_rows=np.zeros((0, 0), np.float32),
+        map_cols=np.zeros((0, 0), np.float32), camera_from_panorama=rotation)
+    rows, cols = np.mgrid[0:height, 0:width]
+    pixels = pixels_from_rays(model, rays_from_panorama(mapping, np.stack([rows, cols], axis=-1)))
+    pixels = np.nan_to_num(pixels, nan=-1.0).astype(np.float32)
+    map_rows, map_cols = np.ascontiguousarray(pixels[..., 0]), np.ascontiguousarray(pixels[..., 1])
+    return replace(mapping, map_rows=map_rows, map_cols=map_cols,
+                   fixed_maps=cv2.convertMaps(map_cols, map_rows, cv2.CV_16SC2))
+
+
+def band_mask(mapping: PanoramaMapping, *, margin_px: float = 0.0) -> np.ndarray:
+    """``(H, W)`` bool mask of the omni-image pixels (rows, cols) whose rays lie in the panorama's band.
+
+    Pixels outside the model's valid region are excluded; the mask is
+    eroded by ``margin_px`` pixels (a disc), so that a descriptor window
+    around a kept pixel stays inside the band.
+    """
+    model = mapping.model
+    rows, cols = np.mgrid[0:model.height, 0:model.width]
+    pixels = np.stack([rows, cols], axis=-1).astype(np.float64)
+    axis = np.array([0.0, 0.0, 1.0]) if mapping.camera_from_panorama is None \
+        else mapping.camera_from_panorama[:, 2]
+    theta = 0.5 * np.pi - angles_from_axis(rays_from_pixels(model, pixels), axis)
+    bottom = mapping.elevation_top_rad - (mapping.height - 1) * mapping.elevation_step_rad
+    with np.errstate(invalid="ignore"):
+        mask = (theta <= mapping.elevation_top_rad) & (theta >= bottom) & model.valid_pixels(pixels)
+    radius = int(np.ceil(margin_px))
+    if radius > 0:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        mask = cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    return mask
+
+
+# Panorama points (per axis) at which the pixel angle of a general model is measured.
+_PIXEL_ANGLE_SAMPLES = 16
+
+
+def angular_pixel_size_in_band(model, *, config: PanoramaConfig = PanoramaConfig()) -> float:
+    """Angle (radians) one image pixel subtends in the panorama band of a camera model.
+
+    At a grid of points over the band (:func:`panorama_mapping` of the model
+    alone) the angles between the ray of the point's image pixel and the
+    rays one pixel further along the rows and the columns are measured; the
+    result is the median of their geometric mean.
+    """
+    mapping = panorama_mapping(model, config=config)
+    rows = np.linspace(0, mapping.height - 1, _PIXEL_ANGLE_SAMPLES).astype(int)
+    cols = np.linspace(0, mapping.width - 1, _PIXEL_ANGLE_SAMPLES, endpoint=False).astype(int)
+    base = np.stack([mapping.map_rows[np.ix_(rows, cols)], mapping.map_cols[np.ix_(rows, cols)]],
+                    axis=-1).reshape(-1, 2).astype(np.float64)
+    steps = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    rays = rays_from_pixels(model, base[:, None, :] + steps)
+    along_row = np.arccos(np.clip(np.sum(rays[:, 0] * rays[:, 1], axis=-1), -1.0, 1.0))
+    along_col = np.arccos(np.clip(np.sum(rays[:, 0] * rays[:, 2], axis=-1), -1.0, 1.0))
+    return float(np.nanmedian(np.sqrt(along_row * along_col)))

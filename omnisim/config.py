@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import sys
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 from ifmi.camera import OcamModel, model_from_direct_polynomial
@@ -154,11 +154,13 @@ class CaptureSettings:
 
 @dataclass(frozen=True)
 class CameraTable:
-    """``[camera]`` as written: a calibration file, or a direct polynomial with centre and size.
+    """``[camera]`` as written: a Kalibr file, an OCamCalib file, or a direct polynomial with centre and size.
 
     All lengths in sensor-plane pixels of the calibration's own size.
     """
 
+    kalibr: str = setting("", "Kalibr camchain camera.yaml (relative to the scene file); replaces every "
+                              "other key")
     calib: str = setting("", "OCamCalib calib_results.txt (relative to the scene file)")
     pol: tuple[float, ...] | None = setting(None, "cam2world polynomial, lowest degree first")
     center: tuple[float, float] | None = setting(None, "(row, col) of the image centre, pixels")
@@ -170,6 +172,12 @@ class CameraTable:
 
     def __post_init__(self):
         check_fields(self)
+        if self.kalibr:
+            for f in fields(self):
+                if f.name != "kalibr" and getattr(self, f.name) != f.default:
+                    raise SettingError(f.name, "not used with 'kalibr' (the Kalibr file is the whole camera; "
+                                               "its valid region bounds the image)")
+            return
         if not self.calib:
             for key in ("pol", "center", "size"):
                 if getattr(self, key) is None:
@@ -180,7 +188,11 @@ class CameraTable:
 
 @dataclass(frozen=True)
 class CameraSettings:
-    """Calibration at the render resolution and the mirror band (sensor-plane pixels)."""
+    """Calibration at the render resolution and the mirror band (sensor-plane pixels).
+
+    ``model`` is an OCamCalib model or, from ``kalibr = "camera.yaml"``, a
+    model of :mod:`ifmi.camera_models` (band 0..inf: its valid region bounds the image).
+    """
 
     model: OcamModel
     radius_min: float
@@ -224,13 +236,20 @@ class SceneConfig:
             "render": asdict(self.render),
             "trajectory": asdict(self.trajectory),
             "effects": asdict(self.effects),
-            "camera": {"pol": list(self.camera.model.pol), "invpol": list(self.camera.model.invpol),
-                       "center": list(self.camera.model.center),
-                       "affine": list(self.camera.model.affine), "size": list(self.camera.model.size),
-                       "radius_min": self.camera.radius_min, "radius_max": self.camera.radius_max},
+            "camera": self._camera_dict(),
             **({"capture": asdict(self.capture)} if self.capture != CaptureSettings() else {}),
             **({"assets": [[Path(file).name, sha] for file, sha in self.assets]} if self.assets else {}),
         }
+
+    def _camera_dict(self) -> dict:
+        if not isinstance(self.camera.model, OcamModel):
+            from ifmi.io.kalibr import kalibr_fields
+
+            return {"kalibr": kalibr_fields(self.camera.model)}
+        model = self.camera.model
+        return {"pol": list(model.pol), "invpol": list(model.invpol), "center": list(model.center),
+                "affine": list(model.affine), "size": list(model.size),
+                "radius_min": self.camera.radius_min, "radius_max": self.camera.radius_max}
 
 
 # Top-level tables of a scene file and what each holds.
@@ -281,6 +300,8 @@ def _camera(path: Path, table, resolution) -> CameraSettings:
     from ifmi.io.calib import read_calib
 
     spec = settings_from_table(CameraTable, table, path=path, section="[camera]")
+    if spec.kalibr:
+        return _kalibr_camera(path, spec.kalibr, resolution)
     if spec.calib:
         model = read_calib(_relative_file(path, spec.calib, "[camera] calib"))
     else:
@@ -302,6 +323,23 @@ def _camera(path: Path, table, resolution) -> CameraSettings:
         model = model.scaled(factor_h)
         radius_min, radius_max = radius_min * factor_h, radius_max * factor_h
     return CameraSettings(model=model, radius_min=radius_min, radius_max=radius_max)
+
+
+def _kalibr_camera(path: Path, name: str, resolution) -> CameraSettings:
+    """``[camera] kalibr = "camera.yaml"``: a Kalibr camchain scaled to the render ``resolution``."""
+    from ifmi.io.kalibr import read_kalibr
+
+    # Not checked for existence here: read_kalibr names the YAML file in its own errors.
+    model = read_kalibr(Path(name) if Path(name).is_absolute() else (path.parent / name).absolute())
+    height, width = resolution
+    # The width sets the scale; the height must be the calibration's, scaled and rounded.
+    factor = width / model.width
+    if int(round(model.height * factor)) != height:
+        raise InputError(path, f"[render] resolution: expected the calibration's aspect "
+                               f"{model.height}x{model.width} (height x width), got {height}x{width}")
+    if abs(factor - 1.0) > 1e-12:
+        model = model.scaled(factor)
+    return CameraSettings(model=model, radius_min=0.0, radius_max=float("inf"))
 
 
 def _named_tables(path: Path, data: dict, section: str) -> dict:

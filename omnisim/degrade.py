@@ -131,7 +131,7 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
     meta.update({"source": str(dataset.root.resolve()), "effects": asdict(effects), "seed": int(seed),
                  "frames": len(names), "versions": package_versions(("numpy", "opencv-python-headless",
                                                                      "omnisim-ifmi"))})
-    atomic_write_bytes(out_dir / "calib_results.txt", dataset.calib_path.read_bytes())
+    atomic_write_bytes(out_dir / dataset.calib_path.name, dataset.calib_path.read_bytes())
     if dataset.groundtruth_path is not None:
         atomic_write_bytes(out_dir / "groundtruth.txt", dataset.groundtruth_path.read_bytes())
     source_meta = dataset.root / "meta.json"

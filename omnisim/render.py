@@ -1,6 +1,7 @@
 """Render scene files into dataset folders (images, calibration, ground truth, provenance).
 
-A dataset folder holds ``calib_results.txt``, ``images/NNNNNN.png`` (8-bit
+A dataset folder holds ``calib_results.txt`` (or ``camera.yaml`` for a Kalibr
+camera), ``images/NNNNNN.png`` (8-bit
 RGB), ``groundtruth.txt`` (TUM, camera k in camera 0), ``poses_world.txt``
 (TUM, camera-to-world) and ``meta.json``; optionally ``depth/`` and
 ``normal/`` (:mod:`omnisim.aov`) and, with rolling shutter, per-row poses in
@@ -27,7 +28,7 @@ import numpy as np
 
 from ifmi.errors import InputError, OutputError
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
-from ifmi.io.calib import write_calib
+from ifmi.io.camera_file import write_camera
 from ifmi.io.provenance import package_versions
 from ifmi.io.tum import format_tum, write_tum
 
@@ -42,13 +43,39 @@ from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
 
 __all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
            "check_output_folder", "open_output_folder", "pending_images", "set_sensor_pose", "FramePlan",
-           "FrameRenderer", "frame_file_names", "render_frame_files", "frame_plan", "frame_results"]
+           "FrameRenderer", "frame_file_names", "render_frame_files", "frame_plan", "frame_results",
+           "poses_in_model_frame"]
 
 # Format version of meta.json; bumped when its meaning changes.
 META_FORMAT = 1
 # Version of the rendering code; bumped whenever the same inputs would give other pixels,
 # so an old folder is refused instead of being completed with differently made frames.
 RENDERER_VERSION = 3
+
+
+def poses_in_model_frame(poses: WorldPoses, model) -> WorldPoses:
+    """Poses of the camera model's own frame, so that ground truth is in the frame of the dataset's model.
+
+    Trajectories are generated for a body whose z axis is up when level, the
+    axis about which it mostly turns (yaw): an OCamCalib camera's mirror
+    axis, whose frame is used as is (its central pixel looks down). A Kalibr
+    model (x along columns, y down the image, z the optical axis) is mounted
+    the same way, looking straight down: its optical axis is the body's -z
+    and its x the body's x, ``R_wc(model) = R_wc(body) diag(1, -1, -1)``, so
+    that yaw turns the image about its centre as for the catadioptric
+    camera. An equirectangular camera (z forward, -y up) is mounted level:
+    its z is the body's x and its -y the body's z.
+    """
+    from ifmi.camera import OcamModel
+    from ifmi.camera_models import EquirectangularModel
+
+    if isinstance(model, OcamModel):
+        return poses
+    if isinstance(model, EquirectangularModel):
+        mount = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    else:
+        mount = np.diag([1.0, -1.0, -1.0])
+    return WorldPoses(rotations=poses.rotations @ mount, positions=poses.positions)
 
 
 def frame_seed(seed: int, frame: int) -> int:
@@ -378,9 +405,10 @@ def _trajectory_samples(config: SceneConfig, seed: int) -> WorldPoses:
     """Poses at the frame times; a timed capture needs the pose after the last frame too."""
     settings = config.trajectory
     if not config.capture.timed:
-        return poses_for_settings(settings, seed=seed)
+        return poses_in_model_frame(poses_for_settings(settings, seed=seed), config.camera.model)
     try:
-        return poses_for_settings(replace(settings, frames=settings.frames + 1), seed=seed)
+        poses = poses_for_settings(replace(settings, frames=settings.frames + 1), seed=seed)
+        return poses_in_model_frame(poses, config.camera.model)
     except InputError as exc:
         raise InputError(exc.path, f"{exc.problem} (motion blur and rolling shutter interpolate "
                                    "towards the pose after the last frame)") from None
@@ -579,7 +607,7 @@ def _open_dataset(scene_path, out_dir: Path, config: SceneConfig, seed: int, var
         "versions": _versions(),
         "capture": asdict(config.capture),
     })
-    write_calib(out_dir / "calib_results.txt", config.camera.model)
+    write_camera(out_dir, config.camera.model)  # calib_results.txt or camera.yaml
     rows = _write_ground_truth(out_dir, config, trajectory)
     if rows:
         meta["rolling_shutter"] = rows

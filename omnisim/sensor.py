@@ -1,4 +1,9 @@
-"""Mitsuba sensor plugin ``omnicam``: the OCamCalib camera model, exactly.
+"""Mitsuba sensor plugin ``omnicam``: the OCamCalib camera model, and every other model, exactly.
+
+Kalibr and equirectangular models (:mod:`ifmi.camera_models`) take the same
+route with their own pixel->direction code (:mod:`omnisim.camera_rays`),
+chosen by the ``camera_model`` property; their parameters are one opaque
+list ``params``, and samples outside the model's valid region are black.
 
 Each film sample is mapped to a ``(row, col)`` pixel coordinate (film x is the
 column, film y the row; pixel centres at integers, so the film position
@@ -28,6 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ifmi.camera import OcamModel
+
 __all__ = ["PLUGIN_NAME", "register_omni_sensor", "sensor_dict", "to_world_matrix"]
 
 PLUGIN_NAME = "omnicam"
@@ -56,12 +63,13 @@ def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: f
 
     Parameters
     ----------
-    model : OcamModel
+    model : OcamModel or ifmi.camera.CameraModel
         Calibration; the film gets its ``size`` (height rows, width columns).
     to_world : (4, 4) ndarray, keyword-only
         Camera-to-world transform (camera frame of the model).
     radius_min, radius_max : float, keyword-only
-        Mirror band in sensor-plane pixels; outside it pixels are black.
+        Mirror band in sensor-plane pixels; outside it pixels are black
+        (OCamCalib only; other models are black outside their valid region).
     spp : int, keyword-only
         Samples per pixel.
     sampler : str, keyword-only
@@ -75,8 +83,15 @@ def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: f
         none for an instantaneous global shutter.
     """
     height, width = model.size
-    c, d, e = model.affine
     sampler_dict = {"type": sampler, "sample_count": int(spp), "seed": int(seed)}
+    if not isinstance(model, OcamModel):
+        from .camera_rays import ray_kind, ray_parameters
+
+        return {"type": PLUGIN_NAME, "camera_model": ray_kind(model),
+                "params": " ".join(repr(v) for v in ray_parameters(model)),
+                "to_world": mi.ScalarTransform4f(np.asarray(to_world, dtype=np.float64).tolist()),
+                "film": _film_dict(width, height), "sampler": sampler_dict, **(timing or {})}
+    c, d, e = model.affine
     return {
         "type": PLUGIN_NAME,
         "pol": " ".join(repr(float(v)) for v in model.pol),
@@ -86,13 +101,15 @@ def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: f
         "radius_min": float(radius_min),
         "radius_max": float(radius_max),
         "to_world": mi.ScalarTransform4f(np.asarray(to_world, dtype=np.float64).tolist()),
-        "film": {
-            "type": "hdrfilm", "width": int(width), "height": int(height),
-            "rfilter": {"type": "box"}, "pixel_format": "rgb",
-        },
+        "film": _film_dict(width, height),
         "sampler": sampler_dict,
         **(timing or {}),
     }
+
+
+def _film_dict(width: int, height: int) -> dict:
+    return {"type": "hdrfilm", "width": int(width), "height": int(height),
+            "rfilter": {"type": "box"}, "pixel_format": "rgb"}
 
 
 def register_omni_sensor(mi) -> None:
@@ -108,6 +125,10 @@ def register_omni_sensor(mi) -> None:
             super().__init__(props)
             # A pinhole-like viewpoint: no aperture sample is drawn (as Mitsuba's perspective camera).
             self.m_needs_sample_3 = False
+            self.camera_model = props.get("camera_model", "ocamcalib")
+            if self.camera_model != "ocamcalib":
+                self._init_model_params(props)
+                return
             pol = _parse_floats(props.get("pol", "1"))
             if len(pol) < 1:
                 raise ValueError("omnicam: 'pol' needs at least one coefficient")
@@ -127,24 +148,56 @@ def register_omni_sensor(mi) -> None:
             self.timing = RayTiming(mi, props, self.film().size().y, matrix)
             self._make_opaque()
 
+        def _init_model_params(self, props):
+            from .camera_rays import RAY_KINDS, parameter_count
+
+            if self.camera_model not in RAY_KINDS:
+                raise ValueError(f"omnicam: unknown camera_model {self.camera_model!r}; expected "
+                                 f"ocamcalib or one of {RAY_KINDS}")
+            values = _parse_floats(props.get("params", ""))
+            self.n_coeffs = parameter_count(self.camera_model)
+            if len(values) != self.n_coeffs:
+                raise ValueError(f"omnicam: {self.camera_model} expects {self.n_coeffs} params, "
+                                 f"got {len(values)}")
+            self.params = mi.Float(values)
+            matrix = np.eye(4, dtype=np.float32)
+            if "to_world" in props:
+                matrix = np.array(props["to_world"].matrix, dtype=np.float32)
+            self.to_world = mi.Transform4f(np.ascontiguousarray(matrix))
+            self.timing = RayTiming(mi, props, self.film().size().y, matrix)
+            self._make_opaque()
+
         def _make_opaque(self):
-            dr.make_opaque(self.pol, self.center, self.affine, self.band, self.to_world)
-            # One width-1 opaque variable per coefficient: a kernel parameter, not a per-lane gather.
-            self._coeffs = [dr.gather(mi.Float, self.pol, i) for i in range(self.n_coeffs)]
+            if self.camera_model != "ocamcalib":
+                from .camera_rays import scalar_count
+
+                dr.make_opaque(self.params, self.to_world)
+                # Scalars as width-1 opaque variables; a model's lookup table is read from params itself.
+                self._coeffs = [dr.gather(mi.Float, self.params, i) for i in range(scalar_count(self.camera_model))]
+            else:
+                dr.make_opaque(self.pol, self.center, self.affine, self.band, self.to_world)
+                # One width-1 opaque variable per coefficient: a kernel parameter, not a per-lane gather.
+                self._coeffs = [dr.gather(mi.Float, self.pol, i) for i in range(self.n_coeffs)]
             dr.make_opaque(*self._coeffs)
             if self.timing.enabled:
                 self.timing.update(self.to_world)
 
         def traverse(self, callback):
             callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
-            callback.put("pol", self.pol, mi.ParamFlags.NonDifferentiable)
-            callback.put("center", self.center, mi.ParamFlags.NonDifferentiable)
-            callback.put("affine", self.affine, mi.ParamFlags.NonDifferentiable)
-            callback.put("band", self.band, mi.ParamFlags.NonDifferentiable)
+            if self.camera_model != "ocamcalib":
+                callback.put("params", self.params, mi.ParamFlags.NonDifferentiable)
+            else:
+                callback.put("pol", self.pol, mi.ParamFlags.NonDifferentiable)
+                callback.put("center", self.center, mi.ParamFlags.NonDifferentiable)
+                callback.put("affine", self.affine, mi.ParamFlags.NonDifferentiable)
+                callback.put("band", self.band, mi.ParamFlags.NonDifferentiable)
             self.timing.traverse(callback)
 
         def parameters_changed(self, keys=None):
-            if dr.width(self.pol) != self.n_coeffs:
+            if self.camera_model != "ocamcalib" and dr.width(self.params) != self.n_coeffs:
+                raise ValueError(f"omnicam: expected {self.n_coeffs} {self.camera_model} params, "
+                                 f"got {dr.width(self.params)}")
+            if self.camera_model == "ocamcalib" and dr.width(self.pol) != self.n_coeffs:
                 raise ValueError(f"omnicam: expected {self.n_coeffs} polynomial coefficients "
                                  f"(zero-padded), got {dr.width(self.pol)}")
             self._make_opaque()
@@ -156,6 +209,10 @@ def register_omni_sensor(mi) -> None:
             # Film position in pixels; pixel centres sit at x + 0.5, hence the shift.
             col = dr.fma(sample2.x, crop_size.x, crop_offset.x - 0.5)
             row = dr.fma(sample2.y, crop_size.y, crop_offset.y - 0.5)
+            if self.camera_model != "ocamcalib":
+                from .camera_rays import rays_from_film
+
+                return rays_from_film(dr, mi, self.camera_model, self._coeffs, self.params, row, col)
             c, d, e = self.affine.x, self.affine.y, self.affine.z
             inv_det = dr.rcp(c - d * e)
             dr_ = row - self.center.x
@@ -191,6 +248,6 @@ def register_omni_sensor(mi) -> None:
             return ray_diff, weight
 
         def to_string(self):
-            return f"OmniSensor[n_coeffs={self.n_coeffs}]"
+            return f"OmniSensor[{self.camera_model}, n_coeffs={self.n_coeffs}]"
 
     mi.register_sensor(PLUGIN_NAME, lambda props: OmniSensor(props))

@@ -291,3 +291,8 @@ def test_identity_of_a_plain_scene_is_unchanged_by_the_new_tables(tmp_path):
     """Folders rendered before [capture] and asset hashes existed keep their identity."""
     settings = load_scene_config(_write(tmp_path, BASE)).settings_dict()
     assert set(settings) == {"render", "trajectory", "effects", "camera"}
+
+
+def test_camera_table_lists_kalibr_among_its_keys(tmp_path):
+    with pytest.raises(InputError, match=r"\[camera\] kalibrr: unknown key; accepted keys: kalibr, calib, pol"):
+        load_scene_config(_write(tmp_path, BASE.replace("[camera]\n", '[camera]\nkalibrr = "c.yaml"\n')))

@@ -16,7 +16,7 @@ from ..errors import InputError, OutputError
 __all__ = ["main"]
 
 # Subcommand modules, in the order ``ifmi --help`` lists them.
-_SUBCOMMANDS = ("estimate", "evaluate", "sweep", "report")
+_SUBCOMMANDS = ("estimate", "evaluate", "sweep", "report", "convert_calib")
 
 
 def build_parser() -> argparse.ArgumentParser:

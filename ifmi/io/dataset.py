@@ -20,7 +20,7 @@ import numpy as np
 from ..camera import OcamModel
 from ..errors import InputError
 from ..odometry import MissingFrame
-from .calib import read_calib
+from .camera_file import calibration_path, read_camera
 
 __all__ = ["Dataset", "read_dataset", "read_image", "IMAGE_SUFFIXES"]
 
@@ -144,10 +144,8 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     root = Path(path)
     if not root.is_dir():
         raise InputError(root, "dataset folder not found")
-    calib_path = root / "calib_results.txt"
-    if not calib_path.is_file():
-        raise InputError(calib_path, "calibration file not found")
-    model = read_calib(calib_path)
+    calib_path = calibration_path(root)  # calib_results.txt or camera.yaml, never both
+    model = read_camera(calib_path)
     image_dir = root / "images"
     if not image_dir.is_dir():
         raise InputError(image_dir, "images folder not found")

@@ -1,0 +1,241 @@
+"""Every camera model: render cost against Mitsuba's perspective sensor, and the estimator's ATE.
+
+Render ratio: each model's sensor (omnicam, with the model's drjit ray code)
+and the built-in perspective sensor render the same scene with the same film
+size (the model's image size), box filter, sampler and spp, alternately in
+one process after a warm-up (JIT compilation excluded); printed is the
+ratio of the fastest frames (and the median of back-to-back ratios; target <= 1.05). Two scenes: a uniform emitting sphere
+around the camera, where every traced ray costs the same, so the ratio
+isolates the sensor's own cost (pixels outside a model's valid region are
+not traced and cost less; their share is printed); and the urban scene
+(scenes/urban.toml), for information, where the two cameras see different
+parts of the scene. A distortion-free Kalibr pinhole posed like the
+perspective camera traces exactly its rays (same-rays row).
+
+Ray generation: the cost of each sensor's ``sample_ray`` alone, per million
+rays, against the perspective sensor's (no scene).
+
+ATE: for each model a scene (default the urban one, ``--scene``) is rendered with ``[camera] kalibr`` (a
+pure-rotation sequence, the camera mounted as omnisim mounts that model),
+estimated with ``ifmi estimate`` (ifmi, orb, akaze), and the geodesic ATE
+(RMS of the geodesic angle of R_gt^T R_est over the frames, radians) is printed.
+
+Run: python benchmarks/bench_models.py [--width 384] [--spp 16] [--frames 12] [--repeats 5]
+     [--out /work/data/cameras/bench]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+from camera_examples import EXAMPLES  # noqa: E402  (the example calibrations of the tests)
+
+# Models benchmarked: every Kalibr model and the equirectangular camera.
+MODELS = ("omni-radtan", "omni-wide", "pinhole-radtan", "eucm", "ds", "kb", "equirectangular")
+
+
+def _time_ratio(mi, scene, spp: int, repeats: int) -> tuple[float, float]:
+    """Render time of sensor 0 over sensor 1: (ratio of the fastest frames, median of back-to-back ratios).
+
+    On a shared machine the load changes from second to second; the fastest
+    of several frames and back-to-back pairs are the least disturbed measures.
+    """
+    handles = scene.sensors()
+    for index in (0, 1):  # warm-up: compile each kernel
+        for _ in range(2):
+            mi.render(scene, sensor=handles[index], spp=spp, seed=1)
+    seconds = [[], []]
+    for k in range(repeats):
+        # Alternate which sensor goes first, so a load trend favours neither.
+        for index in ((0, 1) if k % 2 == 0 else (1, 0)):
+            start = time.perf_counter()
+            np.array(mi.render(scene, sensor=handles[index], spp=spp, seed=1))
+            seconds[index].append(time.perf_counter() - start)
+    pairs = [a / b for a, b in zip(*seconds)]
+    return min(seconds[0]) / min(seconds[1]), statistics.median(pairs)
+
+
+def _perspective(mi, size, spp, sampler, origin, fov_deg=90.0) -> dict:
+    height, width = size
+    return {"type": "perspective", "fov": fov_deg, "fov_axis": "x",
+            "to_world": mi.ScalarTransform4f().look_at(origin=list(origin), target=list(origin + [1.0, 0, 0]),
+                                                       up=[0, 0, 1]),
+            "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"},
+                     "pixel_format": "rgb"},
+            "sampler": {"type": sampler, "sample_count": spp}}
+
+
+def _benchmark_models(width: int) -> dict:
+    """The example models at ``width`` px, and a distortion-free pinhole with the perspective camera's rays."""
+    from ifmi.camera_models import PinholeModel
+
+    models = {name: EXAMPLES[name].scaled(width / EXAMPLES[name].width) for name in MODELS}
+    size = models["pinhole-radtan"].size
+    f = size[1] / 2.0  # 90 degrees across the width, as the perspective camera
+    models["pinhole, same rays"] = PinholeModel.create((f, f), ((size[1] - 1) / 2, (size[0] - 1) / 2), size)
+    return models
+
+
+def render_ratios(args) -> dict:
+    """Median render time ratio model / perspective per model, in the uniform sphere and the urban scene."""
+    from ifmi.camera import valid_mask
+    from omnisim.config import load_scene_config
+    from omnisim.llvm import import_mitsuba
+    from omnisim.scene import build_scene_dict
+    from omnisim.sensor import register_omni_sensor, sensor_dict, to_world_matrix
+
+    config = load_scene_config(ROOT / "scenes" / "urban.toml", spp=args.spp)
+    mi = import_mitsuba(config.render.variant or None)
+    register_omni_sensor(mi)
+    origin = np.asarray(config.trajectory.position, dtype=np.float64)
+    # Kalibr frame looking along world +x with image rows down: x -> -y_w, y -> -z_w, z -> +x_w.
+    forward = to_world_matrix(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]), origin)
+    models = _benchmark_models(args.width)
+    ratios = {}
+    for name, model in models.items():
+        sensors = [sensor_dict(model, to_world=forward, radius_min=0.0, radius_max=float("inf"), spp=args.spp,
+                               sampler=config.render.sampler, mi=mi),
+                   _perspective(mi, model.size, args.spp, config.render.sampler, origin)]
+        shell = {"type": "sphere", "radius": 20.0, "flip_normals": True, "center": origin.tolist(),
+                 "bsdf": {"type": "diffuse"},
+                 "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}}
+        uniform = {"type": "scene", "integrator": {"type": "path", "max_depth": config.render.max_depth},
+                   "sensor": sensors[0], "sensor_1": sensors[1], "shell": shell}
+        urban = dict(build_scene_dict(config, mi, sensor=sensors[0]), sensor_1=sensors[1])
+        row = {"valid": float(valid_mask(model).mean())}
+        for label, scene_dict in (("uniform", uniform), ("urban", urban)):
+            row[label], row[label + " pairs"] = _time_ratio(mi, mi.load_dict(scene_dict), args.spp, args.repeats)
+        ratios[name] = row
+        print(f"  {name:22s} {model.width}x{model.height}: render ratio model/perspective "
+              f"{row['uniform']:.3f} (uniform sphere; median of pairs {row['uniform pairs']:.3f}), "
+              f"{row['urban']:.3f} (urban, different view; pairs {row['urban pairs']:.3f}); "
+              f"valid pixels {100 * row['valid']:.0f} %", flush=True)
+    return ratios
+
+
+def ray_costs(args) -> dict:
+    """Seconds per million camera rays of each sensor's ``sample_ray`` alone, over the perspective sensor's.
+
+    The same film-sample batch goes through each sensor and is evaluated
+    (``dr.eval``), alternately, fastest of ``repeats``: the sensor's own
+    cost, with no scene to trace.
+    """
+    from omnisim.llvm import import_mitsuba
+    from omnisim.sensor import register_omni_sensor, sensor_dict
+
+    mi = import_mitsuba()  # selects drjit's LLVM before drjit is first imported
+    import drjit as dr
+    register_omni_sensor(mi)
+    origin = np.zeros(3)
+    rng = np.random.default_rng(0)
+    samples = rng.random((2, args.ray_batch)).astype(np.float32)
+    results = {}
+    for name, model in _benchmark_models(args.width).items():
+        sensors = [mi.load_dict(sensor_dict(model, to_world=np.eye(4), radius_min=0.0, radius_max=float("inf"),
+                                            spp=1, mi=mi)),
+                   mi.load_dict(_perspective(mi, model.size, 1, "independent", origin))]
+        sample2 = mi.Point2f(samples[0], samples[1])
+        times = [[], []]
+        for k in range(args.repeats + 2):
+            for index, sensor in enumerate(sensors):
+                start = time.perf_counter()
+                ray, weight = sensor.sample_ray(0.0, 0.5, sample2, mi.Point2f(0.5, 0.5))
+                dr.eval(ray, weight)
+                dr.sync_thread()
+                if k >= 2:  # the first two compile
+                    times[index].append(time.perf_counter() - start)
+        per_million = [1e6 * min(t) / args.ray_batch for t in times]
+        results[name] = per_million[0] / per_million[1]
+        print(f"  {name:22s} ray generation: {1e3 * per_million[0]:.2f} ms per million rays, perspective "
+              f"{1e3 * per_million[1]:.2f} ms: ratio {results[name]:.2f}", flush=True)
+    return results
+
+
+def _kalibr_scene(folder: Path, model, scene_file) -> Path:
+    from ifmi.io.kalibr import write_kalibr
+
+    out, skipping = [], False
+    for line in Path(scene_file).read_text().splitlines():
+        if line.startswith("["):
+            skipping = line.strip() == "[camera]"
+            if skipping:
+                out += ["[camera]", 'kalibr = "camera.yaml"', ""]
+                continue
+        if not skipping:
+            out.append(line)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_kalibr(folder / "camera.yaml", model)
+    (folder / "scene.toml").write_text("\n".join(out) + "\n")
+    return folder / "scene.toml"
+
+
+def estimator_ates(args) -> dict:
+    """Geodesic ATE (rad) of ifmi, orb and akaze per model on a rendered urban sequence."""
+    from ifmi.io.tum import read_tum
+    from ifmi.pipeline import estimate_dataset
+    from ifmi.rotations import geodesic_angle
+    from omnisim.render import render_dataset
+
+    ates = {}
+    for name in args.models:
+        model = EXAMPLES[name]
+        folder = Path(args.out) / f"{Path(args.scene).stem}-{name}-{args.width}px-{args.spp}spp"
+        scene = _kalibr_scene(folder, model, args.scene)
+        render_dataset(scene, folder / "dataset", frames=args.frames, spp=args.spp,
+                       resolution=model.scaled(args.width / model.width).size, progress=False)
+        gt = read_tum(folder / "dataset" / "groundtruth.txt")
+        row = {}
+        for method in ("ifmi", "orb", "akaze"):
+            est = estimate_dataset(folder / "dataset", method=method)
+            err = geodesic_angle(gt.rotations, est.trajectory.rotations)
+            row[method] = (float(np.sqrt(np.mean(err ** 2))), sum(not r.success for r in est.frames))
+        ates[name] = row
+        print(f"  {name:22s} ATE (rad): " + ", ".join(f"{m} {a:.4f} ({f} failed)" for m, (a, f) in row.items()),
+              flush=True)
+    return ates
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--width", type=int, default=384, help="image width of every model, px")
+    parser.add_argument("--spp", type=int, default=16)
+    parser.add_argument("--frames", type=int, default=12)
+    parser.add_argument("--repeats", type=int, default=9)
+    parser.add_argument("--out", default="/work/data/cameras/bench", help="folder for the rendered datasets")
+    parser.add_argument("--scene", default=str(ROOT / "scenes" / "urban.toml"),
+                        help="scene of the ATE sequences (its [camera] table is replaced)")
+    parser.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS,
+                        help="models of the ATE sequences")
+    parser.add_argument("--ray-batch", type=int, default=4_000_000, help="rays per sample_ray timing")
+    parser.add_argument("--skip-render-ratio", action="store_true")
+    parser.add_argument("--skip-ate", action="store_true")
+    args = parser.parse_args()
+    print(f"camera models at {args.width} px width, {args.spp} spp")
+    ratios = {} if args.skip_render_ratio else render_ratios(args)
+    if not args.skip_render_ratio:
+        ray_costs(args)
+    ates = {} if args.skip_ate else estimator_ates(args)
+    print(f"\nsummary ({args.frames} frames, {Path(args.scene).stem} scene, pure rotation):")
+    print(f"  {'model':22s} {'ratio (uniform)':>16s} {'ratio (urban)':>14s} {'ifmi ATE rad':>13s} "
+          f"{'orb ATE rad':>12s} {'akaze ATE rad':>14s}")
+    for name in dict.fromkeys([*ratios, *ates]):
+        r, a = ratios.get(name, {}), ates.get(name, {})
+        cells = [f"{r[k]:16.3f}" if k in r else f"{'-':>16s}" for k in ("uniform",)]
+        cells += [f"{r['urban']:14.3f}" if "urban" in r else f"{'-':>14s}"]
+        cells += [f"{a[m][0]:{w}.4f}" if m in a else f"{'-':>{w}s}" for m, w in (("ifmi", 13), ("orb", 12),
+                                                                                 ("akaze", 14))]
+        print(f"  {name:22s} " + " ".join(cells))
+    print("target: render ratio <= 1.05; ATE < 0.01 rad")
+
+
+if __name__ == "__main__":
+    main()

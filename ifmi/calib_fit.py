@@ -1,0 +1,207 @@
+"""Fit one camera model to another: the same camera, expressed in a different model.
+
+Pixels are sampled over the source model's valid region and lifted to rays;
+the target model's parameters are found by least squares
+(``scipy.optimize.least_squares``) so that it projects those rays back onto
+the same pixels. Both models share the image size.
+
+Frames: the OCamCalib frame (x along rows, y along columns, z the mirror
+axis; the central pixel looks along -z) and the Kalibr frame (x along
+columns, y along rows, z the optical axis) differ by a fixed half turn,
+``(x, y, z)_kalibr = (y, x, -z)_ocam``; rays are carried across it, so a
+converted model sees the same scene point at the same pixel.
+
+Targets (:data:`TARGETS`): ``omni`` (unified + radtan), ``pinhole``
+(+ radtan), ``kb`` (Kannala-Brandt), ``eucm``, ``ds`` and ``ocamcalib``
+(direct polynomial of degree 4 without the linear term, as OCamCalib fits,
+with its centre and affine part; the inverse polynomial is refitted).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .camera import OcamModel, model_from_direct_polynomial, valid_mask
+from .camera_models import (
+    DoubleSphereModel,
+    ExtendedUnifiedModel,
+    KannalaBrandtModel,
+    PinholeModel,
+    UnifiedModel,
+)
+
+__all__ = ["TARGETS", "CalibrationFit", "fit_camera_model", "reprojection_errors", "rays_in_frame_of"]
+
+TARGETS = ("omni", "pinhole", "kb", "eucm", "ds", "ocamcalib")
+# OCamCalib frame -> Kalibr frame (a proper rotation, its own inverse).
+_OCAM_TO_KALIBR = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+# Residual (px) given to a sample the target cannot project, so the fit moves away from it.
+_UNSEEN_RESIDUAL_PX = 1e3
+# Samples per image side of the fitting grid, and the stride (px) of the error grid.
+_FIT_GRID = 60
+_CHECK_STRIDE_PX = 2
+
+
+@dataclass(frozen=True)
+class CalibrationFit:
+    """Result of :func:`fit_camera_model`.
+
+    Attributes
+    ----------
+    model : camera model
+        The fitted target model.
+    max_error_px, median_error_px : float
+        Reprojection error of the source's rays through the fitted model,
+        over the source's valid region (every second pixel), pixels.
+    coverage : float
+        Fraction of those pixels the fitted model sees at all (1.0 when it
+        can represent the whole valid region).
+    success : bool
+    reason : str
+    """
+
+    model: object
+    max_error_px: float
+    median_error_px: float
+    coverage: float
+    success: bool
+    reason: str = ""
+
+
+def rays_in_frame_of(rays: np.ndarray, source, target) -> np.ndarray:
+    """``(..., 3)`` rays of ``source``'s frame expressed in ``target``'s frame.
+
+    ``source`` and ``target`` are models, or ``"ocamcalib"`` / ``"kalibr"`` naming a frame.
+    """
+    def is_ocam(model):
+        return model == "ocamcalib" if isinstance(model, str) else isinstance(model, OcamModel)
+
+    if is_ocam(source) == is_ocam(target):
+        return rays
+    return rays @ _OCAM_TO_KALIBR.T
+
+
+def _samples(model, per_side: int) -> np.ndarray:
+    rows = np.linspace(0, model.height - 1, per_side)
+    cols = np.linspace(0, model.width - 1, per_side)
+    grid = np.stack(np.meshgrid(rows, cols, indexing="ij"), axis=-1).reshape(-1, 2)
+    return grid[model.valid_pixels(grid)]
+
+
+def reprojection_errors(source, target, pixels: np.ndarray) -> np.ndarray:
+    """``(N,)`` distance (px) between ``pixels`` (N, 2) of ``source`` and the target's projection of their rays.
+
+    NaN where the target cannot project the ray.
+    """
+    rays = rays_in_frame_of(source.rays_from_pixels(pixels), source, target)
+    return np.hypot(*(target.pixels_from_rays(rays) - pixels).T)
+
+
+def _axis_pixel_and_scale(source) -> tuple[np.ndarray, float]:
+    """Pixel (row, col) of the source's optical axis, and its focal scale there (px per radian)."""
+    centre = source.pixels_from_rays(source.optical_axis)
+    ray0, ray1 = source.rays_from_pixels(np.array([centre, centre + [0.0, 1.0]]))
+    return centre, 1.0 / np.arccos(np.clip(ray0 @ ray1, -1.0, 1.0))
+
+
+def _kalibr_builder(kind: str, size):
+    """(initial parameters given (pp, f), model from parameters) for a Kalibr target."""
+    def split(p, k):
+        return (p[k], p[k + 1]), (p[k + 2], p[k + 3])
+
+    if kind == "omni":
+        return (lambda pp, f: [1.0, 2 * f, 2 * f, *pp, 0, 0, 0, 0],
+                lambda p: UnifiedModel(max(p[0], 0.0), *split(p, 1), size, tuple(p[5:9])))
+    if kind == "pinhole":
+        return (lambda pp, f: [f, f, *pp, 0, 0, 0, 0],
+                lambda p: PinholeModel.create(*split(p, 0), size, tuple(p[4:8])))
+    if kind == "kb":
+        return (lambda pp, f: [f, f, *pp, 0, 0, 0, 0],
+                lambda p: KannalaBrandtModel(*split(p, 0), size, tuple(p[4:8])))
+    if kind == "eucm":
+        return (lambda pp, f: [0.6, 1.0, f, f, *pp],
+                lambda p: ExtendedUnifiedModel(np.clip(p[0], 0, 1), max(p[1], 1e-6), *split(p, 2), size))
+    if kind == "ds":
+        return (lambda pp, f: [0.0, 0.6, f, f, *pp],
+                lambda p: DoubleSphereModel(p[0], np.clip(p[1], 0, 1), *split(p, 2), size))
+    raise ValueError(f"unknown target model {kind!r}; expected one of {TARGETS}")
+
+
+def _fit_kalibr(source, kind: str, pixels: np.ndarray):
+    initial, build = _kalibr_builder(kind, source.size)
+    centre, scale = _axis_pixel_and_scale(source)
+    rays = rays_in_frame_of(source.rays_from_pixels(pixels), source, "kalibr")
+
+    def residuals(p):
+        try:
+            projected = build(p).pixels_from_rays(rays)
+        except ValueError:
+            return np.full(2 * len(pixels), _UNSEEN_RESIDUAL_PX)
+        return np.nan_to_num((projected - pixels).ravel(), nan=_UNSEEN_RESIDUAL_PX)
+
+    # Principal point (u, v) = (col, row) of the axis pixel.
+    start = np.asarray(initial((centre[1], centre[0]), scale), dtype=np.float64)
+    solution = least_squares(residuals, start, method="lm", x_scale="jac", max_nfev=4000)
+    return build(solution.x)
+
+
+def _fit_ocamcalib(source, pixels: np.ndarray) -> OcamModel:
+    rays = rays_in_frame_of(source.rays_from_pixels(pixels), source, "ocamcalib")
+    centre, scale = _axis_pixel_and_scale(source)
+
+    def build(p):
+        pol = (p[5], 0.0, p[6], p[7], p[8])
+        return OcamModel(pol=pol, invpol=(1.0,), center=(p[0], p[1]), affine=(p[2], p[3], p[4]), size=source.size)
+
+    def residuals(p):
+        model = build(p)
+        lifted = model.rays_from_pixels(pixels)
+        # Angle residuals in pixels at the centre's scale (the inverse polynomial is fitted afterwards).
+        return (np.cross(lifted, rays) * scale).ravel()
+
+    start = np.array([centre[0], centre[1], 1.0, 0.0, 0.0, -scale, 0.0, 0.0, 0.0])
+    solution = least_squares(residuals, start, method="lm", x_scale="jac", max_nfev=4000)
+    p = solution.x
+    return model_from_direct_polynomial((p[5], 0.0, p[6], p[7], p[8]), center=(p[0], p[1]), size=source.size,
+                                        affine=(p[2], p[3], p[4]))
+
+
+def fit_camera_model(source, target: str) -> CalibrationFit:
+    """Fit a ``target`` model (one of :data:`TARGETS`) to the ``source`` camera model.
+
+    Parameters
+    ----------
+    source : camera model
+        Any model of :mod:`ifmi.camera` / :mod:`ifmi.camera_models`
+        (equirectangular cameras are no source: no lens model fits them).
+    target : str
+
+    Returns
+    -------
+    CalibrationFit
+        The fitted model and its reprojection errors over the source's
+        valid region (pixels); ``success`` is False when the fitted model
+        sees less than the whole valid region.
+    """
+    if target not in TARGETS:
+        raise ValueError(f"unknown target model {target!r}; expected one of {TARGETS}")
+    if getattr(source, "wraps_columns", False):
+        raise ValueError("an equirectangular camera has no lens model to convert to")
+    if isinstance(source, OcamModel) and source.pol[0] >= 0:
+        raise ValueError("the OCamCalib model's central ray points along +z; only -z has a Kalibr frame")
+    pixels = _samples(source, _FIT_GRID)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        model = _fit_ocamcalib(source, pixels) if target == "ocamcalib" else _fit_kalibr(source, target, pixels)
+        check = valid_mask(source)
+        rows, cols = np.nonzero(check[::_CHECK_STRIDE_PX, ::_CHECK_STRIDE_PX])
+        grid = np.stack([rows, cols], axis=-1).astype(np.float64) * _CHECK_STRIDE_PX
+        errors = reprojection_errors(source, model, grid)
+    seen = np.isfinite(errors)
+    coverage = float(seen.mean())
+    reason = "" if coverage == 1.0 else f"the {target} model sees only {100 * coverage:.1f} % of the valid region"
+    return CalibrationFit(model=model, max_error_px=float(np.max(errors[seen])) if seen.any() else np.inf,
+                          median_error_px=float(np.median(errors[seen])) if seen.any() else np.inf,
+                          coverage=coverage, success=coverage == 1.0, reason=reason)

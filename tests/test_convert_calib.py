@@ -1,0 +1,82 @@
+"""Model conversion: fits reproduce cameras that two models describe exactly; the command line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ifmi.calib_fit import fit_camera_model, reprojection_errors
+from ifmi.camera import paracatadioptric_model, valid_mask
+from ifmi.camera_models import ExtendedUnifiedModel, UnifiedModel
+from ifmi.cli import main
+from ifmi.io.calib import read_calib, write_calib
+from ifmi.io.kalibr import read_kalibr, write_kalibr
+
+from camera_examples import EXAMPLES
+
+# Exact equivalences leave only the optimiser's tolerance: far below a hundredth of a pixel.
+EXACT_FIT_PX = 1e-3
+UNIFIED = UnifiedModel(0.8, (330.0, 328.0), (321.0, 242.0), (480, 640))
+
+
+def test_unified_converts_to_its_exact_eucm_and_double_sphere():
+    """UCM(xi, f) = EUCM(xi / (1 + xi), 1, f / (1 + xi)); the double sphere holds it exactly too
+    (as DS(0, xi / (1 + xi), f / (1 + xi)) or DS(xi, 0, f))."""
+    for target in ("eucm", "ds"):
+        fit = fit_camera_model(UNIFIED, target)
+        assert fit.success and fit.max_error_px < EXACT_FIT_PX
+        np.testing.assert_allclose(fit.model.principal_point, UNIFIED.principal_point, atol=1e-4)
+    np.testing.assert_allclose(fit_camera_model(UNIFIED, "eucm").model.focal, np.array(UNIFIED.focal) / 1.8,
+                               rtol=1e-5)
+    assert fit_camera_model(UNIFIED, "eucm").model.alpha == pytest.approx(0.8 / 1.8, abs=1e-6)
+    assert fit_camera_model(UNIFIED, "eucm").model.beta == pytest.approx(1.0, abs=1e-5)
+
+
+def test_paracatadioptric_ocamcalib_is_the_unified_model_with_xi_one():
+    """A parabolic mirror is the unified model with xi = 1 and f = h, across the two toolboxes' frames."""
+    ocam = paracatadioptric_model((240, 320), horizon_radius_px=100.0, center=(121.3, 158.2))
+    fit = fit_camera_model(ocam, "omni")
+    assert fit.success and fit.max_error_px < EXACT_FIT_PX
+    assert fit.model.xi == pytest.approx(1.0, abs=1e-4)
+    np.testing.assert_allclose(fit.model.focal, [100.0, 100.0], rtol=1e-4)
+    # Kalibr's (pu, pv) is OCamCalib's (col, row) centre.
+    np.testing.assert_allclose(fit.model.principal_point, [158.2, 121.3], atol=1e-3)
+    back = fit_camera_model(fit.model, "ocamcalib")
+    assert back.max_error_px < 0.01
+    np.testing.assert_allclose(back.model.center, ocam.center, atol=1e-3)
+
+
+def test_same_model_refit_reproduces_the_parameters():
+    fit = fit_camera_model(EXAMPLES["pinhole-radtan"], "pinhole")
+    np.testing.assert_allclose(fit.model.distortion, EXAMPLES["pinhole-radtan"].distortion, atol=1e-7)
+    assert fit.max_error_px < EXACT_FIT_PX
+
+
+def test_reported_error_is_the_reprojection_error():
+    fit = fit_camera_model(EXAMPLES["ds"], "eucm")
+    rows, cols = np.nonzero(valid_mask(EXAMPLES["ds"]))
+    errors = reprojection_errors(EXAMPLES["ds"], fit.model, np.stack([rows, cols], axis=-1).astype(float))
+    # Checked on every second pixel; the full image may differ by a little at the rim.
+    assert np.nanmax(errors) == pytest.approx(fit.max_error_px, rel=0.2)
+    assert fit.max_error_px < 0.1
+
+
+def test_convert_calib_command(tmp_path, capsys):
+    source = tmp_path / "calib_results.txt"
+    write_calib(source, paracatadioptric_model((240, 320), horizon_radius_px=100.0))
+    out = tmp_path / "camera.yaml"
+    assert main(["convert-calib", str(source), "--to", "ds", "--out", str(out)]) == 0
+    line = capsys.readouterr().out
+    assert "max reprojection error" in line
+    assert float(line.split("max reprojection error ")[1].split(" px")[0]) < 0.01
+    assert isinstance(read_kalibr(out), type(fit_camera_model(UNIFIED, "ds").model))
+    # Never overwrites without --force; an equirectangular source cannot be converted.
+    assert main(["convert-calib", str(source), "--to", "eucm", "--out", str(out)]) == 2
+    assert "exists" in capsys.readouterr().err
+    equirect = tmp_path / "eq.yaml"
+    write_kalibr(equirect, EXAMPLES["equirectangular"])
+    assert main(["convert-calib", str(equirect), "--to", "ds", "--out", str(tmp_path / "x.yaml")]) == 2
+    assert "no lens model" in capsys.readouterr().err
+    assert main(["convert-calib", str(out), "--to", "ocamcalib", "--out", str(tmp_path / "o.txt")]) == 0
+    assert read_calib(tmp_path / "o.txt").size == (240, 320)
+    assert isinstance(read_kalibr(out), object) and not isinstance(read_kalibr(out), ExtendedUnifiedModel)
