@@ -54,6 +54,10 @@ __all__ = [
     "paracatadioptric_model",
     "max_image_radius",
     "radius_from_pixels",
+    "sensor_from_pixels",
+    "pixels_from_sensor",
+    "pixel_offsets_from_sensor",
+    "angular_pixel_size",
 ]
 
 
@@ -240,14 +244,69 @@ class OcamModel:
         return replace(self, pol=pol, invpol=invpol, center=center, size=size)
 
 
-def _sensor_from_pixels(model: OcamModel, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def sensor_from_pixels(model: OcamModel, pixels) -> np.ndarray:
+    """Sensor-plane points of pixels: the centre and the affine part removed.
+
+    Parameters
+    ----------
+    model : OcamModel
+    pixels : (..., 2) array_like
+        ``(row, col)`` pixel coordinates.
+
+    Returns
+    -------
+    (..., 2) ndarray
+        ``(xp, yp)`` in pixels, the sensor point whose radius is the argument
+        of the direct polynomial (inverse of :func:`pixels_from_sensor`).
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
     c, d, e = model.affine
     dr = pixels[..., 0] - model.center[0]
     dc = pixels[..., 1] - model.center[1]
     inv_det = 1.0 / (c - d * e)
     xp = (dr - d * dc) * inv_det
     yp = (-e * dr + c * dc) * inv_det
-    return xp, yp
+    return np.stack([xp, yp], axis=-1)
+
+
+def pixel_offsets_from_sensor(model: OcamModel, sensor) -> np.ndarray:
+    """Affine part alone: ``(row, col)`` offsets from the distortion centre of sensor points.
+
+    Parameters
+    ----------
+    model : OcamModel
+    sensor : (..., 2) array_like
+        ``(u, v)`` sensor-plane points in pixels.
+
+    Returns
+    -------
+    (..., 2) ndarray
+        ``(row - xc, col - yc)`` = ``(u c + v d, u e + v)`` in pixels.
+    """
+    sensor = np.asarray(sensor, dtype=np.float64)
+    u, v = sensor[..., 0], sensor[..., 1]
+    c, d, e = model.affine
+    return np.stack([u * c + v * d, u * e + v], axis=-1)
+
+
+def pixels_from_sensor(model: OcamModel, sensor) -> np.ndarray:
+    """Pixels of sensor-plane points: OCamCalib's affine part and centre applied.
+
+    Parameters
+    ----------
+    model : OcamModel
+    sensor : (..., 2) array_like
+        ``(u, v)`` sensor-plane points in pixels (``rho (cos phi, sin phi)``
+        for a ray of azimuth ``phi`` imaged at sensor radius ``rho``).
+
+    Returns
+    -------
+    (..., 2) ndarray
+        ``(row, col)`` = ``(u c + v d + xc, u e + v + yc)``, 0-based pixels
+        (inverse of :func:`sensor_from_pixels`).
+    """
+    offsets = pixel_offsets_from_sensor(model, sensor)
+    return np.stack([offsets[..., 0] + model.center[0], offsets[..., 1] + model.center[1]], axis=-1)
 
 
 def radius_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
@@ -264,9 +323,8 @@ def radius_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
     (...,) ndarray
         Radius ``r`` in pixels, the argument of the direct polynomial.
     """
-    pixels = np.asarray(pixels, dtype=np.float64)
-    xp, yp = _sensor_from_pixels(model, pixels)
-    return np.hypot(xp, yp)
+    sensor = sensor_from_pixels(model, pixels)
+    return np.hypot(sensor[..., 0], sensor[..., 1])
 
 
 def rays_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
@@ -288,7 +346,8 @@ def rays_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:
     pixels = np.asarray(pixels, dtype=np.float64)
     if pixels.shape[-1:] != (2,):
         raise ValueError(f"expected pixels of shape (..., 2), got {pixels.shape}")
-    xp, yp = _sensor_from_pixels(model, pixels)
+    sensor = sensor_from_pixels(model, pixels)
+    xp, yp = sensor[..., 0], sensor[..., 1]
     r = np.hypot(xp, yp)
     zp = np.polynomial.polynomial.polyval(r, model.pol)
     rays = np.stack([xp, yp, zp], axis=-1)
@@ -322,10 +381,35 @@ def pixels_from_rays(model: OcamModel, rays: np.ndarray) -> np.ndarray:
     safe = np.where(norm > 0, norm, 1.0)
     u = np.where(norm > 0, x / safe * rho, 0.0)
     v = np.where(norm > 0, y / safe * rho, 0.0)
-    c, d, e = model.affine
-    row = u * c + v * d + model.center[0]
-    col = u * e + v + model.center[1]
-    return np.stack([row, col], axis=-1)
+    return pixels_from_sensor(model, np.stack([u, v], axis=-1))
+
+
+def angular_pixel_size(model, pixels) -> np.ndarray:
+    """Angle (radians) one pixel subtends at each of ``pixels``, for any camera model.
+
+    The angles between the ray of a pixel and the rays one pixel further
+    along the image rows and along the columns are measured (so an
+    OCamCalib affine part counts); a pixel's size is their geometric mean.
+    It scales inversely with the image resolution, which makes thresholds
+    given in pixels independent of it.
+
+    Parameters
+    ----------
+    model : OcamModel or CameraModel
+    pixels : (..., 2) array_like
+        ``(row, col)`` sample pixels.
+
+    Returns
+    -------
+    (...,) ndarray
+        Radians; NaN where a ray is outside the model's domain.
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
+    steps = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    rays = rays_from_pixels(model, pixels[..., None, :] + steps)
+    along_row = np.arccos(np.clip(np.sum(rays[..., 0, :] * rays[..., 1, :], axis=-1), -1.0, 1.0))
+    along_col = np.arccos(np.clip(np.sum(rays[..., 0, :] * rays[..., 2, :], axis=-1), -1.0, 1.0))
+    return np.sqrt(along_row * along_col)
 
 
 def elevation_from_radius(pol: np.ndarray, radius: np.ndarray) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["InputError", "OutputError"]
+__all__ = ["InputError", "CalibrationFitError", "OutputError"]
 
 
 class InputError(ValueError):
@@ -16,6 +16,22 @@ class InputError(ValueError):
         self.path = str(path)
         self.problem = problem
         super().__init__(f"{path}: {problem}")
+
+
+class CalibrationFitError(InputError):
+    """A camera model that does not suit the method's configuration (e.g. too few pixels).
+
+    Raised where only the model is at hand, naming it generically; entry
+    points that read the model from a calibration file re-raise it with that
+    file's path (:meth:`for_file`).
+    """
+
+    def __init__(self, problem: str, path="camera model") -> None:
+        super().__init__(path, problem)
+
+    def for_file(self, path) -> "CalibrationFitError":
+        """The same problem, reported against the calibration file ``path``."""
+        return CalibrationFitError(self.problem, path)
 
 
 class OutputError(OSError):

@@ -110,7 +110,7 @@ def motion_flow_sample(dataset_dir: str | os.PathLike, *, config, frames: tuple[
     from .flow import flow_from_tile_motion, flow_sample_points
     from .io.dataset import read_dataset, read_image
     from .spectral_front_end import IfmiFrontEnd
-    from .unwarp import panorama_from_omni
+    from .unwarp import panorama_image_from_omni_image
 
     dataset = read_dataset(dataset_dir)
     a, b = (int(f) for f in frames)
@@ -126,7 +126,7 @@ def motion_flow_sample(dataset_dir: str | os.PathLike, *, config, frames: tuple[
                                   origins_b=origins_b)
 
     def pano(image):
-        return np.clip(panorama_from_omni(image, front.mapping) + 0.5, 0, 255).astype(np.uint8)
+        return np.clip(panorama_image_from_omni_image(front.mapping, image) + 0.5, 0, 255).astype(np.uint8)
 
     return {"panorama_a": pano(image_a), "panorama_b": pano(image_b),
             "points_a": pairs.panorama_a, "points_b": pairs.panorama_b,

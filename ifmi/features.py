@@ -318,14 +318,14 @@ class FeatureFrontEnd:
         return xy[:, ::-1].copy(), descriptors
 
     def _detect_on_panorama(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        from .unwarp import omni_from_panorama, panorama_from_omni
+        from .unwarp import omni_pixels_from_panorama_pixels, panorama_image_from_omni_image
 
         mapping = self._panorama_mapping(gray)
-        panorama = np.clip(panorama_from_omni(gray, mapping) + 0.5, 0, 255).astype(np.uint8)
+        panorama = np.clip(panorama_image_from_omni_image(mapping, gray) + 0.5, 0, 255).astype(np.uint8)
         pano_pixels, descriptors = self._detect(panorama, None)
         if not len(pano_pixels):
             return pano_pixels, descriptors
-        return omni_from_panorama(mapping, pano_pixels), descriptors
+        return omni_pixels_from_panorama_pixels(mapping, pano_pixels), descriptors
 
     def _panorama_mapping(self, gray: np.ndarray):
         """The band's panorama (built on first use): OCamCalib from the radius band, others from the model."""

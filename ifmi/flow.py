@@ -15,7 +15,7 @@ import numpy as np
 from .fourier_mellin import TileMotion, transform_points
 from .tiling import TileLayout
 from .camera import pixels_from_rays
-from .unwarp import PanoramaMapping, rays_from_panorama
+from .unwarp import PanoramaMapping, rays_from_panorama_pixels
 
 __all__ = ["FlowPairs", "flow_sample_points", "flow_from_tile_motion", "flow_from_placements"]
 
@@ -111,7 +111,7 @@ def _flow_pairs(pano_a: np.ndarray, pano_b: np.ndarray, mapping: PanoramaMapping
     pano_a[:, 1] = np.mod(pano_a[:, 1], mapping.width)
     pano_b[:, 1] = np.mod(pano_b[:, 1], mapping.width)
     # Both frames' points in one call each (the omni pixels are those of the rays).
-    rays = rays_from_panorama(mapping, np.concatenate([pano_a, pano_b]))
+    rays = rays_from_panorama_pixels(mapping, np.concatenate([pano_a, pano_b]))
     pixels = pixels_from_rays(mapping.model, rays)
     m = len(pano_a)
     return FlowPairs(panorama_a=pano_a, panorama_b=pano_b, pixels_a=pixels[:m], pixels_b=pixels[m:],

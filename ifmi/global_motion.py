@@ -36,7 +36,7 @@ import numpy as np
 import scipy.fft
 
 from .phase_correlation import correlation_surface, find_peaks, normalized_cross_power, phase_correlation
-from .unwarp import PanoramaMapping, rays_from_panorama
+from .unwarp import PanoramaMapping, rays_from_panorama_pixels
 
 __all__ = ["GlobalMotionConfig", "GlobalMotion", "GlobalMotionEstimator", "rotation_from_ray_pairs"]
 
@@ -169,8 +169,8 @@ class GlobalMotionEstimator:
         self.shape = (height, width)
         self.scale = np.array([mapping.height / height, mapping.width / width])
         rows, cols = np.mgrid[0:height, 0:width].astype(np.float64)
-        self.rays32 = rays_from_panorama(mapping, self._full_from_coarse(np.stack([rows, cols], axis=-1))).astype(
-            np.float32)
+        full = self._full_from_coarse(np.stack([rows, cols], axis=-1))
+        self.rays32 = rays_from_panorama_pixels(mapping, full).astype(np.float32)
         self.sector_width = width // config.sectors
         self.row_window = np.sin(np.pi * (np.arange(height) + 0.5) / height).astype(np.float32)[:, None] ** 2
         # Sector centres (coarse (row, col)) and the sectors' first column.
@@ -195,7 +195,7 @@ class GlobalMotionEstimator:
         """Coarse panorama of b resampled onto a's grid under ``R_ab`` (bilinear; rows past the band replicated)."""
         if np.array_equal(rotation, np.eye(3)):
             return coarse_b
-        # panorama_from_rays in float32 (a coarse pixel is far above its rounding), then coarse pixels.
+        # panorama_pixels_from_rays in float32 (a coarse pixel is far above its rounding), then coarse pixels.
         rays = self.rays32 @ rotation.astype(np.float32)
         x, y, z = rays[..., 0], rays[..., 1], rays[..., 2]
         m = self.mapping
@@ -211,8 +211,8 @@ class GlobalMotionEstimator:
 
     def _ray_pairs(self, centres: np.ndarray, shifts: np.ndarray, rotation: np.ndarray):
         """Rays of a at ``centres`` and of b where a warped b shows them (``centres + shifts``)."""
-        rays_a = rays_from_panorama(self.mapping, self._full_from_coarse(centres))
-        rays_b = rays_from_panorama(self.mapping, self._full_from_coarse(centres + shifts)) @ rotation
+        rays_a = rays_from_panorama_pixels(self.mapping, self._full_from_coarse(centres))
+        rays_b = rays_from_panorama_pixels(self.mapping, self._full_from_coarse(centres + shifts)) @ rotation
         return rays_a, rays_b
 
     def _yaw_search(self, coarse_a: np.ndarray, warped_b: np.ndarray) -> tuple[np.ndarray, float]:

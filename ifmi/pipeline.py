@@ -33,12 +33,13 @@ import numpy as np
 from tqdm import tqdm
 
 from .camera import OcamModel
-from .errors import InputError
+from .errors import CalibrationFitError, InputError
 from .trajectory import Trajectory
 from .options import options_from_dict
 from .odometry import FrameRecord, KeyframeOptions, track_sequence
 from .relative_pose import RelativePoseOptions
 from .spectral_front_end import IfmiConfig
+from .unwarp import angular_pixel_size_in_band
 
 __all__ = [
     "Correspondences",
@@ -52,7 +53,6 @@ __all__ = [
     "estimate_sequence",
     "estimate_dataset",
     "estimate_video",
-    "angular_pixel_size",
     "resolved_config",
 ]
 
@@ -214,73 +214,19 @@ def create_front_end(method: str, model: OcamModel, config: EstimateConfig) -> F
     return factory(model, config)
 
 
-# Radii sampled across the mirror band when measuring the angular pixel size.
-_PIXEL_SIZE_SAMPLES = 64
-
-
-def angular_pixel_size(model: OcamModel, *, band: tuple[float, float] | None = None,
-                       panorama=None) -> float:
-    """Angle one pixel subtends in the mirror band of ``model`` (radians).
-
-    At each of a set of sensor radii evenly spread over the band, the angles
-    between the ray of a pixel and the rays one pixel further along the
-    radius and across it are measured (on the image's row and column axes,
-    so the calibration's affine part counts); the result is the median over
-    the band of their geometric mean. It scales inversely with the image
-    resolution, which makes thresholds given in pixels independent of it.
-
-    Parameters
-    ----------
-    model : OcamModel
-    band : (float, float), optional, keyword-only
-        ``(inner, outer)`` sensor radius in pixels; default
-        :func:`ifmi.unwarp.radius_band` of the calibration alone.
-    panorama : PanoramaConfig, optional, keyword-only
-        Band settings (explicit radii, minimum inner fraction) for the default band.
-
-    Returns
-    -------
-    float
-    """
-    from .camera import rays_from_pixels
-    from .unwarp import PanoramaConfig, radius_band
-
-    if not isinstance(model, OcamModel):  # other camera models: over their panorama's band
-        from .unwarp import angular_pixel_size_in_band
-        return angular_pixel_size_in_band(model, config=panorama if panorama is not None else PanoramaConfig())
-    if band is None:
-        band = radius_band(model, config=panorama if panorama is not None else PanoramaConfig())
-    inner, outer = (float(v) for v in band)
-    if not 0 <= inner < outer:
-        raise ValueError(f"expected a band 0 <= inner < outer, got {band}")
-    radii = np.linspace(max(inner, 1.0), outer, _PIXEL_SIZE_SAMPLES)
-    angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
-    # Points on the calibration's circles: (row, col) = centre + r (cos, sin) through the affine part.
-    c, d, e = model.affine
-    u = radii[:, None] * np.cos(angles)[None]
-    v = radii[:, None] * np.sin(angles)[None]
-    base = np.stack([u * c + v * d + model.center[0], u * e + v + model.center[1]], axis=-1)
-    steps = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    rays = rays_from_pixels(model, base[..., None, :] + steps)
-    along_row = np.arccos(np.clip(np.sum(rays[..., 0, :] * rays[..., 1, :], axis=-1), -1.0, 1.0))
-    along_col = np.arccos(np.clip(np.sum(rays[..., 0, :] * rays[..., 2, :], axis=-1), -1.0, 1.0))
-    per_radius = np.median(np.sqrt(along_row * along_col), axis=1)
-    return float(np.median(per_radius))
-
-
 def resolved_config(config: EstimateConfig, model: OcamModel) -> EstimateConfig:
     """``config`` with the relative-pose threshold in radians for ``model``.
 
     An explicit ``relative_pose.ransac_threshold_rad`` is kept; otherwise
     ``relative_pose.ransac_threshold_px`` is converted with
-    :func:`angular_pixel_size` of the calibration (band from
+    :func:`ifmi.unwarp.angular_pixel_size_in_band` of the calibration (band from
     ``config.ifmi.panorama``), so the same pixel threshold serves every
     image resolution and every method.
     """
     pose = config.relative_pose
     if pose.ransac_threshold_rad is not None:
         return config
-    pixel = angular_pixel_size(model, panorama=config.ifmi.panorama)
+    pixel = angular_pixel_size_in_band(model, config=config.ifmi.panorama)
     return replace(config, relative_pose=pose.resolved(pixel))
 
 
@@ -346,6 +292,8 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
         Missing calibration or images, or a first image that is unreadable
         or whose size differs from the calibration's. Such a later image is
         flagged as a failed frame (the pose is held) and the sequence goes on.
+        Also a calibration too small for the method (e.g. iFMI tiles larger
+        than its panorama), naming the calibration file.
     """
     from .io.dataset import read_dataset
 
@@ -355,8 +303,11 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     config = resolved_config(config, dataset.model)
     config = replace(config, ifmi=replace(config.ifmi, panorama=_panorama_with_band(dataset, config)))
     images = dataset.iter_images(prefetch=prefetch, skip_unreadable=True)
-    return estimate_sequence(images, dataset.model, method=method,
-                             config=config, progress=progress, total=len(dataset.image_paths))
+    try:
+        return estimate_sequence(images, dataset.model, method=method,
+                                 config=config, progress=progress, total=len(dataset.image_paths))
+    except CalibrationFitError as exc:
+        raise exc.for_file(dataset.calib_path) from None
 
 
 # Frames, spread evenly over a dataset, that decide the mirror band together.
@@ -389,15 +340,19 @@ def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike,
     Raises
     ------
     InputError
-        Missing or unreadable calibration or video, or frames whose size
-        differs from the calibration's.
+        Missing or unreadable calibration or video, frames whose size
+        differs from the calibration's, or a calibration too small for the
+        method (naming the calibration file).
     """
     from .io.camera_file import read_camera
     from .io.video import VideoFrames
 
     model = read_camera(Path(calib_path))  # calib_results.txt or a Kalibr camera.yaml
     frames = VideoFrames(video_path, size=model.size)
-    estimate = estimate_sequence(frames, model, method=method, config=config, progress=progress,
-                                 total=len(frames) or None)
+    try:
+        estimate = estimate_sequence(frames, model, method=method, config=config, progress=progress,
+                                     total=len(frames) or None)
+    except CalibrationFitError as exc:
+        raise exc.for_file(calib_path) from None
     trajectory = replace(estimate.trajectory, timestamps=np.asarray(frames.timestamps, dtype=np.float64))
     return replace(estimate, trajectory=trajectory)

@@ -28,7 +28,7 @@ on the correspondences that are inliers of either model only.
 
 The inlier threshold is an angle. Its default is a number of pixels
 (``ransac_threshold_px``) times the angle one pixel subtends, which only the
-caller knows (:func:`ifmi.pipeline.angular_pixel_size` for a calibration);
+caller knows (:func:`ifmi.unwarp.angular_pixel_size_in_band` for a calibration);
 :meth:`RelativePoseOptions.resolved` turns one into the other, and an
 explicit ``ransac_threshold_rad`` overrides it.
 """

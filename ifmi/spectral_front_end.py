@@ -18,9 +18,10 @@ from .options import options_from_dict
 from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
 from .global_motion import GlobalMotionConfig, GlobalMotionEstimator
 from .fourier_mellin import FourierMellin, TileRejection, FourierMellinConfig, PlacedTiles, TileSpectra
-from .tiling import TileLayout, TilingConfig, tile_layout, tiles_from_panorama
-from .unwarp import (PanoramaConfig, PanoramaMapping, gray_from_image, panorama_from_omni, panorama_from_rays,
-                     panorama_mapping, rays_from_panorama, wrapped_panorama_maps)
+from .errors import CalibrationFitError
+from .tiling import TileLayout, TilingConfig, tile_layout, tile_size_px, tiles_from_panorama
+from .unwarp import (PanoramaConfig, PanoramaMapping, gray_from_image, panorama_image_from_omni_image,
+                     panorama_mapping, panorama_pixels_from_rays, rays_from_panorama_pixels, wrapped_panorama_maps)
 
 __all__ = ["IfmiConfig", "IfmiFrameState", "IfmiFrontEnd"]
 
@@ -193,6 +194,7 @@ class IfmiFrontEnd:
 
     def _setup(self, image: np.ndarray) -> None:
         self.mapping = panorama_mapping(self.model, image, config=self.config.panorama)
+        self._check_tiles_fit()
         self.layout = tile_layout((self.mapping.height, self.mapping.width), config=self.config.tiling)
         self.engine = FourierMellin(self.layout.tile_size, self.layout.count,
                                     config=self.config.registration)
@@ -202,6 +204,17 @@ class IfmiFrontEnd:
         self._points_b = flow_sample_points(self.layout.tile_size,
                                             points_per_tile=self.config.points_per_tile,
                                             spread=self.config.point_spread)
+
+    def _check_tiles_fit(self) -> None:
+        """Raise :class:`~ifmi.errors.CalibrationFitError` when a tile is larger than the panorama."""
+        height, width = self.mapping.height, self.mapping.width
+        tile = tile_size_px(self.config.tiling.tile_size, width)
+        if tile <= min(height, width):
+            return
+        raise CalibrationFitError(
+            f"the {self.model.height}x{self.model.width} px image gives a {height}x{width} px panorama, "
+            f"smaller than the {tile} px tile; expected a panorama at least {tile}x{tile} px: "
+            f"use larger images, a smaller --tile-size or a larger panorama --height/--width")
 
     def prepare(self, image: np.ndarray) -> IfmiFrameState:
         """Panorama and tiles of one frame (tile spectra follow on first use).
@@ -216,7 +229,7 @@ class IfmiFrontEnd:
         # Remapped as float: an 8-bit result would round every panorama pixel to a whole gray
         # level (on sharp 1024 px images that noise doubled the frame-to-frame error).
         gray = gray_from_image(image).astype(np.float32)
-        padded = panorama_from_omni(gray, self.mapping, maps=self._padded_maps)
+        padded = panorama_image_from_omni_image(self.mapping, gray, maps=self._padded_maps)
         coarse = None
         if self.global_stage is not None:
             coarse = self.global_stage.coarse_panorama(padded[:, self._pad:self._pad + self.mapping.width])
@@ -260,7 +273,7 @@ class IfmiFrontEnd:
         rotation = np.asarray(prior_rotation, dtype=np.float64)
         steps = np.array([[0.0, 0.0], [0.5, 0.0], [-0.5, 0.0], [0.0, 0.5], [0.0, -0.5]])
         probes = offsets_a[:, None, :] + steps
-        in_b = panorama_from_rays(self.mapping, rays_from_panorama(self.mapping, probes) @ rotation)
+        in_b = panorama_pixels_from_rays(self.mapping, rays_from_panorama_pixels(self.mapping, probes) @ rotation)
         width = self.mapping.width
         centre = in_b[:, 0]
         # Differences taken across the seam are unwrapped.

@@ -23,12 +23,14 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 from scipy.spatial.transform import Rotation
 
-from .camera import OcamModel, rays_from_pixels
+from .camera import OcamModel, paracatadioptric_model, rays_from_pixels
 from .io.atomic import atomic_write_bytes
 from .io.calib import write_calib
 from .io.tum import Trajectory, write_tum
 
 __all__ = [
+    "example_omni_model",
+    "example_band_px",
     "environment_texture",
     "omni_from_environment",
     "rotation_sequence",
@@ -40,6 +42,24 @@ __all__ = [
 # Bundled scikit-image photographs (no download needed) used for the mosaic.
 _PHOTOS = ("camera", "brick", "grass", "gravel", "astronaut", "coffee", "rocket", "chelsea",
            "moon", "immunohistochemistry", "coins", "clock")
+
+
+# Example camera: a paraboloid mirror whose horizon is imaged at this fraction of the image
+# side, and the sensor-radius band (fractions of the image height) that its mirror fills,
+# as on a typical catadioptric camera (black centre: the camera's own reflection).
+_EXAMPLE_HORIZON_FRACTION = 5 / 16
+_EXAMPLE_BAND_FRACTIONS = (0.12, 0.47)
+
+
+def example_omni_model(size: int) -> OcamModel:
+    """Paracatadioptric camera of a ``size`` x ``size`` image, horizon at 5/16 of the side (pixels)."""
+    return paracatadioptric_model((size, size), horizon_radius_px=size * _EXAMPLE_HORIZON_FRACTION)
+
+
+def example_band_px(model: OcamModel) -> tuple[float, float]:
+    """Sensor-radius band ``(inner, outer)`` in pixels imaged by :func:`example_omni_model`'s mirror."""
+    inner, outer = _EXAMPLE_BAND_FRACTIONS
+    return inner * model.height, outer * model.height
 
 
 def environment_texture(*, height: int = 512, seed: int = 0, noise_level: float = 0.25) -> np.ndarray:

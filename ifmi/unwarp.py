@@ -38,7 +38,8 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from .camera import OcamModel, angles_from_axis, elevation_from_radius, pixels_from_rays, rays_from_pixels
+from .camera import (OcamModel, angles_from_axis, angular_pixel_size, elevation_from_radius, pixel_offsets_from_sensor,
+                     pixels_from_rays, pixels_from_sensor, rays_from_pixels)
 
 __all__ = [
     "PanoramaConfig",
@@ -50,12 +51,12 @@ __all__ = [
     "band_mask",
     "angular_pixel_size_in_band",
     "panorama_mapping",
-    "panorama_from_omni",
+    "panorama_image_from_omni_image",
     "wrapped_panorama_maps",
-    "rays_from_panorama",
-    "omni_from_panorama",
-    "panorama_from_omni_pixels",
-    "panorama_from_rays",
+    "rays_from_panorama_pixels",
+    "omni_pixels_from_panorama_pixels",
+    "panorama_pixels_from_omni_pixels",
+    "panorama_pixels_from_rays",
     "gray_from_image",
 ]
 
@@ -189,9 +190,8 @@ def gray_from_image(image: np.ndarray) -> np.ndarray:
 def _inscribed_radius(model: OcamModel) -> float:
     """Largest sensor radius whose whole circle lies inside the image."""
     phi = np.linspace(0.0, 2 * np.pi, 1440, endpoint=False)
-    c, d, e = model.affine
-    u, v = np.cos(phi), np.sin(phi)
-    drow, dcol = u * c + v * d, u * e + v
+    offsets = pixel_offsets_from_sensor(model, np.stack([np.cos(phi), np.sin(phi)], axis=-1))
+    drow, dcol = offsets[:, 0], offsets[:, 1]
     radii = []
     for delta, centre, size in ((drow, model.center[0], model.height), (dcol, model.center[1], model.width)):
         with np.errstate(divide="ignore"):
@@ -219,11 +219,9 @@ def _ring_lit_fractions(model: OcamModel, image: np.ndarray, radii: np.ndarray,
     gray = cv2.medianBlur(np.clip(gray_from_image(image), 0, 255).astype(np.uint8),
                           _NOISE_MEDIAN_PX).astype(np.float32)
     phi = np.linspace(0.0, 2 * np.pi, _PROFILE_AZIMUTHS, endpoint=False)
-    c, d, e = model.affine
-    u = radii[:, None] * np.cos(phi)[None]
-    v = radii[:, None] * np.sin(phi)[None]
-    rows = (u * c + v * d + model.center[0]).astype(np.float32)
-    cols = (u * e + v + model.center[1]).astype(np.float32)
+    sensor = np.stack([radii[:, None] * np.cos(phi)[None], radii[:, None] * np.sin(phi)[None]], axis=-1)
+    pixels = pixels_from_sensor(model, sensor).astype(np.float32)
+    rows, cols = np.ascontiguousarray(pixels[..., 0]), np.ascontiguousarray(pixels[..., 1])
     ring = cv2.remap(gray, cols, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     return (ring > dark_level).mean(axis=1)
 
@@ -379,11 +377,9 @@ def panorama_mapping(model: OcamModel, image: np.ndarray | None = None, *,
     # every ray of a row has elevation theta and so one sensor radius rho = invpol(theta),
     # and its sensor point is rho (cos(phi), sin(phi)); this is pixels_from_rays, separated.
     rho = np.polynomial.polynomial.polyval(theta, model.invpol)
-    u = rho[:, None] * np.cos(phi)[None]
-    v = rho[:, None] * np.sin(phi)[None]
-    c, d, e = model.affine
-    map_rows = (u * c + v * d + model.center[0]).astype(np.float32)
-    map_cols = (u * e + v + model.center[1]).astype(np.float32)
+    sensor = np.stack([rho[:, None] * np.cos(phi)[None], rho[:, None] * np.sin(phi)[None]], axis=-1)
+    pixels = pixels_from_sensor(model, sensor).astype(np.float32)
+    map_rows, map_cols = np.ascontiguousarray(pixels[..., 0]), np.ascontiguousarray(pixels[..., 1])
     return PanoramaMapping(
         model=model, width=width, height=height, elevation_top_rad=theta_hi,
         elevation_step_rad=step, radius_band_px=(inner, outer), map_rows=map_rows,
@@ -404,7 +400,7 @@ def wrapped_panorama_maps(mapping: PanoramaMapping, columns: int) -> tuple:
     -------
     tuple of ndarray
         OpenCV fixed-point maps of the ``(height, width + 2 columns)`` grid,
-        for :func:`panorama_from_omni`'s ``maps``.
+        for :func:`panorama_image_from_omni_image`'s ``maps``.
     """
     if isinstance(columns, bool) or int(columns) != columns or columns < 0:
         raise ValueError(f"expected an integer number of columns >= 0, got {columns!r}")
@@ -416,15 +412,16 @@ def wrapped_panorama_maps(mapping: PanoramaMapping, columns: int) -> tuple:
     return cv2.convertMaps(mapping.map_cols[:, index], mapping.map_rows[:, index], cv2.CV_16SC2)
 
 
-def panorama_from_omni(image: np.ndarray, mapping: PanoramaMapping, *, maps: tuple | None = None) -> np.ndarray:
+def panorama_image_from_omni_image(mapping: PanoramaMapping, image: np.ndarray, *,
+                                   maps: tuple | None = None) -> np.ndarray:
     """Resample an omni image into the panorama (bilinear, float32).
 
     Parameters
     ----------
+    mapping : PanoramaMapping
     image : (H, W) or (H, W, 3) ndarray
         Omni image of the size the mapping's calibration names; RGB is
         converted to gray.
-    mapping : PanoramaMapping
     maps : tuple of ndarray, optional, keyword-only
         Remap maps of another grid on the same panorama, such as
         :func:`wrapped_panorama_maps`; default the mapping's own.
@@ -434,6 +431,8 @@ def panorama_from_omni(image: np.ndarray, mapping: PanoramaMapping, *, maps: tup
     (height, width) float32 ndarray
         Or the shape of ``maps``.
     """
+    if not isinstance(mapping, PanoramaMapping):
+        raise TypeError(f"expected a PanoramaMapping as the first argument, got {type(mapping).__name__}")
     gray = gray_from_image(image)
     if gray.shape != mapping.model.size:
         raise ValueError(f"expected an image of size {mapping.model.size}, got {gray.shape}")
@@ -444,7 +443,7 @@ def panorama_from_omni(image: np.ndarray, mapping: PanoramaMapping, *, maps: tup
     return pano.astype(np.float32, copy=False)
 
 
-def rays_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.ndarray:
+def rays_from_panorama_pixels(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.ndarray:
     """Unit rays of panorama pixels (exact; columns wrap around 360 degrees).
 
     Parameters
@@ -467,7 +466,7 @@ def rays_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.
     return rays
 
 
-def panorama_from_rays(mapping: PanoramaMapping, rays: np.ndarray) -> np.ndarray:
+def panorama_pixels_from_rays(mapping: PanoramaMapping, rays: np.ndarray) -> np.ndarray:
     """Panorama ``(row, col)`` of rays; columns in ``[0, width)``.
 
     Parameters
@@ -491,7 +490,7 @@ def panorama_from_rays(mapping: PanoramaMapping, rays: np.ndarray) -> np.ndarray
     return np.stack([row, col], axis=-1)
 
 
-def omni_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.ndarray:
+def omni_pixels_from_panorama_pixels(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.ndarray:
     """Omni-image ``(row, col)`` of panorama ``(row, col)`` (sub-pixel, exact).
 
     Parameters
@@ -503,10 +502,10 @@ def omni_from_panorama(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.
     -------
     (..., 2) ndarray
     """
-    return pixels_from_rays(mapping.model, rays_from_panorama(mapping, pano_pixels))
+    return pixels_from_rays(mapping.model, rays_from_panorama_pixels(mapping, pano_pixels))
 
 
-def panorama_from_omni_pixels(mapping: PanoramaMapping, omni_pixels: np.ndarray) -> np.ndarray:
+def panorama_pixels_from_omni_pixels(mapping: PanoramaMapping, omni_pixels: np.ndarray) -> np.ndarray:
     """Panorama ``(row, col)`` of omni-image ``(row, col)``; columns in ``[0, width)``.
 
     Parameters
@@ -519,7 +518,7 @@ def panorama_from_omni_pixels(mapping: PanoramaMapping, omni_pixels: np.ndarray)
     (..., 2) ndarray
         Rows outside ``[0, height - 1]`` are outside the band.
     """
-    return panorama_from_rays(mapping, rays_from_pixels(mapping.model, omni_pixels))
+    return panorama_pixels_from_rays(mapping, rays_from_pixels(mapping.model, omni_pixels))
 
 
 def panorama_axis_rotation(model) -> np.ndarray:
@@ -625,7 +624,7 @@ def _model_panorama_mapping(model, config: PanoramaConfig) -> PanoramaMapping:
         radius_band_px=(float("nan"), float("nan")), map_rows=np.zeros((0, 0), np.float32),
         map_cols=np.zeros((0, 0), np.float32), camera_from_panorama=rotation)
     rows, cols = np.mgrid[0:height, 0:width]
-    pixels = pixels_from_rays(model, rays_from_panorama(mapping, np.stack([rows, cols], axis=-1)))
+    pixels = pixels_from_rays(model, rays_from_panorama_pixels(mapping, np.stack([rows, cols], axis=-1)))
     pixels = np.nan_to_num(pixels, nan=-1.0).astype(np.float32)
     map_rows, map_cols = np.ascontiguousarray(pixels[..., 0]), np.ascontiguousarray(pixels[..., 1])
     return replace(mapping, map_rows=map_rows, map_cols=map_cols,
@@ -657,23 +656,49 @@ def band_mask(mapping: PanoramaMapping, *, margin_px: float = 0.0) -> np.ndarray
 
 # Panorama points (per axis) at which the pixel angle of a general model is measured.
 _PIXEL_ANGLE_SAMPLES = 16
+# OCamCalib models: sensor radii across the band, and azimuths on each radius's circle.
+_PIXEL_SIZE_RADII = 64
+_PIXEL_SIZE_AZIMUTHS = 8
 
 
-def angular_pixel_size_in_band(model, *, config: PanoramaConfig = PanoramaConfig()) -> float:
+def angular_pixel_size_in_band(model, *, config: PanoramaConfig = PanoramaConfig(),
+                               band: tuple[float, float] | None = None) -> float:
     """Angle (radians) one image pixel subtends in the panorama band of a camera model.
 
-    At a grid of points over the band (:func:`panorama_mapping` of the model
-    alone) the angles between the ray of the point's image pixel and the
-    rays one pixel further along the rows and the columns are measured; the
-    result is the median of their geometric mean.
+    :func:`ifmi.camera.angular_pixel_size` is measured at sample points of
+    the band. For an OCamCalib model they lie on the calibration's circles at
+    sensor radii evenly spread over the band (through the affine part), and
+    the result is the median over the radii of each circle's median; for
+    other models they form a grid over the band (:func:`panorama_mapping` of
+    the model alone) and the result is their median.
+
+    Parameters
+    ----------
+    model : OcamModel or CameraModel
+    config : PanoramaConfig, keyword-only
+        Band settings (explicit radii, minimum inner fraction) of the default band.
+    band : (float, float), optional, keyword-only
+        OCamCalib only: ``(inner, outer)`` sensor radius in pixels; default
+        :func:`radius_band` of the calibration alone.
+
+    Returns
+    -------
+    float
     """
-    mapping = panorama_mapping(model, config=config)
-    rows = np.linspace(0, mapping.height - 1, _PIXEL_ANGLE_SAMPLES).astype(int)
-    cols = np.linspace(0, mapping.width - 1, _PIXEL_ANGLE_SAMPLES, endpoint=False).astype(int)
-    base = np.stack([mapping.map_rows[np.ix_(rows, cols)], mapping.map_cols[np.ix_(rows, cols)]],
-                    axis=-1).reshape(-1, 2).astype(np.float64)
-    steps = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    rays = rays_from_pixels(model, base[:, None, :] + steps)
-    along_row = np.arccos(np.clip(np.sum(rays[:, 0] * rays[:, 1], axis=-1), -1.0, 1.0))
-    along_col = np.arccos(np.clip(np.sum(rays[:, 0] * rays[:, 2], axis=-1), -1.0, 1.0))
-    return float(np.nanmedian(np.sqrt(along_row * along_col)))
+    if not isinstance(model, OcamModel):
+        mapping = panorama_mapping(model, config=config)
+        rows = np.linspace(0, mapping.height - 1, _PIXEL_ANGLE_SAMPLES).astype(int)
+        cols = np.linspace(0, mapping.width - 1, _PIXEL_ANGLE_SAMPLES, endpoint=False).astype(int)
+        base = np.stack([mapping.map_rows[np.ix_(rows, cols)], mapping.map_cols[np.ix_(rows, cols)]],
+                        axis=-1).reshape(-1, 2).astype(np.float64)
+        return float(np.nanmedian(angular_pixel_size(model, base)))
+    if band is None:
+        band = radius_band(model, config=config)
+    inner, outer = (float(v) for v in band)
+    if not 0 <= inner < outer:
+        raise ValueError(f"expected a band 0 <= inner < outer, got {band}")
+    radii = np.linspace(max(inner, 1.0), outer, _PIXEL_SIZE_RADII)
+    angles = np.linspace(0.0, 2.0 * np.pi, _PIXEL_SIZE_AZIMUTHS, endpoint=False)
+    sensor = np.stack([radii[:, None] * np.cos(angles)[None], radii[:, None] * np.sin(angles)[None]], axis=-1)
+    per_radius = np.median(angular_pixel_size(model, pixels_from_sensor(model, sensor)), axis=1)
+    return float(np.median(per_radius))

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ifmi.camera import pixel_offsets_from_sensor
+
 __all__ = ["horizon_radius_from_model", "mirror_scene_entries"]
 
 
@@ -82,8 +84,9 @@ def mirror_scene_entries(model, *, to_world: np.ndarray, radius_max: float, spp:
     """
     h = horizon_radius_from_model(model)
     height, width = model.size
-    c, d, e = model.affine
-    m_inv = np.linalg.inv(np.array([[c, d], [e, 1.0]]))
+    # Image offsets from the centre are the affine matrix times sensor points; its columns are
+    # the offsets of the sensor's unit vectors.
+    m_inv = np.linalg.inv(pixel_offsets_from_sensor(model, np.eye(2)).T)
     s = float(mirror_scale_m)
     # Orthographic film -> local (x_l, y_l) = -(2/W) (col - (W-1)/2, row - (H-1)/2).
     film_to_pixels = np.array([[0.0, -width / 2.0], [-width / 2.0, 0.0]])  # (x_l, y_l) -> (d_row, d_col)

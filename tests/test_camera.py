@@ -196,3 +196,38 @@ def test_malformed_calib_files(tmp_path, old, new, message):
 def test_missing_calib_file(tmp_path):
     with pytest.raises(InputError, match="calibration file not found"):
         read_calib(tmp_path / "nope.txt")
+
+
+def test_sensor_and_pixels_round_trip_through_the_affine_part():
+    from ifmi.camera import pixel_offsets_from_sensor, pixels_from_sensor, sensor_from_pixels
+
+    model = paracatadioptric_model((300, 320), horizon_radius_px=90.0, center=(151.3, 158.2),
+                                   affine=(1.003, -0.012, 0.008))
+    rng = np.random.default_rng(5)
+    pixels = rng.uniform(0.0, 300.0, (50, 2))
+    sensor = sensor_from_pixels(model, pixels)
+    np.testing.assert_allclose(pixels_from_sensor(model, sensor), pixels, atol=1e-10)
+    # Exact matrix form: (row, col) - centre = [[c, d], [e, 1]] (u, v).
+    c, d, e = model.affine
+    np.testing.assert_allclose(pixel_offsets_from_sensor(model, sensor),
+                               sensor @ np.array([[c, d], [e, 1.0]]).T, atol=1e-10)
+    np.testing.assert_allclose(np.hypot(sensor[:, 0], sensor[:, 1]), radius_from_pixels(model, pixels))
+    # A ray at azimuth phi imaged at sensor radius rho lands on rho (cos phi, sin phi).
+    rays = rays_from_pixels(model, pixels)
+    phi = np.arctan2(rays[:, 1], rays[:, 0])
+    np.testing.assert_allclose(np.arctan2(sensor[:, 1], sensor[:, 0]), phi, atol=1e-12)
+
+
+def test_angular_pixel_size_of_a_paraboloid_at_its_horizon():
+    from ifmi.camera import angular_pixel_size, pixels_from_sensor
+
+    # pol(r) = -h/2 + r^2/(2h): at r = h the ray is horizontal and d(theta)/dr = 1/h,
+    # and across the radius a pixel is 1/h of the horizon circle; both neighbours subtend 1/h rad.
+    h = 120.0
+    model = paracatadioptric_model((400, 400), horizon_radius_px=h)
+    phi = np.linspace(0.0, 2 * np.pi, 12, endpoint=False)
+    sensor = h * np.stack([np.cos(phi), np.sin(phi)], axis=-1)
+    sizes = angular_pixel_size(model, pixels_from_sensor(model, sensor))
+    assert sizes.shape == (12,)
+    # One-pixel steps are finite differences: accurate to about 1 / (2 h) relative.
+    np.testing.assert_allclose(sizes, 1.0 / h, rtol=1.0 / h)

@@ -156,14 +156,63 @@ def test_unreadable_config_file(dataset, tmp_path, capsys):
 
 
 def test_pixel_threshold_option_is_converted_and_recorded(dataset, tmp_path):
-    from ifmi.pipeline import angular_pixel_size
+    from ifmi.unwarp import angular_pixel_size_in_band
 
     root, _ = dataset
     out = tmp_path / "px.txt"
     assert main(["estimate", str(root), "--out", str(out), "--ransac-threshold-px", "2",
                  "--max-failures", "3", "--no-progress"]) == 0
     config = json.loads((tmp_path / "px.config.json").read_text())["config"]
-    pixel = angular_pixel_size(read_dataset(root).model)
+    pixel = angular_pixel_size_in_band(read_dataset(root).model)
     assert config["relative_pose"]["ransac_threshold_px"] == 2.0
     assert config["relative_pose"]["ransac_threshold_rad"] == pytest.approx(2.0 * pixel)
     assert config["keyframe"]["max_failures"] == 3
+
+
+def _tiny_dataset(folder, model):
+    """DATASET of three seeded noise images of ``model`` (enough to reach the front end's setup)."""
+    from ifmi.io.camera_file import write_camera
+
+    (folder / "images").mkdir(parents=True)
+    write_camera(folder, model)
+    rng = np.random.default_rng(3)
+    for k in range(3):
+        cv2.imwrite(str(folder / "images" / f"{k:06d}.png"),
+                    rng.integers(0, 256, model.size, dtype=np.uint8))
+    return folder
+
+
+def _small_cameras():
+    from camera_examples import EXAMPLES
+
+    ds = EXAMPLES["ds"]
+    ocam = EXAMPLES["ocamcalib"]
+    # 192 px wide double sphere: 30 px panorama; 96 px OCamCalib: 19 px panorama (tiles are 32 px).
+    return {"camera.yaml": ds.scaled(192 / ds.width), "calib_results.txt": ocam.scaled(96 / ocam.width)}
+
+
+@pytest.mark.parametrize("calib_name", ["camera.yaml", "calib_results.txt"])
+def test_panorama_smaller_than_a_tile_is_one_line(tmp_path, capsys, calib_name):
+    root = _tiny_dataset(tmp_path / "tiny", _small_cameras()[calib_name])
+    out = tmp_path / "e.txt"
+    assert main(["estimate", str(root), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err and not out.exists()
+    assert f"{root / calib_name}: " in err
+    assert "smaller than the 32 px tile; expected a panorama at least 32x32 px" in err
+    assert "--tile-size" in err
+
+
+def test_panorama_smaller_than_a_tile_from_the_library(tmp_path):
+    from ifmi.errors import CalibrationFitError
+    from ifmi.pipeline import estimate_dataset, estimate_sequence
+
+    model = _small_cameras()["camera.yaml"]
+    root = _tiny_dataset(tmp_path / "tiny", model)
+    with pytest.raises(CalibrationFitError, match=r"camera\.yaml: the 123x192 px image gives a 30x256 px"):
+        estimate_dataset(root, method="ifmi")
+    # Without a file the model is named generically; the feature baselines have no tiles.
+    images = [read_image(p) for p in sorted((root / "images").iterdir())]
+    with pytest.raises(CalibrationFitError, match="^camera model: "):
+        estimate_sequence(images, model, method="ifmi")
+    assert len(estimate_sequence(images, model, method="orb").frames) == 3

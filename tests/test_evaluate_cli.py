@@ -136,19 +136,21 @@ def test_ifmi_evaluation_saves_motion_flow_of_real_frames(tmp_path):
     from ifmi.io.calib import write_calib
     from ifmi.io.results import read_motion_flow, write_estimate_run
     from ifmi.pipeline import estimate_dataset
-    from omni_synthetic import environment_texture, omni_model, render_omni
+    pytest.importorskip("skimage")
+    from ifmi.synthetic import environment_texture, example_band_px, example_omni_model, omni_from_environment
 
     # Two frames turned by a pure yaw: on the panorama every tile moves by
     # -yaw * width / (2 pi) columns and 0 rows.
     yaw = 0.05
     data = tmp_path / "data"
     (data / "images").mkdir(parents=True)
-    model = omni_model(256)
+    model = example_omni_model(256)
     write_calib(data / "calib_results.txt", model)
-    texture = environment_texture()
+    texture = environment_texture(height=512, seed=0)
     rotations = matrix_from_rpy(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, yaw]]))
     for k, R in enumerate(rotations):
-        cv2.imwrite(str(data / "images" / f"{k:06d}.png"), render_omni(model, R, texture))
+        cv2.imwrite(str(data / "images" / f"{k:06d}.png"), omni_from_environment(
+            texture, model, R, band_px=example_band_px(model)))
     write_tum(data / "groundtruth.txt", Trajectory(np.arange(2.0), np.zeros((2, 3)), rotations))
     est = write_estimate_run(tmp_path / "ifmi.txt", estimate_dataset(data, method="ifmi"),
                              dataset_dir=data)

@@ -11,25 +11,35 @@ from ifmi.features import FeatureConfig, FeatureFrontEnd, match_descriptors
 from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays
 from ifmi.rotations import geodesic_angle, matrix_from_rpy
 
-from omni_synthetic import environment_texture, mirror_band, omni_model, render_omni
+pytest.importorskip("skimage")
+from ifmi.synthetic import (environment_texture, example_band_px, example_omni_model,  # noqa: E402
+                            omni_from_environment, rotation_sequence)
+
+
+@pytest.fixture(scope="module")
+def texture():
+    return environment_texture(height=512, seed=0)
+
+
+def _render(model, rotation, texture):
+    return omni_from_environment(texture, model, rotation, band_px=example_band_px(model))
 
 # A pure rotation of about 4.6 degrees between the frames.
 R_AB = matrix_from_rpy(np.array([0.03, -0.04, 0.06]))
 
 
 @pytest.fixture(scope="module")
-def pair():
-    model = omni_model(384)
-    texture = environment_texture()
-    image_a = render_omni(model, np.eye(3), texture)
-    image_b = render_omni(model, R_AB, texture)
+def pair(texture):
+    model = example_omni_model(384)
+    image_a = _render(model, np.eye(3), texture)
+    image_b = _render(model, R_AB, texture)
     return model, image_a, image_b
 
 
 def test_akaze_exists_in_this_opencv():
     assert hasattr(cv2, "AKAZE_create"), f"OpenCV {cv2.__version__} has no AKAZE"
     detector = cv2.AKAZE_create()
-    image = environment_texture(128)[:, :256]
+    image = environment_texture(height=128).astype(np.uint8)
     keypoints, descriptors = detector.detectAndCompute(image, None)
     assert len(keypoints) > 10
     assert descriptors.dtype == np.uint8 and descriptors.shape == (len(keypoints), 61)
@@ -38,7 +48,7 @@ def test_akaze_exists_in_this_opencv():
 @pytest.mark.parametrize("detector", ["orb", "akaze"])
 def test_front_end_recovers_known_rotation(pair, detector):
     model, image_a, image_b = pair
-    front = FeatureFrontEnd(model, detector, config=FeatureConfig(radius_band=mirror_band(model)))
+    front = FeatureFrontEnd(model, detector, config=FeatureConfig(radius_band=example_band_px(model)))
     state_a, state_b = front.prepare(image_a), front.prepare(np.dstack([image_b] * 3))
     assert len(state_a) > 50 and len(state_b) > 50
     corr = front.correspondences(state_a, state_b)
@@ -61,7 +71,7 @@ def test_front_end_recovers_known_rotation(pair, detector):
 
 def test_keypoints_are_row_col_inside_the_band(pair):
     model, image_a, _ = pair
-    band = mirror_band(model)
+    band = example_band_px(model)
     front = FeatureFrontEnd(model, "orb", config=FeatureConfig(radius_band=band))
     state = front.prepare(image_a)
     r = radius_from_pixels(model, state.pixels)
@@ -105,7 +115,7 @@ def test_ratio_test_and_cross_check():
 
 def test_too_few_matches_is_flagged(pair):
     model, image_a, _ = pair
-    front = FeatureFrontEnd(model, "orb", config=FeatureConfig(radius_band=mirror_band(model)))
+    front = FeatureFrontEnd(model, "orb", config=FeatureConfig(radius_band=example_band_px(model)))
     state_a = front.prepare(image_a)
     state_blank = front.prepare(np.zeros_like(image_a))
     corr = front.correspondences(state_a, state_blank)
@@ -123,17 +133,15 @@ def test_config_round_trip_and_validation():
         FeatureConfig.from_dict({"n_feature": 3})
 
 
-def test_registered_methods_track_a_synthetic_sequence():
+def test_registered_methods_track_a_synthetic_sequence(texture):
     from dataclasses import replace
 
     from ifmi.pipeline import EstimateConfig, create_front_end, estimate_sequence
-    from omni_synthetic import rotation_sequence
 
-    model = omni_model(384)
-    texture = environment_texture()
-    truth = rotation_sequence(4, seed=5, step_rad=0.04)
-    images = [render_omni(model, R, texture) for R in truth]
-    base = EstimateConfig(features=FeatureConfig(radius_band=mirror_band(model)))
+    model = example_omni_model(384)
+    truth = rotation_sequence(4, max_step_rad=0.04, seed=5)
+    images = [_render(model, R, texture) for R in truth]
+    base = EstimateConfig(features=FeatureConfig(radius_band=example_band_px(model)))
     # Rotation-only back end with a 1-degree threshold (about 2 px here), as in
     # the pair test above: the sequence is a pure rotation.
     config = replace(base, relative_pose=replace(base.relative_pose, rotation_only=True,
@@ -160,12 +168,12 @@ def test_estimate_config_round_trip_with_features():
 
 def test_features_on_panorama_recover_rotation(pair):
     model, image_a, image_b = pair
-    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=mirror_band(model),
+    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=example_band_px(model),
                                                                  on_panorama=True))
     state_a, state_b = front.prepare(image_a), front.prepare(image_b)
     # Keypoints come back as omni (row, col) inside the band.
     r = radius_from_pixels(model, state_a.pixels)
-    band = mirror_band(model)
+    band = example_band_px(model)
     assert r.min() >= band[0] - 1 and r.max() <= band[1] + 1
     corr = front.correspondences(state_a, state_b)
     assert corr.success, corr.reason

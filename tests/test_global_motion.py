@@ -10,7 +10,7 @@ from ifmi.camera import paracatadioptric_model
 from ifmi.global_motion import GlobalMotionConfig, GlobalMotionEstimator, rotation_from_ray_pairs
 from ifmi.rotations import geodesic_angle
 from ifmi.synthetic import environment_texture, omni_from_environment
-from ifmi.unwarp import PanoramaConfig, panorama_from_omni, panorama_mapping
+from ifmi.unwarp import PanoramaConfig, panorama_image_from_omni_image, panorama_mapping
 
 SIZE = 200
 MODEL = paracatadioptric_model((SIZE, SIZE), horizon_radius_px=60.0)
@@ -26,7 +26,7 @@ def scene():
 
 def _coarse(texture, mapping, estimator, rotation_0k):
     image = omni_from_environment(texture, MODEL, rotation_0k, band_px=BAND)
-    return estimator.coarse_panorama(panorama_from_omni(image, mapping))
+    return estimator.coarse_panorama(panorama_image_from_omni_image(mapping, image))
 
 
 def _rotation(yaw_deg, tilt_deg, tilt_axis_deg):

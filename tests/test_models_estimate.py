@@ -15,7 +15,7 @@ from ifmi.camera import valid_mask
 from ifmi.pipeline import estimate_sequence
 from ifmi.rotations import geodesic_angle
 from ifmi.synthetic import environment_texture, omni_from_environment, rotation_sequence
-from ifmi.unwarp import band_mask, omni_from_panorama, panorama_from_omni_pixels, panorama_mapping
+from ifmi.unwarp import band_mask, omni_pixels_from_panorama_pixels, panorama_pixels_from_omni_pixels, panorama_mapping
 
 from camera_examples import EXAMPLES
 
@@ -41,7 +41,7 @@ def test_panorama_maps_back_exactly(name):
     mapping = panorama_mapping(_small(name))
     rows, cols = np.mgrid[0:mapping.height:3, 0:mapping.width:5]
     pano = np.stack([rows, cols], axis=-1) + 0.25
-    back = panorama_from_omni_pixels(mapping, omni_from_panorama(mapping, pano))
+    back = panorama_pixels_from_omni_pixels(mapping, omni_pixels_from_panorama_pixels(mapping, pano))
     diff = back - pano
     diff[..., 1] = np.mod(diff[..., 1] + mapping.width / 2, mapping.width) - mapping.width / 2
     assert np.abs(diff).max() < 1e-4

@@ -17,12 +17,15 @@ from omnisim.effects import linear_from_srgb_uint8, srgb_uint8_from_linear
 from omnisim.settings import SettingError
 
 pytest.importorskip("skimage")
-from omni_synthetic import write_dataset  # noqa: E402
+from ifmi.synthetic import (example_band_px, example_omni_model, synthetic_sequence,  # noqa: E402
+                            write_synthetic_dataset)
 
 
 @pytest.fixture(scope="module")
 def source(tmp_path_factory):
-    return write_dataset(tmp_path_factory.mktemp("src"), n=4, size=96)
+    model = example_omni_model(96)
+    sequence = synthetic_sequence(model, 4, seed=0, band_px=example_band_px(model))
+    return write_synthetic_dataset(tmp_path_factory.mktemp("src"), sequence)
 
 
 def _images(folder):

@@ -138,7 +138,7 @@ def test_real_calibration_with_default_configuration():
 
 
 def test_angular_pixel_size_scales_with_resolution():
-    from ifmi.pipeline import angular_pixel_size
+    from ifmi.unwarp import angular_pixel_size_in_band as angular_pixel_size
 
     # The same mirror imaged at 256, 512 and 800 px: a pixel subtends an angle
     # inversely proportional to the resolution (to the band-sampling accuracy).
@@ -151,10 +151,11 @@ def test_angular_pixel_size_scales_with_resolution():
 
 
 def test_pixel_threshold_is_resolved_for_the_calibration(sequence):
-    from ifmi.pipeline import angular_pixel_size, resolved_config
+    from ifmi.pipeline import resolved_config
+    from ifmi.unwarp import angular_pixel_size_in_band
 
     config = replace(CONFIG, relative_pose=replace(CONFIG.relative_pose, ransac_threshold_px=1.5))
-    pixel = angular_pixel_size(MODEL, panorama=CONFIG.ifmi.panorama)
+    pixel = angular_pixel_size_in_band(MODEL, config=CONFIG.ifmi.panorama)
     assert resolved_config(config, MODEL).relative_pose.ransac_threshold_rad == pytest.approx(1.5 * pixel)
     explicit = replace(CONFIG, relative_pose=replace(CONFIG.relative_pose, ransac_threshold_rad=1e-3))
     assert resolved_config(explicit, MODEL) == explicit

@@ -14,14 +14,23 @@ from ifmi.pipeline import EstimateConfig
 from ifmi.rotations import geodesic_angle
 from ifmi.sweep import SweepOptions, config_with_tiling, run_sweep, sweep_cells
 
-from omni_synthetic import write_dataset
+pytest.importorskip("skimage")
+from ifmi.synthetic import (example_band_px, example_omni_model, synthetic_sequence,  # noqa: E402
+                            write_synthetic_dataset)
+
+
+def _write_dataset(folder, *, n, size, seed, max_step_rad=0.03):
+    model = example_omni_model(size)
+    sequence = synthetic_sequence(model, n, seed=seed, max_step_rad=max_step_rad,
+                                  band_px=example_band_px(model))
+    return write_synthetic_dataset(folder, sequence)
 
 
 @pytest.fixture(scope="module")
 def datasets(tmp_path_factory):
     root = tmp_path_factory.mktemp("sweep_data")
-    good = write_dataset(root / "tiny", n=5, size=160, seed=2, step_rad=0.04)
-    bad = write_dataset(root / "nogt", n=3, size=128, seed=3)
+    good = _write_dataset(root / "tiny", n=5, size=160, seed=2, max_step_rad=0.04)
+    bad = _write_dataset(root / "nogt", n=3, size=128, seed=3)
     (bad / "groundtruth.txt").unlink()
     return good, bad
 

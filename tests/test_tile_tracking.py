@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from ifmi.camera import paracatadioptric_model
 from ifmi.fourier_mellin import compose_placement, motion_from_placement, placement_from_motion
 from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
-from ifmi.unwarp import PanoramaConfig, panorama_from_rays, rays_from_panorama
+from ifmi.unwarp import PanoramaConfig, panorama_pixels_from_rays, rays_from_panorama_pixels
 
 pytest.importorskip("skimage")
 from ifmi.synthetic import environment_texture, omni_from_environment  # noqa: E402
@@ -58,7 +58,7 @@ def test_affine_prediction_follows_the_exact_panorama_warp(clean_frames):
     half = (fe.layout.tile_size - 1) / 2.0
     corners = np.array([[-1, -1], [-1, 1], [1, -1], [1, 1]]) * half
     in_a = offsets[:, None] + np.einsum("tij,kj->tki", linear, corners)
-    exact = panorama_from_rays(fe.mapping, rays_from_panorama(fe.mapping, in_a) @ rotation)
+    exact = panorama_pixels_from_rays(fe.mapping, rays_from_panorama_pixels(fe.mapping, in_a) @ rotation)
     width = fe.mapping.width
 
     def error(lin):
@@ -164,14 +164,15 @@ def test_distortion_limit_is_validated():
 
 def test_layout_tiles_of_a_frame_are_cut_across_the_seam(clean_frames):
     from ifmi.tiling import TilingConfig, tiles_from_panorama
-    from ifmi.unwarp import panorama_from_omni
+    from ifmi.unwarp import panorama_image_from_omni_image
 
     # 40 px tiles at half overlap on a 512 px wide panorama: the last column of tiles wraps.
     fe = IfmiFrontEnd(MODEL, replace(CONFIG, tiling=TilingConfig(tile_size=40, overlap=0.5)))
     state = fe.prepare(clean_frames[0])
     assert (fe.layout.origins[:, 1] + fe.layout.tile_size > fe.mapping.width).any()
     # The front end remaps the frame as float (no rounding to whole gray levels).
-    expected = tiles_from_panorama(panorama_from_omni(clean_frames[0].astype(np.float32), fe.mapping), fe.layout)
+    panorama = panorama_image_from_omni_image(fe.mapping, clean_frames[0].astype(np.float32))
+    expected = tiles_from_panorama(panorama, fe.layout)
     assert np.array_equal(state.layout_tiles(), expected)
     some = np.arange(fe.layout.count) % 3 == 0
     assert np.array_equal(state.layout_tiles(some), expected[some])

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from ifmi.camera import paracatadioptric_model, radius_from_pixels
-from ifmi.unwarp import (PanoramaConfig, omni_from_panorama, panorama_from_omni,
-                         panorama_from_omni_pixels, panorama_mapping, radius_band, rays_from_panorama,
+from ifmi.unwarp import (PanoramaConfig, omni_pixels_from_panorama_pixels, panorama_image_from_omni_image,
+                         panorama_pixels_from_omni_pixels, panorama_mapping, radius_band, rays_from_panorama_pixels,
                          wrapped_panorama_maps)
 
 # An off-centre, non-identity-affine paracatadioptric camera.
@@ -28,8 +28,8 @@ def test_panorama_omni_round_trip():
     mapping = panorama_mapping(MODEL, config=PanoramaConfig(width=256, radius_min_px=30, radius_max_px=110))
     rng = np.random.default_rng(1)
     pano = np.stack([rng.uniform(0, mapping.height - 1, 200), rng.uniform(0, mapping.width, 200)], axis=1)
-    omni = omni_from_panorama(mapping, pano)
-    back = panorama_from_omni_pixels(mapping, omni)
+    omni = omni_pixels_from_panorama_pixels(mapping, pano)
+    back = panorama_pixels_from_omni_pixels(mapping, omni)
     col_err = np.abs(np.angle(np.exp(2j * np.pi * (back[:, 1] - pano[:, 1]) / mapping.width)))
     assert np.max(np.abs(back[:, 0] - pano[:, 0])) < 1e-3
     assert np.max(col_err) * mapping.width / (2 * np.pi) < 1e-3
@@ -38,11 +38,11 @@ def test_panorama_omni_round_trip():
 def test_wrapped_panorama_repeats_the_columns_across_the_seam():
     mapping = panorama_mapping(MODEL, config=PanoramaConfig(width=128, radius_min_px=30, radius_max_px=110))
     image = _band_image(MODEL, 30, 110)
-    pano = panorama_from_omni(image, mapping)
-    padded = panorama_from_omni(image, mapping, maps=wrapped_panorama_maps(mapping, 20))
+    pano = panorama_image_from_omni_image(mapping, image)
+    padded = panorama_image_from_omni_image(mapping, image, maps=wrapped_panorama_maps(mapping, 20))
     assert np.array_equal(padded, np.concatenate([pano[:, -20:], pano, pano[:, :20]], axis=1))
     # More columns than the panorama has repeat it.
-    twice = panorama_from_omni(image, mapping, maps=wrapped_panorama_maps(mapping, 130))
+    twice = panorama_image_from_omni_image(mapping, image, maps=wrapped_panorama_maps(mapping, 130))
     assert np.array_equal(twice[:, 130:258], pano) and np.array_equal(twice[:, :2], pano[:, -2:])
     with pytest.raises(ValueError, match="columns"):
         wrapped_panorama_maps(mapping, -1)
@@ -51,7 +51,7 @@ def test_wrapped_panorama_repeats_the_columns_across_the_seam():
 def test_remap_maps_agree_with_pixel_mapping():
     mapping = panorama_mapping(MODEL, config=PanoramaConfig(width=128, radius_min_px=30, radius_max_px=110))
     rows, cols = np.mgrid[0:mapping.height, 0:mapping.width]
-    omni = omni_from_panorama(mapping, np.stack([rows, cols], axis=-1).astype(float))
+    omni = omni_pixels_from_panorama_pixels(mapping, np.stack([rows, cols], axis=-1).astype(float))
     assert np.allclose(mapping.map_rows, omni[..., 0], atol=1e-3)
     assert np.allclose(mapping.map_cols, omni[..., 1], atol=1e-3)
     radius = radius_from_pixels(MODEL, omni)
@@ -60,7 +60,7 @@ def test_remap_maps_agree_with_pixel_mapping():
 
 def test_rays_of_panorama_columns_are_azimuths():
     mapping = panorama_mapping(MODEL, config=PanoramaConfig(width=360, radius_min_px=30, radius_max_px=110))
-    rays = rays_from_panorama(mapping, np.array([[0.0, 90.0], [mapping.height - 1.0, 0.0]]))
+    rays = rays_from_panorama_pixels(mapping, np.array([[0.0, 90.0], [mapping.height - 1.0, 0.0]]))
     assert np.allclose(np.linalg.norm(rays, axis=1), 1.0)
     assert np.isclose(np.arctan2(rays[0, 1], rays[0, 0]), np.pi / 2)
     assert np.isclose(np.arcsin(rays[0, 2]), mapping.elevation_top_rad)
@@ -75,8 +75,8 @@ def test_rotation_about_the_mirror_axis_is_a_column_shift():
     mapping = panorama_mapping(MODEL, config=PanoramaConfig(width=360, radius_min_px=35, radius_max_px=110))
     yaw = np.radians(10.0)
     rz = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
-    pano0 = panorama_from_omni(omni_from_environment(env, MODEL, np.eye(3)), mapping)
-    pano1 = panorama_from_omni(omni_from_environment(env, MODEL, rz), mapping)
+    pano0 = panorama_image_from_omni_image(mapping, omni_from_environment(env, MODEL, np.eye(3)))
+    pano1 = panorama_image_from_omni_image(mapping, omni_from_environment(env, MODEL, rz))
     # Camera turned by +10 deg: the world azimuth phi is seen at camera azimuth phi - 10 deg.
     shifted = np.roll(pano0, -10, axis=1)
     inner = slice(3, -3)
@@ -105,13 +105,14 @@ def test_panorama_of_rgb_and_gray_agree():
     mapping = panorama_mapping(MODEL, config=PanoramaConfig(width=128))
     gray = _band_image(MODEL, 20.0, 110.0)
     rgb = np.repeat(gray[..., None], 3, axis=2)
-    assert np.allclose(panorama_from_omni(gray, mapping), panorama_from_omni(rgb, mapping), atol=1.0)
+    assert np.allclose(panorama_image_from_omni_image(mapping, gray),
+                       panorama_image_from_omni_image(mapping, rgb), atol=1.0)
 
 
 def test_wrong_image_size_is_rejected():
     mapping = panorama_mapping(MODEL, config=PanoramaConfig(width=64))
     with pytest.raises(ValueError, match="expected an image of size"):
-        panorama_from_omni(np.zeros((10, 10), np.uint8), mapping)
+        panorama_image_from_omni_image(mapping, np.zeros((10, 10), np.uint8))
 
 
 def test_empty_band_is_rejected():
@@ -137,3 +138,10 @@ def test_band_detection_is_robust_to_sensor_noise():
         inner, outer = radius_band(MODEL, noisy.astype(np.uint8), config=PanoramaConfig(min_radius_fraction=0.0))
         assert 40.0 <= inner <= 47.0
         assert 93.0 <= outer <= 100.0
+
+
+def test_panorama_image_takes_the_mapping_first():
+    mapping = panorama_mapping(MODEL)
+    image = np.zeros(MODEL.size, np.uint8)
+    with pytest.raises(TypeError, match="expected a PanoramaMapping as the first argument, got ndarray"):
+        panorama_image_from_omni_image(image, mapping)

@@ -78,3 +78,16 @@ def test_video_errors_name_the_file(video, tmp_path, capsys):
     code = main(["estimate", str(root / "clip.avi"), "--out", str(tmp_path / "e.txt"), "--no-progress"])
     assert code == 2 and "needs --calib" in capsys.readouterr().err
     assert is_video_path(root / "clip.avi") and not is_video_path(root)
+
+
+def test_video_panorama_smaller_than_a_tile_names_the_calibration(video, tmp_path, capsys):
+    from ifmi.cli import main
+
+    root, _ = video
+    out = tmp_path / "e.txt"
+    code = main(["estimate", str(root / "clip.avi"), "--calib", str(root / "calib_results.txt"),
+                 "--out", str(out), "--tile-size", "128", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and not out.exists()
+    assert f"{root / 'calib_results.txt'}: the 160x160 px image gives a " in err
+    assert "smaller than the 128 px tile; expected a panorama at least 128x128 px" in err
