@@ -69,6 +69,16 @@ class IfmiConfig:
     max_tile_distortion : float
         A tracked tile whose placement stretches or shrinks the panorama by
         more than this factor along any direction is cut anew.
+    dense_retry_fraction : float
+        With a prediction, when at most this fraction of the tiles pass
+        the noise filters (fast translation: parallax a rotation cannot
+        predict moves and distorts most tiles), the pair is registered once
+        more with a denser layout, tiles overlapping by ``dense_overlap``,
+        cut anew from frame a at the same coarse rotation; the registration
+        with more kept tiles gives the rays. Frame b keeps the regular
+        layout's tracked tiles. 0 disables it.
+    dense_overlap : float
+        Overlap of the denser layout (``TilingConfig.overlap``).
     anchor_templates : bool
         Tracked tiles keep the template (spectrum) of the frame they were
         first cut from, and every later frame's placement of them is
@@ -91,6 +101,8 @@ class IfmiConfig:
     coarse_to_fine: bool = True
     global_motion: GlobalMotionConfig = field(default_factory=GlobalMotionConfig)
     max_tile_distortion: float = 1.25
+    dense_retry_fraction: float = 0.33
+    dense_overlap: float = 0.5
     anchor_templates: bool = True
 
     def __post_init__(self) -> None:
@@ -99,6 +111,9 @@ class IfmiConfig:
         if not 0 <= self.point_spread < 0.5 or self.min_tiles < 1:
             raise ValueError(f"expected 0 <= point_spread < 0.5 and min_tiles >= 1, got "
                              f"{self.point_spread}, {self.min_tiles}")
+        if not 0 <= self.dense_retry_fraction <= 1 or not 0 <= self.dense_overlap < 1:
+            raise ValueError(f"expected 0 <= dense_retry_fraction <= 1 and 0 <= dense_overlap < 1, got "
+                             f"{self.dense_retry_fraction}, {self.dense_overlap}")
         if not self.max_tile_distortion > 1:
             raise ValueError(f"expected max_tile_distortion > 1, got {self.max_tile_distortion}")
 
@@ -184,6 +199,8 @@ class IfmiFrontEnd:
         self.layout: TileLayout | None = None
         self.engine: FourierMellin | None = None
         self.global_stage: GlobalMotionEstimator | None = None
+        self.dense_layout: TileLayout | None = None
+        self.dense_engine: FourierMellin | None = None
         self._points_b: np.ndarray | None = None
         self._padded_maps: tuple = ()
 
@@ -201,6 +218,11 @@ class IfmiFrontEnd:
         self._padded_maps = wrapped_panorama_maps(self.mapping, self._pad)
         if self.config.coarse_to_fine and self.config.use_prior:
             self.global_stage = GlobalMotionEstimator(self.mapping, config=self.config.global_motion)
+        if self.config.dense_retry_fraction > 0 and self.config.use_prior:
+            self.dense_layout = tile_layout((self.mapping.height, self.mapping.width),
+                                            config=replace(self.config.tiling, overlap=self.config.dense_overlap))
+            self.dense_engine = FourierMellin(self.dense_layout.tile_size, self.dense_layout.count,
+                                              config=self.config.registration)
         self._points_b = flow_sample_points(self.layout.tile_size,
                                             points_per_tile=self.config.points_per_tile,
                                             spread=self.config.point_spread)
@@ -446,7 +468,36 @@ class IfmiFrontEnd:
         rotation, coarse = self._coarse_rotation(state_a, state_b, starts)
         offsets_a, linear_a, placed, n_new = self.register_predicted(state_a, state_b, prior_rotation=rotation)
         diagnostics = self._diagnostics(placed.reason, placed.peak_ratio, placed.peak_to_noise, n_new)
-        return (offsets_a, linear_a, placed), {**diagnostics, **coarse}
+        return (offsets_a, linear_a, placed, rotation), {**diagnostics, **coarse}
+
+    def register_dense(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
+                       prior_rotation: np.ndarray):
+        """Tiles of the denser layout cut from frame a, found in frame b where ``R_ab`` puts them.
+
+        Frame b's tracked tiles are left as they are.
+
+        Returns
+        -------
+        offsets_a : (T, 2) ndarray
+            Panorama ``(row, col)`` of the tile centres in frame a.
+        linear_a : (T, 2, 2) ndarray
+        placed : PlacedRegistration
+            With panorama coordinates of frame b (columns in ``[0, width)``).
+        """
+        layout = self.dense_layout
+        registration = self.config.registration
+        with_descriptor = registration.estimate_rotation_scale and registration.refine_predicted_rotation_scale
+        tiles = tiles_from_panorama(state_a.padded_panorama, layout, wrapped_columns=self._pad)
+        spectra_a = self.dense_engine.spectra(tiles, with_descriptor=with_descriptor)
+        offsets_a = layout.origins.astype(np.float64) + (layout.tile_size - 1) / 2.0
+        linear_a = np.broadcast_to(np.eye(2), (layout.count, 2, 2)).copy()
+        offsets_b, linear_b = self.predicted_placements(offsets_a, linear_a, prior_rotation)
+        offsets_b[:, 1] = np.mod(offsets_b[:, 1], self.mapping.width)
+        shift = np.array([0.0, self._pad])
+        placed = self.dense_engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + shift, linear_b)
+        offsets = placed.offsets - shift
+        offsets[:, 1] = np.mod(offsets[:, 1], self.mapping.width)
+        return offsets_a, linear_a, replace(placed, offsets=offsets)
 
     def correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
                         prior_rotation: np.ndarray | None = None):
@@ -487,8 +538,14 @@ class IfmiFrontEnd:
                 retry, retry_diagnostics = self._match_predicted(state_a, state_b, (None, prior_rotation))
                 if retry[2].valid.sum() > match[2].valid.sum():
                     match, diagnostics = retry, {**retry_diagnostics, "reacquired": True}
-            offsets_a, linear_a, placed = match
+            offsets_a, linear_a, placed, rotation = match
             valid = placed.valid
+            if self.dense_engine is not None and valid.sum() <= self.config.dense_retry_fraction * self.layout.count:
+                dense = self.register_dense(state_a, state_b, prior_rotation=rotation)
+                diagnostics = {**diagnostics, "n_tiles_kept_dense": int(dense[2].valid.sum())}
+                if dense[2].valid.sum() > valid.sum():
+                    offsets_a, linear_a, placed = dense
+                    valid = placed.valid
         if valid.sum() < min_tiles:
             return Correspondences.failed(
                 f"only {int(valid.sum())} of {self.layout.count} tiles passed the noise filters "

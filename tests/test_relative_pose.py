@@ -318,3 +318,19 @@ def test_rays_per_measurement_is_validated(value):
     with pytest.raises(ValueError, match="rays_per_measurement"):
         relative_pose_from_rays(rays, rays, options=RelativePoseOptions(ransac_threshold_rad=0.01),
                                 rays_per_measurement=value)
+
+
+def test_small_translation_is_found_when_its_parallax_exceeds_the_noise():
+    # A 2 cm step among points 2-6 m away moves rays by up to about 10 mrad: well above the
+    # ray noise, yet the rotation model's residuals hold that parallax, so a noise level taken
+    # from them was inflated and handed 11 of these 20 pairs to the rotation model. The
+    # noise is taken from the 5-point model's residuals instead.
+    options = RelativePoseOptions(ransac_threshold_rad=0.004)
+    for noise_rad in (2e-4, 5e-4):
+        moving = [relative_pose_from_rays(*_grouped_rays(seed, noise_rad=noise_rad,
+                                                         translation=np.array([0.02, 0.007, 0.0])),
+                                          options=options, rays_per_measurement=5)[1].model
+                  for seed in range(20)]
+        still = [relative_pose_from_rays(*_grouped_rays(seed, noise_rad=noise_rad), options=options,
+                                         rays_per_measurement=5)[1].model for seed in range(20)]
+        assert moving.count("5pt") == 20 and still.count("5pt") == 0

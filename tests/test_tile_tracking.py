@@ -176,3 +176,40 @@ def test_layout_tiles_of_a_frame_are_cut_across_the_seam(clean_frames):
     assert np.array_equal(state.layout_tiles(), expected)
     some = np.arange(fe.layout.count) % 3 == 0
     assert np.array_equal(state.layout_tiles(some), expected[some])
+
+
+def test_dense_retry_registers_a_denser_layout_and_leaves_frame_bs_tracked_tiles(clean_frames):
+    from ifmi.relative_pose import rotation_from_rays
+    from ifmi.rotations import geodesic_angle
+
+    # Forced on every pair (fraction 1): the half-overlap layout's tiles, cut anew from frame a,
+    # are found where the true rotation puts them and give the rays; frame b keeps the regular
+    # layout's tracked tiles for the next pair.
+    fe = IfmiFrontEnd(MODEL, replace(CONFIG, dense_retry_fraction=1.0))
+    s0, s1 = fe.prepare(clean_frames[0]), fe.prepare(clean_frames[1])
+    offsets_a, linear_a, placed = fe.register_dense(s0, s1, prior_rotation=STEP)
+    assert fe.dense_layout.count > 3 * fe.layout.count
+    truth, _ = fe.predicted_placements(offsets_a, linear_a, STEP)
+    d = placed.offsets - truth
+    d[:, 1] = np.mod(d[:, 1] + fe.mapping.width / 2, fe.mapping.width) - fe.mapping.width / 2
+    # Measured: all 128 tiles kept, placed within 0.31 px of the truth.
+    assert placed.valid.mean() > 0.8 and np.abs(d[placed.valid]).max() < 0.5
+    corr = fe.correspondences(s0, s1, prior_rotation=STEP)
+    kept = corr.diagnostics["n_tiles_kept_dense"]
+    assert kept > 3 * corr.diagnostics["n_tiles_kept"] * 0.8
+    assert len(corr.rays_a) == kept * corr.rays_per_measurement
+    assert len(s1.tracked.offsets) == fe.layout.count
+    # Measured: 1.7e-4 rad (the one-pixel angle of the 512 px panorama is 1.2e-2 rad).
+    assert geodesic_angle(rotation_from_rays(corr.rays_a, corr.rays_b), STEP) < 1e-3
+    # Without the retry the regular tiles give the rays.
+    plain = IfmiFrontEnd(MODEL, replace(CONFIG, dense_retry_fraction=0.0))
+    corr = plain.correspondences(plain.prepare(clean_frames[0]), plain.prepare(clean_frames[1]), prior_rotation=STEP)
+    assert "n_tiles_kept_dense" not in corr.diagnostics
+    assert len(corr.rays_a) == corr.diagnostics["n_tiles_kept"] * corr.rays_per_measurement
+
+
+def test_dense_retry_options_are_validated():
+    with pytest.raises(ValueError, match="dense_retry_fraction"):
+        IfmiConfig(dense_retry_fraction=1.5)
+    with pytest.raises(ValueError, match="dense_overlap"):
+        IfmiConfig(dense_overlap=1.0)
