@@ -2,6 +2,10 @@
 
 import sys
 
-from .cli import main
+try:
+    from .cli import main
+except KeyboardInterrupt:  # interrupted before the command line could install its handler
+    print("omnisim: interrupted", file=sys.stderr)
+    sys.exit(130)
 
 sys.exit(main())

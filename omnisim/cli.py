@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 
 from ifmi.errors import InputError, OutputError
+
+# Everything heavier (numpy, the scene settings, Mitsuba) is imported inside main(),
+# after its interrupt handler is in place.
 
 __all__ = ["main", "build_parser"]
 
@@ -24,6 +29,9 @@ def _resolution(text: str):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .config import EffectsSettings
+    from .settings import field_docs
+
     parser = argparse.ArgumentParser(prog="omnisim", description="Render catadioptric omni-image "
                                      "sequences with exact ground truth (Mitsuba 3).")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -46,15 +54,11 @@ def build_parser() -> argparse.ArgumentParser:
                              "(noise, JPEG, exposure drift) applied to its images")
     degrade.add_argument("dataset", help="source DATASET folder (rendered or real)")
     degrade.add_argument("--out", required=True, help="dataset folder to write (resumed if it exists)")
-    degrade.add_argument("--noise-sigma", type=float, default=0.0,
-                         help="Gaussian noise, standard deviation in 8-bit grey levels (default 0)")
-    degrade.add_argument("--jpeg-quality", type=int, default=0,
-                         help="JPEG quality 1..100 the frames pass through; 0 = off (default)")
-    degrade.add_argument("--exposure-stops", type=float, default=0.0,
-                         help="bound of the exposure random walk, stops (default 0 = off)")
-    degrade.add_argument("--exposure-step-stops", type=float, default=0.1,
-                         help="largest exposure change between frames, stops (default 0.1)")
-    degrade.add_argument("--seed", type=int, default=0, help="seed of noise and exposure walk (default 0)")
+    # One option per effect; types, defaults and docs come from EffectsSettings.
+    for name, kind, default, doc in field_docs(EffectsSettings):
+        degrade.add_argument(f"--{name.replace('_', '-')}", dest=name, type=int if kind == "int" else float,
+                             help=f"{doc} (default {default})")
+    degrade.add_argument("--seed", type=int, help="seed of noise and exposure walk (default 0)")
     degrade.add_argument("--no-progress", action="store_true", help="no progress bar")
     warp = sub.add_parser("warp", help="turn one omni image into a pure-rotation sequence with exact "
                           "ground truth (no Mitsuba needed)")
@@ -69,18 +73,36 @@ def build_parser() -> argparse.ArgumentParser:
                       help="bound of roll and pitch, degrees (default 10)")
     warp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("check-llvm", help="print the LLVM drjit will use, or how to install one")
+    sub.add_parser("generators", help="list the [[objects]] generators of scene files and their parameters")
     return parser
 
 
 def _degrade(args) -> int:
     from .config import EffectsSettings
     from .degrade import degrade_dataset
+    from .settings import SettingError, field_docs
 
-    effects = EffectsSettings(noise_sigma=args.noise_sigma, exposure_stops=args.exposure_stops,
-                              exposure_step_stops=args.exposure_step_stops, jpeg_quality=args.jpeg_quality)
-    result = degrade_dataset(args.dataset, args.out, effects=effects, seed=args.seed,
-                             progress=not args.no_progress)
+    given = {name: getattr(args, name) for name, *_ in field_docs(EffectsSettings)
+             if getattr(args, name) is not None}
+    try:
+        effects = EffectsSettings(**given)
+    except SettingError as exc:
+        raise InputError(f"--{exc.key.replace('_', '-')}", f"{exc.key}: {exc.problem}") from None
+    seed = {} if args.seed is None else {"seed": args.seed}
+    result = degrade_dataset(args.dataset, args.out, effects=effects, progress=not args.no_progress, **seed)
     print(f"{result.out_dir}: {result.frames} frames ({result.written} written now)")
+    return 0
+
+
+def _render(args) -> int:
+    from .render import render_dataset
+
+    result = render_dataset(args.scene, args.out, frames=args.frames, seed=args.seed, spp=args.spp,
+                            resolution=args.resolution, progress=not args.no_progress,
+                            variant=args.variant, aovs=args.aov, workers=args.workers,
+                            scheduler=args.scheduler)
+    spf = (f", {result.seconds_per_frame:.2f} s/frame" if result.rendered else "")
+    print(f"{result.out_dir}: {result.frames} frames ({result.rendered} rendered now{spf})")
     return 0
 
 
@@ -97,48 +119,96 @@ def _warp(args) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    from .llvm import LlvmNotFoundError
+def _generators(args) -> int:
+    from .generators import describe_generators
 
-    args = build_parser().parse_args(argv)
-    try:
-        if args.command == "check-llvm":
-            from .llvm import main as llvm_main
-            return llvm_main([])
-        if args.command == "degrade":
-            return _degrade(args)
-        if args.command == "warp":
-            return _warp(args)
-        from .render import render_dataset
-        if args.frames is not None and args.frames < 1:
-            raise InputError(args.scene, f"--frames: expected >= 1, got {args.frames}")
-        if args.spp is not None and args.spp < 1:
-            raise InputError(args.scene, f"--spp: expected >= 1, got {args.spp}")
-        result = render_dataset(args.scene, args.out, frames=args.frames, seed=args.seed, spp=args.spp,
-                                resolution=args.resolution, progress=not args.no_progress,
-                                variant=args.variant, aovs=args.aov, workers=args.workers,
-                                scheduler=args.scheduler)
-        spf = (f", {result.seconds_per_frame:.2f} s/frame" if result.rendered else "")
-        print(f"{result.out_dir}: {result.frames} frames ({result.rendered} rendered now{spf})")
-        return 0
-    except InputError as exc:
-        print(f"omnisim {args.command}: error: {exc}", file=sys.stderr)
+    print(describe_generators(), end="")
+    return 0
+
+
+def _check_llvm(args) -> int:
+    from .llvm import main as llvm_main
+
+    return llvm_main([])
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """True when ``exc`` is, or was raised while handling, a KeyboardInterrupt.
+
+    Mitsuba and drjit turn an interrupt inside their C++ code into an
+    ImportError or RuntimeError chained to it.
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+class _InterruptFlag:
+    """SIGINT handler that remembers the interrupt, then raises KeyboardInterrupt as Python does."""
+
+    def __init__(self):
+        self.seen = False
+
+    def __call__(self, signum, frame):
+        self.seen = True
+        raise KeyboardInterrupt
+
+
+COMMANDS = {"render": _render, "degrade": _degrade, "warp": _warp, "generators": _generators,
+            "check-llvm": _check_llvm}
+
+
+def _exit_status(exc: BaseException, *, interrupted: bool, command: str) -> int | None:
+    """Print the one-line report of ``exc`` and return the exit status, or None for a bug (re-raised)."""
+    from .llvm import BackendError
+
+    command = f"omnisim {command}".strip()
+    if interrupted or _caused_by_interrupt(exc):
+        print(f"{command}: interrupted (rerun the same command to resume)", file=sys.stderr)
+        # CPython marks an interrupt that escaped code run by exec() of a string (dataclasses
+        # and namedtuple build their methods so, e.g. while numpy imports) as unhandled, and
+        # `python -m` then ends the process by SIGINT instead of this status; the next exec()
+        # of a string clears that mark.
+        exec("pass")
+        return 130
+    if isinstance(exc, InputError):
+        print(f"{command}: error: {exc}", file=sys.stderr)
         return 2
-    except OutputError as exc:
-        print(f"omnisim {args.command}: error: {exc}", file=sys.stderr)
+    if isinstance(exc, (OutputError, BackendError)):
+        print(f"{command}: error: {exc}", file=sys.stderr)
         return 1
-    except LlvmNotFoundError as exc:
-        print(f"omnisim {args.command}: error: {exc}", file=sys.stderr)
-        return 1
-    except ModuleNotFoundError as exc:
-        if exc.name not in ("mitsuba", "drjit", "trimesh", "skimage"):
-            raise
-        print(f"omnisim {args.command}: error: {exc.name} is not installed; "
+    if isinstance(exc, ModuleNotFoundError) and exc.name in ("mitsuba", "drjit", "trimesh", "skimage"):
+        print(f"{command}: error: {exc.name} is not installed; "
               "install the simulator extra: pip install -e '.[sim]'", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"omnisim {args.command}: interrupted (rerun the same command to resume)", file=sys.stderr)
-        return 130
+    return None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status.
+
+    0 done; 1 cannot write, or Mitsuba cannot run here; 2 bad input; 130 interrupted.
+    """
+    flag = _InterruptFlag()
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, flag) if in_main_thread else None
+    command = ""  # known once the arguments are parsed
+    try:
+        args = build_parser().parse_args(argv)
+        command = args.command
+        return COMMANDS[command](args)
+    except BaseException as exc:
+        status = _exit_status(exc, interrupted=flag.seen, command=command)
+        if status is None:
+            raise
+        return status
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
 
 
 if __name__ == "__main__":

@@ -1,67 +1,112 @@
 """Scene files: read a TOML scene description into frozen, validated settings.
 
-A scene file has the tables ``[scene]`` (name, layout seed), ``[render]``
-(resolution, spp, integrator depth, sampler), ``[camera]`` (a calibration
-file or a direct polynomial with centre, affine and size, plus the mirror
-band), ``[trajectory]``, ``[effects]``, ``[textures.*]``, ``[materials.*]``,
-``[[lights]]`` and ``[[objects]]`` (geometry generators). Every problem is
-reported as an :class:`ifmi.errors.InputError` naming the file and the key.
+A scene file has the tables ``[scene]`` (name, layout seed, an optional
+Mitsuba scene file), ``[render]`` (resolution, spp, integrator depth,
+sampler), ``[camera]`` (a calibration file or a direct polynomial with
+centre, affine and size, plus the mirror band), ``[trajectory]``,
+``[effects]``, ``[capture]``, ``[textures.*]``, ``[materials.*]``,
+``[[lights]]`` and ``[[objects]]`` (geometry generators,
+:mod:`omnisim.generators`). Every default is written once, in the settings
+dataclasses below, and every check once, in their ``__post_init__``; an
+unknown section or key, a value of the wrong type or range, an unknown
+material, texture, generator or photograph, or a missing file is one
+:class:`ifmi.errors.InputError` line naming the file, the section and the key.
 """
 
 from __future__ import annotations
 
 import hashlib
 import sys
-from dataclasses import dataclass, field, asdict
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 from ifmi.camera import OcamModel, model_from_direct_polynomial
 from ifmi.errors import InputError
+
+from . import meshes, procedural  # noqa: F401  (register the built-in generators)
+from .generators import object_from_table, registered_generators
+from .lights import LIGHT_TYPES, EnvmapLight
+from .materials import MaterialSettings
+from .settings import SettingError, check_fields, setting, settings_from_table
+from .textures import TEXTURE_SOURCES
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["RenderSettings", "TrajectorySettings", "EffectsSettings", "CaptureSettings", "CameraSettings",
-           "SceneConfig", "load_scene_config"]
+__all__ = ["SceneSettings", "RenderSettings", "TrajectorySettings", "EffectsSettings", "CaptureSettings",
+           "CameraTable", "CameraSettings", "SceneConfig", "SECTIONS", "SUPPORTED_VARIANTS",
+           "load_scene_config"]
+
+# Mitsuba variants the omni sensor and the dataset writer are made for (RGB output).
+SUPPORTED_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
+# Largest image side, pixels: a film this size holds 16384^2 RGBA float32 = 4 GiB.
+MAX_RESOLUTION = 16384
+# Samplers that can drive the sensor (low-discrepancy ones first).
+SAMPLERS = ("multijitter", "ldsampler", "stratified", "independent", "orthogonal")
+
+
+@dataclass(frozen=True)
+class SceneSettings:
+    """``[scene]``: name, layout seed and an optional Mitsuba 3 scene file to start from."""
+
+    name: str = setting("", "dataset name (default: the file name)")
+    seed: int = setting(0, "layout seed of the generators; also the default motion seed", minimum=0)
+    mitsuba_xml: str = setting("", "Mitsuba 3 scene file (relative to this file) whose shapes, materials, "
+                                   "emitters and integrator are used; its sensors are ignored")
+
+    def __post_init__(self):
+        check_fields(self)
 
 
 @dataclass(frozen=True)
 class RenderSettings:
-    """How frames are rendered.
+    """``[render]``: how frames are rendered.
 
-    resolution : (height, width) in pixels; spp : samples per pixel;
-    max_depth : path length of the path tracer (2 = direct light only);
-    sampler : Mitsuba sampler plugin name; variant : Mitsuba variant or "" for automatic.
+    resolution : (height, width) in pixels (one integer for a square); spp :
+    samples per pixel; max_depth : path length of the path tracer (2 = direct
+    light only); sampler : Mitsuba sampler plugin; variant : Mitsuba variant or
+    "" for automatic.
     """
 
-    resolution: tuple[int, int] = (512, 512)
-    spp: int = 16
-    max_depth: int = 3
-    sampler: str = "multijitter"
-    variant: str = ""
+    resolution: tuple[int, int] = setting((512, 512), "[height, width] pixels; the calibration is scaled to it",
+                                          minimum=8, maximum=MAX_RESOLUTION)
+    spp: int = setting(16, "samples per pixel", minimum=1)
+    max_depth: int = setting(3, "path length of the path tracer (2 = direct light only)", minimum=1, maximum=64)
+    sampler: str = setting("multijitter", "Mitsuba sampler", choices=SAMPLERS)
+    variant: str = setting("", "Mitsuba variant; empty for automatic", choices=("",) + SUPPORTED_VARIANTS)
+
+    def __post_init__(self):
+        if isinstance(self.resolution, int) and not isinstance(self.resolution, bool):
+            object.__setattr__(self, "resolution", (self.resolution, self.resolution))
+        check_fields(self)
 
 
 @dataclass(frozen=True)
 class TrajectorySettings:
-    """Camera motion: smooth random rotation (degrees) and optional translation (metres), or a TUM file."""
+    """``[trajectory]``: smooth random rotation (degrees) and optional translation (metres), or a TUM file."""
 
-    frames: int = 200
-    position: tuple[float, float, float] = (0.0, 0.0, 1.2)
-    max_yaw_step_deg: float = 3.0
-    max_roll_deg: float = 15.0
-    max_pitch_deg: float = 15.0
-    max_tilt_step_deg: float = 1.5
-    smoothness_frames: float = 6.0
-    translation_step_m: float = 0.0
-    translation_radius_m: float = 0.5
-    tum: str = ""
+    frames: int = setting(200, "number of frames", minimum=1)
+    position: tuple[float, float, float] = setting((0.0, 0.0, 1.2), "camera centre in the world, metres")
+    max_yaw_step_deg: float = setting(3.0, "peak yaw rate, degrees per frame", minimum=0.0, maximum=90.0)
+    max_roll_deg: float = setting(15.0, "roll bound, degrees", minimum=0.0, maximum=90.0)
+    max_pitch_deg: float = setting(15.0, "pitch bound, degrees", minimum=0.0, maximum=90.0)
+    max_tilt_step_deg: float = setting(1.5, "largest roll/pitch change per frame, degrees",
+                                       minimum=0.0, maximum=90.0)
+    smoothness_frames: float = setting(6.0, "correlation length of the motion, frames", minimum=0.0)
+    translation_step_m: float = setting(0.0, "largest translation per frame, metres (0 = pure rotation)",
+                                        minimum=0.0)
+    translation_radius_m: float = setting(0.5, "largest distance from position, metres", minimum=0.0)
+    tum: str = setting("", "camera-to-world poses from a TUM file instead (relative to the scene file)")
+
+    def __post_init__(self):
+        check_fields(self)
 
 
 @dataclass(frozen=True)
 class EffectsSettings:
-    """Sensor effects applied to the 8-bit image; all off by default.
+    """``[effects]`` (and ``omnisim degrade``): sensor effects on the 8-bit image; all off by default.
 
     noise_sigma : Gaussian noise standard deviation in 8-bit grey levels;
     exposure_stops : largest exposure change from frame 0, in stops (f-stops);
@@ -69,41 +114,76 @@ class EffectsSettings:
     jpeg_quality : 1..100 to pass frames through JPEG compression, 0 for off.
     """
 
-    noise_sigma: float = 0.0
-    exposure_stops: float = 0.0
-    exposure_step_stops: float = 0.1
-    jpeg_quality: int = 0
+    noise_sigma: float = setting(0.0, "Gaussian noise, standard deviation in 8-bit grey levels", minimum=0.0)
+    exposure_stops: float = setting(0.0, "bound of the exposure random walk, stops (0 = off)", minimum=0.0)
+    exposure_step_stops: float = setting(0.1, "largest exposure change between frames, stops", minimum=0.0)
+    jpeg_quality: int = setting(0, "JPEG quality 1..100 the frames pass through; 0 = off", minimum=0,
+                                maximum=100)
+
+    def __post_init__(self):
+        check_fields(self)
 
 
 @dataclass(frozen=True)
 class CaptureSettings:
-    """How the camera captures a frame (see :mod:`omnisim.capture`); all off by default.
+    """``[capture]``: how the camera captures a frame (see :mod:`omnisim.capture`); all off by default.
 
-    exposure : open shutter time as a fraction of the frame interval, 0..1 (motion blur);
+    exposure : open-shutter time as a fraction of the frame interval, 0..1 (motion blur);
     rolling_shutter : readout time of the rows (top to bottom) as a fraction of the frame interval, 0..1;
     vignetting : strength ``v >= 0`` of the radial fall-off ``(1 + (v * rho / rho_max)**2)**-2``.
     A frame's capture must end by the next frame: ``exposure + rolling_shutter <= 1``.
     """
 
-    exposure: float = 0.0
-    rolling_shutter: float = 0.0
-    vignetting: float = 0.0
+    exposure: float = setting(0.0, "open-shutter time, fraction of the frame interval", minimum=0.0, maximum=1.0)
+    rolling_shutter: float = setting(0.0, "row readout time, fraction of the frame interval",
+                                     minimum=0.0, maximum=1.0)
+    vignetting: float = setting(0.0, "radial fall-off strength (0 = none)", minimum=0.0)
 
-    def __post_init__(self) -> None:
-        for name in ("exposure", "rolling_shutter"):
-            value = getattr(self, name)
-            if not 0.0 <= value <= 1.0:
-                raise ValueError(f"{name}: expected a fraction of the frame interval in [0, 1], got {value!r}")
+    def __post_init__(self):
+        check_fields(self)
         if self.exposure + self.rolling_shutter > 1.0:
-            raise ValueError(f"exposure + rolling_shutter: expected <= 1 (a frame's capture ends by the next "
-                             f"frame), got {self.exposure + self.rolling_shutter!r}")
-        if not self.vignetting >= 0.0:
-            raise ValueError(f"vignetting: expected >= 0, got {self.vignetting!r}")
+            total = self.exposure + self.rolling_shutter
+            raise SettingError("exposure + rolling_shutter", f"expected <= 1 (a frame's capture ends by the "
+                                                             f"next frame), got {total!r}")
 
     @property
     def timed(self) -> bool:
-        """True when rays of a frame are traced at different times (motion blur or rolling shutter)."""
+        """True when the rays of a frame are traced at different times (motion blur or rolling shutter)."""
         return self.exposure > 0.0 or self.rolling_shutter > 0.0
+
+
+@dataclass(frozen=True)
+class CameraTable:
+    """``[camera]`` as written: a Kalibr file, an OCamCalib file, or a direct polynomial with centre and size.
+
+    All lengths in sensor-plane pixels of the calibration's own size.
+    """
+
+    kalibr: str = setting("", "Kalibr camchain camera.yaml (relative to the scene file); replaces every "
+                              "other key")
+    calib: str = setting("", "OCamCalib calib_results.txt (relative to the scene file)")
+    pol: tuple[float, ...] | None = setting(None, "cam2world polynomial, lowest degree first")
+    center: tuple[float, float] | None = setting(None, "(row, col) of the image centre, pixels")
+    size: tuple[int, int] | None = setting(None, "[height, width] the calibration is for, pixels", minimum=1)
+    affine: tuple[float, float, float] = setting((1.0, 0.0, 0.0), "affine parameters c, d, e")
+    radius_min: float = setting(0.0, "inner edge of the mirror band, pixels (black inside)", minimum=0.0)
+    radius_max: float | None = setting(None, "outer edge of the mirror band, pixels (default: the larger "
+                                             "image side)", minimum=0.0)
+
+    def __post_init__(self):
+        check_fields(self)
+        if self.kalibr:
+            for f in fields(self):
+                if f.name != "kalibr" and getattr(self, f.name) != f.default:
+                    raise SettingError(f.name, "not used with 'kalibr' (the Kalibr file is the whole camera; "
+                                               "its valid region bounds the image)")
+            return
+        if not self.calib:
+            for key in ("pol", "center", "size"):
+                if getattr(self, key) is None:
+                    raise SettingError(key, "missing (give either 'calib' or 'pol', 'center', 'size')")
+        if self.radius_max is not None and self.radius_max <= self.radius_min:
+            raise SettingError("radius_max", f"expected > radius_min = {self.radius_min}, got {self.radius_max}")
 
 
 @dataclass(frozen=True)
@@ -121,7 +201,14 @@ class CameraSettings:
 
 @dataclass(frozen=True)
 class SceneConfig:
-    """A validated scene file."""
+    """A validated scene file.
+
+    textures : name -> PhotoTexture or NoiseTexture; materials : name ->
+    MaterialSettings; lights : light settings in file order; objects :
+    ObjectSpec in file order; mitsuba_xml : absolute path of the Mitsuba
+    scene file or ""; assets : (path, sha256) of every file the scene reads
+    besides itself (mesh, image and Mitsuba files it names).
+    """
 
     path: str
     sha256: str
@@ -131,21 +218,27 @@ class SceneConfig:
     trajectory: TrajectorySettings
     effects: EffectsSettings
     camera: CameraSettings
+    capture: CaptureSettings = field(default_factory=CaptureSettings)
     textures: dict = field(default_factory=dict)
     materials: dict = field(default_factory=dict)
     lights: tuple = ()
     objects: tuple = ()
-    capture: CaptureSettings = field(default_factory=CaptureSettings)
+    mitsuba_xml: str = ""
+    assets: tuple = ()
 
     def settings_dict(self) -> dict:
-        """JSON-serialisable summary of everything that changes the rendered pixels."""
+        """JSON-serialisable summary of everything that changes the rendered pixels.
+
+        ``capture`` and ``assets`` appear only when set, so folders rendered
+        before they existed keep their identity.
+        """
         return {
             "render": asdict(self.render),
             "trajectory": asdict(self.trajectory),
             "effects": asdict(self.effects),
             "camera": self._camera_dict(),
-            # Only when set, so folders rendered before [capture] existed keep their identity.
             **({"capture": asdict(self.capture)} if self.capture != CaptureSettings() else {}),
+            **({"assets": [[Path(file).name, sha] for file, sha in self.assets]} if self.assets else {}),
         }
 
     def _camera_dict(self) -> dict:
@@ -159,79 +252,68 @@ class SceneConfig:
                 "radius_min": self.camera.radius_min, "radius_max": self.camera.radius_max}
 
 
-class _Reader:
-    """Typed access to one table of the TOML file with one-line errors."""
-
-    def __init__(self, path: Path, table: dict, where: str):
-        self.path, self.table, self.where = path, table, where
-
-    def fail(self, key: str, problem: str):
-        raise InputError(self.path, f"[{self.where}] {key}: {problem}")
-
-    def number(self, key, default, *, minimum=None, maximum=None, integer=False):
-        value = self.table.get(key, default)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            self.fail(key, f"expected a number, got {value!r}")
-        if integer and int(value) != value:
-            self.fail(key, f"expected an integer, got {value!r}")
-        if minimum is not None and value < minimum:
-            self.fail(key, f"expected >= {minimum}, got {value!r}")
-        if maximum is not None and value > maximum:
-            self.fail(key, f"expected <= {maximum}, got {value!r}")
-        return int(value) if integer else float(value)
-
-    def numbers(self, key, default, *, length=None):
-        value = self.table.get(key, default)
-        if not isinstance(value, (list, tuple)) or any(
-                isinstance(v, bool) or not isinstance(v, (int, float)) for v in value):
-            self.fail(key, f"expected a list of numbers, got {value!r}")
-        if length is not None and len(value) != length:
-            self.fail(key, f"expected {length} numbers, got {len(value)}")
-        return tuple(float(v) for v in value)
-
-    def string(self, key, default):
-        value = self.table.get(key, default)
-        if not isinstance(value, str):
-            self.fail(key, f"expected a string, got {value!r}")
-        return value
+# Top-level tables of a scene file and what each holds.
+SECTIONS = {
+    "scene": "name, layout seed, Mitsuba scene file",
+    "render": "resolution, spp, path length, sampler, variant",
+    "camera": "calibration and mirror band",
+    "trajectory": "camera motion",
+    "effects": "noise, exposure drift, JPEG",
+    "capture": "exposure (motion blur), rolling shutter, vignetting",
+    "textures": "[textures.NAME] images",
+    "materials": "[materials.NAME] BSDFs",
+    "lights": "[[lights]] emitters",
+    "objects": "[[objects]] geometry generators",
+}
 
 
-def _table(path, data, key) -> dict:
-    value = data.get(key, {})
-    if not isinstance(value, dict):
-        raise InputError(path, f"[{key}]: expected a table, got {type(value).__name__}")
-    return value
+def _read_toml(path: Path) -> tuple[bytes, dict]:
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(path, "scene file not found") from None
+    except OSError as exc:
+        raise InputError(path, f"cannot read scene file ({exc.strerror or exc.__class__.__name__})") from None
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"not valid TOML: {str(exc).splitlines()[0]}") from None
+    for key in data:
+        if key not in SECTIONS:
+            raise InputError(path, f"[{key}]: unknown section; accepted sections: {', '.join(SECTIONS)}")
+    return raw, data
 
 
-def _camera(path: Path, table: dict, resolution) -> CameraSettings:
+def _relative_file(path: Path, name: str, where: str) -> str:
+    """Absolute path of a file named in the scene file (relative to its folder; it must exist).
+
+    Absolute, so processes started elsewhere (cluster workers) find it too.
+    """
+    resolved = Path(name) if Path(name).is_absolute() else (path.parent / name).absolute()
+    if not resolved.is_file():
+        raise InputError(path, f"{where}: file not found: {resolved}")
+    return str(resolved)
+
+
+def _camera(path: Path, table, resolution) -> CameraSettings:
+    """The ``[camera]`` table as a calibration scaled to the render ``resolution`` (height, width)."""
     from ifmi.io.calib import read_calib
 
-    r = _Reader(path, table, "camera")
-    if "kalibr" in table:
-        return _kalibr_camera(path, r, resolution)
-    if "calib" in table:
-        calib_path = Path(r.string("calib", ""))
-        if not calib_path.is_absolute():
-            calib_path = path.parent / calib_path
-        model = read_calib(calib_path)
+    spec = settings_from_table(CameraTable, table, path=path, section="[camera]")
+    if spec.kalibr:
+        return _kalibr_camera(path, spec.kalibr, resolution)
+    if spec.calib:
+        model = read_calib(_relative_file(path, spec.calib, "[camera] calib"))
     else:
-        for key in ("pol", "center", "size"):
-            if key not in table:
-                r.fail(key, "missing (give either 'calib' or 'pol', 'center', 'size')")
-        pol = r.numbers("pol", None)
-        size = r.numbers("size", None, length=2)
-        if any(int(v) != v or v <= 0 for v in size):
-            r.fail("size", f"expected two positive integers (height, width), got {list(size)}")
         try:
-            model = model_from_direct_polynomial(pol, center=r.numbers("center", None, length=2),
-                                                 size=(int(size[0]), int(size[1])),
-                                                 affine=r.numbers("affine", (1.0, 0.0, 0.0), length=3))
+            model = model_from_direct_polynomial(spec.pol, center=spec.center, size=spec.size,
+                                                 affine=spec.affine)
         except ValueError as exc:
-            r.fail("pol", str(exc))
-    radius_min = r.number("radius_min", 0.0, minimum=0.0)
-    radius_max = r.number("radius_max", float(max(model.size)), minimum=0.0)
+            raise InputError(path, f"[camera] pol: {exc}") from None
+    radius_min = spec.radius_min
+    radius_max = float(max(model.size)) if spec.radius_max is None else spec.radius_max
     if radius_max <= radius_min:
-        r.fail("radius_max", f"expected > radius_min = {radius_min}, got {radius_max}")
+        raise InputError(path, f"[camera] radius_max: expected > radius_min = {radius_min}, got {radius_max}")
     height, width = resolution
     factor_h, factor_w = height / model.height, width / model.width
     if abs(factor_h - factor_w) > 1e-9:
@@ -243,18 +325,12 @@ def _camera(path: Path, table: dict, resolution) -> CameraSettings:
     return CameraSettings(model=model, radius_min=radius_min, radius_max=radius_max)
 
 
-def _kalibr_camera(path: Path, r: "_Reader", resolution) -> CameraSettings:
-    """``[camera] kalibr = "camera.yaml"``: a Kalibr camchain replaces the OCamCalib keys."""
+def _kalibr_camera(path: Path, name: str, resolution) -> CameraSettings:
+    """``[camera] kalibr = "camera.yaml"``: a Kalibr camchain scaled to the render ``resolution``."""
     from ifmi.io.kalibr import read_kalibr
 
-    for key in ("calib", "pol", "center", "affine", "size", "radius_min", "radius_max"):
-        if key in r.table:
-            r.fail(key, "not used with 'kalibr' (the Kalibr file is the whole camera; its valid "
-                        "region bounds the image)")
-    kalibr_path = Path(r.string("kalibr", ""))
-    if not kalibr_path.is_absolute():
-        kalibr_path = path.parent / kalibr_path
-    model = read_kalibr(kalibr_path)
+    # Not checked for existence here: read_kalibr names the YAML file in its own errors.
+    model = read_kalibr(Path(name) if Path(name).is_absolute() else (path.parent / name).absolute())
     height, width = resolution
     # The width sets the scale; the height must be the calibration's, scaled and rounded.
     factor = width / model.width
@@ -266,28 +342,83 @@ def _kalibr_camera(path: Path, r: "_Reader", resolution) -> CameraSettings:
     return CameraSettings(model=model, radius_min=0.0, radius_max=float("inf"))
 
 
-def _capture(path: Path, table: dict) -> CaptureSettings:
-    r = _Reader(path, table, "capture")
-    values = {"exposure": r.number("exposure", 0.0, minimum=0.0, maximum=1.0),
-              "rolling_shutter": r.number("rolling_shutter", 0.0, minimum=0.0, maximum=1.0),
-              "vignetting": r.number("vignetting", 0.0, minimum=0.0)}
+def _named_tables(path: Path, data: dict, section: str) -> dict:
+    tables = data.get(section, {})
+    if not isinstance(tables, dict) or any(not isinstance(v, dict) for v in tables.values()):
+        raise InputError(path, f"[{section}]: expected [{section}.NAME] tables")
+    return tables
+
+
+def _textures(path: Path, data: dict) -> dict:
+    out = {}
+    for name, table in _named_tables(path, data, "textures").items():
+        source = table.get("source")
+        if source not in TEXTURE_SOURCES:
+            raise InputError(path, f"[textures.{name}] source: expected one of {', '.join(TEXTURE_SOURCES)}, "
+                                   f"got {source!r}")
+        out[name] = settings_from_table(TEXTURE_SOURCES[source], table, path=path,
+                                        section=f"[textures.{name}]", ignore=("source",))
+    return out
+
+
+def _materials(path: Path, data: dict, textures: dict) -> dict:
+    out = {}
+    for name, table in _named_tables(path, data, "materials").items():
+        material = settings_from_table(MaterialSettings, table, path=path, section=f"[materials.{name}]")
+        if material.texture and material.texture not in textures:
+            raise InputError(path, f"[materials.{name}] texture: unknown texture {material.texture!r} "
+                                   f"([textures.*]: {', '.join(sorted(textures)) or 'none defined'})")
+        out[name] = material
+    return out
+
+
+def _array_of_tables(path: Path, data: dict, section: str) -> list:
+    items = data.get(section, [])
+    if not isinstance(items, list) or any(not isinstance(v, dict) for v in items):
+        raise InputError(path, f"[[{section}]]: expected an array of tables")
+    return items
+
+
+def _lights(path: Path, data: dict) -> tuple:
+    out = []
+    for index, table in enumerate(_array_of_tables(path, data, "lights")):
+        kind = table.get("type")
+        where = f"[[lights]] #{index + 1}"
+        if kind not in LIGHT_TYPES:
+            raise InputError(path, f"{where} type: expected one of {', '.join(LIGHT_TYPES)}, got {kind!r}")
+        light = settings_from_table(LIGHT_TYPES[kind], table, path=path, section=f"{where} ({kind})",
+                                    ignore=("type",))
+        if isinstance(light, EnvmapLight):
+            light = replace(light, file=_relative_file(path, light.file, f"{where} (envmap) file"))
+        out.append(light)
+    return tuple(out)
+
+
+def _objects(path: Path, data: dict, materials: dict) -> tuple:
+    return tuple(object_from_table(table, index=index, path=path, materials=materials)
+                 for index, table in enumerate(_array_of_tables(path, data, "objects")))
+
+
+def _asset_files(objects: tuple, lights: tuple, mitsuba_xml: str, tum: str) -> list[str]:
+    """Files the scene reads besides itself, in a fixed order: trajectory, Mitsuba file, meshes, images."""
+    files = [f for f in (tum, mitsuba_xml) if f]
+    generators = registered_generators()
+    for obj in objects:
+        files += [obj.params[p.name] for p in generators[obj.generator].params
+                  if p.kind == "file" and obj.params[p.name] is not None]
+    files += [light.file for light in lights if isinstance(light, EnvmapLight)]
+    return files
+
+
+def _sha256_of(path: str) -> str:
     try:
-        return CaptureSettings(**values)
-    except ValueError as exc:
-        raise InputError(path, f"[capture] {exc}") from None
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError as exc:
+        raise InputError(path, f"cannot read ({exc.strerror or exc.__class__.__name__})") from None
 
 
-def _resolution_value(path, value) -> tuple[int, int]:
-    if isinstance(value, int) and not isinstance(value, bool):
-        value = (value, value)
-    if (not isinstance(value, (list, tuple)) or len(value) != 2
-            or any(isinstance(v, bool) or not isinstance(v, int) or v < 8 for v in value)):
-        raise InputError(path, f"[render] resolution: expected [height, width] integers >= 8, got {value!r}")
-    return int(value[0]), int(value[1])
-
-
-def load_scene_config(path, *, spp: int | None = None, resolution=None,
-                      frames: int | None = None) -> SceneConfig:
+def load_scene_config(path, *, spp: int | None = None, resolution=None, frames: int | None = None,
+                      variant: str | None = None) -> SceneConfig:
     """Read and validate a scene file.
 
     Parameters
@@ -300,92 +431,38 @@ def load_scene_config(path, *, spp: int | None = None, resolution=None,
         Overrides ``[render] resolution``; the calibration is scaled to it.
     frames : int, optional, keyword-only
         Overrides ``[trajectory] frames``.
+    variant : str, optional, keyword-only
+        Overrides ``[render] variant``.
 
     Raises
     ------
     InputError
-        Missing or unparsable file, or a bad value (the message names the key).
+        Missing or unparsable file, an unknown section or key, a bad value, an
+        unknown texture, material, generator or photograph, or a missing file
+        (the message names the section and the key).
     """
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(path, "scene file not found") from None
-    except OSError as exc:
-        raise InputError(path, f"cannot read scene file ({exc.__class__.__name__})") from None
-    try:
-        data = tomllib.loads(raw.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"not valid TOML: {str(exc).splitlines()[0]}") from None
-
-    scene = _Reader(path, _table(path, data, "scene"), "scene")
-    render_t = _table(path, data, "render")
-    rr = _Reader(path, render_t, "render")
-    res = _resolution_value(path, resolution if resolution is not None
-                            else render_t.get("resolution", [512, 512]))
-    render = RenderSettings(
-        resolution=res,
-        spp=rr.number("spp", 16, minimum=1, integer=True) if spp is None else int(spp),
-        max_depth=rr.number("max_depth", 3, minimum=1, maximum=64, integer=True),
-        sampler=rr.string("sampler", "multijitter"),
-        variant=rr.string("variant", ""),
-    )
-    if render.spp < 1:
-        raise InputError(path, f"spp: expected >= 1, got {render.spp}")
-    if render.sampler not in ("multijitter", "ldsampler", "stratified", "independent", "orthogonal"):
-        rr.fail("sampler", f"expected a Mitsuba sampler (multijitter, ldsampler, ...), got {render.sampler!r}")
-
-    tr = _Reader(path, _table(path, data, "trajectory"), "trajectory")
-    trajectory = TrajectorySettings(
-        frames=tr.number("frames", 200, minimum=1, integer=True) if frames is None else int(frames),
-        position=tr.numbers("position", (0.0, 0.0, 1.2), length=3),
-        max_yaw_step_deg=tr.number("max_yaw_step_deg", 3.0, minimum=0.0, maximum=90.0),
-        max_roll_deg=tr.number("max_roll_deg", 15.0, minimum=0.0, maximum=90.0),
-        max_pitch_deg=tr.number("max_pitch_deg", 15.0, minimum=0.0, maximum=90.0),
-        max_tilt_step_deg=tr.number("max_tilt_step_deg", 1.5, minimum=0.0, maximum=90.0),
-        smoothness_frames=tr.number("smoothness_frames", 6.0, minimum=0.0),
-        translation_step_m=tr.number("translation_step_m", 0.0, minimum=0.0),
-        translation_radius_m=tr.number("translation_radius_m", 0.5, minimum=0.0),
-        tum=tr.string("tum", ""),
-    )
-    if trajectory.frames < 1:
-        raise InputError(path, f"frames: expected >= 1, got {trajectory.frames}")
-    if trajectory.tum and not Path(trajectory.tum).is_absolute():
-        trajectory = TrajectorySettings(**{**asdict(trajectory), "tum": str(path.parent / trajectory.tum)})
-
-    er = _Reader(path, _table(path, data, "effects"), "effects")
-    effects = EffectsSettings(
-        noise_sigma=er.number("noise_sigma", 0.0, minimum=0.0),
-        exposure_stops=er.number("exposure_stops", 0.0, minimum=0.0),
-        exposure_step_stops=er.number("exposure_step_stops", 0.1, minimum=0.0),
-        jpeg_quality=er.number("jpeg_quality", 0, minimum=0, maximum=100, integer=True),
-    )
-    camera = _camera(path, _table(path, data, "camera"), res)
-    capture = _capture(path, _table(path, data, "capture"))
-
-    textures = _table(path, data, "textures")
-    materials = _table(path, data, "materials")
-    for kind, table in (("textures", textures), ("materials", materials)):
-        for name, entry in table.items():
-            if not isinstance(entry, dict):
-                raise InputError(path, f"[{kind}.{name}]: expected a table")
-    for name, mat in materials.items():
-        tex = mat.get("texture")
-        if tex is not None and tex not in textures:
-            raise InputError(path, f"[materials.{name}] texture: unknown texture {tex!r}")
-    lights = data.get("lights", [])
-    objects = data.get("objects", [])
-    for kind, items in (("lights", lights), ("objects", objects)):
-        if not isinstance(items, list) or any(not isinstance(v, dict) for v in items):
-            raise InputError(path, f"[[{kind}]]: expected an array of tables")
-    for i, obj in enumerate(objects):
-        if "generator" not in obj:
-            raise InputError(path, f"[[objects]] #{i + 1}: missing 'generator'")
+    raw, data = _read_toml(path)
+    scene = settings_from_table(SceneSettings, data.get("scene", {}), path=path, section="[scene]")
+    render = settings_from_table(RenderSettings, data.get("render", {}), path=path, section="[render]",
+                                 spp=spp, resolution=resolution, variant=variant)
+    trajectory = settings_from_table(TrajectorySettings, data.get("trajectory", {}), path=path,
+                                     section="[trajectory]", frames=frames)
+    if trajectory.tum:
+        trajectory = replace(trajectory, tum=_relative_file(path, trajectory.tum, "[trajectory] tum"))
+    textures = _textures(path, data)
+    materials = _materials(path, data, textures)
+    lights = _lights(path, data)
+    objects = _objects(path, data, materials)
+    mitsuba_xml = _relative_file(path, scene.mitsuba_xml, "[scene] mitsuba_xml") if scene.mitsuba_xml else ""
+    files = _asset_files(objects, lights, mitsuba_xml, trajectory.tum)
+    assets = tuple((file, _sha256_of(file)) for file in files)
     return SceneConfig(
-        path=str(path), sha256=hashlib.sha256(raw).hexdigest(),
-        name=scene.string("name", path.stem),
-        layout_seed=scene.number("seed", 0, minimum=0, integer=True),
-        render=render, trajectory=trajectory, effects=effects, camera=camera,
-        textures=textures, materials=materials, lights=tuple(lights), objects=tuple(objects),
-        capture=capture,
+        path=str(path), sha256=hashlib.sha256(raw).hexdigest(), name=scene.name or path.stem,
+        layout_seed=scene.seed, render=render, trajectory=trajectory,
+        effects=settings_from_table(EffectsSettings, data.get("effects", {}), path=path, section="[effects]"),
+        capture=settings_from_table(CaptureSettings, data.get("capture", {}), path=path, section="[capture]"),
+        camera=_camera(path, data.get("camera", {}), render.resolution),
+        textures=textures, materials=materials, lights=lights, objects=objects,
+        mitsuba_xml=mitsuba_xml, assets=assets,
     )

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -33,7 +32,7 @@ from .config import EffectsSettings
 from .effects import apply_effects, exposure_gains, linear_from_srgb_uint8, srgb_uint8_from_linear
 from .render import META_FORMAT, encode_png, open_output_folder, pending_images, sha256_file
 
-__all__ = ["DegradeResult", "validate_effects", "degrade_image", "degrade_dataset"]
+__all__ = ["DegradeResult", "degrade_image", "degrade_dataset"]
 
 # Version of the degrading procedure; part of an output folder's identity.
 DEGRADE_VERSION = 1
@@ -50,20 +49,6 @@ class DegradeResult:
     out_dir: str
     frames: int
     written: int
-
-
-def validate_effects(effects: EffectsSettings, *, source: str) -> None:
-    """Raise :class:`~ifmi.errors.InputError` naming ``source`` for an out-of-range setting."""
-    checks = (
-        ("noise_sigma", effects.noise_sigma >= 0, "expected >= 0"),
-        ("exposure_stops", effects.exposure_stops >= 0, "expected >= 0"),
-        ("exposure_step_stops", effects.exposure_step_stops >= 0, "expected >= 0"),
-        ("jpeg_quality", effects.jpeg_quality == int(effects.jpeg_quality)
-         and 0 <= effects.jpeg_quality <= 100, "expected an integer in 0..100 (0 = off)"),
-    )
-    for name, ok, expected in checks:
-        if not ok:
-            raise InputError(source, f"{name}: {expected}, got {getattr(effects, name)!r}")
 
 
 def degrade_image(image: np.ndarray, effects: EffectsSettings, *, gain: float, seed: int,
@@ -107,7 +92,7 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
         the same source, refused if it holds anything else.
     effects : EffectsSettings, keyword-only
         Noise sigma (8-bit grey levels), exposure drift bound and step
-        (stops), JPEG quality (1..100, 0 off).
+        (stops), JPEG quality (1..100, 0 off); checked when constructed.
     seed : int, keyword-only
         Seed of the noise and the exposure walk; the same seed gives the
         same bytes.
@@ -121,11 +106,12 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
     Raises
     ------
     InputError
-        Unreadable source dataset or image, bad settings, or an output
+        Unreadable source dataset or image, a negative seed, or an output
         folder holding something else.
+    OutputError
+        A file cannot be written (the message names it and the OS reason).
     """
     dataset = read_dataset(dataset_dir)
-    validate_effects(effects, source=str(dataset.root))
     if seed < 0:
         raise InputError(dataset.root, f"seed: expected a non-negative integer, got {seed}")
     out_dir = Path(out_dir)

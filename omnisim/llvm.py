@@ -12,11 +12,15 @@ import glob
 import importlib
 import os
 import re
+import signal
 import subprocess
 import sys
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = [
+    "BackendError",
     "LlvmNotFoundError",
     "MINIMUM_LLVM_MAJOR",
     "find_llvm",
@@ -36,7 +40,11 @@ FIX_HINT = ("install one with 'pip install karellen-llvm-core' (or 'apt-get inst
             f"or point {ENV_VAR} at a libLLVM.so of version >= {MINIMUM_LLVM_MAJOR}")
 
 
-class LlvmNotFoundError(RuntimeError):
+class BackendError(RuntimeError):
+    """Mitsuba cannot run the requested variant here; the message is one line saying why."""
+
+
+class LlvmNotFoundError(BackendError):
     """No LLVM >= 16 was found; the message is one line saying how to fix it."""
 
 
@@ -101,7 +109,7 @@ def _candidates(prefix: str, system_globs) -> list[Path]:
     return found + debian_paths
 
 
-def find_llvm(*, environ=None, prefix: str | None = None, system_globs=SYSTEM_GLOBS) -> Path:
+def find_llvm(*, environ=None, prefix: str | None = None, system_globs=None) -> Path:
     """Path of a usable LLVM (major version >= 16).
 
     Parameters
@@ -110,8 +118,9 @@ def find_llvm(*, environ=None, prefix: str | None = None, system_globs=SYSTEM_GL
         Environment to read ``DRJIT_LIBLLVM_PATH`` from (default ``os.environ``).
     prefix : str, optional, keyword-only
         Python prefix whose ``lib`` folder is searched (default ``sys.prefix``).
-    system_globs : sequence of str, keyword-only
-        Glob patterns of system LLVM libraries searched last.
+    system_globs : sequence of str, optional, keyword-only
+        Glob patterns of system LLVM libraries searched last (default
+        :data:`SYSTEM_GLOBS`, read when called).
 
     Raises
     ------
@@ -120,6 +129,7 @@ def find_llvm(*, environ=None, prefix: str | None = None, system_globs=SYSTEM_GL
     """
     environ = os.environ if environ is None else environ
     prefix = sys.prefix if prefix is None else prefix
+    system_globs = SYSTEM_GLOBS if system_globs is None else system_globs
     rejected = []
     explicit = environ.get(ENV_VAR)
     if explicit:
@@ -152,14 +162,53 @@ def cuda_available() -> bool:
     return ctypes.util.find_library("cuda") is not None
 
 
+@contextmanager
+def _interrupts_held():
+    """Hold SIGINT while Mitsuba's native libraries load; it is delivered when they are done.
+
+    An interrupt that lands inside native code can be lost (measured once before
+    this hold: a render interrupted 0.5 s after its start ran to the end).
+    Threads started meanwhile (drjit's workers) keep SIGINT blocked, so later
+    interrupts reach the main thread.
+    """
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def _cuda_works(mi) -> str:
+    """Empty when ``cuda_ad_rgb`` is set and a CUDA device computes, else the reason it does not."""
+    try:
+        mi.set_variant("cuda_ad_rgb")
+        import drjit
+
+        probe = drjit.cuda.Float([1.0, 2.0]) * 2.0  # fails without a working device
+        drjit.eval(probe)
+        return ""
+    except (ImportError, AttributeError, RuntimeError) as exc:
+        text = str(exc).strip()
+        return text.splitlines()[0] if text else exc.__class__.__name__
+
+
 def import_mitsuba(variant: str | None = None):
+    """Import Mitsuba with a usable LLVM and set a vectorised variant (see :func:`_import_mitsuba`)."""
+    with _interrupts_held():
+        return _import_mitsuba(variant)
+
+
+def _import_mitsuba(variant: str | None = None):
     """Import Mitsuba with a usable LLVM and set a vectorised variant.
 
     Parameters
     ----------
     variant : str, optional
-        Mitsuba variant; default ``cuda_ad_rgb`` where a CUDA GPU works,
-        else ``llvm_ad_rgb``.
+        ``llvm_ad_rgb`` or ``cuda_ad_rgb``; default ``cuda_ad_rgb`` where a
+        CUDA GPU works, else ``llvm_ad_rgb``.
 
     Returns
     -------
@@ -168,23 +217,28 @@ def import_mitsuba(variant: str | None = None):
 
     Raises
     ------
-    LlvmNotFoundError
-        No LLVM >= 16 (only checked when an LLVM variant is needed).
+    ValueError
+        ``variant`` is not one of the two.
+    BackendError
+        ``cuda_ad_rgb`` without a working CUDA device, or (as
+        :class:`LlvmNotFoundError`) no LLVM >= 16 for ``llvm_ad_rgb``.
     """
+    if variant not in (None, "llvm_ad_rgb", "cuda_ad_rgb"):
+        raise ValueError(f"expected the Mitsuba variant llvm_ad_rgb or cuda_ad_rgb, got {variant!r}")
     if variant is None and cuda_available():
         mi = importlib.import_module("mitsuba")
-        try:
-            mi.set_variant("cuda_ad_rgb")
-            import drjit
-
-            probe = drjit.cuda.Float([1.0, 2.0]) * 2.0  # fails without a working device
-            drjit.eval(probe)
+        if not _cuda_works(mi):
             return mi
-        except (ImportError, AttributeError, RuntimeError):
-            variant = "llvm_ad_rgb"
+        variant = "llvm_ad_rgb"
     variant = variant or "llvm_ad_rgb"
-    if variant.startswith("llvm"):
-        ensure_llvm()
+    if variant == "cuda_ad_rgb":
+        mi = importlib.import_module("mitsuba")
+        reason = _cuda_works(mi)
+        if reason:
+            raise BackendError(f"variant cuda_ad_rgb needs a working CUDA GPU ({reason}); "
+                               "use --variant llvm_ad_rgb")
+        return mi
+    ensure_llvm()
     mi = importlib.import_module("mitsuba")
     if mi.variant() != variant:
         mi.set_variant(variant)

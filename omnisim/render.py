@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ifmi.errors import InputError
+from ifmi.errors import InputError, OutputError
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
 from ifmi.io.camera_file import write_camera
 from ifmi.io.provenance import package_versions
@@ -188,12 +188,49 @@ class DatasetResult:
     seconds_per_frame: float
 
 
+def _differences(previous, current, prefix: str = "") -> list[str]:
+    """Dotted names of the entries where two identity dicts differ, with both values."""
+    if isinstance(previous, dict) and isinstance(current, dict):
+        out = []
+        for key in sorted(set(previous) | set(current), key=str):
+            out += _differences(previous.get(key), current.get(key), f"{prefix}{key}.")
+        return out
+    if previous == current:
+        return []
+    return [f"{prefix[:-1]} (folder: {_shortened(previous)}, now: {_shortened(current)})"]
+
+
+# Most differences named in a refusal, and the longest value shown (characters).
+SHOWN_DIFFERENCES = 3
+SHOWN_VALUE_CHARS = 40
+
+
+def _shortened(value) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= SHOWN_VALUE_CHARS else text[:SHOWN_VALUE_CHARS - 3] + "..."
+
+
+def _has_written_frames(out_dir: Path, meta: dict | None) -> bool:
+    """True when ``meta`` records a frame file, or a frame folder (images, AOVs) holds a file."""
+    kinds = ("images",) + tuple(AOV_NAMES)
+    if meta is not None and any(meta.get(kind) for kind in kinds):
+        return True
+    return any((out_dir / kind).is_dir() and any((out_dir / kind).iterdir()) for kind in kinds)
+
+
 def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
     """The ``meta.json`` of an output folder written with the same ``identity``, or None if new.
 
-    Raises :class:`~ifmi.errors.InputError` when the folder holds anything
-    else: a different identity, an unreadable ``meta.json``, or files
-    without one.
+    Nothing is written. A folder whose ``meta.json`` records no frames and
+    whose ``images/`` is empty (a run that stopped before its first frame) is
+    treated as new, whatever settings it was started with.
+
+    Raises
+    ------
+    InputError
+        The folder holds anything else: frames made with a different
+        identity (the message names the settings that differ), an unreadable
+        ``meta.json``, or files without one.
     """
     meta_path = out_dir / "meta.json"
     if not out_dir.exists():
@@ -205,13 +242,20 @@ def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
             meta = json.loads(meta_path.read_text(encoding="utf-8"))
         except (OSError, ValueError):
             raise InputError(meta_path, "unreadable meta.json; remove the folder or choose another --out") from None
+        if not isinstance(meta, dict) or not isinstance(meta.get("images", {}), dict):
+            raise InputError(meta_path, "expected a JSON object with an 'images' table; remove the folder "
+                                        "or choose another --out")
         previous = meta.get("identity", {})
-        if previous != identity:
-            changed = sorted(k for k in set(previous) | set(identity) if previous.get(k) != identity.get(k))
-            raise InputError(out_dir, f"holds a dataset made with different {', '.join(changed) or 'settings'}; "
-                                      "refusing to mix (choose another --out or remove it)")
-        return meta
-    if any(out_dir.iterdir()):
+        if previous == identity:
+            return meta
+        if not _has_written_frames(out_dir, meta):
+            return None
+        changed = _differences(previous, identity)
+        shown = "; ".join(changed[:SHOWN_DIFFERENCES]) + (" ..." if len(changed) > SHOWN_DIFFERENCES else "")
+        raise InputError(out_dir, f"holds a dataset made with different {shown or 'settings'}; "
+                                  "refusing to mix (choose another --out or remove it)")
+    if any(p.name not in ("images",) + tuple(AOV_NAMES) for p in out_dir.iterdir()) \
+            or _has_written_frames(out_dir, None):
         raise InputError(out_dir, "is not empty and has no meta.json; refusing to write a dataset into it")
     return None
 
@@ -221,9 +265,20 @@ def open_output_folder(out_dir: Path, identity: dict) -> dict:
 
     The meta is the folder's ``meta.json`` when it holds the same identity,
     else a fresh one with no images recorded.
+
+    Raises
+    ------
+    InputError
+        See :func:`check_output_folder`.
+    OutputError
+        The folder cannot be created (read-only parent, a regular file in
+        the way, ...): names ``out_dir`` and the OS reason.
     """
     meta = check_output_folder(out_dir, identity)
-    (out_dir / "images").mkdir(parents=True, exist_ok=True)
+    try:
+        (out_dir / "images").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError.from_os_error(out_dir, exc) from None
     return meta if meta is not None else {"identity": identity, "images": {}, "complete": False}
 
 
@@ -423,7 +478,7 @@ def frame_plan(scene_path, *, frames: int | None = None, seed: int | None = None
     InputError
         Bad scene file or values, a bad AOV name or a negative seed.
     """
-    config = load_scene_config(scene_path, spp=spp, resolution=resolution, frames=frames)
+    config = load_scene_config(scene_path, spp=spp, resolution=resolution, frames=frames, variant=variant)
     seed = config.layout_seed if seed is None else int(seed)
     if seed < 0:
         raise InputError(scene_path, f"seed: expected a non-negative integer, got {seed}")
@@ -433,16 +488,18 @@ def frame_plan(scene_path, *, frames: int | None = None, seed: int | None = None
         raise InputError(scene_path, f"--aov: {exc}") from None
     trajectory = _trajectory_samples(config, seed)
     from .llvm import import_mitsuba
-    mi = import_mitsuba(variant or config.render.variant or None)
+    mi = import_mitsuba(config.render.variant or None)
     n = config.trajectory.frames
     return FramePlan(config=config, seed=seed, variant=mi.variant(), trajectory=trajectory,
                      gains=tuple(float(g) for g in exposure_gains(n, config.effects, seed=seed)), aovs=aovs)
 
 
-def frame_results(plan: FramePlan, jobs: list, *, workers: int | None = None, scheduler: str | None = None):
+def frame_results(plan: FramePlan, jobs: list, *, workers: int | None = None, scheduler: str | None = None,
+                  renderer: FrameRenderer | None = None):
     """Iterator of ``(k, files)`` for the jobs ``(k, kinds)``: in this process, or on a Dask cluster.
 
     ``files`` maps relative paths (``images/000003.png``, ``depth/000003.npy``) to bytes.
+    ``renderer`` (of ``plan``) is used in this process instead of loading the scene again.
     """
     if workers or scheduler:
         from .cluster import map_on_cluster
@@ -450,7 +507,7 @@ def frame_results(plan: FramePlan, jobs: list, *, workers: int | None = None, sc
         yield from map_on_cluster(FrameRenderer, render_frame_files, plan, jobs, key=plan.key,
                                   variant=plan.variant, workers=workers, scheduler=scheduler)
         return
-    renderer = FrameRenderer(plan)
+    renderer = renderer if renderer is not None else FrameRenderer(plan)
     for job in jobs:
         yield render_frame_files(renderer, job)
 
@@ -493,13 +550,20 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     Raises
     ------
     InputError
-        Bad scene file or values, or an output folder holding another render.
+        Bad scene file or values, or an output folder holding another render;
+        raised before anything is written.
+    OutputError
+        A file cannot be written (the message names it and the OS reason).
     """
     if workers is not None and workers < 1:
         raise InputError(scene_path, f"--workers: expected >= 1, got {workers}")
     plan = frame_plan(scene_path, frames=frames, seed=seed, spp=spp, resolution=resolution,
                       variant=variant, aovs=aovs)
     config, seed, aovs, n = plan.config, plan.seed, plan.aovs, plan.config.trajectory.frames
+    # The whole scene is built and loaded here (files, materials, lights, a Mitsuba scene) before
+    # the output folder is touched, so a scene error leaves nothing behind; it also renders
+    # the frames unless a cluster does.
+    local = FrameRenderer(plan)
     out_dir = Path(out_dir)
     meta = _open_dataset(scene_path, out_dir, config, seed, plan.variant, plan.trajectory)
     kinds = ("images",) + aovs
@@ -509,7 +573,7 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         from tqdm import tqdm
 
         with tqdm(total=n, initial=n - len(jobs), disable=not progress, unit="frame", desc=config.name) as bar:
-            for _, files in frame_results(plan, jobs, workers=workers, scheduler=scheduler):
+            for _, files in frame_results(plan, jobs, workers=workers, scheduler=scheduler, renderer=local):
                 _store_frame(out_dir, meta, files)
                 rendered += 1
                 bar.update(1)

@@ -7,10 +7,14 @@ Every function returns a float32 ``(H, W, 3)`` array with values in [0, 1]
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["BUNDLED_PHOTOS", "photo_texture", "noise_texture", "texture_from_spec"]
+from .settings import check_fields, setting
+
+__all__ = ["BUNDLED_PHOTOS", "PhotoTexture", "NoiseTexture", "TEXTURE_SOURCES", "photo_texture",
+           "noise_texture", "texture_image", "linear_texture_from_image"]
 
 # Photographs shipped inside the scikit-image wheel (CC0 or public domain); the
 # package fetches others over the network, which is not available here.
@@ -33,6 +37,21 @@ def _as_rgb(image: np.ndarray) -> np.ndarray:
 
 def _srgb_to_linear(image: np.ndarray) -> np.ndarray:
     return np.where(image <= 0.04045, image / 12.92, ((image + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_texture_from_image(image) -> np.ndarray:
+    """An sRGB-encoded image (8- or 16-bit or float in [0, 1], gray, RGB or RGBA) as linear RGB.
+
+    Parameters
+    ----------
+    image : (H, W), (H, W, 3) or (H, W, 4) array_like (or a PIL image)
+        Rows top to bottom; alpha is dropped.
+
+    Returns
+    -------
+    (H, W, 3) float32 ndarray
+    """
+    return _srgb_to_linear(_as_rgb(np.asarray(image)))
 
 
 def photo_texture(name: str, *, tint=(1.0, 1.0, 1.0), brightness: float = 1.0) -> np.ndarray:
@@ -110,20 +129,47 @@ def noise_texture(size: int, *, seed: int, octaves: int = 5, base_cells: int = 4
     return (a * (1 - value) + b * value).astype(np.float32)
 
 
-def texture_from_spec(spec: dict, *, seed: int) -> np.ndarray:
-    """Texture image from a scene-file texture table.
+@dataclass(frozen=True)
+class PhotoTexture:
+    """``[textures.NAME]`` with ``source = "photo"``: a bundled photograph (see :data:`BUNDLED_PHOTOS`)."""
 
-    ``{"source": "photo", "name": "grass", "tint": [...], "brightness": b}`` or
-    ``{"source": "noise", "size": 256, "octaves": 5, "cells": 4, "color_a": [...],
-    "color_b": [...], "seed": k}`` (the texture's own seed is offset by the scene seed).
+    name: str = setting(doc="bundled scikit-image photograph", choices=BUNDLED_PHOTOS)
+    tint: tuple[float, float, float] = setting((1.0, 1.0, 1.0), "per-channel multiplier", minimum=0.0)
+    brightness: float = setting(1.0, "overall multiplier (values are clipped to [0, 1])", minimum=0.0)
+
+    def __post_init__(self):
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class NoiseTexture:
+    """``[textures.NAME]`` with ``source = "noise"``: seeded fractal value noise between two colours."""
+
+    size: int = setting(256, "texture side in pixels", minimum=2)
+    octaves: int = setting(5, "number of frequency doublings", minimum=1, maximum=16)
+    cells: int = setting(4, "lattice cells across the texture at the lowest frequency", minimum=1)
+    color_a: tuple[float, float, float] = setting((0.2, 0.2, 0.2), "linear RGB at noise 0", minimum=0.0)
+    color_b: tuple[float, float, float] = setting((0.8, 0.8, 0.8), "linear RGB at noise 1", minimum=0.0)
+    seed: int = setting(0, "texture seed, offset by the scene's layout seed", minimum=0)
+
+    def __post_init__(self):
+        check_fields(self)
+
+
+# The classes a texture table's ``source`` key selects.
+TEXTURE_SOURCES = {"photo": PhotoTexture, "noise": NoiseTexture}
+
+
+def texture_image(texture: PhotoTexture | NoiseTexture, *, seed: int) -> np.ndarray:
+    """Texture image ``(H, W, 3)`` float32 (linear RGB) of validated texture settings.
+
+    Parameters
+    ----------
+    texture : PhotoTexture or NoiseTexture
+    seed : int, keyword-only
+        The scene's layout seed; a noise texture's own seed is offset by it.
     """
-    source = spec.get("source")
-    if source == "photo":
-        return photo_texture(spec["name"], tint=spec.get("tint", (1.0, 1.0, 1.0)),
-                             brightness=float(spec.get("brightness", 1.0)))
-    if source == "noise":
-        return noise_texture(int(spec.get("size", 256)), seed=int(spec.get("seed", 0)) + seed,
-                             octaves=int(spec.get("octaves", 5)), base_cells=int(spec.get("cells", 4)),
-                             color_a=spec.get("color_a", (0.2, 0.2, 0.2)),
-                             color_b=spec.get("color_b", (0.8, 0.8, 0.8)))
-    raise ValueError(f"texture source must be 'photo' or 'noise', got {source!r}")
+    if isinstance(texture, PhotoTexture):
+        return photo_texture(texture.name, tint=texture.tint, brightness=texture.brightness)
+    return noise_texture(texture.size, seed=texture.seed + seed, octaves=texture.octaves,
+                         base_cells=texture.cells, color_a=texture.color_a, color_b=texture.color_b)

@@ -290,7 +290,7 @@ def test_cli_reports_bad_scene_in_one_line(tmp_path, capsys):
     assert "bad.toml" in err and "max_yaw_step_deg" in err
 
 
-@pytest.mark.parametrize("name", ["office", "lawn", "urban"])
+@pytest.mark.parametrize("name", ["office", "lawn", "urban", "atelier"])
 def test_shipped_scenes_render(name, tmp_path):
     """Each shipped scene file loads, builds and renders a small frame with content in the band."""
     from pathlib import Path

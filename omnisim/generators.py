@@ -1,0 +1,286 @@
+"""Geometry generators of ``[[objects]]``: one registry, one decorator, declared parameters.
+
+A generator is a function ``f(ctx)`` that adds triangle meshes to a scene
+through a :class:`GeneratorContext`. It is registered with
+:func:`register_generator`, which declares every parameter it reads
+(:class:`Param`: name, type, default, doc), so a scene file's ``[[objects]]``
+table is checked before anything is rendered: unknown keys, values of the
+wrong type, negative counts, unknown materials, photographs and missing files
+are one-line errors naming the object and the key. ``omnisim generators``
+prints the registry (:func:`describe_generators`).
+
+Parameter types: ``int``, ``float``, ``bool``, ``str``, ``float[N]`` /
+``int[N]`` (N numbers), ``str[]`` (a list of strings), ``material`` and
+``material[]`` (names of ``[materials.*]`` entries), ``photo[]`` (bundled
+photographs) and ``file`` (a path relative to the scene file, which must exist).
+"""
+
+from __future__ import annotations
+
+import re
+import textwrap
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from ifmi.errors import InputError
+
+from .geometry import MeshGroup
+from .materials import Appearance
+from .settings import SettingError, check_value
+from .textures import BUNDLED_PHOTOS
+
+__all__ = ["Param", "Generator", "GeneratorContext", "ObjectSpec", "register_generator",
+           "registered_generators", "object_from_table", "describe_generators"]
+
+_SCALAR_TYPES = {"int": int, "float": float, "bool": bool, "str": str, "material": str, "file": str}
+_LIST_TYPES = {"str[]": str, "material[]": str, "photo[]": str}
+
+
+@dataclass(frozen=True)
+class Param:
+    """One declared parameter of a generator.
+
+    name : key in the ``[[objects]]`` table; kind : type name (see the module
+    doc); default : value when the key is absent (``None``: absent means
+    "not given", the generator decides); doc : one line with the unit;
+    minimum : inclusive lower bound of a number or of each number of a list;
+    required : the key must be given.
+    """
+
+    name: str
+    kind: str
+    default: Any
+    doc: str
+    minimum: float | None = None
+    required: bool = False
+
+    def __post_init__(self):
+        if self.kind not in _SCALAR_TYPES and self.kind not in _LIST_TYPES and not _vector_kind(self.kind):
+            raise ValueError(f"parameter {self.name}: unknown type {self.kind!r}")
+        if self.required and self.default is not None:
+            raise ValueError(f"parameter {self.name}: a required parameter has no default")
+        self.check(self.default)  # a declaration whose default does not fit is a bug of the generator
+
+    def check(self, value):
+        """``value`` checked against the declared type and bound, normalised (lists become tuples)."""
+        if value is None:
+            return None
+        vector = _vector_kind(self.kind)
+        if vector is not None:
+            element, count = vector
+            value = check_value(tuple[(element,) * count], value, self.name)
+        elif self.kind in _LIST_TYPES:
+            value = check_value(tuple[str, ...], value, self.name)
+        else:
+            value = check_value(_SCALAR_TYPES[self.kind], value, self.name)
+        if self.minimum is not None:
+            for v in (value if isinstance(value, tuple) else (value,)):
+                if v < self.minimum:
+                    raise SettingError(self.name, f"expected >= {self.minimum}, got "
+                                                  f"{list(value) if isinstance(value, tuple) else value!r}")
+        return value
+
+
+def _vector_kind(kind: str):
+    match = re.fullmatch(r"(int|float)\[(\d+)\]", kind)
+    if match is None:
+        return None
+    return (int if match.group(1) == "int" else float), int(match.group(2))
+
+
+@dataclass(frozen=True)
+class Generator:
+    """A registered generator: its name, function, one-paragraph doc and declared parameters."""
+
+    name: str
+    function: Callable
+    doc: str
+    params: tuple
+
+    def param(self, name: str) -> Param:
+        return next(p for p in self.params if p.name == name)
+
+
+# The registry filled by register_generator (module state by design: generators
+# register themselves when their module is imported).
+_REGISTRY: dict[str, Generator] = {}
+
+
+def register_generator(name: str, *params: Param):
+    """Decorator registering ``f(ctx)`` as the ``[[objects]]`` generator ``name``.
+
+    Parameters
+    ----------
+    name : str
+        The value of ``generator = ...`` in a scene file.
+    *params : Param
+        Every key the generator reads; any other key in a table is an error.
+
+    Returns
+    -------
+    callable
+        The decorator; it returns the function unchanged.
+    """
+    names = [p.name for p in params]
+    if len(set(names)) != len(names) or "generator" in names:
+        raise ValueError(f"generator {name}: duplicate or reserved parameter names {names}")
+
+    def decorate(function):
+        if name in _REGISTRY:
+            raise ValueError(f"generator {name!r} is already registered")
+        doc = textwrap.dedent(function.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
+        _REGISTRY[name] = Generator(name=name, function=function, doc=doc, params=tuple(params))
+        return function
+
+    return decorate
+
+
+def registered_generators() -> dict[str, Generator]:
+    """The registered generators by name (the built-in ones once :mod:`omnisim.config` is imported)."""
+    return dict(_REGISTRY)
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """A checked ``[[objects]]`` entry: its position in the file, generator and complete parameters."""
+
+    index: int
+    generator: str
+    params: Mapping
+
+    def where(self) -> str:
+        return f"[[objects]] #{self.index + 1} ({self.generator})"
+
+
+def object_from_table(table: Mapping, *, index: int, path, materials) -> ObjectSpec:
+    """Check one ``[[objects]]`` table against its generator's declaration.
+
+    Parameters
+    ----------
+    table : mapping
+        The table, with ``generator`` and the generator's keys.
+    index : int, keyword-only
+        0-based position in the file.
+    path : path, keyword-only
+        The scene file (named in errors; ``file`` parameters are relative to it).
+    materials : collection of str, keyword-only
+        Names of the scene's ``[materials.*]`` entries.
+
+    Raises
+    ------
+    InputError
+        Unknown generator or key, a value of the wrong type or range, an
+        unknown material or photograph, or a missing file.
+    """
+    path = Path(path)
+    where = f"[[objects]] #{index + 1}"
+    if not isinstance(table, Mapping):
+        raise InputError(path, f"{where}: expected a table")
+    name = table.get("generator")
+    if name not in _REGISTRY:
+        raise InputError(path, f"{where} generator: expected one of {', '.join(sorted(_REGISTRY))}, "
+                               f"got {name!r}")
+    gen = _REGISTRY[name]
+    where = f"{where} ({name})"
+    accepted = [p.name for p in gen.params]
+    for key in table:
+        if key != "generator" and key not in accepted:
+            raise InputError(path, f"{where} {key}: unknown key; accepted keys: "
+                                   f"{', '.join(['generator'] + accepted)}")
+    params = {}
+    for p in gen.params:
+        if p.required and p.name not in table:
+            raise InputError(path, f"{where} {p.name}: missing (required)")
+        try:
+            value = p.check(table.get(p.name, p.default))
+        except SettingError as exc:
+            raise InputError(path, f"{where} {exc.key}: {exc.problem}") from None
+        params[p.name] = _resolve(p, value, path=path, where=where, materials=materials)
+    return ObjectSpec(index=index, generator=name, params=params)
+
+
+def _resolve(p: Param, value, *, path: Path, where: str, materials):
+    if value is None:
+        return None
+    if p.kind in ("material", "material[]"):
+        for name in (value if isinstance(value, tuple) else (value,)):
+            if name not in materials:
+                known = ", ".join(sorted(materials)) or "none defined"
+                raise InputError(path, f"{where} {p.name}: unknown material {name!r} ([materials.*]: {known})")
+    if p.kind == "photo[]":
+        for name in value:
+            if name not in BUNDLED_PHOTOS:
+                raise InputError(path, f"{where} {p.name}: unknown photo {name!r}; expected one of "
+                                       f"{', '.join(BUNDLED_PHOTOS)}")
+    if p.kind == "file":
+        resolved = Path(value) if Path(value).is_absolute() else (path.parent / value).absolute()
+        if not resolved.is_file():
+            raise InputError(path, f"{where} {p.name}: file not found: {resolved}")
+        return str(resolved)
+    return value
+
+
+class GeneratorContext:
+    """What a generator may use: its checked parameters, a seeded RNG and the scene's meshes.
+
+    ``ctx[name]`` is a declared parameter (its default when absent).
+    Meshes are added per appearance name with :meth:`add`; new appearances
+    (a photograph, a file's texture, an emitter) with :meth:`add_appearance`.
+    """
+
+    def __init__(self, spec: ObjectSpec, *, path, rng: np.random.Generator, groups: dict,
+                 appearances: dict):
+        self.spec, self.path, self.rng = spec, Path(path), rng
+        self.index = spec.index
+        self.groups, self.appearances = groups, appearances
+
+    def __getitem__(self, name: str):
+        return self.spec.params[name]
+
+    def fail(self, key: str, problem: str):
+        """Raise the one-line :class:`InputError` of a bad parameter ``key``."""
+        raise InputError(self.path, f"{self.spec.where()} {key}: {problem}")
+
+    def add(self, appearance: str, mesh, color=(1.0, 1.0, 1.0)) -> None:
+        """Append ``mesh = (positions, faces, uvs)`` to the group of ``appearance`` with ``color``."""
+        self.groups.setdefault(appearance, MeshGroup()).add(*mesh, color=color)
+
+    def add_appearance(self, name: str, appearance: Appearance) -> None:
+        """Declare a generated appearance (the name should include the object's index).
+
+        Raises InputError when ``name`` is already taken (e.g. by a ``[materials.*]`` entry).
+        """
+        if name in self.appearances:
+            self.fail("generator", f"the appearance {name!r} it makes clashes with an existing one "
+                                   f"(rename [materials.{name}])")
+        self.appearances[name] = appearance
+
+    def color(self, lo: float = 0.1, hi: float = 0.9) -> np.ndarray:
+        """A random linear RGB colour, each channel uniform in [lo, hi)."""
+        return self.rng.uniform(lo, hi, size=3)
+
+
+def describe_generators() -> str:
+    """Text listing every registered generator with its doc and parameters (type, default, doc)."""
+    lines = []
+    for name in sorted(_REGISTRY):
+        gen = _REGISTRY[name]
+        lines.append(f"{name}: {gen.doc}")
+        for p in gen.params:
+            default = "required" if p.required else f"default {_show(p.default)}"
+            lines.append(f"    {p.name} ({p.kind}, {default}): {p.doc}")
+        lines.append("")
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def _show(value) -> str:
+    if value is None:
+        return "none"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_show(v) for v in value) + "]"
+    if isinstance(value, str):
+        return repr(value)
+    return str(value)

@@ -1,0 +1,123 @@
+"""Lights of ``[[lights]]``: settings of each type and their Mitsuba emitter dicts.
+
+Types: ``sky`` (a procedural gradient sky), ``sun`` (a directional light),
+``constant`` (uniform environment radiance) and ``envmap`` (a latitude-longitude
+image file: HDR, EXR or PNG). World frame: metres, z up.
+
+An ``envmap`` with ``rotation_deg = [0, 0, 0]`` has its top image row straight
+up (+z); its left edge column faces +y, the column a quarter across faces +x
+and the middle column faces -y (Mitsuba's lat-long convention turned z-up).
+``rotation_deg`` = [roll, pitch, yaw] then turns it about the world axes with
+``R = Rz(yaw) Ry(pitch) Rx(roll)`` (the project's ZYX convention).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+from .settings import check_fields, setting
+
+__all__ = ["SkyLight", "SunLight", "ConstantLight", "EnvmapLight", "LIGHT_TYPES", "sky_image", "emitter_dict"]
+
+# Mitsuba's lat-long maps have their pole on +y; this turn about x puts it on the world's +z.
+LATLONG_POLE_TURN_DEG = 90.0
+# Width of the procedural sky image, pixels (height is half of it).
+SKY_WIDTH = 256
+
+
+@dataclass(frozen=True)
+class SkyLight:
+    """``type = "sky"``: a gradient from the horizon to the zenith colour, uniform ground below."""
+
+    zenith: tuple[float, float, float] = setting((0.25, 0.45, 0.9), "linear RGB radiance straight up",
+                                                 minimum=0.0)
+    horizon: tuple[float, float, float] = setting((0.8, 0.85, 0.95), "linear RGB radiance at the horizon",
+                                                  minimum=0.0)
+    ground: tuple[float, float, float] = setting((0.3, 0.3, 0.3), "linear RGB radiance below the horizon",
+                                                 minimum=0.0)
+    scale: float = setting(1.0, "radiance multiplier", minimum=0.0)
+
+    def __post_init__(self):
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class SunLight:
+    """``type = "sun"``: a directional light."""
+
+    azimuth_deg: float = setting(40.0, "direction towards the sun, degrees from +x towards +y")
+    elevation_deg: float = setting(45.0, "sun height above the horizon, degrees", minimum=-90.0, maximum=90.0)
+    irradiance: tuple[float, float, float] = setting((3.0, 2.9, 2.7), "linear RGB irradiance", minimum=0.0)
+
+    def __post_init__(self):
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class ConstantLight:
+    """``type = "constant"``: the same radiance from every direction."""
+
+    radiance: tuple[float, float, float] = setting((0.2, 0.2, 0.2), "linear RGB radiance", minimum=0.0)
+
+    def __post_init__(self):
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class EnvmapLight:
+    """``type = "envmap"``: a latitude-longitude environment image (HDR, EXR or PNG)."""
+
+    file: str = setting(doc="image file, relative to the scene file")
+    scale: float = setting(1.0, "radiance multiplier", minimum=0.0)
+    rotation_deg: tuple[float, float, float] = setting((0.0, 0.0, 0.0),
+                                                       "[roll, pitch, yaw] about world x, y, z, degrees")
+
+    def __post_init__(self):
+        check_fields(self)
+
+
+# The classes a light table's ``type`` key selects.
+LIGHT_TYPES = {"sky": SkyLight, "sun": SunLight, "constant": ConstantLight, "envmap": EnvmapLight}
+
+
+def sky_image(*, zenith, horizon, ground, width: int = SKY_WIDTH) -> np.ndarray:
+    """Latitude-longitude sky, ``(width/2, width, 3)`` float32: row 0 is straight up (linear RGB)."""
+    height = width // 2
+    elevation = (0.5 - (np.arange(height) + 0.5) / height) * math.pi
+    t = np.clip(np.sin(elevation), 0, 1)[:, None] ** 0.5
+    sky = (1 - t) * np.asarray(horizon)[None, :] + t * np.asarray(zenith)[None, :]
+    sky = np.where((elevation < 0)[:, None], np.asarray(ground)[None, :], sky)
+    return np.ascontiguousarray(np.repeat(sky[:, None, :], width, axis=1).astype(np.float32))
+
+
+def emitter_dict(mi, light) -> dict:
+    """Mitsuba emitter dict of validated light settings.
+
+    Parameters
+    ----------
+    mi : module
+        Imported Mitsuba with its variant set.
+    light : SkyLight, SunLight, ConstantLight or EnvmapLight
+        An envmap's ``file`` is an absolute path.
+    """
+    pole_up = mi.ScalarTransform4f().rotate([1, 0, 0], LATLONG_POLE_TURN_DEG)
+    if isinstance(light, SkyLight):
+        image = sky_image(zenith=light.zenith, horizon=light.horizon, ground=light.ground)
+        return {"type": "envmap", "bitmap": mi.Bitmap(image), "scale": light.scale, "to_world": pole_up}
+    if isinstance(light, SunLight):
+        az, el = math.radians(light.azimuth_deg), math.radians(light.elevation_deg)
+        direction = [-math.cos(el) * math.cos(az), -math.cos(el) * math.sin(az), -math.sin(el)]
+        return {"type": "directional", "direction": direction,
+                "irradiance": {"type": "rgb", "value": list(light.irradiance)}}
+    if isinstance(light, ConstantLight):
+        return {"type": "constant", "radiance": {"type": "rgb", "value": list(light.radiance)}}
+    from ifmi.rotations import matrix_from_rpy  # scipy: imported when a scene is built
+
+    turn = np.eye(4)
+    turn[:3, :3] = matrix_from_rpy(np.radians(np.asarray(light.rotation_deg, dtype=np.float64)))
+    return {"type": "envmap", "filename": light.file, "scale": light.scale,
+            "to_world": mi.ScalarTransform4f(turn.tolist()) @ pole_up}

@@ -1,0 +1,171 @@
+"""Mesh files as scene objects: the ``mesh`` generator (OBJ, PLY, STL, glTF/GLB through trimesh).
+
+A file is read as a trimesh scene; every geometry is taken with its node
+transform, in the file's units. It is placed by ``scale`` (file units to
+metres), then ``rotation_deg`` = [roll, pitch, yaw] in degrees with
+``R = Rz(yaw) Ry(pitch) Rx(roll)`` about the world axes (the project's ZYX
+convention, :func:`ifmi.rotations.matrix_from_rpy`), then ``position``:
+``p_world = R (scale p_file) + position``.
+
+Without ``material`` each geometry keeps the file's own appearance:
+
+* a texture image on its UVs (8-bit sRGB decoded to linear, as Mitsuba does
+  for 8-bit bitmaps); colour factors beside a texture are ignored (tools
+  write arbitrary ones, trimesh a grey 0.4);
+* else per-vertex colours, 8-bit values mapped to [0, 1] (used as linear
+  reflectance, which is what Mitsuba's own PLY loader expects);
+* else per-face colours (each face gets its own vertices);
+* else the material's base (diffuse) colour, mapped to [0, 1];
+* else mid grey (an STL file has no appearance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ifmi.errors import InputError
+
+from .generators import GeneratorContext, Param, register_generator
+from .materials import Appearance, MaterialSettings
+from .textures import linear_texture_from_image
+
+__all__ = ["MeshPart", "mesh_parts_from_file"]
+
+# Reflectance of a geometry that carries no appearance (STL).
+DEFAULT_GREY = (0.5, 0.5, 0.5)
+# Largest value of the 8-bit colours trimesh stores.
+UINT8_MAX = 255.0
+
+
+@dataclass(frozen=True)
+class MeshPart:
+    """One geometry of a mesh file, in the file's frame and units.
+
+    positions (V, 3); faces (F, 3) int; uvs (V, 2) or None (v = 0 at the
+    image's bottom row); colors (V, 3) linear RGB in [0, 1]; image
+    (H, W, 3) float32 linear RGB texture or None (rows top to bottom).
+    """
+
+    positions: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray | None
+    colors: np.ndarray
+    image: np.ndarray | None
+
+
+def _material_color(material) -> np.ndarray | None:
+    color = getattr(material, "main_color", None)
+    if color is None:
+        return None
+    return np.asarray(color, dtype=np.float64)[:3] / UINT8_MAX
+
+
+def _texture_part(mesh, positions, faces) -> MeshPart:
+    visual = mesh.visual
+    material = getattr(visual, "material", None)
+    uvs = None if visual.uv is None or len(visual.uv) != len(positions) else np.asarray(visual.uv, np.float64)
+    image = None
+    if material is not None:
+        image = getattr(material, "image", None)
+        if image is None:
+            image = getattr(material, "baseColorTexture", None)  # glTF materials
+    base = _material_color(material) if material is not None else None
+    if uvs is not None and image is not None:
+        texture = linear_texture_from_image(image)
+        white = np.ones_like(positions)
+        return MeshPart(positions, faces, uvs, white, np.ascontiguousarray(texture, dtype=np.float32))
+    color = base if base is not None else np.asarray(DEFAULT_GREY)
+    return MeshPart(positions, faces, uvs, np.broadcast_to(color, positions.shape).copy(), None)
+
+
+def _part(mesh) -> MeshPart:
+    positions = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    visual = mesh.visual
+    kind = getattr(visual, "kind", None)
+    if kind == "texture":
+        return _texture_part(mesh, positions, faces)
+    if kind == "vertex":
+        colors = np.asarray(visual.vertex_colors, dtype=np.float64)[:, :3] / UINT8_MAX
+        return MeshPart(positions, faces, None, colors, None)
+    if kind == "face":
+        # Every face gets its own three vertices so its colour does not bleed into its neighbours.
+        colors = np.repeat(np.asarray(visual.face_colors, dtype=np.float64)[:, :3] / UINT8_MAX, 3, axis=0)
+        return MeshPart(positions[faces].reshape(-1, 3), np.arange(3 * len(faces)).reshape(-1, 3),
+                        None, colors, None)
+    grey = np.broadcast_to(np.asarray(DEFAULT_GREY), positions.shape).copy()
+    return MeshPart(positions, faces, None, grey, None)
+
+
+def mesh_parts_from_file(path) -> list[MeshPart]:
+    """The triangle geometries of a mesh file with their node transforms applied.
+
+    Parameters
+    ----------
+    path : str or path
+        OBJ, PLY, STL, glTF or GLB file (with its material and texture files beside it).
+
+    Returns
+    -------
+    list of MeshPart
+        In the file's frame and units; empty geometries are left out.
+
+    Raises
+    ------
+    InputError
+        The file cannot be read or holds no triangles.
+    """
+    import trimesh
+
+    path = Path(path)
+    try:
+        scene = trimesh.load_scene(str(path), process=False)
+        meshes = scene.dump(concatenate=False)
+    except Exception as exc:  # trimesh raises many kinds for a broken file
+        first = str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__
+        raise InputError(path, f"cannot read mesh file ({first})") from None
+    parts = [_part(m) for m in meshes
+             if isinstance(m, trimesh.Trimesh) and len(m.faces) > 0]
+    if not parts:
+        raise InputError(path, "mesh file holds no triangles")
+    return parts
+
+
+def _planar_uvs(positions: np.ndarray) -> np.ndarray:
+    """Metric UVs for a named material on a mesh without its own: (x + z, y + z) in metres."""
+    return np.stack([positions[:, 0] + positions[:, 2], positions[:, 1] + positions[:, 2]], axis=1)
+
+
+@register_generator(
+    "mesh",
+    Param("file", "file", None, "OBJ, PLY, STL, glTF or GLB file, relative to the scene file", required=True),
+    Param("position", "float[3]", (0.0, 0.0, 0.0), "where the file's origin goes in the world, metres"),
+    Param("rotation_deg", "float[3]", (0.0, 0.0, 0.0),
+          "[roll, pitch, yaw] about world x, y, z, degrees: R = Rz(yaw) Ry(pitch) Rx(roll)"),
+    Param("scale", "float", 1.0, "file units to metres", minimum=1e-12),
+    Param("material", "material", None, "a [materials.*] entry for the whole mesh (default: the file's own "
+                                        "texture, vertex colours or base colours)"),
+)
+def _mesh(ctx: GeneratorContext):
+    """A mesh file placed in the world, with its own appearance or a scene material."""
+    from ifmi.rotations import matrix_from_rpy  # scipy: imported when a scene is built
+
+    rotation = matrix_from_rpy(np.radians(np.asarray(ctx["rotation_deg"], dtype=np.float64)))
+    offset = np.asarray(ctx["position"], dtype=np.float64)
+    for k, part in enumerate(mesh_parts_from_file(ctx["file"])):
+        positions = (ctx["scale"] * part.positions) @ rotation.T + offset
+        if ctx["material"] is not None:
+            uvs = part.uvs if part.uvs is not None else _planar_uvs(positions)
+            ctx.add(ctx["material"], (positions, part.faces, uvs), color=part.colors)
+            continue
+        name = f"mesh_{ctx.index}_{k}"
+        if part.image is not None:
+            appearance = Appearance(MaterialSettings(), image=part.image)
+        else:
+            appearance = Appearance(MaterialSettings(vertex_color=True))
+        ctx.add_appearance(name, appearance)
+        uvs = part.uvs if part.uvs is not None else np.zeros((len(positions), 2))
+        ctx.add(name, (positions, part.faces, uvs), color=part.colors)

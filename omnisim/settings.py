@@ -1,0 +1,222 @@
+"""Declared settings: typed, documented fields of frozen dataclasses, checked in one place.
+
+Every settings class of a scene file (``[render]``, ``[trajectory]``, a
+material, a light, ...) is a frozen dataclass whose fields are declared with
+:func:`setting`: a default (written once, here), a one-line doc and bounds.
+Its ``__post_init__`` calls :func:`check_fields`, which checks and normalises
+each value against the field's type (``int``, ``float``, ``bool``, ``str``,
+``tuple[float, float, float]``, ``tuple[float, ...]``, ``tuple[str, ...]``,
+optionally ``| None``) and bounds, and raises :class:`SettingError` naming the
+key, what was expected and what was got. :func:`settings_from_table` builds a
+class from one TOML table and turns every problem -- an unknown key included
+-- into a one-line :class:`~ifmi.errors.InputError` naming the file, the
+section and the key.
+"""
+
+from __future__ import annotations
+
+import types
+import typing
+from dataclasses import MISSING, field, fields
+from functools import lru_cache
+from typing import Any, Mapping
+
+from ifmi.errors import InputError
+
+__all__ = ["SettingError", "setting", "check_fields", "check_value", "settings_from_table",
+           "type_name", "field_docs"]
+
+
+class SettingError(ValueError):
+    """A setting that does not fit its declaration; ``key`` and ``problem`` ("expected X, got Y")."""
+
+    def __init__(self, key: str, problem: str) -> None:
+        self.key = key
+        self.problem = problem
+        super().__init__(f"{key}: {problem}")
+
+
+def setting(default=MISSING, doc: str = "", *, minimum=None, maximum=None, above=None,
+            choices=None):
+    """A dataclass field with a default, a doc line and bounds checked by :func:`check_fields`.
+
+    Parameters
+    ----------
+    default : object
+        The default value (the only place it is written); leave out for a required field.
+    doc : str
+        One line for users, with the unit.
+    minimum, maximum : float, optional, keyword-only
+        Inclusive bounds of a number (of each element of a tuple of numbers).
+    above : float, optional, keyword-only
+        Exclusive lower bound.
+    choices : sequence, optional, keyword-only
+        The allowed values.
+    """
+    metadata = {"doc": doc, "minimum": minimum, "maximum": maximum, "above": above,
+                "choices": tuple(choices) if choices is not None else None}
+    return field(default=default, metadata=metadata)
+
+
+def type_name(hint) -> str:
+    """User-facing name of a declared type (``float``, ``[float, float, float]``, ``[str, ...]``)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        inner = [a for a in args if a is not type(None)]
+        return f"{type_name(inner[0])} or none"
+    if origin is tuple:
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"[{type_name(args[0])}, ...]"
+        return "[" + ", ".join(type_name(a) for a in args) + "]"
+    return getattr(hint, "__name__", str(hint))
+
+
+def _scalar(hint, value, key):
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise SettingError(key, f"expected true or false, got {value!r}")
+        return value
+    if hint in (int, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise SettingError(key, f"expected {'an integer' if hint is int else 'a number'}, got {value!r}")
+        if value != value or value in (float("inf"), float("-inf")):
+            raise SettingError(key, f"expected a finite number, got {value!r}")
+        if hint is int:
+            if int(value) != value:
+                raise SettingError(key, f"expected an integer, got {value!r}")
+            return int(value)
+        return float(value)
+    if hint is str:
+        if not isinstance(value, str):
+            raise SettingError(key, f"expected a string, got {value!r}")
+        return value
+    if isinstance(hint, type) and isinstance(value, hint):
+        return value
+    raise SettingError(key, f"expected {type_name(hint)}, got {value!r}")
+
+
+def check_value(hint, value, key: str):
+    """``value`` checked against the declared type ``hint`` and normalised (lists become tuples)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None:
+            return None
+        return check_value([a for a in args if a is not type(None)][0], value, key)
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise SettingError(key, f"expected {type_name(hint)}, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            element_types = [args[0]] * len(value)
+        else:
+            element_types = list(args)
+            if len(value) != len(args):
+                raise SettingError(key, f"expected {len(args)} values {type_name(hint)}, got {list(value)!r}")
+        try:
+            return tuple(_scalar(t, v, key) for t, v in zip(element_types, value))
+        except SettingError:
+            raise SettingError(key, f"expected {type_name(hint)}, got {list(value)!r}") from None
+    return _scalar(hint, value, key)
+
+
+def _check_bounds(meta: Mapping, value, key: str) -> None:
+    values = value if isinstance(value, tuple) else (value,)
+    for v in values:
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
+            continue
+        if meta.get("minimum") is not None and v < meta["minimum"]:
+            raise SettingError(key, f"expected >= {meta['minimum']}, got {_show(value)}")
+        if meta.get("maximum") is not None and v > meta["maximum"]:
+            raise SettingError(key, f"expected <= {meta['maximum']}, got {_show(value)}")
+        if meta.get("above") is not None and v <= meta["above"]:
+            raise SettingError(key, f"expected > {meta['above']}, got {_show(value)}")
+    choices = meta.get("choices")
+    if choices is not None:
+        for v in values:
+            if v not in choices:
+                shown = ", ".join(repr(c) if isinstance(c, str) else str(c) for c in choices)
+                raise SettingError(key, f"expected one of {shown}, got {v!r}")
+
+
+def _show(value):
+    return list(value) if isinstance(value, tuple) else repr(value)
+
+
+@lru_cache(maxsize=None)
+def _hints(cls) -> dict:
+    return typing.get_type_hints(cls)
+
+
+def check_fields(obj) -> None:
+    """Check and normalise every declared field of the frozen dataclass ``obj`` in place.
+
+    Raises
+    ------
+    SettingError
+        The first field whose value does not fit its type or bounds.
+    """
+    hints = _hints(type(obj))
+    for f in fields(obj):
+        if not f.init:
+            continue
+        value = check_value(hints[f.name], getattr(obj, f.name), f.name)
+        if value is not None:
+            _check_bounds(f.metadata, value, f.name)
+        object.__setattr__(obj, f.name, value)
+
+
+def field_docs(cls) -> list[tuple[str, str, Any, str]]:
+    """``(name, type name, default, doc)`` of every init field of a settings class."""
+    hints = _hints(cls)
+    out = []
+    for f in fields(cls):
+        if not f.init:
+            continue
+        default = f.default if f.default is not MISSING else None
+        out.append((f.name, type_name(hints[f.name]), default, f.metadata.get("doc", "")))
+    return out
+
+
+def settings_from_table(cls, table: Mapping, *, path, section: str, ignore=(), **extra):
+    """Build the settings class ``cls`` from one TOML table of the file ``path``.
+
+    Parameters
+    ----------
+    cls : dataclass type
+        A frozen dataclass whose ``__post_init__`` raises :class:`SettingError`.
+    table : mapping
+        The table's keys and values.
+    path : path, keyword-only
+        The scene file, named in errors.
+    section : str, keyword-only
+        How the table is written in messages, e.g. ``"[render]"``.
+    ignore : sequence of str, keyword-only
+        Keys of ``table`` read elsewhere (e.g. a type selector).
+    **extra
+        Values that replace the table's (command-line overrides; None means not given).
+        Errors in them name the option (``--key``).
+
+    Raises
+    ------
+    InputError
+        A key that is not a field (the message lists the accepted keys), or a
+        value that does not fit (the message names the key).
+    """
+    if not isinstance(table, Mapping):
+        raise InputError(path, f"{section}: expected a table, got {type(table).__name__}")
+    accepted = [f.name for f in fields(cls) if f.init]
+    for key in table:
+        if key not in accepted and key not in ignore:
+            raise InputError(path, f"{section} {key}: unknown key; accepted keys: "
+                                   f"{', '.join(list(ignore) + accepted)}")
+    values = {k: v for k, v in table.items() if k not in ignore}
+    overrides = {k: v for k, v in extra.items() if v is not None}
+    values.update(overrides)
+    missing = [f.name for f in fields(cls) if f.init and f.default is MISSING
+               and f.default_factory is MISSING and f.name not in values]
+    if missing:
+        raise InputError(path, f"{section} {missing[0]}: missing (required)")
+    try:
+        return cls(**values)
+    except SettingError as exc:
+        where = f"--{exc.key.replace('_', '-')}" if exc.key in overrides else f"{section} {exc.key}"
+        raise InputError(path, f"{where}: {exc.problem}") from None

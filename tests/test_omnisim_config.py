@@ -1,0 +1,298 @@
+"""Scene-file settings: unknown sections and keys, types, bounds, generator declarations (no rendering)."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from ifmi.errors import InputError
+
+pytest.importorskip("skimage")
+
+from omnisim.config import (CaptureSettings, RenderSettings, load_scene_config)  # noqa: E402
+from omnisim.settings import SettingError  # noqa: E402
+
+BASE = """
+[scene]
+name = "t"
+seed = 2
+
+[render]
+resolution = [64, 64]
+spp = 2
+
+[camera]
+pol = [-20.0, 0.0, 1.28e-2, -1.76e-5, 2.56e-7]
+center = [64.35, 63.3]
+size = [128, 128]
+radius_min = 10.0
+radius_max = 61.5
+
+[trajectory]
+frames = 2
+
+[materials.painted]
+vertex_color = true
+
+[materials.wood]
+color = [0.5, 0.35, 0.2]
+
+[[objects]]
+generator = "boxes"
+count = 3
+"""
+
+
+def _write(tmp_path, text, name="scene.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_base_scene_loads_with_declared_defaults(tmp_path):
+    config = load_scene_config(_write(tmp_path, BASE))
+    assert config.render.spp == 2 and config.render.max_depth == RenderSettings().max_depth
+    assert config.capture == CaptureSettings()
+    (obj,) = config.objects
+    assert obj.generator == "boxes" and obj.params["count"] == 3
+    assert obj.params["size_min"] == (0.3, 0.3, 0.3) and obj.params["material"] == "painted"
+
+
+@pytest.mark.parametrize("edit, message", [
+    (("", "[bogus]\nx = 1\n"), r"\[bogus\]: unknown section; accepted sections: scene, render, camera"),
+    (("spp = 2", "spp_typo = 2"), r"\[render\] spp_typo: unknown key; accepted keys: resolution, spp, max_depth"),
+    (("color = [0.5, 0.35, 0.2]", "colour = [0.5, 0.35, 0.2]"),
+     r"\[materials.wood\] colour: unknown key; accepted keys: type, color, texture"),
+    (("count = 3", "count = 3\ncolour = 1"),
+     r"\[\[objects\]\] #1 \(boxes\) colour: unknown key; accepted keys: generator, count, region"),
+    (("count = 3", "count = -3"), r"\[\[objects\]\] #1 \(boxes\) count: expected >= 0, got -3"),
+    (("frames = 2", "frames = -1"), r"\[trajectory\] frames: expected >= 1, got -1"),
+    (("seed = 2", "seed = 1.5"), r"\[scene\] seed: expected an integer, got 1.5"),
+    (("spp = 2", "spp = true"), r"\[render\] spp: expected an integer, got True"),
+    (("spp = 2", 'spp = "abc"'), r"\[render\] spp: expected an integer, got 'abc'"),
+    (("spp = 2", "spp = 2\nsampler = 'sobol'"), r"\[render\] sampler: expected one of 'multijitter'"),
+    (("count = 3", "count = 3\nregion = [1.0]"), r"\(boxes\) region: expected 2 values \[float, float\]"),
+    (("count = 3", "count = 3\nmaterial = 'gold'"), r"\(boxes\) material: unknown material 'gold'"),
+    (('generator = "boxes"', 'generator = "spaceship"'), r"#1 generator: expected one of boxes, "),
+    (("frames = 2", "frames = 2\n[capture]\nexposure = 1.5"), r"\[capture\] exposure: expected <= 1.0, got 1.5"),
+    (("frames = 2", "frames = 2\n[effects]\njpeg = 50"), r"\[effects\] jpeg: unknown key; accepted keys: noise_sigma"),
+    (("radius_max = 61.5", "radius_max = 5.0"), r"\[camera\] radius_max: expected > radius_min = 10.0, got 5.0"),
+    (("center = [64.35, 63.3]\n", ""), r"\[camera\] center: missing \(give either 'calib' or 'pol'"),
+])
+def test_bad_scene_is_one_line_naming_section_and_key(tmp_path, edit, message):
+    old, new = edit
+    text = BASE.replace(old, new, 1) if old else BASE + new
+    with pytest.raises(InputError) as info:
+        load_scene_config(_write(tmp_path, text))
+    assert re.search(message, str(info.value)), str(info.value)
+    assert str(info.value).startswith(str(tmp_path / "scene.toml"))
+    assert "\n" not in str(info.value)
+
+
+def test_unknown_texture_source_and_key(tmp_path):
+    with pytest.raises(InputError, match=r"\[textures.t\] source: expected one of photo, noise, got 'video'"):
+        load_scene_config(_write(tmp_path, BASE + '[textures.t]\nsource = "video"\n'))
+    with pytest.raises(InputError, match=r"\[textures.t\] octave: unknown key; accepted keys: source, size"):
+        load_scene_config(_write(tmp_path, BASE + '[textures.t]\nsource = "noise"\noctave = 3\n'))
+    with pytest.raises(InputError, match=r"\[textures.t\] name: expected one of 'grass'"):
+        load_scene_config(_write(tmp_path, BASE + '[textures.t]\nsource = "photo"\nname = "moonlight"\n'))
+
+
+def test_unknown_photo_and_missing_mesh_file_are_found_before_rendering(tmp_path):
+    posters = BASE + '[[objects]]\ngenerator = "posters"\nphotos = ["astronaut", "selfie"]\n'
+    with pytest.raises(InputError, match=r"#2 \(posters\) photos: unknown photo 'selfie'"):
+        load_scene_config(_write(tmp_path, posters))
+    mesh = BASE + '[[objects]]\ngenerator = "mesh"\nfile = "chair.obj"\n'
+    with pytest.raises(InputError, match=r"#2 \(mesh\) file: file not found: .*chair.obj"):
+        load_scene_config(_write(tmp_path, mesh))
+    with pytest.raises(InputError, match=r"#2 \(mesh\) file: missing \(required\)"):
+        load_scene_config(_write(tmp_path, BASE + '[[objects]]\ngenerator = "mesh"\n'))
+
+
+def test_light_keys_and_envmap_file_are_checked(tmp_path):
+    with pytest.raises(InputError, match=r"\[\[lights\]\] #1 \(sun\) colour: unknown key; accepted keys: type, "
+                                         r"azimuth_deg"):
+        load_scene_config(_write(tmp_path, BASE + '[[lights]]\ntype = "sun"\ncolour = [1, 1, 1]\n'))
+    with pytest.raises(InputError, match=r"\[\[lights\]\] #1 type: expected one of sky, sun, constant, envmap"):
+        load_scene_config(_write(tmp_path, BASE + '[[lights]]\ntype = "laser"\n'))
+    with pytest.raises(InputError, match=r"\[\[lights\]\] #1 \(envmap\) file: file not found"):
+        load_scene_config(_write(tmp_path, BASE + '[[lights]]\ntype = "envmap"\nfile = "sky.exr"\n'))
+
+
+def test_command_line_override_is_named_as_the_option(tmp_path):
+    with pytest.raises(InputError, match=r"scene.toml: --spp: expected >= 1, got 0"):
+        load_scene_config(_write(tmp_path, BASE), spp=0)
+    with pytest.raises(InputError, match=r"--variant: expected one of '', 'llvm_ad_rgb', 'cuda_ad_rgb', got 'bogus'"):
+        load_scene_config(_write(tmp_path, BASE), variant="bogus")
+
+
+def test_asset_files_are_part_of_the_identity(tmp_path):
+    (tmp_path / "m.ply").write_bytes(b"not read here")
+    text = BASE + '[[objects]]\ngenerator = "mesh"\nfile = "m.ply"\n'
+    first = load_scene_config(_write(tmp_path, text)).settings_dict()
+    (tmp_path / "m.ply").write_bytes(b"changed")
+    second = load_scene_config(_write(tmp_path, text)).settings_dict()
+    assert first["assets"][0][0] == "m.ply" and first["assets"] != second["assets"]
+
+
+def test_settings_check_themselves_when_built_in_code():
+    with pytest.raises(SettingError, match=r"rolling_shutter: expected <= 1.0, got 2.0"):
+        CaptureSettings(rolling_shutter=2.0)
+    assert RenderSettings(resolution=96).resolution == (96, 96)
+    with pytest.raises(SettingError, match="resolution: expected >= 8"):
+        RenderSettings(resolution=(4, 4))
+    with pytest.raises(SettingError, match="resolution: expected <= 16384, got \\[1000000000, 1000000000\\]"):
+        RenderSettings(resolution=1_000_000_000)
+
+
+def test_register_generator_declares_and_checks_parameters(tmp_path, monkeypatch):
+    from omnisim import generators
+    from omnisim.generators import Param, register_generator
+
+    monkeypatch.setattr(generators, "_REGISTRY", dict(generators._REGISTRY))
+
+    @register_generator("pyramid", Param("height", "float", 1.0, "apex height, metres", minimum=0.0),
+                        Param("material", "material", "wood", "material"))
+    def _pyramid(ctx):
+        """A test pyramid."""
+
+    config = load_scene_config(_write(tmp_path, BASE + '[[objects]]\ngenerator = "pyramid"\nheight = 2\n'))
+    assert config.objects[1].params == {"height": 2.0, "material": "wood"}
+    with pytest.raises(InputError, match=r"\(pyramid\) width: unknown key; accepted keys: generator, height, "
+                                         r"material"):
+        load_scene_config(_write(tmp_path, BASE + '[[objects]]\ngenerator = "pyramid"\nwidth = 2\n'))
+    with pytest.raises(ValueError, match="already registered"):
+        register_generator("pyramid")(_pyramid)
+    assert "pyramid: A test pyramid." in generators.describe_generators()
+
+
+def test_cli_generators_lists_every_generator_with_parameter_docs(capsys):
+    from omnisim.cli import main
+    from omnisim.generators import registered_generators
+
+    assert main(["generators"]) == 0
+    out = capsys.readouterr().out
+    for name, gen in registered_generators().items():
+        assert f"{name}: {gen.doc}" in out
+        for p in gen.params:
+            assert f"    {p.name} ({p.kind}, " in out
+    assert "file (file, required): OBJ, PLY, STL, glTF or GLB file" in out
+
+
+def test_cli_bad_scene_key_is_one_line_exit_2_and_nothing_created(tmp_path, capsys):
+    from omnisim.cli import main
+
+    scene = _write(tmp_path, BASE.replace("spp = 2", "spp_typo = 2"))
+    code = main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "[render] spp_typo: unknown key" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_bogus_variant_is_one_line_exit_2(tmp_path, capsys):
+    from omnisim.cli import main
+
+    code = main(["render", str(_write(tmp_path, BASE)), "--out", str(tmp_path / "out"), "--variant", "bogus"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "--variant: expected one of" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_interrupt_is_recognised_through_exception_chains():
+    from omnisim.cli import _caused_by_interrupt
+
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as inner:
+            raise RuntimeError("drjit.custom(): error while performing a custom operation") from inner
+    except RuntimeError as exc:
+        assert _caused_by_interrupt(exc)
+    assert not _caused_by_interrupt(RuntimeError("plain failure"))
+
+
+def test_mesh_parts_keep_each_file_appearance(tmp_path):
+    """STL: mid grey; PLY face colours: each face its own vertices and colour; vertex colours / 255."""
+    import numpy as np
+
+    trimesh = pytest.importorskip("trimesh")
+
+    from omnisim.meshes import DEFAULT_GREY, mesh_parts_from_file
+
+    box = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
+    box.export(tmp_path / "box.stl")
+    (stl,) = mesh_parts_from_file(tmp_path / "box.stl")
+    np.testing.assert_allclose(stl.colors, np.broadcast_to(DEFAULT_GREY, stl.colors.shape))
+    np.testing.assert_allclose(np.ptp(stl.positions, axis=0), [1.0, 2.0, 3.0])
+
+    faces = box.copy()
+    face_colors = np.zeros((len(faces.faces), 4), np.uint8)
+    face_colors[:, 3] = 255
+    face_colors[:, 0] = np.arange(len(faces.faces)) * 20
+    faces.visual.face_colors = face_colors
+    faces.export(tmp_path / "faces.ply")
+    (part,) = mesh_parts_from_file(tmp_path / "faces.ply")
+    assert part.positions.shape == (3 * len(box.faces), 3)
+    np.testing.assert_allclose(part.colors[::3, 0], face_colors[:, 0] / 255.0)
+    np.testing.assert_allclose(part.colors[1::3], part.colors[::3])
+
+    verts = box.copy()
+    verts.visual.vertex_colors = np.tile([255, 128, 0, 255], (len(box.vertices), 1)).astype(np.uint8)
+    verts.export(tmp_path / "verts.ply")
+    (part,) = mesh_parts_from_file(tmp_path / "verts.ply")
+    np.testing.assert_allclose(part.colors, np.broadcast_to([1.0, 128 / 255, 0.0], part.colors.shape))
+
+
+def test_unreadable_mesh_file_is_one_line_error(tmp_path):
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "empty.ply").write_text("ply\nformat ascii 1.0\nelement vertex 0\nend_header\n")
+    with pytest.raises(InputError, match=r"empty.ply: (mesh file holds no triangles|cannot read mesh file)"):
+        mesh_parts_from_file(tmp_path / "empty.ply")
+    (tmp_path / "junk.glb").write_bytes(b"\x00\x01junk")
+    with pytest.raises(InputError, match=r"junk.glb: cannot read mesh file"):
+        mesh_parts_from_file(tmp_path / "junk.glb")
+
+
+@pytest.mark.parametrize("content", ["[]", "{\"images\": []}", "{broken"])
+def test_meta_json_that_is_not_a_dataset_record_is_refused_in_one_line(tmp_path, content):
+    from omnisim.render import check_output_folder
+
+    (tmp_path / "meta.json").write_text(content)
+    with pytest.raises(InputError, match=r"meta.json: (expected a JSON object|unreadable meta.json)"):
+        check_output_folder(tmp_path, {"seed": 1})
+
+
+def test_hand_written_obj_with_two_materials_gives_two_base_coloured_parts(tmp_path):
+    """An OBJ written by hand (not by trimesh): each `usemtl` group keeps its Kd (stored as 8 bits)."""
+    import numpy as np
+
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "two.mtl").write_text("newmtl red\nKd 0.8 0.1 0.1\nnewmtl blue\nKd 0.1 0.2 0.9\n")
+    (tmp_path / "two.obj").write_text("mtllib two.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\n"
+                                      "usemtl red\nf 1 2 3\nf 1 3 4\nusemtl blue\nf 1 2 6\nf 1 6 5\n")
+    parts = mesh_parts_from_file(tmp_path / "two.obj")
+    colors = sorted(tuple(np.round(p.colors[0], 2)) for p in parts)
+    assert colors == [(0.1, 0.2, 0.9), (0.8, 0.1, 0.1)]
+    assert all(len(p.faces) == 2 and np.allclose(p.colors, p.colors[0], atol=1 / 255) for p in parts)
+
+
+def test_capture_must_end_by_the_next_frame(tmp_path):
+    with pytest.raises(SettingError, match=r"exposure \+ rolling_shutter: expected <= 1"):
+        CaptureSettings(exposure=0.7, rolling_shutter=0.5)
+    assert CaptureSettings(exposure=0.5).timed and not CaptureSettings(vignetting=0.3).timed
+
+
+def test_identity_of_a_plain_scene_is_unchanged_by_the_new_tables(tmp_path):
+    """Folders rendered before [capture] and asset hashes existed keep their identity."""
+    settings = load_scene_config(_write(tmp_path, BASE)).settings_dict()
+    assert set(settings) == {"render", "trajectory", "effects", "camera"}
+
+
+def test_camera_table_lists_kalibr_among_its_keys(tmp_path):
+    with pytest.raises(InputError, match=r"\[camera\] kalibrr: unknown key; accepted keys: kalibr, calib, pol"):
+        load_scene_config(_write(tmp_path, BASE.replace("[camera]\n", '[camera]\nkalibrr = "c.yaml"\n')))

@@ -1,0 +1,209 @@
+"""Output folders of render and degrade: nothing made on a scene error, reuse of empty folders,
+refusals that name the setting, write failures and interrupts as one line."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from ifmi.errors import InputError, OutputError
+
+# Mitsuba must not be imported here: omnisim.llvm selects drjit's LLVM before the first import.
+if importlib.util.find_spec("mitsuba") is None:
+    pytest.skip("mitsuba is not installed (sim extra)", allow_module_level=True)
+
+pytestmark = pytest.mark.render
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = """
+[scene]
+seed = 4
+
+[render]
+resolution = [32, 32]
+spp = {spp}
+max_depth = 2
+
+[camera]
+pol = [-20.0, 0.0, 1.28e-2, -1.76e-5, 2.56e-7]
+center = [64.35, 63.3]
+size = [128, 128]
+radius_min = 10.0
+radius_max = 61.5
+
+[trajectory]
+frames = {frames}
+
+[materials.painted]
+vertex_color = true
+
+[[lights]]
+type = "constant"
+
+[[objects]]
+generator = "boxes"
+count = 4
+"""
+
+
+def _scene(tmp_path, *, spp=1, frames=2, extra="", name="scene.toml"):
+    path = tmp_path / name
+    path.write_text(SCENE.format(spp=spp, frames=frames) + extra)
+    return path
+
+
+def _run_cli(argv, capsys):
+    from omnisim.cli import main
+
+    code = main(argv)
+    return code, capsys.readouterr().err.strip()
+
+
+def test_broken_mesh_file_fails_before_the_output_folder_exists(tmp_path):
+    from omnisim.render import render_dataset
+
+    (tmp_path / "chair.obj").write_text("v 0 0 0\nf 1 2 9\nthis is not obj\n")
+    scene = _scene(tmp_path, extra='\n[[objects]]\ngenerator = "mesh"\nfile = "chair.obj"\n')
+    with pytest.raises(InputError, match=r"chair.obj: (cannot read mesh file|mesh file holds no triangles)"):
+        render_dataset(scene, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_folder_with_no_frames_is_reused_whatever_it_was_started_with(tmp_path):
+    """A folder left by a run that stopped before its first frame (meta with no images, or only an
+    empty images/ from older versions) is not refused."""
+    from omnisim.render import render_dataset
+
+    scene = _scene(tmp_path)
+    started = tmp_path / "started"
+    (started / "images").mkdir(parents=True)
+    (started / "meta.json").write_text(json.dumps({"identity": {"seed": 99}, "images": {}, "complete": False}))
+    assert render_dataset(scene, started, progress=False).rendered == 2
+    empty = tmp_path / "empty"
+    (empty / "images").mkdir(parents=True)
+    assert render_dataset(scene, empty, progress=False).rendered == 2
+
+
+def test_refusal_names_the_setting_that_differs(tmp_path):
+    from omnisim.render import render_dataset
+
+    scene = _scene(tmp_path)
+    render_dataset(scene, tmp_path / "out", progress=False)
+    with pytest.raises(InputError, match=r"different settings.render.spp \(folder: 1, now: 3\)"):
+        render_dataset(scene, tmp_path / "out", spp=3, progress=False)
+    with pytest.raises(InputError, match=r"settings.trajectory.frames \(folder: 2, now: 5\)"):
+        render_dataset(scene, tmp_path / "out", frames=5, progress=False)
+
+
+def test_render_out_below_a_regular_file_is_one_line_exit_1(tmp_path, capsys):
+    (tmp_path / "file").write_text("mine")
+    code, err = _run_cli(["render", str(_scene(tmp_path)), "--out", str(tmp_path / "file" / "out"),
+                          "--no-progress"], capsys)
+    assert code == 1 and len(err.splitlines()) == 1, err
+    assert f"cannot write {tmp_path / 'file' / 'out'}: Not a directory" in err
+    assert (tmp_path / "file").read_text() == "mine"
+
+
+def test_render_into_unwritable_folder_is_one_line_exit_1(tmp_path, capsys, monkeypatch):
+    """A folder the process may not write in (simulated: the tests may run as root, who may write anywhere)."""
+    real_mkdir = Path.mkdir
+
+    def refusing_mkdir(self, *args, **kwargs):
+        if self.is_relative_to(tmp_path / "locked"):
+            raise PermissionError(13, "Permission denied", str(self))
+        return real_mkdir(self, *args, **kwargs)
+
+    (tmp_path / "locked").mkdir()
+    monkeypatch.setattr(Path, "mkdir", refusing_mkdir)
+    code, err = _run_cli(["render", str(_scene(tmp_path)), "--out", str(tmp_path / "locked" / "out"),
+                          "--no-progress"], capsys)
+    assert code == 1 and len(err.splitlines()) == 1, err
+    assert f"cannot write {tmp_path / 'locked' / 'out'}: Permission denied" in err
+    assert list((tmp_path / "locked").iterdir()) == []
+
+
+@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root may write into read-only folders")
+def test_render_into_read_only_folder_is_one_line_exit_1(tmp_path, capsys):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o555)
+    try:
+        code, err = _run_cli(["render", str(_scene(tmp_path)), "--out", str(locked / "out"), "--no-progress"],
+                             capsys)
+    finally:
+        locked.chmod(0o755)
+    assert code == 1 and len(err.splitlines()) == 1 and "Permission denied" in err
+
+
+def test_degrade_out_below_a_regular_file_is_one_line_exit_1(tmp_path, capsys):
+    from omnisim.render import render_dataset
+
+    render_dataset(_scene(tmp_path), tmp_path / "src", progress=False)
+    (tmp_path / "file").write_text("mine")
+    code, err = _run_cli(["degrade", str(tmp_path / "src"), "--out", str(tmp_path / "file" / "out"),
+                          "--noise-sigma", "2", "--no-progress"], capsys)
+    assert code == 1 and len(err.splitlines()) == 1, err
+    assert f"cannot write {tmp_path / 'file' / 'out'}: Not a directory" in err
+
+
+def test_open_output_folder_raises_output_error_naming_the_folder(tmp_path):
+    from omnisim.render import open_output_folder
+
+    (tmp_path / "file").write_text("mine")
+    with pytest.raises(OutputError, match=r"cannot write .*file/out: Not a directory"):
+        open_output_folder(tmp_path / "file" / "out", {"seed": 1})
+
+
+def _cli_process(args, tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.Popen([sys.executable, "-m", "omnisim", *args], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("ctypes") is None or __import__("ctypes.util").util.find_library("cuda")
+                    is not None, reason="a CUDA driver is present")
+def test_cuda_variant_without_gpu_is_one_line_exit_1(tmp_path):
+    process = _cli_process(["render", str(_scene(tmp_path)), "--out", str(tmp_path / "out"),
+                            "--variant", "cuda_ad_rgb", "--no-progress"], tmp_path)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 1, err
+    assert len(err.strip().splitlines()) == 1 and "cuda_ad_rgb needs a working CUDA GPU" in err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("delay", [0.4, 0.6, 1.2])
+def test_sigint_during_import_or_first_frame_is_one_line_exit_130(tmp_path, delay):
+    """SIGINT while the modules and Mitsuba are imported (0.4, 0.6 s) or the scene is loaded / the
+    first frame renders (1.2 s): one 'interrupted' line and status 130, never a traceback. The
+    render is long enough (many frames) that it cannot finish before the signal.
+
+    Before the fix about 1 in 5 tries between 0.5 and 0.65 s ended by SIGINT (status -2) after
+    printing the line, and 1 try ran on to the end; 24 of 24 tries between 0.3 and 1.6 s now end
+    with status 130.
+    """
+    process = _cli_process(["render", str(_scene(tmp_path, frames=500)), "--out", str(tmp_path / "out"),
+                            "--no-progress"], tmp_path)
+    time.sleep(delay)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].endswith(": interrupted (rerun the same command to resume)"), err
+
+
+def test_broken_envmap_file_fails_before_the_output_folder_exists(tmp_path):
+    from omnisim.render import render_dataset
+
+    (tmp_path / "sky.exr").write_bytes(b"not an image")
+    scene = _scene(tmp_path, extra='\n[[lights]]\ntype = "envmap"\nfile = "sky.exr"\n')
+    with pytest.raises(InputError, match=r"sky.exr: \[\[lights\]\] #2"):
+        render_dataset(scene, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()
