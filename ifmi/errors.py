@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["InputError", "CalibrationFitError", "OutputError"]
+__all__ = ["InputError", "InputWarning", "CalibrationFitError", "OutputError"]
 
 
 class InputError(ValueError):
@@ -56,3 +56,11 @@ class OutputError(OSError):
         if isinstance(exc, cls):
             return exc
         return cls(path, exc.strerror or str(exc))
+
+
+class InputWarning(UserWarning):
+    """Input that was used in part, with something left out (e.g. files skipped).
+
+    The message is one line naming the file or folder; command-line entry
+    points print it as ``ifmi COMMAND: warning: MESSAGE``.
+    """

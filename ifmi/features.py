@@ -121,7 +121,8 @@ class FeatureConfig:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "FeatureConfig":
-        return options_from_dict(cls, data, what="feature options")
+        """Inverse of :meth:`to_dict`; missing keys take defaults, values are type-checked."""
+        return options_from_dict(cls, data, what="features")
 
 
 @dataclass(frozen=True)

@@ -39,10 +39,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .errors import InputError
+from .frames import MissingFrame
 from .relative_pose import RelativePoseOptions, relative_pose_from_rays
 from .trajectory import Trajectory
 
-__all__ = ["KeyframeOptions", "FrameRecord", "MissingFrame", "Tracker", "track_sequence"]
+__all__ = ["KeyframeOptions", "FrameRecord", "Tracker", "track_sequence"]
 
 
 @dataclass(frozen=True)
@@ -138,26 +139,6 @@ class _Reference:
     rotation: np.ndarray
     position: np.ndarray
     first_inliers: int = -1
-
-
-@dataclass(frozen=True)
-class MissingFrame:
-    """Stands in a sequence for an image that could not be used.
-
-    The frame is flagged as failed with ``reason`` and keeps the previous
-    pose; the sequence goes on. Only the first frame must be usable, since it
-    defines the reference.
-
-    Attributes
-    ----------
-    source : str
-        Where the image came from (a file path), for messages.
-    reason : str
-        Why it could not be used, one line.
-    """
-
-    source: str
-    reason: str
 
 
 def _angle(rotation: np.ndarray) -> float:

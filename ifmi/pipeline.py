@@ -23,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .camera import OcamModel
+from .config_limits import check_config_for_model
 from .errors import CalibrationFitError, InputError
 from .features import FeatureConfig
 from .front_end import Correspondences, FrontEnd
@@ -46,6 +47,7 @@ __all__ = [
     "estimate_dataset",
     "estimate_video",
     "resolved_config",
+    "check_config_for_model",
 ]
 
 
@@ -80,19 +82,20 @@ class EstimateConfig:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "EstimateConfig":
-        """Build a config from :meth:`to_dict` output; missing sections take defaults."""
-        sections = dict(data)
-        ifmi = sections.get("ifmi") or {}
-        features = sections.get("features")
-        sections.update(
-            ifmi=IfmiConfig.from_dict(ifmi),
-            features=None if features is None else FeatureConfig.from_dict(features),
-            relative_pose=options_from_dict(RelativePoseOptions, sections.get("relative_pose") or {},
-                                            what="relative_pose options"),
-            keyframe=options_from_dict(KeyframeOptions, sections.get("keyframe") or {},
-                                       what="keyframe options"),
-        )
-        return options_from_dict(cls, sections, what="config sections")
+        """Build a config from :meth:`to_dict` output; missing keys take defaults.
+
+        Every value of every section is type-checked against its field
+        (:func:`ifmi.options.options_from_dict`).
+
+        Raises
+        ------
+        ifmi.options.OptionError
+            An unknown key, a value of the wrong type or out of range; the
+            message names the key path (``ifmi.tiling.overlap``), what was
+            expected and what was got.
+        """
+        return options_from_dict(cls, data, what="",
+                                 types_override={"features": FeatureConfig | None})
 
 
 @dataclass(frozen=True)
@@ -164,6 +167,7 @@ def estimate_sequence(images: Iterable[np.ndarray], model: OcamModel, *, method:
     -------
     SequenceEstimate
     """
+    check_config_for_model(config, model, method=method)
     config = resolved_config(config, model)
     front_end = create_front_end(method, model, config)
     if total is None and hasattr(images, "__len__"):
@@ -188,7 +192,13 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     The mirror band is decided from up to five frames spread over the
     sequence (:func:`ifmi.unwarp.panorama_config_with_band`), so a dark
     object in the first frame does not narrow it; the result's ``config``
-    holds the radii.
+    holds the radii. Sizes are checked against the camera before any work
+    and the tiles again against the decided band
+    (:func:`ifmi.config_limits.check_config_for_model`).
+
+    The trajectory's timestamps and the records' ``frame`` and
+    ``reference_frame`` are the dataset's frame indices (the integers in the
+    image file names), so a missing image leaves a gap.
 
     Raises
     ------
@@ -202,16 +212,23 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     from .io.dataset import read_dataset
 
     dataset = read_dataset(Path(dataset_dir))
+    check_config_for_model(config, dataset.model, method=method)
     # The RANSAC threshold is resolved on the calibration's band first, as for any sequence; the
     # band the panorama uses is then decided from several frames (saved with the configuration).
     config = resolved_config(config, dataset.model)
     config = replace(config, ifmi=replace(config.ifmi, panorama=_panorama_with_band(dataset, config)))
     images = dataset.iter_images(prefetch=prefetch, skip_unreadable=True)
     try:
-        return estimate_sequence(images, dataset.model, method=method,
-                                 config=config, progress=progress, total=len(dataset.image_paths))
+        estimate = estimate_sequence(images, dataset.model, method=method, config=config,
+                                     progress=progress, total=len(dataset.image_paths),
+                                     timestamps=dataset.frame_indices)
     except CalibrationFitError as exc:
         raise exc.for_file(dataset.calib_path) from None
+    # Records count frames by position; the dataset's frames are named by index (gaps allowed).
+    index = dataset.frame_indices
+    frames = tuple(replace(r, frame=index[r.frame], reference_frame=index[r.reference_frame])
+                   for r in estimate.frames)
+    return replace(estimate, frames=frames)
 
 
 # Frames, spread evenly over a dataset, that decide the mirror band together.

@@ -120,14 +120,12 @@ class IfmiConfig:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "IfmiConfig":
-        """Inverse of ``dataclasses.asdict``; missing keys take defaults."""
-        data = dict(data)
-        nested = {"panorama": PanoramaConfig, "tiling": TilingConfig, "registration": FourierMellinConfig,
-                  "global_motion": GlobalMotionConfig}
-        for key, kind in nested.items():
-            if key in data and isinstance(data[key], Mapping):
-                data[key] = options_from_dict(kind, data[key], what=f"ifmi.{key} options")
-        return options_from_dict(cls, data, what="ifmi options")
+        """Inverse of ``dataclasses.asdict``; missing keys take defaults.
+
+        Every value is type-checked (:func:`ifmi.options.options_from_dict`);
+        errors name the key path under ``ifmi``.
+        """
+        return options_from_dict(cls, data, what="ifmi")
 
     def to_dict(self) -> dict:
         """Nested dict of plain values (inverse of :meth:`from_dict`)."""

@@ -129,7 +129,7 @@ def test_config_round_trip_and_validation():
         FeatureConfig(ratio=1.5)
     with pytest.raises(ValueError, match="radius_band"):
         FeatureConfig(radius_band=(50, 10))
-    with pytest.raises(ValueError, match="unknown feature options"):
+    with pytest.raises(ValueError, match="features: unknown key n_feature; expected n_features"):
         FeatureConfig.from_dict({"n_feature": 3})
 
 

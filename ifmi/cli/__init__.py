@@ -10,8 +10,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
-from ..errors import InputError, OutputError
+from ..errors import InputError, InputWarning, OutputError
 
 __all__ = ["main"]
 
@@ -38,19 +39,39 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run ``ifmi`` with ``argv``; returns the exit status.
+
+    Exit status: 0 done; 1 an output could not be written
+    (:class:`~ifmi.errors.OutputError`); 2 bad input
+    (:class:`~ifmi.errors.InputError`, or a command-line usage error);
+    130 interrupted; a subcommand may document more (``estimate``: 3 when
+    more than half of the frames failed). Each error is one line on stderr;
+    :class:`~ifmi.errors.InputWarning` warnings are printed as one line each.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except InputError as exc:
-        print(f"ifmi {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except OutputError as exc:
-        print(f"ifmi {args.command}: error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(f"ifmi {args.command}: interrupted", file=sys.stderr)
-        return 130
+
+    def show_warning(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, InputWarning):
+            print(f"ifmi {args.command}: warning: {message}", file=sys.stderr)
+        else:
+            default_show(message, category, filename, lineno, file, line)
+
+    with warnings.catch_warnings():
+        default_show = warnings.showwarning
+        warnings.showwarning = show_warning
+        warnings.simplefilter("always", InputWarning)
+        try:
+            return int(args.func(args) or 0)
+        except InputError as exc:
+            print(f"ifmi {args.command}: error: {exc}", file=sys.stderr)
+            return 2
+        except OutputError as exc:
+            print(f"ifmi {args.command}: error: {exc}", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:
+            print(f"ifmi {args.command}: interrupted", file=sys.stderr)
+            return 130
 
 
 if __name__ == "__main__":

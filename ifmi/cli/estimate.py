@@ -2,18 +2,23 @@
 
 Writes the TUM trajectory and, beside it, ``<stem>.frames.csv`` (per-frame
 success, reason, counts, time) and ``<stem>.config.json`` (method, full
-configuration, dataset, versions).
+configuration, dataset, versions), as one set. Exit status: 0 done, 1 an
+output could not be written (or would replace a dataset file), 2 bad input,
+3 done but more than half of the frames failed.
 """
 
 from __future__ import annotations
 
-import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 from ..errors import InputError
 from ..methods import load_factory
 from ..pipeline import EstimateConfig, estimate_dataset, estimate_video
+
+# Exit status when the outputs were written but more than half of the frames failed.
+EXIT_MOSTLY_FAILED = 3
 
 __all__ = ["add_parser", "run", "config_from_args"]
 
@@ -24,7 +29,12 @@ def add_parser(subparsers) -> None:
         help="estimate the camera orientation of every frame of a dataset",
         description="Estimate R_0k for every image of DATASET (calib_results.txt + images/) and "
                     "write a TUM trajectory plus NAME.frames.csv and NAME.config.json beside it. "
-                    "A frame that fails keeps the previous orientation and is flagged.",
+                    "Frame k is the image named by the integer k (000123.png is frame 123), and "
+                    "the trajectory's timestamps are those indices. A frame that fails keeps the "
+                    "previous orientation and is flagged.",
+        epilog="exit status: 0 done; 1 an output could not be written or would replace a file of "
+               "the dataset; 2 bad input (dataset, calibration, options); 3 outputs written but more "
+               "than half of the frames failed.",
     )
     p.add_argument("dataset", metavar="DATASET",
                    help="dataset folder, or a video file (.mp4, .avi, ...; needs --calib)")
@@ -78,21 +88,6 @@ def add_parser(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _load_config(path: str) -> EstimateConfig:
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(path, "configuration file not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(path, f"not a readable JSON configuration ({exc.__class__.__name__})") from None
-    if isinstance(data, dict) and isinstance(data.get("config"), dict):
-        data = data["config"]
-    try:
-        return EstimateConfig.from_dict(data)
-    except (TypeError, ValueError) as exc:
-        raise InputError(path, f"invalid configuration: {exc}") from None
-
-
 def _override(obj, **values):
     values = {k: v for k, v in values.items() if v is not None}
     return replace(obj, **values) if values else obj
@@ -100,7 +95,9 @@ def _override(obj, **values):
 
 def config_from_args(args) -> EstimateConfig:
     """EstimateConfig from parsed arguments (``--config`` file, then explicit options)."""
-    config = _load_config(args.config) if args.config else EstimateConfig()
+    from ..io.config import read_estimate_config
+
+    config = read_estimate_config(args.config) if args.config else EstimateConfig()
     ifmi = config.ifmi
     try:
         ifmi = replace(
@@ -120,37 +117,37 @@ def config_from_args(args) -> EstimateConfig:
         keyframe = _override(config.keyframe, enabled=True if args.keyframes else None,
                              min_inliers=args.keyframe_min_inliers,
                              max_angle_rad=args.keyframe_max_angle,
-                         max_failures=args.max_failures)
+                             max_failures=args.max_failures)
     except ValueError as exc:
         raise InputError("command line", str(exc)) from None
     return replace(config, ifmi=ifmi, relative_pose=pose, keyframe=keyframe)
 
 
 def run(args) -> int:
-    from ..io.results import write_estimate_run
+    from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
+    from ..io.video import is_video_path
 
     load_factory(args.method)  # an unknown or broken method fails before any work
     config = config_from_args(args)
     out = Path(args.out)
-    if out.is_dir():
-        raise InputError(out, "output path is a folder; expected a TUM file name")
-    from ..io.video import is_video_path
-
     video = is_video_path(args.dataset)
     if video and not args.calib:
         raise InputError(args.dataset, "a video needs --calib CALIB (calib_results.txt)")
-    try:
-        if video:
-            estimate = estimate_video(args.dataset, args.calib, method=args.method, config=config,
-                                      progress=not args.no_progress)
-        else:
-            estimate = estimate_dataset(args.dataset, method=args.method, config=config,
-                                        progress=not args.no_progress)
-    except ValueError as exc:
-        if isinstance(exc, InputError):
-            raise
-        raise InputError(args.dataset, str(exc)) from None
-    write_estimate_run(out, estimate, dataset_dir=None if video else args.dataset)
+    inputs = (args.dataset, args.calib) if video else ()
+    dataset_dir = None if video else args.dataset
+    check_estimate_outputs(out, dataset_dir=dataset_dir, input_files=inputs)
+    if video:
+        estimate = estimate_video(args.dataset, args.calib, method=args.method, config=config,
+                                  progress=not args.no_progress)
+    else:
+        estimate = estimate_dataset(args.dataset, method=args.method, config=config,
+                                    progress=not args.no_progress)
+    write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs)
     failed = sum(not r.success for r in estimate.frames)
     print(f"{out}: {len(estimate.frames)} frames, {failed} failed")
+    if 2 * failed > len(estimate.frames):
+        print(f"ifmi estimate: warning: {failed} of {len(estimate.frames)} frames failed (more than "
+              f"half; see {side_file_paths(out)[0].name}); exit status {EXIT_MOSTLY_FAILED}",
+              file=sys.stderr)
+        return EXIT_MOSTLY_FAILED
     return 0

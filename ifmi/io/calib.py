@@ -8,21 +8,48 @@ lines, in this order:
 3. centre: ``row col`` (0-based);
 4. affine parameters: ``c d e``;
 5. image size: ``height width``.
+
+Reading checks more than the layout: every value must be finite, and the
+inverse polynomial must invert the direct one over the image band to within
+:data:`INVERSE_TOLERANCE_PX` (see :func:`inverse_polynomial_error`). A
+missing block is named from the comment line above each block (OCamCalib
+writes them) or, without comments, from the shapes of the remaining lines.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
 from pathlib import Path
 
-from ..camera import OcamModel
+import numpy as np
+
+from ..camera import OcamModel, elevation_from_radius
 from ..errors import InputError
 from .atomic import atomic_write_text
 
-__all__ = ["read_calib", "write_calib", "format_calib", "parse_calib"]
+__all__ = ["read_calib", "write_calib", "format_calib", "parse_calib", "inverse_polynomial_error",
+           "INVERSE_TOLERANCE_PX"]
 
 _BLOCKS = ("direct polynomial", "inverse polynomial", "center (row col)",
            "affine (c d e)", "image size (height width)")
+# Words of OCamCalib's comment line above each block, in block order.
+_BLOCK_WORDS = (("direct", "cam2world"), ("inverse", "world2cam"), ("center", "centre"),
+                ("affine",), ("size",))
+# Largest accepted round-trip error of the inverse polynomial, pixels. OCamCalib
+# fits its inverse to 0.01 px; printed files measure at most 0.004 px over the
+# band (the DESIGN.md example 0.0024 px, six other published files
+# 0.0014..0.0031 px, this project's own calibrations under 1e-4 px). The
+# estimator places tiles to a few hundredths of a pixel, so an inverse off by
+# more than a tenth of a pixel would bias its rays.
+INVERSE_TOLERANCE_PX = 0.1
+# The band checked: from this fraction of the outer radius outward. The
+# centre of an omni image shows the camera itself, and OCamCalib's inverse
+# is least accurate at -90 degrees (one published 33-coefficient file is
+# 0.65 px off at the very centre, 0.004 px from a tenth of the radius out).
+_CHECK_INNER_FRACTION = 0.1
+# Radii sampled across the band.
+_CHECK_SAMPLES = 2048
 
 
 def _numbers(path, block: str, line: str) -> list[float]:
@@ -77,14 +104,18 @@ def parse_calib(text: str, *, source: str | os.PathLike = "<calib>") -> OcamMode
         On a missing block, a wrong count, a non-numeric value or an
         inconsistent model.
     """
-    lines = [ln.strip() for ln in text.splitlines()]
-    data = [ln for ln in lines if ln and not ln.startswith("#")]
+    data, comments = _data_lines(text)
     if len(data) < len(_BLOCKS):
-        missing = ", ".join(_BLOCKS[len(data):])
-        raise InputError(source, f"expected {len(_BLOCKS)} data blocks, got {len(data)} (missing: {missing})")
+        raise InputError(source, f"expected {len(_BLOCKS)} data blocks, got {len(data)} "
+                                 f"(missing: {_missing_blocks(data, comments)})")
     if len(data) > len(_BLOCKS):
         raise InputError(source, f"expected {len(_BLOCKS)} data blocks, got {len(data)}")
     values = [_numbers(source, block, line) for block, line in zip(_BLOCKS, data)]
+    for block, numbers in zip(_BLOCKS, values):
+        bad = [i for i, v in enumerate(numbers) if not np.isfinite(v)]
+        if bad:
+            raise InputError(source, f"{block}: value {bad[0] + 1} is {numbers[bad[0]]} "
+                                     f"(every value must be finite)")
     pol = _polynomial(source, _BLOCKS[0], values[0])
     invpol = _polynomial(source, _BLOCKS[1], values[1])
     center = _pair(source, _BLOCKS[2], values[2], 2)
@@ -93,10 +124,98 @@ def parse_calib(text: str, *, source: str | os.PathLike = "<calib>") -> OcamMode
     if any(v != int(v) or v <= 0 for v in size):
         raise InputError(source, f"image size must be positive integers, got {size[0]:g} {size[1]:g}")
     try:
-        return OcamModel(pol=pol, invpol=invpol, center=center, affine=affine,
-                         size=(int(size[0]), int(size[1])))
+        model = OcamModel(pol=pol, invpol=invpol, center=center, affine=affine,
+                          size=(int(size[0]), int(size[1])))
     except ValueError as exc:
         raise InputError(source, str(exc)) from None
+    _check_inverse(source, model)
+    return model
+
+
+def _data_lines(text: str) -> tuple[list[str], list[str]]:
+    """Data lines and, for each, the last comment line above it (lower case, or '')."""
+    data, comments, comment = [], [], ""
+    for line in (ln.strip() for ln in text.splitlines()):
+        if line.startswith("#"):
+            comment = line.lower()
+        elif line:
+            data.append(line)
+            comments.append(comment)
+            comment = ""
+    return data, comments
+
+
+def _fits(block: int, line: str) -> bool:
+    """Whether a data line has the shape of ``_BLOCKS[block]`` (a non-numeric line fits any)."""
+    try:
+        values = [float(tok) for tok in line.split()]
+    except ValueError:
+        return True
+    if block < 2:
+        return len(values) >= 2 and values[0] == len(values) - 1
+    if block == 4:
+        return len(values) == 2 and all(v == int(v) and v > 0 for v in values)
+    return len(values) == (2 if block == 2 else 3)
+
+
+def _missing_blocks(data: list[str], comments: list[str]) -> str:
+    """Names of the blocks absent from ``data``, from its comment lines or else its shapes."""
+    named = [next((b for b, words in enumerate(_BLOCK_WORDS) if any(w in c for w in words)), None)
+             for c in comments]
+    if None not in named and len(set(named)) == len(named):
+        return ", ".join(b for i, b in enumerate(_BLOCKS) if i not in named)
+    candidates = sorted(tuple(i for i in range(len(_BLOCKS)) if i not in present)
+                        for present in itertools.combinations(range(len(_BLOCKS)), len(data))
+                        if all(_fits(block, line) for block, line in zip(present, data)))
+    if not candidates:
+        return "cannot tell which from the values"
+    return " or ".join(", ".join(_BLOCKS[i] for i in missing) for missing in candidates)
+
+
+def inverse_polynomial_error(model: OcamModel) -> tuple[float, float]:
+    """Largest round-trip error of the inverse polynomial over the image band.
+
+    For sensor radii ``r`` across the band the direct polynomial gives the
+    ray elevation ``theta(r)``; the inverse polynomial should give back
+    ``invpol(theta(r)) = r``. The band runs from a tenth of the outer radius
+    to the largest circle inside the image within the range where
+    ``theta`` grows with ``r`` (where an inverse exists).
+
+    Returns
+    -------
+    error_px : float
+        ``max |invpol(theta(r)) - r|``, sensor pixels (image pixels up to
+        the affine part, which is close to the identity).
+    radius_px : float
+        The radius where it occurs.
+
+    Raises
+    ------
+    ValueError
+        The model images no band (``theta`` does not grow from the centre).
+    """
+    from ..unwarp import PanoramaConfig, radius_band
+
+    inner, outer = radius_band(model, config=PanoramaConfig(min_radius_fraction=_CHECK_INNER_FRACTION))
+    radii = np.linspace(inner, outer, _CHECK_SAMPLES)
+    theta = elevation_from_radius(np.asarray(model.pol), radii)
+    with np.errstate(all="ignore"):
+        error = np.abs(np.polynomial.polynomial.polyval(theta, model.invpol) - radii)
+    worst = int(np.argmax(np.where(np.isfinite(error), error, np.inf)))
+    return float(error[worst]), float(radii[worst])
+
+
+def _check_inverse(source, model: OcamModel) -> None:
+    try:
+        error, radius = inverse_polynomial_error(model)
+    except ValueError:
+        raise InputError(source, "direct polynomial: the ray elevation does not grow with the radius "
+                                 "from the centre, so no image band can be inverted (check the signs "
+                                 "of the coefficients)") from None
+    if not error <= INVERSE_TOLERANCE_PX:
+        raise InputError(source, f"inverse polynomial does not invert the direct one: round-trip error "
+                                 f"{error:.3g} px at radius {radius:.1f} px (at most "
+                                 f"{INVERSE_TOLERANCE_PX} px accepted)")
 
 
 def read_calib(path: str | os.PathLike) -> OcamModel:
@@ -109,7 +228,8 @@ def read_calib(path: str | os.PathLike) -> OcamModel:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8", errors="strict")
+        # Comments may be in any encoding (only numbers are read); a byte-order mark is skipped.
+        text = path.read_text(encoding="utf-8-sig", errors="replace")
     except FileNotFoundError:
         raise InputError(path, "calibration file not found") from None
     except (OSError, UnicodeDecodeError) as exc:

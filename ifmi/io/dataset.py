@@ -1,31 +1,128 @@
-"""DATASET folders: ``calib_results.txt``, ``images/*.png|jpg`` and optional ``groundtruth.txt``.
+"""DATASET folders: ``calib_results.txt`` (or ``camera.yaml``), ``images/*.png|jpg``, optional ``groundtruth.txt``.
 
-Images are read in file-name order, as 8-bit gray or RGB; each must have the
-size the calibration names. Problems raise :class:`~ifmi.errors.InputError`
-naming the file.
+Frame k is the image whose file name is the integer k (``000123.png`` is
+frame 123; a text prefix such as ``frame_000123.png`` is allowed), in
+natural order, never the position in a sorted list: a missing file leaves a
+gap. Two files with one index are an error; files that are not frames
+(hidden files such as ``._000003.png``, ``Thumbs.db``, names without an
+index) are skipped with one :class:`~ifmi.errors.InputWarning`. Images are
+read as 8-bit gray or RGB and must have the size the calibration names.
+Problems raise :class:`~ifmi.errors.InputError` naming the file.
+
+:func:`read_dataset` turns a path into the camera model and the frame
+source; the camera file is found by :func:`ifmi.io.camera_file.calibration_path`
+and the frames by :func:`frame_files`.
 """
 
 from __future__ import annotations
 
 import os
+import re
+import warnings
 from concurrent.futures import ThreadPoolExecutor
-from functools import partial
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Iterator
 
-import cv2
 import numpy as np
 
 from ..camera import OcamModel
-from ..errors import InputError
-from ..odometry import MissingFrame
+from ..errors import InputError, InputWarning
+from ..frames import MissingFrame
 from .camera_file import calibration_path, read_camera
+from .images import IMAGE_SUFFIXES, read_image
 
-__all__ = ["Dataset", "read_dataset", "read_image", "IMAGE_SUFFIXES"]
+__all__ = ["Dataset", "FrameFiles", "read_dataset", "read_image", "frame_files", "frame_index",
+           "dataset_conflict", "IMAGE_SUFFIXES", "DATASET_FILES", "DATASET_FOLDERS"]
 
-# Image file types of a dataset (lower case).
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+# Files and folders of the dataset contract (DESIGN.md); outputs never replace them.
+DATASET_FILES = ("calib_results.txt", "camera.yaml", "groundtruth.txt", "meta.json")
+DATASET_FOLDERS = ("images", "depth", "normal")
+# A frame's file stem: an optional text prefix (no digits, not hidden) and the index.
+_FRAME_STEM = re.compile(r"(?:[^\d.][^\d]*)?(\d+)")
+# Skipped file names listed in the warning; the rest are counted.
+_LISTED_SKIPS = 5
+
+
+def frame_index(path: str | os.PathLike) -> int | None:
+    """Frame index of an image file name (``000123.png`` -> 123), or ``None`` if it is not a frame.
+
+    Not frames: hidden files (leading ``.``, e.g. macOS ``._000123.png``),
+    other suffixes than :data:`IMAGE_SUFFIXES`, and stems that are not an
+    integer after an optional text prefix.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in IMAGE_SUFFIXES:
+        return None
+    match = _FRAME_STEM.fullmatch(path.stem)
+    return int(match.group(1)) if match else None
+
+
+@dataclass(frozen=True)
+class FrameFiles:
+    """The frame images of a folder.
+
+    Attributes
+    ----------
+    indices : tuple of int
+        Frame indices, increasing.
+    paths : tuple of Path
+        The image of each index.
+    skipped : tuple of str
+        Names of the entries that are not frames.
+    """
+
+    indices: tuple
+    paths: tuple
+    skipped: tuple
+
+
+def frame_files(image_dir: str | os.PathLike) -> FrameFiles:
+    """Frame images of ``image_dir`` by index (see the module docstring).
+
+    Raises
+    ------
+    InputError
+        Not a readable folder, no frame image, or two files with one index.
+    """
+    image_dir = Path(image_dir)
+    try:
+        entries = sorted(image_dir.iterdir())
+    except OSError as exc:
+        raise InputError(image_dir, f"cannot list images folder ({exc.strerror or exc})") from None
+    by_index: dict[int, Path] = {}
+    skipped = []
+    for path in entries:
+        index = frame_index(path) if path.is_file() else None
+        if index is None:
+            skipped.append(path.name)
+        elif index in by_index:
+            raise InputError(image_dir, f"frame {index} has two files, {by_index[index].name} and "
+                                        f"{path.name}; keep one")
+        else:
+            by_index[index] = path
+    if not by_index:
+        found = f"; found only {_listed(skipped)}" if skipped else ""
+        raise InputError(image_dir, f"no frame images in folder (expected files named by the frame "
+                                    f"index, e.g. 000000.png; types {', '.join(IMAGE_SUFFIXES)}){found}")
+    indices = tuple(sorted(by_index))
+    return FrameFiles(indices=indices, paths=tuple(by_index[k] for k in indices), skipped=tuple(skipped))
+
+
+def _warn_skipped(image_dir: Path, skipped: tuple) -> None:
+    if not skipped:
+        return
+    warnings.warn(f"{image_dir}: skipped {len(skipped)} entr{'y' if len(skipped) == 1 else 'ies'} "
+                  f"that {'is not a frame image' if len(skipped) == 1 else 'are not frame images'} "
+                  f"(hidden, not PNG/JPEG, or not named by a frame index): {_listed(skipped)}",
+                  InputWarning, stacklevel=3)
+
+
+def _listed(names) -> str:
+    """The first few ``names``, and how many more."""
+    more = f" and {len(names) - _LISTED_SKIPS} more" if len(names) > _LISTED_SKIPS else ""
+    return ", ".join(names[:_LISTED_SKIPS]) + more
 
 
 @dataclass(frozen=True)
@@ -38,7 +135,9 @@ class Dataset:
     calib_path : Path
     model : OcamModel
     image_paths : tuple of Path
-        Sorted by file name.
+        One image per frame, by increasing frame index.
+    frame_indices : tuple of int
+        The frame index of each image (the timestamps of its estimate).
     groundtruth_path : Path or None
         ``groundtruth.txt`` when present.
     """
@@ -47,18 +146,20 @@ class Dataset:
     calib_path: Path
     model: OcamModel
     image_paths: tuple
+    frame_indices: tuple
     groundtruth_path: Path | None
 
     def iter_images(self, *, gray: bool = True, prefetch: bool = False,
                     skip_unreadable: bool = False) -> Iterator[np.ndarray | MissingFrame]:
-        """Images in order, read lazily (see :func:`read_image`).
+        """Images in frame order, read lazily (see :func:`read_image`).
 
         With ``prefetch`` the next image is decoded in a background thread
         while the caller works on the current one (image decoding releases
         the GIL), so reading overlaps with estimation. With
         ``skip_unreadable`` an image that cannot be read, or has the wrong
-        size, comes as a :class:`~ifmi.odometry.MissingFrame` carrying the
-        reason instead of raising, so a sequence flags that frame and goes on.
+        size, comes as a :class:`~ifmi.frames.MissingFrame` whose reason
+        names the file instead of raising, so a sequence flags that frame
+        and goes on.
         """
         read = partial(_read_or_flag if skip_unreadable else read_image,
                        size=self.model.size, gray=gray)
@@ -78,59 +179,11 @@ class Dataset:
         return len(self.image_paths)
 
 
-def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
-               gray: bool = True) -> np.ndarray:
-    """Read an 8-bit image.
-
-    Parameters
-    ----------
-    path : path-like
-    size : (int, int), optional, keyword-only
-        Expected ``(height, width)``.
-    gray : bool, keyword-only
-        Return ``(H, W)`` gray; otherwise ``(H, W)`` for gray files and
-        ``(H, W, 3)`` RGB for colour files.
-
-    Returns
-    -------
-    ndarray of uint8
-
-    Raises
-    ------
-    InputError
-        Unreadable file or wrong size.
-    """
-    path = Path(path)
-    flag = cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_UNCHANGED
-    try:
-        data = np.fromfile(path, dtype=np.uint8)
-    except FileNotFoundError:
-        raise InputError(path, "image file not found") from None
-    except OSError as exc:
-        raise InputError(path, f"cannot read image ({exc.__class__.__name__})") from None
-    image = cv2.imdecode(data, flag) if data.size else None
-    if image is None:
-        raise InputError(path, "not a readable PNG/JPEG image")
-    if image.dtype != np.uint8:
-        if image.dtype == np.uint16:
-            image = (image >> 8).astype(np.uint8)
-        else:
-            raise InputError(path, f"expected an 8-bit image, got {image.dtype}")
-    if image.ndim == 3:
-        if image.shape[2] == 4:
-            image = image[..., :3]
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-    if size is not None and image.shape[:2] != tuple(size):
-        raise InputError(path, f"image is {image.shape[0]}x{image.shape[1]} (height x width), "
-                               f"but the calibration names {size[0]}x{size[1]}")
-    return image
-
-
 def _read_or_flag(path: Path, *, size: tuple[int, int], gray: bool) -> np.ndarray | MissingFrame:
     try:
         return read_image(path, size=size, gray=gray)
     except InputError as exc:
-        return MissingFrame(source=exc.path, reason=exc.problem)
+        return MissingFrame(source=exc.path, reason=f"{Path(exc.path).name}: {exc.problem}")
 
 
 def read_dataset(path: str | os.PathLike) -> Dataset:
@@ -139,20 +192,79 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     Raises
     ------
     InputError
-        Not a folder, no or bad ``calib_results.txt``, no images.
+        Not a folder, no or bad calibration, no frame images, two images
+        with one frame index.
+
+    Warns
+    -----
+    InputWarning
+        Entries of ``images/`` that are not frames were skipped.
     """
     root = Path(path)
-    if not root.is_dir():
+    if not root.exists():
         raise InputError(root, "dataset folder not found")
+    if not root.is_dir():
+        raise InputError(root, "not a folder (expected a dataset folder with calib_results.txt "
+                               "or camera.yaml, and images/)")
     calib_path = calibration_path(root)  # calib_results.txt or camera.yaml, never both
     model = read_camera(calib_path)
     image_dir = root / "images"
     if not image_dir.is_dir():
         raise InputError(image_dir, "images folder not found")
-    paths = sorted(p for p in image_dir.iterdir()
-                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-    if not paths:
-        raise InputError(image_dir, f"no images ({', '.join(IMAGE_SUFFIXES)}) in folder")
+    frames = frame_files(image_dir)
+    _warn_skipped(image_dir, frames.skipped)
     groundtruth = root / "groundtruth.txt"
-    return Dataset(root=root, calib_path=calib_path, model=model, image_paths=tuple(paths),
+    return Dataset(root=root, calib_path=calib_path, model=model, image_paths=frames.paths,
+                   frame_indices=frames.indices,
                    groundtruth_path=groundtruth if groundtruth.is_file() else None)
+
+
+def _dataset_files(root: Path) -> Iterator[Path]:
+    """The contract files of a dataset folder and the entries of its data folders."""
+    for name in DATASET_FILES:
+        yield root / name
+    for folder in DATASET_FOLDERS:
+        try:
+            yield from (root / folder).iterdir()
+        except OSError:
+            continue
+
+
+def dataset_conflict(dataset_dir: str | os.PathLike, path: str | os.PathLike) -> str | None:
+    """How writing ``path`` would harm the dataset at ``dataset_dir``, or ``None`` if it would not.
+
+    ``path`` conflicts when it resolves (through symbolic links) to one of
+    the dataset's contract files (:data:`DATASET_FILES`), lies in one of its
+    data folders (:data:`DATASET_FOLDERS`), or is the same file (inode) as
+    any of those under another name (a hard link). Other files in the
+    dataset folder (e.g. ``DATASET/estimate.txt``) are fine.
+
+    Returns
+    -------
+    str or None
+        E.g. ``"would replace groundtruth.txt of the input dataset D"``.
+    """
+    root = Path(dataset_dir)
+    if not root.is_dir():
+        return None
+    real = Path(os.path.realpath(path))
+    where = f"of the input dataset {root}"
+    for folder in DATASET_FOLDERS:
+        real_folder = Path(os.path.realpath(root / folder))
+        if (root / folder).is_dir() and (real == real_folder or real_folder in real.parents):
+            return f"would write into {folder}/ {where}"
+    for name in DATASET_FILES:
+        if real == Path(os.path.realpath(root / name)):
+            return f"would replace {name} {where}"
+    try:
+        info = os.stat(real)
+    except OSError:
+        return None
+    for candidate in _dataset_files(root):
+        try:
+            other = os.stat(candidate)
+        except OSError:
+            continue
+        if (other.st_dev, other.st_ino) == (info.st_dev, info.st_ino):
+            return f"would replace {candidate.relative_to(root)} {where} (the same file under another name)"
+    return None

@@ -23,14 +23,14 @@ import csv
 import io
 import json
 import os
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from .atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
+from ..errors import InputError, OutputError
+from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
+                     json_text, probe_writable)
 from .provenance import package_versions
 
 __all__ = [
@@ -46,7 +46,7 @@ __all__ = [
     "read_evaluation",
     "is_evaluation_dir",
     "jsonable",
-    "copy_file_atomic",
+    "check_estimate_outputs",
     "frames_csv_text",
     "write_estimate_run",
     "write_motion_flow",
@@ -334,15 +334,6 @@ def read_evaluation(path: str | os.PathLike) -> EvaluationRecord:
     return EvaluationRecord(path=folder, meta=meta, arrays=arrays, config=config, frames=frames)
 
 
-def copy_file_atomic(src: str | os.PathLike, dst: str | os.PathLike) -> None:
-    """Copy ``src`` to ``dst`` through a temporary file and a rename."""
-    dst = Path(dst)
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(f".{dst.name}.copy.tmp")
-    shutil.copyfile(src, tmp)
-    os.replace(tmp, dst)
-
-
 def frames_csv_text(rows: list[dict]) -> str:
     """CSV text of per-frame rows (dicts); the header is the union of keys in first-seen order."""
     header: list[str] = []
@@ -367,9 +358,62 @@ def frames_csv_text(rows: list[dict]) -> str:
     return buf.getvalue()
 
 
+def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.PathLike | None = None,
+                           input_files: tuple = ()) -> tuple[Path, Path, Path]:
+    """The three files an estimate writes, checked before anything is computed.
+
+    Parameters
+    ----------
+    path : path
+        The TUM file (``DIR/NAME.txt``).
+    dataset_dir : path, optional, keyword-only
+        The input dataset; no output may replace one of its files.
+    input_files : tuple of path, keyword-only
+        Other inputs (a video and its calibration) no output may replace.
+
+    Returns
+    -------
+    (Path, Path, Path)
+        ``NAME.txt``, ``NAME.frames.csv``, ``NAME.config.json``.
+
+    Raises
+    ------
+    OutputError
+        An output would replace a file of the input dataset (compared by
+        resolved path and by inode, so links count), is a folder, a device
+        node, a FIFO or a socket, a regular file stands where a folder of
+        its path should be, or its folder cannot be written
+        (:func:`~ifmi.io.atomic.probe_writable`).
+    """
+    from .dataset import dataset_conflict
+
+    outputs = (Path(path), *side_file_paths(path))
+    for output in outputs:
+        target = probe_writable(output)
+        conflict = None if dataset_dir is None else dataset_conflict(dataset_dir, target)
+        for source in input_files:
+            if _same_file(source, target):
+                conflict = f"would replace the input file {source}"
+        if conflict is not None:
+            raise OutputError(output, f"{conflict}; choose another output path")
+    return outputs
+
+
+def _same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether two paths name one existing file (through links, by inode)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
 def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | os.PathLike | None,
-                       extra: dict | None = None) -> Path:
+                       extra: dict | None = None, input_files: tuple = ()) -> Path:
     """Write an estimate as ``NAME.txt`` (TUM) with ``NAME.frames.csv`` and ``NAME.config.json``.
+
+    The three files are written as one set (:func:`~ifmi.io.atomic.atomic_write_files`):
+    after a failure (full disk, permissions) the previous set is unchanged,
+    never mixed with new files.
 
     Parameters
     ----------
@@ -377,19 +421,28 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
         The TUM file to write.
     estimate : ifmi.pipeline.SequenceEstimate
     dataset_dir : path or None, keyword-only
-        Dataset the estimate came from (recorded in the config file).
+        Dataset the estimate came from (recorded in the config file; no
+        output may replace one of its files).
     extra : dict, optional, keyword-only
         More entries for the config file.
+    input_files : tuple of path, keyword-only
+        Other inputs no output may replace (see :func:`check_estimate_outputs`).
 
     Returns
     -------
     Path
         ``path``.
-    """
-    from .tum import write_tum
 
-    path = Path(path)
-    frames_path, config_path = side_file_paths(path)
+    Raises
+    ------
+    OutputError
+        See :func:`check_estimate_outputs`; or a write failed (the user's
+        path and the OS reason).
+    """
+    from .tum import format_tum
+
+    path, frames_path, config_path = check_estimate_outputs(path, dataset_dir=dataset_dir,
+                                                            input_files=input_files)
     config = {
         "method": estimate.method,
         "config": estimate.config.to_dict(),
@@ -398,9 +451,12 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
         "versions": _versions(),
     }
     config.update(extra or {})
-    atomic_write_json(config_path, jsonable(config))
-    atomic_write_text(frames_path, frames_csv_text([r.to_row() for r in estimate.frames]))
-    write_tum(path, estimate.trajectory, header=f"ifmi estimate, method {estimate.method}")
+    tum = format_tum(estimate.trajectory, header=f"ifmi estimate, method {estimate.method}")
+    atomic_write_files({
+        config_path: json_text(jsonable(config)).encode("utf-8"),
+        frames_path: frames_csv_text([r.to_row() for r in estimate.frames]).encode("utf-8"),
+        path: tum.encode("utf-8"),
+    })
     return path
 
 

@@ -1,0 +1,134 @@
+"""Limits a configuration must keep for a given camera: sizes its images can give.
+
+Option dataclasses check what they can alone (ranges, types); what depends
+on the camera -- a panorama width against the circumference of the mirror
+band, a tile against the panorama, a keypoint count against the pixel count
+-- is checked here before estimation starts, so a value such as a panorama
+width of 1e9 ends in one line instead of exhausting memory.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .camera import OcamModel, max_image_radius
+from .errors import InputError
+from .tiling import tile_size_px
+from .unwarp import off_axis_band, panorama_mapping, radius_band
+
+__all__ = ["check_config_for_model"]
+
+# Largest panorama size, as a multiple of what the image band holds: the circumference
+# of its outer circle (width) and its outer radius (height). Four times already
+# samples every omni pixel four-fold along each axis; beyond that memory grows
+# (quadratically) without new detail. Log-polar grids are bounded by the same
+# factor times the tile side.
+_MAX_OVERSAMPLING = 4
+
+
+def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
+    """Refuse sizes and radii that the images of ``model`` cannot give.
+
+    Checked: the panorama's radius band lies inside the image (and is not
+    empty), its width is at most ``4 x 2 pi r_outer`` and its height at most
+    ``4 r_outer`` pixels (``r_outer`` the outer radius of the calibration's
+    image band; half the image diagonal for camera models other than
+    OCamCalib, which take no band radii), for the ``"ifmi"`` method the
+    log-polar grids are at most four times the tile side (a tile larger
+    than the panorama is reported by the front end, naming the
+    calibration), and a feature front end's ``radius_band`` lies inside the
+    image. Explicit band radii in ``config`` (e.g. decided from the frames)
+    are the band checked.
+
+    Parameters
+    ----------
+    config : ifmi.pipeline.EstimateConfig
+    model : OcamModel or another camera model (:mod:`ifmi.camera_models`)
+    method : str, keyword-only
+
+    Raises
+    ------
+    InputError
+        Named after the configuration key (``ifmi.panorama.width``): what is
+        accepted for this camera and what was given.
+    """
+    if config.features is not None:
+        _check_feature_sizes(config.features, model)
+    pano = config.ifmi.panorama
+    try:
+        if isinstance(model, OcamModel):
+            _check_radii(config, model)
+            outer = radius_band(model, config=pano)[1]
+        else:
+            # Other camera models have no sensor radius: the image's half diagonal stands for it.
+            _check_no_radii(config, model)
+            off_axis_band(model, config=pano)
+            outer = 0.5 * float(np.hypot(*model.size))
+    except InputError:
+        raise
+    except ValueError as exc:
+        raise InputError("ifmi.panorama", str(exc)) from None
+    limits = {"width": int(_MAX_OVERSAMPLING * 2 * np.pi * outer), "height": int(_MAX_OVERSAMPLING * outer)}
+    for name, limit in limits.items():
+        value = getattr(pano, name)
+        if value is not None and value > limit:
+            kind = "circumference" if name == "width" else "radius"
+            raise InputError(f"ifmi.panorama.{name}", f"expected at most {limit} px for this camera "
+                                                      f"({_MAX_OVERSAMPLING} x its image band's outer "
+                                                      f"{kind}), got {value}")
+    if method == "ifmi":
+        _check_tiles(config, panorama_mapping(model, config=pano))
+
+
+def _check_radii(config, model: OcamModel) -> None:
+    pano = config.ifmi.panorama
+    reach = max_image_radius(model.size, model.center, model.affine)
+    radii = {"ifmi.panorama.radius_min_px": pano.radius_min_px,
+             "ifmi.panorama.radius_max_px": pano.radius_max_px}
+    if config.features is not None and config.features.radius_band is not None:
+        radii["features.radius_band"] = max(config.features.radius_band)
+    for key, value in radii.items():
+        if value is not None and value >= reach:
+            raise InputError(key, f"expected a radius under {reach:.1f} px (the farthest image corner "
+                                  f"from the calibration's centre), got {value:g}")
+
+
+def _check_no_radii(config, model) -> None:
+    pano = config.ifmi.panorama
+    for name in ("radius_min_px", "radius_max_px"):
+        if getattr(pano, name) is not None:
+            raise InputError(f"ifmi.panorama.{name}", f"applies to OCamCalib models only; this camera is "
+                                                      f"a {type(model).__name__}")
+
+
+def _check_feature_sizes(features, model: OcamModel) -> None:
+    """Keypoint counts, pyramids and windows at most what an image of ``model`` holds."""
+
+    side = min(model.size)
+    # A level (octave) past these has less than one pixel along the image's shorter side.
+    limits = {
+        "n_features": (features.n_features, model.size[0] * model.size[1], "the image's pixel count"),
+        "orb_levels": (features.orb_levels,
+                       1 + int(np.log(side) / np.log(features.orb_scale_factor))
+                       if features.orb_scale_factor > 1 else 1,
+                       f"levels down to one pixel at scale factor {features.orb_scale_factor:g}"),
+        "akaze_octaves": (features.akaze_octaves, int(np.log2(side)), "octaves down to one pixel"),
+        "orb_patch_size": (features.orb_patch_size, side, "the image's shorter side"),
+        "orb_edge_threshold": (features.orb_edge_threshold, side, "the image's shorter side"),
+    }
+    for name, (value, limit, what) in limits.items():
+        if value > limit:
+            raise InputError(f"features.{name}", f"expected at most {limit} ({what}), got {value}")
+
+
+def _check_tiles(config, mapping) -> None:
+    # A tile larger than the panorama is the front end's to report (it names the calibration file).
+    tile = tile_size_px(config.ifmi.tiling.tile_size, mapping.width)
+    if tile > min(mapping.height, mapping.width):
+        return
+    for name in ("log_polar_angles", "log_polar_radii"):
+        value = getattr(config.ifmi.registration, name)
+        if value is not None and value > _MAX_OVERSAMPLING * tile:
+            raise InputError(f"ifmi.registration.{name}", f"expected at most {_MAX_OVERSAMPLING * tile} "
+                                                          f"({_MAX_OVERSAMPLING} x the {tile} px tile side), "
+                                                          f"got {value}")
