@@ -213,7 +213,7 @@ def test_cubic_tile_resampling_removes_the_interpolation_bias(sequence):
 
 
 def test_config_with_unknown_feature_option_names_it():
-    with pytest.raises(ValueError, match=r"unknown feature options \['n_feature'\]"):
+    with pytest.raises(ValueError, match=r"features: unknown key n_feature; expected n_features"):
         EstimateConfig.from_dict({"features": {"n_feature": 10}})
     config = EstimateConfig.from_dict({"features": {"n_features": 10}})
     assert config.features.n_features == 10
