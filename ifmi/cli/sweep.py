@@ -67,19 +67,13 @@ def add_parser(subparsers) -> None:
 
 
 def _base_config(path: str | None, method: str) -> dict:
-    from ..io.results import read_run_config
+    from ..io.config import read_estimate_config
     from ..methods import load_factory
     from ..pipeline import EstimateConfig
 
     load_factory(method)  # an unknown or broken method fails before any cell runs
-    if path is None:
-        return EstimateConfig().to_dict()
-    data = read_run_config(path)
-    data = data.get("config", data)
-    try:
-        return EstimateConfig.from_dict(data).to_dict()
-    except (TypeError, ValueError) as exc:
-        raise InputError(path, f"not an estimate configuration ({exc})") from None
+    config = EstimateConfig() if path is None else read_estimate_config(path)
+    return config.to_dict()
 
 
 def run(args) -> int:
