@@ -126,14 +126,14 @@ def _reference_timestamps(est: Trajectory, side: EstimateSideFiles) -> np.ndarra
     frames = side.frames
     if frames is None or frames.reference_frame is None or len(frames) != len(est):
         return None
-    # Frame k of the estimate file is row k; map reference rows to timestamps.
-    ref_rows = np.asarray(frames.reference_frame, dtype=np.float64)
-    ok = np.isfinite(ref_rows) & (ref_rows >= 0) & (ref_rows < len(est))
+    # Row i of frames.csv is pose i of the estimate file; reference_frame holds
+    # frame indices (file-name integers, which may have gaps), not row numbers.
+    ref_frames = np.asarray(frames.reference_frame, dtype=np.float64)
+    ok = np.isfinite(ref_frames) & (ref_frames >= 0)
     reference_t = np.full(len(est), np.nan)
-    order = np.argsort(frames.frame)
-    row_of_frame = {int(f): i for i, f in enumerate(frames.frame[order])}
+    row_of_frame = {int(f): i for i, f in enumerate(frames.frame)}
     for i in np.flatnonzero(ok):
-        j = row_of_frame.get(int(ref_rows[i]))
+        j = row_of_frame.get(int(ref_frames[i]))
         if j is not None and j != i:
             reference_t[i] = est.timestamps[j]
     return reference_t

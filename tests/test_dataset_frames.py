@@ -6,6 +6,7 @@ import shutil
 import struct
 import warnings
 import zlib
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -207,3 +208,20 @@ def test_missing_frame_leaves_a_gap_and_evaluates_right(sequence_dataset, tmp_pa
     assert main(["evaluate", "--gt", str(copy / "groundtruth.txt"), "--est", str(out)]) == 0
     report = capsys.readouterr().out
     assert "frames 7/8 associated" in report
+
+
+def test_reference_frames_across_two_gaps_keep_their_timestamps():
+    """frames.csv names reference frames by index: with frames 3 and 5 missing,
+    the last poses (rows 4 and 5, frames 6 and 7) still find their references."""
+    from ifmi.evaluation import _reference_timestamps
+    from ifmi.io.results import EstimateSideFiles, FrameTable
+    from ifmi.trajectory import Trajectory
+
+    frame = np.array([0, 1, 2, 4, 6, 7], dtype=float)
+    reference = np.array([0, 0, 1, 2, 4, 6], dtype=float)
+    table = FrameTable({"frame": frame, "reference_frame": reference,
+                        "success": np.ones(6, bool), "seconds": np.zeros(6)})
+    est = Trajectory(frame, np.zeros((6, 3)), np.repeat(np.eye(3)[None], 6, axis=0))
+    side = EstimateSideFiles(table, None, Path("x.frames.csv"), Path("x.config.json"))
+    got = _reference_timestamps(est, side)
+    np.testing.assert_array_equal(got, [np.nan, 0, 1, 2, 4, 6])
