@@ -58,9 +58,10 @@ from ifmi.io.calib import read_calib
 from ifmi.io.dataset import read_dataset
 from ifmi.io.results import write_estimate_run
 from ifmi.pipeline import EstimateConfig, estimate_dataset, estimate_sequence, resolved_config
+from ifmi.methods import builtin_method_names
 from ifmi.report import machine_info
 
-METHODS = ("ifmi", "orb", "akaze")
+METHODS = builtin_method_names()
 # Odometry modes: estimates against the previous frame, or against keyframes.
 MODES = ("frame", "keyframe")
 

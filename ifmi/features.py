@@ -343,13 +343,13 @@ class FeatureFrontEnd:
 
 
 def _feature_config(config) -> FeatureConfig:
-    features = getattr(config, "features", None)
-    return FeatureConfig() if features is None else features
+    """The feature options of an :class:`ifmi.pipeline.EstimateConfig` (``None``: defaults)."""
+    return FeatureConfig() if config.features is None else config.features
 
 
 def _panorama_config(config):
-    ifmi = getattr(config, "ifmi", None)
-    return None if ifmi is None else ifmi.panorama
+    """The iFMI panorama settings, which also give the feature front ends their band."""
+    return config.ifmi.panorama
 
 
 def orb_front_end(model: OcamModel, config) -> FeatureFrontEnd:
