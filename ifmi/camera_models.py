@@ -179,6 +179,13 @@ def _checked_finite(name: str, values) -> tuple[float, ...]:
     return values
 
 
+class _Undistorted:
+    """Models without lens distortion: no coefficients, distortion model ``none``."""
+
+    distortion = ()
+    distortion_model = "none"
+
+
 class _CentralModel:
     """Shared parts of the Kalibr models: focal lengths, principal point, size, validity."""
 
@@ -196,6 +203,14 @@ class _CentralModel:
                              f"{len(self.focal)} and {len(self.principal_point)} values")
         if min(self.focal) <= 0:
             raise ValueError(f"focal lengths must be positive, got {self.focal}")
+
+    def _check_projection_and(self, *names: str) -> tuple[float, ...]:
+        """Check the projection, then the named scalar parameters (finite), stored as floats."""
+        self._check_projection()
+        values = _checked_finite(", ".join(names), [getattr(self, n) for n in names])
+        for name, value in zip(names, values):
+            object.__setattr__(self, name, value)
+        return values
 
     @property
     def height(self) -> int:
@@ -376,7 +391,7 @@ class PinholeModel(UnifiedModel):
 
 
 @dataclass(frozen=True)
-class ExtendedUnifiedModel(_CentralModel):
+class ExtendedUnifiedModel(_Undistorted, _CentralModel):
     """Extended unified camera model (Khomutenko et al.), Kalibr ``eucm``.
 
     ``d = sqrt(beta (x^2 + y^2) + z^2)``, ``m = (x, y) / (alpha d + (1 - alpha) z)``.
@@ -398,14 +413,9 @@ class ExtendedUnifiedModel(_CentralModel):
     size: tuple[int, int]
 
     kalibr_model = "eucm"
-    distortion = ()
-    distortion_model = "none"
 
     def __post_init__(self) -> None:
-        self._check_projection()
-        alpha, beta = _checked_finite("alpha, beta", [self.alpha, self.beta])
-        object.__setattr__(self, "alpha", alpha)
-        object.__setattr__(self, "beta", beta)
+        alpha, beta = self._check_projection_and("alpha", "beta")
         if not 0 <= alpha <= 1 or not beta > 0:
             raise ValueError(f"expected 0 <= alpha <= 1 and beta > 0, got {alpha}, {beta}")
 
@@ -433,7 +443,7 @@ class ExtendedUnifiedModel(_CentralModel):
 
 
 @dataclass(frozen=True)
-class DoubleSphereModel(_CentralModel):
+class DoubleSphereModel(_Undistorted, _CentralModel):
     """Double sphere model (Usenko et al.), Kalibr ``ds``.
 
     ``d1 = |X|``, ``d2 = |(x, y, xi d1 + z)|``,
@@ -455,14 +465,9 @@ class DoubleSphereModel(_CentralModel):
     size: tuple[int, int]
 
     kalibr_model = "ds"
-    distortion = ()
-    distortion_model = "none"
 
     def __post_init__(self) -> None:
-        self._check_projection()
-        xi, alpha = _checked_finite("xi, alpha", [self.xi, self.alpha])
-        object.__setattr__(self, "xi", xi)
-        object.__setattr__(self, "alpha", alpha)
+        xi, alpha = self._check_projection_and("xi", "alpha")
         if not 0 <= alpha <= 1:
             raise ValueError(f"expected 0 <= alpha <= 1, got {alpha}")
 
@@ -572,7 +577,7 @@ class KannalaBrandtModel(_CentralModel):
 
 
 @dataclass(frozen=True)
-class EquirectangularModel:
+class EquirectangularModel(_Undistorted):
     """Equirectangular 360-degree camera: column = longitude, row = latitude.
 
     Camera frame: z the direction of the image centre, x along columns, y
@@ -592,8 +597,6 @@ class EquirectangularModel:
     kalibr_model = "equirectangular"
     # Column 0 and column W - 1 are neighbours (360 degrees of longitude).
     wraps_columns = True
-    distortion = ()
-    distortion_model = "none"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "size", _checked_size(self.size))
