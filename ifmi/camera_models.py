@@ -37,7 +37,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .camera import VALID_ROUND_TRIP_PX, measured_field_of_view
+from .camera import VALID_ROUND_TRIP_PX, SizedImage, measured_field_of_view
 
 __all__ = [
     "UnifiedModel",
@@ -186,10 +186,9 @@ class _Undistorted:
     distortion_model = "none"
 
 
-class _CentralModel:
+class _CentralModel(SizedImage):
     """Shared parts of the Kalibr models: focal lengths, principal point, size, validity."""
 
-    size: tuple[int, int]
     focal: tuple[float, float]
     principal_point: tuple[float, float]
 
@@ -211,14 +210,6 @@ class _CentralModel:
         for name, value in zip(names, values):
             object.__setattr__(self, name, value)
         return values
-
-    @property
-    def height(self) -> int:
-        return self.size[0]
-
-    @property
-    def width(self) -> int:
-        return self.size[1]
 
     @property
     def optical_axis(self) -> np.ndarray:
@@ -264,8 +255,7 @@ class _CentralModel:
             back onto the pixel to within 1e-3 px.
         """
         pixels = _check_pixels(pixels)
-        inside = ((pixels[..., 0] >= -0.5) & (pixels[..., 0] <= self.height - 0.5)
-                  & (pixels[..., 1] >= -0.5) & (pixels[..., 1] <= self.width - 0.5))
+        inside = self.inside_image(pixels)
         back = self.pixels_from_rays(self.rays_from_pixels(pixels))
         with np.errstate(invalid="ignore"):
             close = np.linalg.norm(back - pixels, axis=-1) < VALID_ROUND_TRIP_PX
@@ -577,7 +567,7 @@ class KannalaBrandtModel(_CentralModel):
 
 
 @dataclass(frozen=True)
-class EquirectangularModel(_Undistorted):
+class EquirectangularModel(_Undistorted, SizedImage):
     """Equirectangular 360-degree camera: column = longitude, row = latitude.
 
     Camera frame: z the direction of the image centre, x along columns, y
@@ -600,14 +590,6 @@ class EquirectangularModel(_Undistorted):
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "size", _checked_size(self.size))
-
-    @property
-    def height(self) -> int:
-        return self.size[0]
-
-    @property
-    def width(self) -> int:
-        return self.size[1]
 
     @property
     def optical_axis(self) -> np.ndarray:
@@ -650,9 +632,7 @@ class EquirectangularModel(_Undistorted):
 
     def valid_pixels(self, pixels) -> np.ndarray:
         """``(...,)`` bool: inside the image (every pixel of the image is valid)."""
-        pixels = _check_pixels(pixels)
-        return ((pixels[..., 0] >= -0.5) & (pixels[..., 0] <= self.height - 0.5)
-                & (pixels[..., 1] >= -0.5) & (pixels[..., 1] <= self.width - 0.5))
+        return self.inside_image(_check_pixels(pixels))
 
 
 # Kalibr camera_model name -> model classes that carry it.
