@@ -125,8 +125,29 @@ def measured_field_of_view(model) -> float:
     return float(2.0 * np.nanmax(angles))
 
 
+class SizedImage:
+    """Shared part of the camera models: an image of ``size`` = ``(height, width)`` pixels."""
+
+    size: tuple[int, int]
+
+    @property
+    def height(self) -> int:
+        """Image height in pixels (rows)."""
+        return self.size[0]
+
+    @property
+    def width(self) -> int:
+        """Image width in pixels (columns)."""
+        return self.size[1]
+
+    def inside_image(self, pixels: np.ndarray) -> np.ndarray:
+        """``(...,)`` bool: ``(row, col)`` pixels ``(..., 2)`` in ``[-0.5, H - 0.5] x [-0.5, W - 0.5]``."""
+        return ((pixels[..., 0] >= -0.5) & (pixels[..., 0] <= self.height - 0.5)
+                & (pixels[..., 1] >= -0.5) & (pixels[..., 1] <= self.width - 0.5))
+
+
 @dataclass(frozen=True)
-class OcamModel:
+class OcamModel(SizedImage):
     """Calibrated OCamCalib camera.
 
     Attributes
@@ -174,14 +195,6 @@ class OcamModel:
             raise ValueError(f"image size must be positive, got {self.size}")
 
     @property
-    def height(self) -> int:
-        return self.size[0]
-
-    @property
-    def width(self) -> int:
-        return self.size[1]
-
-    @property
     def optical_axis(self) -> np.ndarray:
         """(3,) ray of the distortion centre: ``(0, 0, sign pol(0))`` (the mirror axis)."""
         return np.array([0.0, 0.0, 1.0 if self.pol[0] >= 0 else -1.0])
@@ -210,8 +223,7 @@ class OcamModel:
             invertible there) and whose ray re-projects onto it to 1e-3 px.
         """
         pixels = np.asarray(pixels, dtype=np.float64)
-        inside = ((pixels[..., 0] >= -0.5) & (pixels[..., 0] <= self.height - 0.5)
-                  & (pixels[..., 1] >= -0.5) & (pixels[..., 1] <= self.width - 0.5))
+        inside = self.inside_image(pixels)
         back = pixels_from_rays(self, rays_from_pixels(self, pixels))
         close = np.hypot(back[..., 0] - pixels[..., 0], back[..., 1] - pixels[..., 1]) < VALID_ROUND_TRIP_PX
         return inside & (radius_from_pixels(self, pixels) <= self.monotonic_radius) & close

@@ -37,7 +37,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .camera import VALID_ROUND_TRIP_PX, measured_field_of_view
+from .camera import VALID_ROUND_TRIP_PX, SizedImage, measured_field_of_view
 
 __all__ = [
     "UnifiedModel",
@@ -179,10 +179,16 @@ def _checked_finite(name: str, values) -> tuple[float, ...]:
     return values
 
 
-class _CentralModel:
+class _Undistorted:
+    """Models without lens distortion: no coefficients, distortion model ``none``."""
+
+    distortion = ()
+    distortion_model = "none"
+
+
+class _CentralModel(SizedImage):
     """Shared parts of the Kalibr models: focal lengths, principal point, size, validity."""
 
-    size: tuple[int, int]
     focal: tuple[float, float]
     principal_point: tuple[float, float]
 
@@ -197,13 +203,13 @@ class _CentralModel:
         if min(self.focal) <= 0:
             raise ValueError(f"focal lengths must be positive, got {self.focal}")
 
-    @property
-    def height(self) -> int:
-        return self.size[0]
-
-    @property
-    def width(self) -> int:
-        return self.size[1]
+    def _check_projection_and(self, *names: str) -> tuple[float, ...]:
+        """Check the projection, then the named scalar parameters (finite), stored as floats."""
+        self._check_projection()
+        values = _checked_finite(", ".join(names), [getattr(self, n) for n in names])
+        for name, value in zip(names, values):
+            object.__setattr__(self, name, value)
+        return values
 
     @property
     def optical_axis(self) -> np.ndarray:
@@ -249,8 +255,7 @@ class _CentralModel:
             back onto the pixel to within 1e-3 px.
         """
         pixels = _check_pixels(pixels)
-        inside = ((pixels[..., 0] >= -0.5) & (pixels[..., 0] <= self.height - 0.5)
-                  & (pixels[..., 1] >= -0.5) & (pixels[..., 1] <= self.width - 0.5))
+        inside = self.inside_image(pixels)
         back = self.pixels_from_rays(self.rays_from_pixels(pixels))
         with np.errstate(invalid="ignore"):
             close = np.linalg.norm(back - pixels, axis=-1) < VALID_ROUND_TRIP_PX
@@ -376,7 +381,7 @@ class PinholeModel(UnifiedModel):
 
 
 @dataclass(frozen=True)
-class ExtendedUnifiedModel(_CentralModel):
+class ExtendedUnifiedModel(_Undistorted, _CentralModel):
     """Extended unified camera model (Khomutenko et al.), Kalibr ``eucm``.
 
     ``d = sqrt(beta (x^2 + y^2) + z^2)``, ``m = (x, y) / (alpha d + (1 - alpha) z)``.
@@ -398,14 +403,9 @@ class ExtendedUnifiedModel(_CentralModel):
     size: tuple[int, int]
 
     kalibr_model = "eucm"
-    distortion = ()
-    distortion_model = "none"
 
     def __post_init__(self) -> None:
-        self._check_projection()
-        alpha, beta = _checked_finite("alpha, beta", [self.alpha, self.beta])
-        object.__setattr__(self, "alpha", alpha)
-        object.__setattr__(self, "beta", beta)
+        alpha, beta = self._check_projection_and("alpha", "beta")
         if not 0 <= alpha <= 1 or not beta > 0:
             raise ValueError(f"expected 0 <= alpha <= 1 and beta > 0, got {alpha}, {beta}")
 
@@ -433,7 +433,7 @@ class ExtendedUnifiedModel(_CentralModel):
 
 
 @dataclass(frozen=True)
-class DoubleSphereModel(_CentralModel):
+class DoubleSphereModel(_Undistorted, _CentralModel):
     """Double sphere model (Usenko et al.), Kalibr ``ds``.
 
     ``d1 = |X|``, ``d2 = |(x, y, xi d1 + z)|``,
@@ -455,14 +455,9 @@ class DoubleSphereModel(_CentralModel):
     size: tuple[int, int]
 
     kalibr_model = "ds"
-    distortion = ()
-    distortion_model = "none"
 
     def __post_init__(self) -> None:
-        self._check_projection()
-        xi, alpha = _checked_finite("xi, alpha", [self.xi, self.alpha])
-        object.__setattr__(self, "xi", xi)
-        object.__setattr__(self, "alpha", alpha)
+        xi, alpha = self._check_projection_and("xi", "alpha")
         if not 0 <= alpha <= 1:
             raise ValueError(f"expected 0 <= alpha <= 1, got {alpha}")
 
@@ -572,7 +567,7 @@ class KannalaBrandtModel(_CentralModel):
 
 
 @dataclass(frozen=True)
-class EquirectangularModel:
+class EquirectangularModel(_Undistorted, SizedImage):
     """Equirectangular 360-degree camera: column = longitude, row = latitude.
 
     Camera frame: z the direction of the image centre, x along columns, y
@@ -592,19 +587,9 @@ class EquirectangularModel:
     kalibr_model = "equirectangular"
     # Column 0 and column W - 1 are neighbours (360 degrees of longitude).
     wraps_columns = True
-    distortion = ()
-    distortion_model = "none"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "size", _checked_size(self.size))
-
-    @property
-    def height(self) -> int:
-        return self.size[0]
-
-    @property
-    def width(self) -> int:
-        return self.size[1]
 
     @property
     def optical_axis(self) -> np.ndarray:
@@ -647,9 +632,7 @@ class EquirectangularModel:
 
     def valid_pixels(self, pixels) -> np.ndarray:
         """``(...,)`` bool: inside the image (every pixel of the image is valid)."""
-        pixels = _check_pixels(pixels)
-        return ((pixels[..., 0] >= -0.5) & (pixels[..., 0] <= self.height - 0.5)
-                & (pixels[..., 1] >= -0.5) & (pixels[..., 1] <= self.width - 0.5))
+        return self.inside_image(_check_pixels(pixels))
 
 
 # Kalibr camera_model name -> model classes that carry it.

@@ -59,6 +59,18 @@ def _wall_slot(ctx, room, wall, offset, depth):
     return np.array([offset, hy - depth / 2, 0.0]), math.pi
 
 
+def _random_wall_slot(ctx, room, wall, width, depth):
+    """:func:`_wall_slot` at a random offset along the wall, ``width`` kept 0.1 m from either end."""
+    span = (room[1] if wall < 2 else room[0]) / 2 - width / 2 - 0.1
+    return _wall_slot(ctx, room, wall, ctx.rng.uniform(-span, span), depth)
+
+
+def _ring_point(ctx, distance, z):
+    """A random point at height ``z`` whose distance from the z axis is uniform in ``distance``."""
+    a, r = ctx.rng.uniform(0, 2 * math.pi), ctx.rng.uniform(*distance)
+    return np.array([r * math.cos(a), r * math.sin(a), z])
+
+
 @register_generator(
     "shelves",
     Param("room", "float[3]", (6.0, 5.0, 3.0), "room extent x, y, z, metres (shelves stand at its walls)", minimum=0.0),
@@ -78,8 +90,7 @@ def _shelves(ctx: GeneratorContext):
     books = ctx["books"]
     for k in range(count):
         wall = int(ctx.rng.integers(0, 4))
-        span = (room[1] if wall < 2 else room[0]) / 2 - width / 2 - 0.1
-        base, yaw = _wall_slot(ctx, room, wall, ctx.rng.uniform(-span, span), depth)
+        base, yaw = _random_wall_slot(ctx, room, wall, width, depth)
         rot = rotation_z(yaw)
         def local(p):
             return base + rot @ np.asarray(p, float)
@@ -185,8 +196,7 @@ def _posters(ctx: GeneratorContext):
         w = ctx.rng.uniform(0.6, 1.0)
         h = w * ctx.rng.uniform(0.7, 1.3)
         z = ctx.rng.uniform(1.2, min(2.2, room[2] - h / 2 - 0.1))
-        span = (room[1] if wall < 2 else room[0]) / 2 - w / 2 - 0.1
-        base, yaw = _wall_slot(ctx, room, wall, ctx.rng.uniform(-span, span), 0.02)
+        base, yaw = _random_wall_slot(ctx, room, wall, w, 0.02)
         rot = rotation_z(yaw)
         corners = np.array([[-w / 2, 0, -h / 2], [w / 2, 0, -h / 2], [w / 2, 0, h / 2], [-w / 2, 0, h / 2]])
         corners = corners @ rot.T + base + [0, 0, z]
@@ -266,12 +276,10 @@ def _ground(ctx: GeneratorContext):
 def _trees(ctx: GeneratorContext):
     """Trees (cylinder trunk, ellipsoid crown) around the z axis."""
     count = ctx["count"]
-    rmin, rmax = ctx["distance"]
     bark = ctx["trunk"]
     leaves = ctx["canopy"]
     for _ in range(count):
-        a, r = ctx.rng.uniform(0, 2 * math.pi), ctx.rng.uniform(rmin, rmax)
-        base = np.array([r * math.cos(a), r * math.sin(a), -0.05])
+        base = _ring_point(ctx, ctx["distance"], -0.05)
         h = ctx.rng.uniform(2.0, 4.0)
         ctx.add(bark, cylinder_mesh(base, radius=ctx.rng.uniform(0.1, 0.25), height=h, sections=10))
         crown = ctx.rng.uniform(1.0, 2.2)
@@ -288,12 +296,11 @@ def _trees(ctx: GeneratorContext):
 def _rocks(ctx: GeneratorContext):
     """Rocks (deformed spheres) around the z axis."""
     count = ctx["count"]
-    rmin, rmax = ctx["distance"]
     mat = ctx["material"]
     for _ in range(count):
-        a, r = ctx.rng.uniform(0, 2 * math.pi), ctx.rng.uniform(rmin, rmax)
+        centre = _ring_point(ctx, ctx["distance"], 0.0)
         s = ctx.rng.uniform(0.2, 0.7)
-        ctx.add(mat, sphere_mesh([r * math.cos(a), r * math.sin(a), 0.0], radius=s, subdivisions=1,
+        ctx.add(mat, sphere_mesh(centre, radius=s, subdivisions=1,
                                  scale=ctx.rng.uniform(0.6, 1.4, size=3)), color=ctx.color(0.5, 1.0))
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from ifmi.errors import InputError
+from scene_files import write_scene
 
 # Mitsuba must not be imported here: omnisim.llvm selects drjit's LLVM before the first import.
 if importlib.util.find_spec("mitsuba") is None:
@@ -71,9 +72,8 @@ size = [1.0, 0.5]
 
 
 def _scene(tmp_path, *, frames=2, exposure=0.0, rolling=0.0, tum="", size=SIZE, name="box.toml"):
-    path = tmp_path / name
-    path.write_text(SCENE.format(frames=frames, exposure=exposure, rolling=rolling, tum=tum, size=size))
-    return path
+    text = SCENE.format(frames=frames, exposure=exposure, rolling=rolling, tum=tum, size=size)
+    return write_scene(tmp_path, text, name)
 
 
 def _pose_matrix(trajectory, k):

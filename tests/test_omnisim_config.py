@@ -7,6 +7,7 @@ import re
 import pytest
 
 from ifmi.errors import InputError
+from scene_files import camera_128_section, write_scene
 
 pytest.importorskip("skimage")
 
@@ -22,13 +23,7 @@ seed = 2
 resolution = [64, 64]
 spp = 2
 
-[camera]
-pol = [-20.0, 0.0, 1.28e-2, -1.76e-5, 2.56e-7]
-center = [64.35, 63.3]
-size = [128, 128]
-radius_min = 10.0
-radius_max = 61.5
-
+""" + camera_128_section(skewed=False) + """
 [trajectory]
 frames = 2
 
@@ -44,14 +39,8 @@ count = 3
 """
 
 
-def _write(tmp_path, text, name="scene.toml"):
-    path = tmp_path / name
-    path.write_text(text)
-    return path
-
-
 def test_base_scene_loads_with_declared_defaults(tmp_path):
-    config = load_scene_config(_write(tmp_path, BASE))
+    config = load_scene_config(write_scene(tmp_path, BASE))
     assert config.render.spp == 2 and config.render.max_depth == RenderSettings().max_depth
     assert config.capture == CaptureSettings()
     (obj,) = config.objects
@@ -84,7 +73,7 @@ def test_bad_scene_is_one_line_naming_section_and_key(tmp_path, edit, message):
     old, new = edit
     text = BASE.replace(old, new, 1) if old else BASE + new
     with pytest.raises(InputError) as info:
-        load_scene_config(_write(tmp_path, text))
+        load_scene_config(write_scene(tmp_path, text))
     assert re.search(message, str(info.value)), str(info.value)
     assert str(info.value).startswith(str(tmp_path / "scene.toml"))
     assert "\n" not in str(info.value)
@@ -92,47 +81,47 @@ def test_bad_scene_is_one_line_naming_section_and_key(tmp_path, edit, message):
 
 def test_unknown_texture_source_and_key(tmp_path):
     with pytest.raises(InputError, match=r"\[textures.t\] source: expected one of photo, noise, got 'video'"):
-        load_scene_config(_write(tmp_path, BASE + '[textures.t]\nsource = "video"\n'))
+        load_scene_config(write_scene(tmp_path, BASE + '[textures.t]\nsource = "video"\n'))
     with pytest.raises(InputError, match=r"\[textures.t\] octave: unknown key; accepted keys: source, size"):
-        load_scene_config(_write(tmp_path, BASE + '[textures.t]\nsource = "noise"\noctave = 3\n'))
+        load_scene_config(write_scene(tmp_path, BASE + '[textures.t]\nsource = "noise"\noctave = 3\n'))
     with pytest.raises(InputError, match=r"\[textures.t\] name: expected one of 'grass'"):
-        load_scene_config(_write(tmp_path, BASE + '[textures.t]\nsource = "photo"\nname = "moonlight"\n'))
+        load_scene_config(write_scene(tmp_path, BASE + '[textures.t]\nsource = "photo"\nname = "moonlight"\n'))
 
 
 def test_unknown_photo_and_missing_mesh_file_are_found_before_rendering(tmp_path):
     posters = BASE + '[[objects]]\ngenerator = "posters"\nphotos = ["astronaut", "selfie"]\n'
     with pytest.raises(InputError, match=r"#2 \(posters\) photos: unknown photo 'selfie'"):
-        load_scene_config(_write(tmp_path, posters))
+        load_scene_config(write_scene(tmp_path, posters))
     mesh = BASE + '[[objects]]\ngenerator = "mesh"\nfile = "chair.obj"\n'
     with pytest.raises(InputError, match=r"#2 \(mesh\) file: file not found: .*chair.obj"):
-        load_scene_config(_write(tmp_path, mesh))
+        load_scene_config(write_scene(tmp_path, mesh))
     with pytest.raises(InputError, match=r"#2 \(mesh\) file: missing \(required\)"):
-        load_scene_config(_write(tmp_path, BASE + '[[objects]]\ngenerator = "mesh"\n'))
+        load_scene_config(write_scene(tmp_path, BASE + '[[objects]]\ngenerator = "mesh"\n'))
 
 
 def test_light_keys_and_envmap_file_are_checked(tmp_path):
     with pytest.raises(InputError, match=r"\[\[lights\]\] #1 \(sun\) colour: unknown key; accepted keys: type, "
                                          r"azimuth_deg"):
-        load_scene_config(_write(tmp_path, BASE + '[[lights]]\ntype = "sun"\ncolour = [1, 1, 1]\n'))
+        load_scene_config(write_scene(tmp_path, BASE + '[[lights]]\ntype = "sun"\ncolour = [1, 1, 1]\n'))
     with pytest.raises(InputError, match=r"\[\[lights\]\] #1 type: expected one of sky, sun, constant, envmap"):
-        load_scene_config(_write(tmp_path, BASE + '[[lights]]\ntype = "laser"\n'))
+        load_scene_config(write_scene(tmp_path, BASE + '[[lights]]\ntype = "laser"\n'))
     with pytest.raises(InputError, match=r"\[\[lights\]\] #1 \(envmap\) file: file not found"):
-        load_scene_config(_write(tmp_path, BASE + '[[lights]]\ntype = "envmap"\nfile = "sky.exr"\n'))
+        load_scene_config(write_scene(tmp_path, BASE + '[[lights]]\ntype = "envmap"\nfile = "sky.exr"\n'))
 
 
 def test_command_line_override_is_named_as_the_option(tmp_path):
     with pytest.raises(InputError, match=r"scene.toml: --spp: expected >= 1, got 0"):
-        load_scene_config(_write(tmp_path, BASE), spp=0)
+        load_scene_config(write_scene(tmp_path, BASE), spp=0)
     with pytest.raises(InputError, match=r"--variant: expected one of '', 'llvm_ad_rgb', 'cuda_ad_rgb', got 'bogus'"):
-        load_scene_config(_write(tmp_path, BASE), variant="bogus")
+        load_scene_config(write_scene(tmp_path, BASE), variant="bogus")
 
 
 def test_asset_files_are_part_of_the_identity(tmp_path):
     (tmp_path / "m.ply").write_bytes(b"not read here")
     text = BASE + '[[objects]]\ngenerator = "mesh"\nfile = "m.ply"\n'
-    first = load_scene_config(_write(tmp_path, text)).settings_dict()
+    first = load_scene_config(write_scene(tmp_path, text)).settings_dict()
     (tmp_path / "m.ply").write_bytes(b"changed")
-    second = load_scene_config(_write(tmp_path, text)).settings_dict()
+    second = load_scene_config(write_scene(tmp_path, text)).settings_dict()
     assert first["assets"][0][0] == "m.ply" and first["assets"] != second["assets"]
 
 
@@ -157,11 +146,11 @@ def test_register_generator_declares_and_checks_parameters(tmp_path, monkeypatch
     def _pyramid(ctx):
         """A test pyramid."""
 
-    config = load_scene_config(_write(tmp_path, BASE + '[[objects]]\ngenerator = "pyramid"\nheight = 2\n'))
+    config = load_scene_config(write_scene(tmp_path, BASE + '[[objects]]\ngenerator = "pyramid"\nheight = 2\n'))
     assert config.objects[1].params == {"height": 2.0, "material": "wood"}
     with pytest.raises(InputError, match=r"\(pyramid\) width: unknown key; accepted keys: generator, height, "
                                          r"material"):
-        load_scene_config(_write(tmp_path, BASE + '[[objects]]\ngenerator = "pyramid"\nwidth = 2\n'))
+        load_scene_config(write_scene(tmp_path, BASE + '[[objects]]\ngenerator = "pyramid"\nwidth = 2\n'))
     with pytest.raises(ValueError, match="already registered"):
         register_generator("pyramid")(_pyramid)
     assert "pyramid: A test pyramid." in generators.describe_generators()
@@ -183,7 +172,7 @@ def test_cli_generators_lists_every_generator_with_parameter_docs(capsys):
 def test_cli_bad_scene_key_is_one_line_exit_2_and_nothing_created(tmp_path, capsys):
     from omnisim.cli import main
 
-    scene = _write(tmp_path, BASE.replace("spp = 2", "spp_typo = 2"))
+    scene = write_scene(tmp_path, BASE.replace("spp = 2", "spp_typo = 2"))
     code = main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "[render] spp_typo: unknown key" in err
@@ -193,7 +182,7 @@ def test_cli_bad_scene_key_is_one_line_exit_2_and_nothing_created(tmp_path, caps
 def test_cli_bogus_variant_is_one_line_exit_2(tmp_path, capsys):
     from omnisim.cli import main
 
-    code = main(["render", str(_write(tmp_path, BASE)), "--out", str(tmp_path / "out"), "--variant", "bogus"])
+    code = main(["render", str(write_scene(tmp_path, BASE)), "--out", str(tmp_path / "out"), "--variant", "bogus"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "--variant: expected one of" in err
     assert not (tmp_path / "out").exists()
@@ -289,10 +278,10 @@ def test_capture_must_end_by_the_next_frame(tmp_path):
 
 def test_identity_of_a_plain_scene_is_unchanged_by_the_new_tables(tmp_path):
     """Folders rendered before [capture] and asset hashes existed keep their identity."""
-    settings = load_scene_config(_write(tmp_path, BASE)).settings_dict()
+    settings = load_scene_config(write_scene(tmp_path, BASE)).settings_dict()
     assert set(settings) == {"render", "trajectory", "effects", "camera"}
 
 
 def test_camera_table_lists_kalibr_among_its_keys(tmp_path):
     with pytest.raises(InputError, match=r"\[camera\] kalibrr: unknown key; accepted keys: kalibr, calib, pol"):
-        load_scene_config(_write(tmp_path, BASE.replace("[camera]\n", '[camera]\nkalibrr = "c.yaml"\n')))
+        load_scene_config(write_scene(tmp_path, BASE.replace("[camera]\n", '[camera]\nkalibrr = "c.yaml"\n')))

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from ifmi.errors import InputError
+from scene_files import camera_128_section, write_scene
 
 # Mitsuba must not be imported here: omnisim.llvm selects drjit's LLVM before the first import.
 if importlib.util.find_spec("mitsuba") is None:
@@ -29,14 +30,7 @@ resolution = [128, 128]
 spp = {spp}
 max_depth = 2
 
-[camera]
-pol = [-20.0, 0.0, 1.28e-2, -1.76e-5, 2.56e-7]
-center = [64.35, 63.3]
-affine = [1.0012, 0.0021, -0.0017]
-size = [128, 128]
-radius_min = 10.0
-radius_max = 61.5
-
+""" + camera_128_section() + """
 [trajectory]
 frames = {frames}
 position = [0.3, -0.2, 1.3]
@@ -96,9 +90,7 @@ photos = ["astronaut", "coffee", "chelsea", "rocket"]
 
 
 def _scene(tmp_path, *, frames=3, spp=2, yaw=3.0, name="scene.toml"):
-    path = tmp_path / name
-    path.write_text(SCENE.format(frames=frames, spp=spp, yaw=yaw))
-    return path
+    return write_scene(tmp_path, SCENE.format(frames=frames, spp=spp, yaw=yaw), name)
 
 
 def _sha(path):

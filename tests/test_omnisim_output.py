@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from ifmi.errors import InputError, OutputError
+from scene_files import camera_128_section, write_scene
 
 # Mitsuba must not be imported here: omnisim.llvm selects drjit's LLVM before the first import.
 if importlib.util.find_spec("mitsuba") is None:
@@ -32,13 +33,7 @@ resolution = [32, 32]
 spp = {spp}
 max_depth = 2
 
-[camera]
-pol = [-20.0, 0.0, 1.28e-2, -1.76e-5, 2.56e-7]
-center = [64.35, 63.3]
-size = [128, 128]
-radius_min = 10.0
-radius_max = 61.5
-
+""" + camera_128_section(skewed=False) + """
 [trajectory]
 frames = {frames}
 
@@ -55,9 +50,7 @@ count = 4
 
 
 def _scene(tmp_path, *, spp=1, frames=2, extra="", name="scene.toml"):
-    path = tmp_path / name
-    path.write_text(SCENE.format(spp=spp, frames=frames) + extra)
-    return path
+    return write_scene(tmp_path, SCENE.format(spp=spp, frames=frames) + extra, name)
 
 
 def _run_cli(argv, capsys):

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scene_files import camera_128_section
 
 # Mitsuba must not be imported here: omnisim.llvm selects drjit's LLVM before the first import.
 if importlib.util.find_spec("mitsuba") is None:
@@ -20,15 +21,7 @@ pytestmark = pytest.mark.render
 
 SIZE = 128
 # The same catadioptric calibration as the dataset tests (band 10..61.5 px).
-CAMERA = """
-[camera]
-pol = [-20.0, 0.0, 1.28e-2, -1.76e-5, 2.56e-7]
-center = [64.35, 63.3]
-affine = [1.0012, 0.0021, -0.0017]
-size = [128, 128]
-radius_min = 10.0
-radius_max = 61.5
-"""
+CAMERA = "\n" + camera_128_section()
 
 
 def _scene_text(*, frames, spp, yaw=4.0, position=(0.3, -0.2, 1.3), extra="", scene=""):

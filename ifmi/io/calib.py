@@ -27,6 +27,7 @@ import numpy as np
 from ..camera import OcamModel, elevation_from_radius
 from ..errors import InputError
 from .atomic import atomic_write_text
+from .text_file import read_text_file
 
 __all__ = ["read_calib", "write_calib", "format_calib", "parse_calib", "inverse_polynomial_error",
            "INVERSE_TOLERANCE_PX"]
@@ -227,13 +228,8 @@ def read_calib(path: str | os.PathLike) -> OcamModel:
         If the file is missing, unreadable or malformed; the message names it.
     """
     path = Path(path)
-    try:
-        # Comments may be in any encoding (only numbers are read); a byte-order mark is skipped.
-        text = path.read_text(encoding="utf-8-sig", errors="replace")
-    except FileNotFoundError:
-        raise InputError(path, "calibration file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot read calibration file ({exc.__class__.__name__})") from None
+    # Comments may be in any encoding (only numbers are read); a byte-order mark is skipped.
+    text = read_text_file(path, what="calibration file", encoding="utf-8-sig", errors="replace")
     return parse_calib(text, source=path)
 
 

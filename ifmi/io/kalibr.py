@@ -41,6 +41,7 @@ from ..camera_models import (
 )
 from ..errors import InputError
 from .atomic import atomic_write_text
+from .text_file import read_text_file
 
 __all__ = ["read_kalibr", "parse_kalibr", "format_kalibr", "write_kalibr", "KALIBR_INTRINSICS"]
 
@@ -174,13 +175,7 @@ def read_kalibr(path: str | os.PathLike):
         Missing, unreadable or malformed file; the message names it.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8", errors="strict")
-    except FileNotFoundError:
-        raise InputError(path, "calibration file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot read calibration file ({exc.__class__.__name__})") from None
-    return parse_kalibr(text, source=path)
+    return parse_kalibr(read_text_file(path, what="calibration file"), source=path)
 
 
 def kalibr_fields(model) -> dict:

@@ -32,6 +32,7 @@ from ..errors import InputError, OutputError
 from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
                      json_text, probe_writable)
 from .provenance import package_versions
+from .text_file import read_text_file
 
 __all__ = [
     "EVALUATION_KIND",
@@ -166,12 +167,7 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
         wrong length or a non-numeric frame/seconds value.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(path, "frames file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot read frames file ({exc.__class__.__name__})") from None
+    text = read_text_file(path, what="frames file")
     rows = list(csv.reader(line for line in io.StringIO(text) if not line.startswith("#")))
     rows = [r for r in rows if r]
     if not rows:

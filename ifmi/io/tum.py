@@ -15,6 +15,7 @@ from ..errors import InputError
 from ..rotations import matrix_from_quat_xyzw, quat_xyzw_from_matrix
 from ..trajectory import Trajectory
 from .atomic import atomic_write_text
+from .text_file import read_text_file
 
 __all__ = ["Trajectory", "read_tum", "write_tum", "format_tum"]
 
@@ -28,12 +29,7 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
         Missing file, a line without 8 numbers, a zero quaternion, or no poses.
     """
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except FileNotFoundError:
-        raise InputError(path, "trajectory file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot read trajectory file ({exc.__class__.__name__})") from None
+    lines = read_text_file(path, what="trajectory file").splitlines()
     rows = []
     for number, line in enumerate(lines, start=1):
         text = line.strip()
