@@ -42,6 +42,8 @@ _OCAM_TO_KALIBR = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 _UNSEEN_RESIDUAL_PX = 1e3
 # Samples per image side of the fitting grid, and the stride (px) of the error grid.
 _FIT_GRID = 60
+# Starting alphas of the double-sphere fit (see _kalibr_builder).
+_DS_START_ALPHAS = (0.5, 0.6)
 _CHECK_STRIDE_PX = 2
 
 
@@ -108,7 +110,15 @@ def _axis_pixel_and_scale(source) -> tuple[np.ndarray, float]:
 
 
 def _kalibr_builder(kind: str, size):
-    """(initial parameters given (pp, f), model from parameters) for a Kalibr target."""
+    """(initial parameters given (pp, f), model from parameters) for a Kalibr target.
+
+    The double sphere gets a list of starts, fitted each and the best kept: with
+    ``xi = 0``, ``alpha = 0.5`` (the unified model with ``xi = 1``) it projects every
+    ray but the backward one, so cameras seeing beyond 180 degrees start with every
+    sample projectable (a sample it cannot project gives a constant residual, no
+    gradient, and the fit wanders off to a far local minimum); ``alpha = 0.6`` suits
+    narrower lenses.
+    """
     def split(p, k):
         return (p[k], p[k + 1]), (p[k + 2], p[k + 3])
 
@@ -125,7 +135,7 @@ def _kalibr_builder(kind: str, size):
         return (lambda pp, f: [0.6, 1.0, f, f, *pp],
                 lambda p: ExtendedUnifiedModel(np.clip(p[0], 0, 1), max(p[1], 1e-6), *split(p, 2), size))
     if kind == "ds":
-        return (lambda pp, f: [0.0, 0.6, f, f, *pp],
+        return (lambda pp, f: [[0.0, alpha, f, f, *pp] for alpha in _DS_START_ALPHAS],
                 lambda p: DoubleSphereModel(p[0], np.clip(p[1], 0, 1), *split(p, 2), size))
     raise ValueError(f"unknown target model {kind!r}; expected one of {TARGETS}")
 
@@ -142,10 +152,10 @@ def _fit_kalibr(source, kind: str, pixels: np.ndarray):
             return np.full(2 * len(pixels), _UNSEEN_RESIDUAL_PX)
         return np.nan_to_num((projected - pixels).ravel(), nan=_UNSEEN_RESIDUAL_PX)
 
-    # Principal point (u, v) = (col, row) of the axis pixel.
-    start = np.asarray(initial((centre[1], centre[0]), scale), dtype=np.float64)
-    solution = least_squares(residuals, start, method="lm", x_scale="jac", max_nfev=4000)
-    return build(solution.x)
+    # Principal point (u, v) = (col, row) of the axis pixel; one start, or a list of them.
+    starts = np.atleast_2d(np.asarray(initial((centre[1], centre[0]), scale), dtype=np.float64))
+    solutions = [least_squares(residuals, start, method="lm", x_scale="jac", max_nfev=4000) for start in starts]
+    return build(min(solutions, key=lambda solution: solution.cost).x)
 
 
 def _fit_ocamcalib(source, pixels: np.ndarray) -> OcamModel:

@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from ifmi.calib_fit import fit_camera_model, reprojection_errors
-from ifmi.camera import paracatadioptric_model, valid_mask
+from ifmi.camera import model_from_direct_polynomial, paracatadioptric_model, valid_mask
 from ifmi.camera_models import ExtendedUnifiedModel, UnifiedModel
 from ifmi.cli import main
 from ifmi.io.calib import read_calib, write_calib
 from ifmi.io.kalibr import read_kalibr, write_kalibr
+from ifmi.synthetic import example_omni_model
 
 from camera_examples import EXAMPLES
 
@@ -44,6 +45,31 @@ def test_paracatadioptric_ocamcalib_is_the_unified_model_with_xi_one():
     back = fit_camera_model(fit.model, "ocamcalib")
     assert back.max_error_px < 0.01
     np.testing.assert_allclose(back.model.center, ocam.center, atol=1e-3)
+
+
+def test_double_sphere_fits_cameras_seeing_beyond_180_degrees():
+    """Paracatadioptric = UCM(xi = 1) = DS(0, 1/2) and UCM(1.3) = DS(0, 1.3 / 2.3) exactly. From the
+    narrow-lens start alpha = 0.6 their widest rays are unprojectable and the fit ended 40 px off."""
+    for camera in (example_omni_model(192), EXAMPLES["omni-wide"]):
+        fit = fit_camera_model(camera, "ds")
+        assert fit.success and fit.max_error_px < EXACT_FIT_PX
+        assert fit.model.alpha == pytest.approx(0.5, abs=1e-4) or fit.model.xi == pytest.approx(1.3, abs=1e-4)
+
+
+def test_double_sphere_fits_the_scene_catadioptric_camera_as_well_as_its_model_can():
+    """The shipped scenes' OCamCalib camera (269 degree field), scaled to 192 x 192 px.
+
+    The double sphere's best least-squares fit here has xi = 0, i.e. it is EUCM with
+    beta = 1 (1.05 px max, 0.24 px median; a scan of xi over [-1, 1] from many starts finds
+    no better one); free EUCM reaches 0.29 px only through beta = 0.95, which no double
+    sphere represents. Before the multi-start the fit ended at 39.6 px max, 11 px median.
+    """
+    camera = model_from_direct_polynomial([-80.0, 0.0, 3.2e-3, -1.1e-6, 4.0e-9], center=(257.4, 253.2),
+                                          size=(512, 512), affine=(1.0012, 0.0021, -0.0017)).scaled(192 / 512)
+    fit = fit_camera_model(camera, "ds")
+    assert fit.success
+    # 15 % above the optimum measured on the check grid: the optimiser's and grid's slack.
+    assert fit.max_error_px < 1.2 and fit.median_error_px < 0.28
 
 
 def test_same_model_refit_reproduces_the_parameters():
