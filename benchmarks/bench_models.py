@@ -160,36 +160,19 @@ def ray_costs(args) -> dict:
     return results
 
 
-def _kalibr_scene(folder: Path, model, scene_file) -> Path:
-    from ifmi.io.kalibr import write_kalibr
-
-    out, skipping = [], False
-    for line in Path(scene_file).read_text().splitlines():
-        if line.startswith("["):
-            skipping = line.strip() == "[camera]"
-            if skipping:
-                out += ["[camera]", 'kalibr = "camera.yaml"', ""]
-                continue
-        if not skipping:
-            out.append(line)
-    folder.mkdir(parents=True, exist_ok=True)
-    write_kalibr(folder / "camera.yaml", model)
-    (folder / "scene.toml").write_text("\n".join(out) + "\n")
-    return folder / "scene.toml"
-
-
 def estimator_ates(args) -> dict:
     """Geodesic ATE (rad) of ifmi, orb and akaze per model on a rendered urban sequence."""
     from ifmi.io.tum import read_tum
     from ifmi.pipeline import estimate_dataset
     from ifmi.rotations import geodesic_angle
+    from omnisim.config import write_scene_with_kalibr_camera
     from omnisim.render import render_dataset
 
     ates = {}
     for name in args.models:
         model = EXAMPLES[name]
         folder = Path(args.out) / f"{Path(args.scene).stem}-{name}-{args.width}px-{args.spp}spp"
-        scene = _kalibr_scene(folder, model, args.scene)
+        scene = write_scene_with_kalibr_camera(args.scene, model, folder)
         render_dataset(scene, folder / "dataset", frames=args.frames, spp=args.spp,
                        resolution=model.scaled(args.width / model.width).size, progress=False)
         gt = read_tum(folder / "dataset" / "groundtruth.txt")

@@ -37,7 +37,7 @@ else:  # pragma: no cover
 
 __all__ = ["SceneSettings", "RenderSettings", "TrajectorySettings", "EffectsSettings", "CaptureSettings",
            "CameraTable", "CameraSettings", "SceneConfig", "SECTIONS", "SUPPORTED_VARIANTS",
-           "load_scene_config"]
+           "load_scene_config", "write_scene_with_kalibr_camera"]
 
 # Mitsuba variants the omni sensor and the dataset writer are made for (RGB output).
 SUPPORTED_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
@@ -466,3 +466,39 @@ def load_scene_config(path, *, spp: int | None = None, resolution=None, frames: 
         textures=textures, materials=materials, lights=lights, objects=objects,
         mitsuba_xml=mitsuba_xml, assets=assets,
     )
+
+
+def write_scene_with_kalibr_camera(scene_file, camera_model, folder) -> Path:
+    """Copy a scene file with its ``[camera]`` table replaced by a Kalibr camera.
+
+    Parameters
+    ----------
+    scene_file : path-like
+        A scene TOML; every table but ``[camera]`` is copied line for line.
+    camera_model : Kalibr camera model
+        Written to ``folder/camera.yaml`` (:func:`ifmi.io.kalibr.write_kalibr`).
+    folder : path-like
+        Made if missing; receives ``scene.toml`` and ``camera.yaml``.
+
+    Returns
+    -------
+    Path
+        ``folder/scene.toml``, whose ``[camera]`` holds ``kalibr = "camera.yaml"``.
+    """
+    from ifmi.io.atomic import atomic_write_text
+    from ifmi.io.kalibr import write_kalibr
+
+    folder = Path(folder)
+    out, skipping = [], False
+    for line in Path(scene_file).read_text(encoding="utf-8").splitlines():
+        if line.startswith("["):
+            skipping = line.strip() == "[camera]"
+            if skipping:
+                out += ["[camera]", 'kalibr = "camera.yaml"', ""]
+                continue
+        if not skipping:
+            out.append(line)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_kalibr(folder / "camera.yaml", camera_model)
+    atomic_write_text(folder / "scene.toml", "\n".join(out) + "\n")
+    return folder / "scene.toml"

@@ -165,24 +165,6 @@ SEQUENCE_ATE_RAD = 0.01
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "urban.toml"
 
 
-def _kalibr_scene(tmp_path, model) -> Path:
-    """The shipped urban scene with its [camera] table replaced by a Kalibr file."""
-    from ifmi.io.kalibr import write_kalibr
-
-    lines, out, skipping = SCENE.read_text().splitlines(), [], False
-    for line in lines:
-        if line.startswith("["):
-            skipping = line.strip() == "[camera]"
-            if skipping:
-                out += ["[camera]", 'kalibr = "camera.yaml"', ""]
-                continue
-        if not skipping:
-            out.append(line)
-    write_kalibr(tmp_path / "camera.yaml", model)
-    (tmp_path / "scene.toml").write_text("\n".join(out) + "\n")
-    return tmp_path / "scene.toml"
-
-
 @pytest.mark.parametrize("name", KALIBR_NAMES)
 def test_rendered_rotation_sequence_is_estimated(tmp_path, name):
     """omnisim render (camera.yaml) -> ifmi estimate -> geodesic ATE against the model-frame ground truth."""
@@ -190,10 +172,11 @@ def test_rendered_rotation_sequence_is_estimated(tmp_path, name):
     from ifmi.io.tum import read_tum
     from ifmi.pipeline import estimate_dataset
     from ifmi.rotations import geodesic_angle
+    from omnisim.config import write_scene_with_kalibr_camera
     from omnisim.render import render_dataset
 
     model = EXAMPLES[name].scaled(SEQUENCE_WIDTH_PX / EXAMPLES[name].width)
-    scene = _kalibr_scene(tmp_path, EXAMPLES[name])
+    scene = write_scene_with_kalibr_camera(SCENE, EXAMPLES[name], tmp_path)
     out = tmp_path / "dataset"
     render_dataset(scene, out, frames=SEQUENCE_FRAMES, spp=SEQUENCE_SPP, resolution=model.size,
                    progress=False)
