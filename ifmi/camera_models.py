@@ -119,10 +119,10 @@ def _radtan_jacobian(m: np.ndarray, coeffs) -> np.ndarray:
     return np.stack([np.stack([jxx, jxy], -1), np.stack([jyx, jyy], -1)], -2)
 
 
-def undistort_radtan(distorted: np.ndarray, coeffs) -> np.ndarray:
+def undistort_radtan(distorted: np.ndarray, coeffs, *, start: np.ndarray | None = None) -> np.ndarray:
     """Invert :func:`distort_radtan` by Newton's method (vectorised).
 
-    Starting from the distorted point, each step solves the 2x2 linearised
+    Starting from the distorted point (or ``start``), each step solves the 2x2 linearised
     system; iteration stops when every point reproduces its distorted
     position to 1e-9 normalised units (1e-6 px at a 1000 px focal length,
     far below the 1e-3 px the models promise) or after 50 steps. Points
@@ -135,6 +135,9 @@ def undistort_radtan(distorted: np.ndarray, coeffs) -> np.ndarray:
         Distorted normalised points.
     coeffs : (4,) sequence
         ``(k1, k2, p1, p2)``.
+    start : (..., 2) ndarray, optional, keyword-only
+        Initial guesses (e.g. interpolated from a coarser solution); where a
+        guess is not finite the distorted point is used.
 
     Returns
     -------
@@ -144,6 +147,10 @@ def undistort_radtan(distorted: np.ndarray, coeffs) -> np.ndarray:
     distorted = np.asarray(distorted, dtype=np.float64)
     target = distorted.reshape(-1, 2)
     m = target.copy()
+    if start is not None:
+        guess = np.asarray(start, dtype=np.float64).reshape(-1, 2)
+        usable = np.isfinite(guess).all(axis=-1)
+        m[usable] = guess[usable]
     active = np.arange(len(m))
     for _ in range(_UNDISTORT_MAX_STEPS):
         residual = distort_radtan(m[active], coeffs) - target[active]

@@ -167,13 +167,26 @@ def register_omni_sensor(mi) -> None:
             self.timing = RayTiming(mi, props, self.film().size().y, matrix)
             self._make_opaque()
 
-        def _make_opaque(self):
-            if self.camera_model != "ocamcalib":
-                from .camera_rays import scalar_count
+        def _kernel_data(self):
+            """Scalars (width-1 opaque variables) and lookup table of the model's ray code."""
+            from .camera_rays import kernel_data, model_from_parameters
 
+            size = self.film().size()
+            model = model_from_parameters(self.camera_model, np.array(self.params, dtype=np.float64),
+                                          (size.y, size.x))
+            scalars, table = kernel_data(model)
+            self.table = mi.Float(table)
+            self._coeffs = [mi.Float(v) for v in scalars]
+            dr.make_opaque(self.table)
+
+        def _make_opaque(self, calibration_changed: bool = True):
+            if self.camera_model != "ocamcalib":
                 dr.make_opaque(self.params, self.to_world)
-                # Scalars as width-1 opaque variables; a model's lookup table is read from params itself.
-                self._coeffs = [dr.gather(mi.Float, self.params, i) for i in range(scalar_count(self.camera_model))]
+                # Derived from the calibration (and the film size) on the host: a new calibration
+                # gives new values of the same opaque variables, not a new kernel. A new pose alone
+                # keeps them (building a radtan table takes up to seconds).
+                if calibration_changed:
+                    self._kernel_data()
             else:
                 dr.make_opaque(self.pol, self.center, self.affine, self.band, self.to_world)
                 # One width-1 opaque variable per coefficient: a kernel parameter, not a per-lane gather.
@@ -200,7 +213,7 @@ def register_omni_sensor(mi) -> None:
             if self.camera_model == "ocamcalib" and dr.width(self.pol) != self.n_coeffs:
                 raise ValueError(f"omnicam: expected {self.n_coeffs} polynomial coefficients "
                                  f"(zero-padded), got {dr.width(self.pol)}")
-            self._make_opaque()
+            self._make_opaque(calibration_changed=not keys or "params" in keys)
 
         def _camera_ray(self, sample2):
             film = self.film()
@@ -212,7 +225,7 @@ def register_omni_sensor(mi) -> None:
             if self.camera_model != "ocamcalib":
                 from .camera_rays import rays_from_film
 
-                return rays_from_film(dr, mi, self.camera_model, self._coeffs, self.params, row, col)
+                return rays_from_film(dr, mi, self.camera_model, self._coeffs, self.table, row, col)
             c, d, e = self.affine.x, self.affine.y, self.affine.z
             inv_det = dr.rcp(c - d * e)
             dr_ = row - self.center.x

@@ -92,8 +92,8 @@ def _strong_tangential():
 def test_sensor_rays_match_the_model_at_every_valid_pixel(mi, name):
     """The sensor's ray of every valid pixel centre (full calibration size) projects back onto it.
 
-    Float32 ray code with table-started Newton steps against the float64
-    numpy model: measured max 3e-4 px.
+    Float32 ray code (radtan: the interpolated undistortion table) against
+    the float64 numpy model: measured max 5e-4 px.
     """
     from omnisim.sensor import sensor_dict
 
@@ -109,20 +109,100 @@ def test_sensor_rays_match_the_model_at_every_valid_pixel(mi, name):
     assert np.max(np.hypot(pixels[:, 0] - rows, pixels[:, 1] - cols)) < 0.01
 
 
-@pytest.mark.parametrize("name", ["omni-wide", "pinhole-radtan", "omni-radtan", "kb", "fold"])
-def test_pixels_outside_the_valid_region_are_black(mi, name):
+def _fold():
     from ifmi.camera_models import PinholeModel
 
-    # "fold": radial distortion that turns back inside the image (r_d peaks at 0.651).
-    model = (PinholeModel.create((40.0, 40.0), (63.5, 47.5), (96, 128), (-0.4, 0.05, 0.0, 0.0))
-             if name == "fold" else _small(name))
+    # Radial distortion that turns back inside the image (r_d peaks at 0.651, 26 px off centre).
+    return PinholeModel.create((40.0, 40.0), (63.5, 47.5), (96, 128), (-0.4, 0.05, 0.0, 0.0))
+
+
+@pytest.mark.parametrize("name", ["omni-wide", "pinhole-radtan", "omni-radtan", "kb", "fold"])
+def test_pixels_outside_the_valid_region_are_black(mi, name):
+    from omnisim.camera_rays import undistortion_table
+
+    model = _fold() if name == "fold" else _small(name)
     position = np.array(mi.render(_position_scene(mi, model)))[..., -3:]
     valid = valid_mask(model)
+    drawn = valid
+    if name == "fold":  # inside the fold a band of cells that no table interpolates exactly is black
+        pixels = np.stack(np.mgrid[0:model.height, 0:model.width], axis=-1)
+        drawn = valid & undistortion_table(model).rendered_at(pixels)
+        assert 0.8 * valid.sum() < drawn.sum() < valid.sum()
     hit = np.linalg.norm(position, axis=-1) > 0
-    assert hit[_eroded(valid)].all()
+    assert hit[_eroded(drawn)].all()
     assert not hit[~valid & _eroded(~valid)].any()
     if name == "omni-wide":  # a disc inside the image, beyond 180 degrees
         assert (~valid).sum() > 0.01 * valid.size and np.degrees(model.field_of_view_rad) > 180
+
+
+# Float32 allowance (px) of the sensor's rays over the table's interpolation bound: table
+# coordinates of up to ~2600 carry an ulp of 2.4e-4 nodes (<= 6e-5 px at a quarter-pixel
+# spacing), the sample position's own rounding is 3e-5 px, and float32 directions and
+# undistorted coordinates (relative 6e-8) are worth ~3e-5 px at these focal lengths.
+FLOAT32_ALLOWANCE_PX = 2e-4
+
+
+@pytest.mark.parametrize("name,width", [("omni-radtan", 384), ("omni-radtan", 128), ("pinhole-radtan", 640),
+                                        ("pinhole-radtan", 128), ("strong-tangential", 640), ("fold", 128)])
+def test_radtan_rays_at_any_film_position_stay_within_the_table_bound(mi, name, width):
+    """Random sub-pixel positions (not only pixel centres, where the table's nodes sit).
+
+    The sensor's ray reprojects within the undistortion table's interpolation
+    bound (plus float32 rounding), that bound is below the models' round-trip
+    tolerance (1e-3 px; near a fold: below the cell tolerance, 0.01 px), and
+    exactly the positions the table draws are lit -- all inside the valid
+    region; near a fold the black band is at most 2.5 px wide.
+    """
+    from omnisim.camera_rays import CELL_TOLERANCE_PX, TABLE_ERROR_TARGET_PX, undistortion_table
+    from omnisim.sensor import sensor_dict
+
+    base = {"strong-tangential": _strong_tangential(), "fold": _fold()}.get(name) or EXAMPLES[name]
+    model = base.scaled(width / base.width)
+    table = undistortion_table(model)
+    sensor = mi.load_dict(sensor_dict(model, to_world=np.eye(4), radius_min=0.0, radius_max=float("inf"),
+                                      spp=1, mi=mi))
+    samples = np.random.default_rng(7).random((2, 50_000)).astype(np.float32)
+    pixels = np.stack([samples[1] * np.float64(model.height), samples[0] * np.float64(model.width)], -1) - 0.5
+    ray, weight = sensor.sample_ray(0.0, 0.5, mi.Point2f(samples[0], samples[1]), mi.Point2f(0.5, 0.5))
+    lit = np.array(weight)[0] > 0
+    np.testing.assert_array_equal(lit, table.rendered_at(pixels))
+    assert not (lit & ~model.valid_pixels(pixels)).any()
+    back = model.pixels_from_rays(np.array(ray.d).T[lit].astype(np.float64))
+    err = np.linalg.norm(back - pixels[lit], axis=-1)
+    assert err.max() <= table.rendered_error_bound_px + FLOAT32_ALLOWANCE_PX, (err.max(), table)
+    if name == "fold":
+        assert table.rendered_error_bound_px <= CELL_TOLERANCE_PX
+        radius = np.hypot(*(pixels - np.array(model.principal_point)[::-1]).T)
+        valid = model.valid_pixels(pixels)
+        assert radius[valid].max() - radius[valid & ~lit].min() < 2.5
+    else:
+        assert lit.all() and table.error_bound_px <= TABLE_ERROR_TARGET_PX
+
+
+def test_table_bound_holds_for_float64_interpolation():
+    """The analytic bound against bilinear interpolation of the same nodes in float64 (no rounding)."""
+    from ifmi.camera_models import distort_radtan
+    from omnisim.camera_rays import undistortion_table
+
+    model = EXAMPLES["omni-radtan"].scaled(0.5)
+    table = undistortion_table(model, target_px=np.inf)  # a pixel spacing: the largest errors
+    rng = np.random.default_rng(3)
+    pixels = rng.uniform(-0.5, 1.0, (100_000, 2)) * np.array(model.size) - np.array([0.0, 0.0])
+    pixels = np.clip(pixels, -0.5, np.array(model.size) - 0.5)
+    t = (pixels + 1.0) / table.spacing_px
+    first = np.floor(t).astype(int)
+    f = (t - first)[..., None]
+    v = table.values
+    r, c = first[:, 0], first[:, 1]
+    top = v[r, c] * (1 - f[:, 1]) + v[r, c + 1] * f[:, 1]
+    bottom = v[r + 1, c] * (1 - f[:, 1]) + v[r + 1, c + 1] * f[:, 1]
+    m = top * (1 - f[:, 0]) + bottom * f[:, 0]
+    (fu, fv), (pu, pv) = model.focal, model.principal_point
+    distorted = distort_radtan(m, model.distortion)
+    back = np.stack([fv * distorted[:, 1] + pv, fu * distorted[:, 0] + pu], -1)
+    err = np.linalg.norm(back - pixels, axis=-1)
+    assert table.spacing_px == 1.0
+    assert 0.5 * table.error_bound_px < err.max() <= table.error_bound_px
 
 
 @pytest.mark.parametrize("name", ["ds", "kb", "omni-radtan"])
