@@ -44,6 +44,14 @@ _UNSEEN_RESIDUAL_PX = 1e3
 _FIT_GRID = 60
 # Starting alphas of the double-sphere fit (see _kalibr_builder).
 _DS_START_ALPHAS = (0.5, 0.6)
+# Grids of the radial pre-fit (see _radial_start): EUCM (beta, alpha), double sphere (xi, alpha).
+# The good basins are narrow in alpha (the double sphere of tests/camera_examples.py's
+# omni-radtan camera: a 0.05 step in alpha misses it), hence a fine alpha step.
+_SCAN_ALPHAS = np.linspace(0.0, 1.0, 201)
+_EUCM_SCAN_BETAS = np.geomspace(0.05, 50.0, 40)
+_DS_SCAN_XIS = np.linspace(-0.95, 1.5, 50)
+# Every this many fitting samples enter the radial pre-fit (a radial profile needs few).
+_SCAN_STRIDE = 4
 _CHECK_STRIDE_PX = 2
 
 
@@ -57,7 +65,8 @@ class CalibrationFit:
         The fitted target model.
     max_error_px, median_error_px : float
         Reprojection error of the source's rays through the fitted model,
-        over the source's valid region (every second pixel), pixels.
+        over the part of the source's valid region (every second pixel) that
+        the fitted model sees (all of it when ``coverage`` is 1), pixels.
     coverage : float
         Fraction of those pixels the fitted model sees at all (1.0 when it
         can represent the whole valid region).
@@ -112,7 +121,9 @@ def _axis_pixel_and_scale(source) -> tuple[np.ndarray, float]:
 def _kalibr_builder(kind: str, size):
     """(initial parameters given (pp, f), model from parameters) for a Kalibr target.
 
-    The double sphere gets a list of starts, fitted each and the best kept: with
+    EUCM and the double sphere also start from their best radial shape
+    (:func:`_radial_start`); every start is fitted and the best kept.
+    The double sphere gets a list of starts: with
     ``xi = 0``, ``alpha = 0.5`` (the unified model with ``xi = 1``) it projects every
     ray but the backward one, so cameras seeing beyond 180 degrees start with every
     sample projectable (a sample it cannot project gives a constant residual, no
@@ -123,8 +134,9 @@ def _kalibr_builder(kind: str, size):
         return (p[k], p[k + 1]), (p[k + 2], p[k + 3])
 
     if kind == "omni":
+        # xi = q^2 >= 0 for any q: the optimiser moves freely, and xi = 0 (a pinhole) is reachable.
         return (lambda pp, f: [1.0, 2 * f, 2 * f, *pp, 0, 0, 0, 0],
-                lambda p: UnifiedModel(max(p[0], 0.0), *split(p, 1), size, tuple(p[5:9])))
+                lambda p: UnifiedModel(p[0] ** 2, *split(p, 1), size, tuple(p[5:9])))
     if kind == "pinhole":
         return (lambda pp, f: [f, f, *pp, 0, 0, 0, 0],
                 lambda p: PinholeModel.create(*split(p, 0), size, tuple(p[4:8])))
@@ -138,6 +150,41 @@ def _kalibr_builder(kind: str, size):
         return (lambda pp, f: [[0.0, alpha, f, f, *pp] for alpha in _DS_START_ALPHAS],
                 lambda p: DoubleSphereModel(p[0], np.clip(p[1], 0, 1), *split(p, 2), size))
     raise ValueError(f"unknown target model {kind!r}; expected one of {TARGETS}")
+
+
+def _radial_start(kind: str, rays: np.ndarray, pixels: np.ndarray, centre: np.ndarray):
+    """Shape parameters and focal length of the best radially symmetric ``kind`` on a grid, or None.
+
+    The image radius of each sample is ``f g(theta)`` for the model's radial
+    function ``g`` of the angle from the axis; for every grid point of
+    (alpha, beta) (EUCM) or (xi, alpha) (double sphere) ``f`` follows in
+    closed form (linear least squares), and the point with the smallest
+    squared error wins. Grids where a sample is unprojectable are skipped.
+    Only ``eucm`` and ``ds`` have a pre-fit.
+    """
+    if kind not in ("eucm", "ds"):
+        return None
+    rays, pixels = rays[::_SCAN_STRIDE], pixels[::_SCAN_STRIDE]
+    radius = np.hypot(*(pixels - centre).T)
+    sin, cos = np.hypot(rays[:, 0], rays[:, 1]), rays[:, 2]
+    alpha = _SCAN_ALPHAS[:, None]
+    best, best_cost = None, np.inf
+    for value in _EUCM_SCAN_BETAS if kind == "eucm" else _DS_SCAN_XIS:
+        if kind == "eucm":  # value = beta
+            denom = alpha * np.sqrt(value * sin * sin + cos * cos) + (1.0 - alpha) * cos
+        else:  # value = xi
+            shifted = value + cos
+            denom = alpha * np.hypot(sin, shifted) + (1.0 - alpha) * shifted
+        with np.errstate(divide="ignore", invalid="ignore"):
+            g = sin / denom
+            f = np.sum(g * radius, axis=1) / np.sum(g * g, axis=1)
+            cost = np.sum((f[:, None] * g - radius) ** 2, axis=1)
+        cost[~np.all(denom > 0, axis=1) | ~(f > 0)] = np.inf
+        k = int(np.argmin(cost))
+        if cost[k] < best_cost:
+            a = float(_SCAN_ALPHAS[k])
+            best, best_cost = ((a, value) if kind == "eucm" else (value, a)) + (float(f[k]),), cost[k]
+    return best
 
 
 def _fit_kalibr(source, kind: str, pixels: np.ndarray):
@@ -154,6 +201,9 @@ def _fit_kalibr(source, kind: str, pixels: np.ndarray):
 
     # Principal point (u, v) = (col, row) of the axis pixel; one start, or a list of them.
     starts = np.atleast_2d(np.asarray(initial((centre[1], centre[0]), scale), dtype=np.float64))
+    radial = _radial_start(kind, rays, pixels, centre)
+    if radial is not None:  # the best radial shape as one more start
+        starts = np.vstack([starts, [radial[0], radial[1], radial[2], radial[2], centre[1], centre[0]]])
     solutions = [least_squares(residuals, start, method="lm", x_scale="jac", max_nfev=4000) for start in starts]
     return build(min(solutions, key=lambda solution: solution.cost).x)
 
@@ -195,11 +245,21 @@ def fit_camera_model(source, target: str) -> CalibrationFit:
         The fitted model and its reprojection errors over the source's
         valid region (pixels); ``success`` is False when the fitted model
         sees less than the whole valid region.
+
+    Raises
+    ------
+    ValueError
+        For an equirectangular source, an OCamCalib source looking along +z,
+        or a pinhole target for a camera seeing 180 degrees or more (a
+        pinhole images less than a half space).
     """
     if target not in TARGETS:
         raise ValueError(f"unknown target model {target!r}; expected one of {TARGETS}")
     if getattr(source, "wraps_columns", False):
         raise ValueError("an equirectangular camera has no lens model to convert to")
+    if target == "pinhole" and source.field_of_view_rad >= np.pi:
+        raise ValueError(f"a pinhole model sees less than 180 degrees, this camera "
+                         f"{np.degrees(source.field_of_view_rad):.0f} degrees; convert to omni, ds, eucm or kb")
     if isinstance(source, OcamModel) and source.pol[0] >= 0:
         raise ValueError("the OCamCalib model's central ray points along +z; only -z has a Kalibr frame")
     pixels = _samples(source, _FIT_GRID)

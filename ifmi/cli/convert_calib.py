@@ -7,7 +7,7 @@ import sys
 from ..calib_fit import TARGETS
 from ..io.camera_file import convert_calibration_file
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "fit_summary"]
 
 
 def add_parser(subparsers) -> None:
@@ -25,10 +25,17 @@ def add_parser(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+def fit_summary(fit) -> str:
+    """The fit's errors and the region they are measured over, e.g. ``max reprojection error 0.1 px, ...``."""
+    region = ("over the valid region" if fit.coverage == 1.0 else
+              f"over the {100 * fit.coverage:.1f} % of the valid region that the model sees")
+    return (f"max reprojection error {fit.max_error_px:.4f} px, median {fit.median_error_px:.4f} px "
+            f"{region}")
+
+
 def run(args) -> int:
     fit = convert_calibration_file(args.calib, args.to, args.out, overwrite=args.force)
-    print(f"{args.out}: {args.to} fitted to {args.calib}: max reprojection error "
-          f"{fit.max_error_px:.4f} px, median {fit.median_error_px:.4f} px")
+    print(f"{args.out}: {args.to} fitted to {args.calib}: {fit_summary(fit)}")
     if not fit.success:
         print(f"ifmi convert-calib: warning: {fit.reason}", file=sys.stderr)
     return 0
