@@ -439,8 +439,26 @@ def panorama_image_from_omni_image(mapping: PanoramaMapping, image: np.ndarray, 
     if gray.dtype != np.uint8:
         gray = gray.astype(np.float32)
     map1, map2 = maps or mapping.fixed_maps or (mapping.map_cols, mapping.map_rows)
+    if getattr(mapping.model, "wraps_columns", False):
+        gray, map1 = _wrapped_seam(gray, map1)
     pano = cv2.remap(gray, map1, map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return pano.astype(np.float32, copy=False)
+
+
+def _wrapped_seam(gray: np.ndarray, map1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A 360-degree image with its last column before the first and its first after the last, and ``map1`` shifted.
+
+    Samples within half a pixel of the seam (columns in ``[-0.5, 0)`` or
+    ``(W - 1, W - 0.5]``) then interpolate across it instead of repeating the
+    edge column. ``map1`` is a float column map or OpenCV's fixed-point
+    ``(col, row)`` integer pairs: either way the columns move by one.
+    """
+    padded = cv2.copyMakeBorder(gray, 0, 0, 1, 1, cv2.BORDER_WRAP)
+    if map1.ndim == 3:  # fixed-point maps: integer (col, row) pairs, the fraction is in map2
+        shifted = map1.copy()
+        shifted[..., 0] += 1
+        return padded, shifted
+    return padded, map1 + np.float32(1.0)
 
 
 def rays_from_panorama_pixels(mapping: PanoramaMapping, pano_pixels: np.ndarray) -> np.ndarray:

@@ -77,3 +77,26 @@ def test_rotation_sequence_on_every_model(environment, name, method):
     assert all(r.success for r in est.frames)
     err = geodesic_angle(rotations, est.trajectory.rotations)
     assert np.sqrt(np.mean(err ** 2)) < ATE_TOLERANCE_RAD[method]
+
+
+def test_equirectangular_panorama_interpolates_across_the_360_degree_seam():
+    """An image that is sin(longitude): panorama samples within half a pixel of the seam
+    (columns in [-0.5, 0) or (W - 1, W - 0.5]) interpolate between the last and the first column.
+
+    Bilinear interpolation of sin errs by at most step^2 / 8 (step = 2 pi / W, 1.9e-5 at
+    W = 512); repeating the edge column instead errs by up to half a step (6e-3) there.
+    """
+    from ifmi.unwarp import panorama_image_from_omni_image
+
+    model = _small("equirectangular")
+    cols = np.arange(model.width)
+    image = np.tile(np.sin((cols + 0.5) * (2 * np.pi / model.width) - np.pi), (model.height, 1)).astype(np.float32)
+    mapping = panorama_mapping(model)
+    pano = panorama_image_from_omni_image(mapping, image)
+    expected = np.sin((mapping.map_cols.astype(np.float64) + 0.5) * (2 * np.pi / model.width) - np.pi)
+    seam = (mapping.map_cols < 0) | (mapping.map_cols > model.width - 1)
+    assert seam.sum() > 10
+    step = 2 * np.pi / model.width
+    # OpenCV's bilinear weights are quantised to 1/32 of a pixel: up to step / 64 more.
+    assert np.abs(pano - expected)[seam].max() < step ** 2 / 8 + step / 64
+    assert np.abs(pano - expected).max() < step ** 2 / 8 + step / 64
