@@ -2,8 +2,11 @@
 
 Kalibr and equirectangular models (:mod:`ifmi.camera_models`) take the same
 route with their own pixel->direction code (:mod:`omnisim.camera_rays`),
-chosen by the ``camera_model`` property; their parameters are one opaque
-list ``params``, and samples outside the model's valid region are black.
+chosen by the ``camera_model`` property; their calibration is one list
+``params`` (Kalibr's values, exposed through ``traverse``), from which the
+sensor derives the ray code's scalars and lookup table on the host
+(:func:`omnisim.camera_rays.kernel_data`, again whenever ``params``
+changes), all opaque; samples outside the model's valid region are black.
 
 Each film sample is mapped to a ``(row, col)`` pixel coordinate (film x is the
 column, film y the row; pixel centres at integers, so the film position
