@@ -302,8 +302,12 @@ class GlobalMotionEstimator:
         """
         results = []
         reference = _ReferenceSpectra(self, coarse_a)
+        searched = []
         for prior in priors:
             start = np.eye(3) if prior is None else np.asarray(prior, dtype=np.float64)
+            if any(np.array_equal(start, other) for other in searched):
+                continue  # the same search again (e.g. a prediction that is the identity) gives the same result
+            searched.append(start)
             found, start_score = self._search(reference, coarse_b, start)
             results.append(found)
             if len(results) == 1 and _angle(start.T @ found.rotation) <= self.config.confirm_angle_rad:
