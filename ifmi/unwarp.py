@@ -449,7 +449,7 @@ def panorama_image_from_omni_image(mapping: PanoramaMapping, image: np.ndarray, 
     if gray.shape != mapping.model.size:
         raise ValueError(f"expected an image of size {mapping.model.size}, got {gray.shape}")
     if gray.dtype != np.uint8:
-        gray = gray.astype(np.float32)
+        gray = gray.astype(np.float32, copy=False)
     map1, map2 = maps or mapping.fixed_maps or (mapping.map_cols, mapping.map_rows)
     pano = cv2.remap(gray, map1, map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return pano.astype(np.float32, copy=False)
