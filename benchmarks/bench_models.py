@@ -35,7 +35,6 @@ Run: python benchmarks/bench_models.py [--width 384] [--spp 16] [--frames 12] [-
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import time
 from pathlib import Path
