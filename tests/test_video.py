@@ -129,6 +129,18 @@ def test_spread_frames_come_from_the_whole_clip(shaded_clip):
     assert _indices_of(video.spread_frames(2), images) == [0, 8]
     assert _indices_of(video.spread_frames(3), images) == [0, 4, 8]
     assert video.timestamps == []
+    with pytest.raises(ValueError, match="expected count >= 1, got 0"):
+        video.spread_frames(0)
+
+
+def test_spread_frames_of_a_broken_video_name_the_file(shaded_clip, tmp_path):
+    root, _ = shaded_clip
+    garbage = tmp_path / "garbage.avi"
+    garbage.write_bytes(b"not a video at all")
+    with pytest.raises(InputError, match="garbage.avi"):
+        VideoFrames(garbage).spread_frames(5)
+    with pytest.raises(InputError, match="calibration names 100x100"):
+        VideoFrames(root / "clip.avi", size=(100, 100)).spread_frames(5)
 
 
 def test_a_dark_first_frame_does_not_narrow_a_videos_band(shaded_clip, tmp_path):
