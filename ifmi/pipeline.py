@@ -281,8 +281,12 @@ def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike,
     model = read_camera(Path(calib_path))  # calib_results.txt or a Kalibr camera.yaml
     frames = VideoFrames(video_path, size=model.size)
     try:
-        # The RANSAC threshold is resolved on the calibration's band, then the band is decided.
-        config = _config_with_band(resolved_config(config, model), model, frames.spread_frames(_BAND_FRAMES))
+        # The RANSAC threshold is resolved on the calibration's band, then the band is decided
+        # (no frames decoded for it when both radii are given).
+        panorama = config.ifmi.panorama
+        given = panorama.radius_min_px is not None and panorama.radius_max_px is not None
+        config = _config_with_band(resolved_config(config, model), model,
+                                   [] if given else frames.spread_frames(_BAND_FRAMES))
         estimate = estimate_sequence(frames, model, method=method, config=config, progress=progress,
                                      total=len(frames) or None)
     except CalibrationFitError as exc:
