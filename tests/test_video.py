@@ -159,3 +159,22 @@ def test_a_dark_first_frame_does_not_narrow_a_videos_band(shaded_clip, tmp_path)
     # band profile) from the band of the uncompressed frames.
     assert band == pytest.approx(clean, abs=1.0)
     assert all(r.success for r in estimate.frames)
+
+
+def test_given_band_radii_decode_no_band_frames(shaded_clip, monkeypatch):
+    from dataclasses import replace
+
+    from ifmi.pipeline import EstimateConfig, estimate_video
+
+    root, _ = shaded_clip
+
+    def refuse(self, count):
+        raise AssertionError("band frames decoded although both radii are given")
+
+    monkeypatch.setattr(VideoFrames, "spread_frames", refuse)
+    base = EstimateConfig()
+    config = replace(base, ifmi=replace(base.ifmi, panorama=replace(base.ifmi.panorama, radius_min_px=22.0,
+                                                                    radius_max_px=73.0)))
+    estimate = estimate_video(root / "clip.avi", root / "calib_results.txt", method="ifmi", config=config)
+    panorama = estimate.config.ifmi.panorama
+    assert (panorama.radius_min_px, panorama.radius_max_px) == (22.0, 73.0)
