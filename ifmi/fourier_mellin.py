@@ -710,6 +710,44 @@ class FourierMellin:
                                   peak_to_noise=peaks.peak_to_noise, peak_value=peaks.value,
                                   valid=reason == TileRejection.KEPT, reason=reason, last=last)
 
+    def refine_placed(self, spectra_a: TileSpectra, source_b: np.ndarray, placed: "PlacedRegistration",
+                      linear_b: np.ndarray, *, curvature_b: np.ndarray | None = None) -> "PlacedRegistration":
+        """Re-measure the kept tiles of ``placed`` cut with a new shape: refinement passes only.
+
+        The centres start where ``placed`` found them; the tiles are cut with
+        ``linear_b`` (and ``curvature_b``) instead of the shape they were
+        registered with, and the passes measure the residual as in
+        :meth:`register_placed`. Quality figures and rejections stay those of
+        ``placed``.
+
+        Parameters
+        ----------
+        spectra_a : TileSpectra
+        source_b : (H, W) float32 ndarray
+        placed : PlacedRegistration
+            From :meth:`register_placed` on the same tiles and source.
+        linear_b : (T, 2, 2) ndarray
+        curvature_b : (T, 2, 2, 2) ndarray, optional, keyword-only
+
+        Returns
+        -------
+        PlacedRegistration
+        """
+        keep = np.flatnonzero(placed.valid)
+        offsets, linear = placed.offsets.copy(), np.array(linear_b, dtype=np.float64)
+        last = replace(placed.last, tiles=placed.last.tiles.copy(), offsets=placed.last.offsets.copy(),
+                       linear=placed.last.linear.copy(), curvature=curvature_b,
+                       spectra=replace(placed.last.spectra, spectrum=placed.last.spectra.spectrum.copy(),
+                                       std=placed.last.spectra.std.copy()))
+        if self.config.refine_passes and keep.size:
+            with_rotation = self.config.estimate_rotation_scale and self.config.refine_predicted_rotation_scale
+            kept_offsets, kept_linear, kept_last = self._refined_placement(
+                spectra_a.rows(keep), np.ascontiguousarray(source_b, dtype=np.float32), offsets[keep], linear[keep],
+                with_rotation=with_rotation, curvature=None if curvature_b is None else curvature_b[keep])
+            offsets[keep], linear[keep] = kept_offsets, kept_linear
+            last = _replace_rows(last, keep, kept_last)
+        return replace(placed, offsets=offsets, linear=linear, last=last)
+
     def _search_rotation_scale(self, spectra_a: TileSpectra, spectra_b: TileSpectra, source_b: np.ndarray,
                                origins_b: np.ndarray):
         """Steps 2 and 3 of the module docstring: ``theta`` and ``s`` from the log-polar descriptors,

@@ -532,8 +532,8 @@ class IfmiFrontEnd:
                 break  # parallax or wrong tiles: the tiles do not agree on a rotation
             _, linear_b = self.predicted_placements(offsets_a, linear_a, rotation)
             curvature_b = self.predicted_curvature(offsets_a, linear_a, state_a.reference_curvature, rotation)
-            placed = self.engine.register_placed(spectra_a, state_b.padded_panorama, placed.offsets, linear_b,
-                                                 curvature_b=curvature_b)
+            placed = self.engine.refine_placed(spectra_a, state_b.padded_panorama, placed, linear_b,
+                                               curvature_b=curvature_b)
         last = replace(placed.last, offsets=unpadded(placed.last.offsets))
         placed = replace(placed, offsets=unpadded(placed.offsets), last=last)
         if self.config.anchor_templates:
