@@ -53,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ifmi.dataset_names import dataset_folder_id, dataset_labels, resolved_folder
 from ifmi.evaluation import evaluate_files
 from ifmi.io.calib import read_calib
 from ifmi.io.dataset import read_dataset
@@ -128,19 +129,24 @@ def print_summary(rows: list, ratios: dict, key: str) -> None:
         print(f"{mode:<9}{dataset:<{width}}{line}")
 
 
-def run_method(dataset: str, method: str, mode: str, config: EstimateConfig, out: Path) -> dict:
-    """One full run of ``method`` on ``dataset``, written and evaluated; its row of figures."""
-    name = Path(dataset).name
+def run_method(dataset: str, method: str, mode: str, config: EstimateConfig, out: Path, *,
+               label: str) -> dict:
+    """One full run of ``method`` on ``dataset``, written and evaluated; its row of figures.
+
+    The files go to ``out/mode/<dataset id>/``; the row names the dataset ``label``.
+    """
+    folder = out / mode / dataset_folder_id(dataset)
     start = time.perf_counter()
     estimate = estimate_dataset(dataset, method=method, config=config, progress=True)
     wall = time.perf_counter() - start
-    est_path = out / mode / name / f"{method}.txt"
+    est_path = folder / f"{method}.txt"
     write_estimate_run(est_path, estimate, dataset_dir=dataset, extra={"wall_seconds": wall})
-    meta = evaluate_files(Path(dataset) / "groundtruth.txt", est_path, out_dir=out / mode / name / f"{method}.eval")
+    meta = evaluate_files(Path(dataset) / "groundtruth.txt", est_path, out_dir=folder / f"{method}.eval")
     s = meta["summary"]
     seconds = np.array([r.seconds for r in estimate.frames[1:]])
     models = [r.model for r in estimate.frames[1:] if r.success]
-    return {"mode": mode, "dataset": name, "scene": meta["scene"], "method": method,
+    return {"mode": mode, "dataset": label, "dataset_path": resolved_folder(dataset),
+            "dataset_id": folder.name, "scene": meta["scene"], "method": method,
             "mean_rmse": s["mean_rmse"], "geodesic_rmse": s["geodesic"]["rmse"],
             "relative_rmse": s["relative_geodesic"]["rmse"],
             "roll": s["axes"]["roll"]["rmse"], "pitch": s["axes"]["pitch"]["rmse"],
@@ -226,12 +232,16 @@ def main(argv=None) -> int:
                                                    ransac_threshold_px=args.ransac_threshold_px))
     out = Path(args.out)
     rows = []
-    for dataset in args.datasets:
+    labels = dataset_labels(args.datasets)
+    # One entry per folder: a folder given twice (under two spellings too) is measured once.
+    datasets = list({resolved_folder(d): d for d in args.datasets}.values())
+    for dataset in datasets:
         model = read_calib(Path(dataset) / "calib_results.txt")
         for mode in modes:
             # One configuration for every method of this mode and dataset.
             config = resolved_config(mode_config(base, mode), model)
-            these = [run_method(dataset, method, mode, config, out) for method in args.methods]
+            these = [run_method(dataset, method, mode, config, out, label=labels[resolved_folder(dataset)])
+                     for method in args.methods]
             if args.timing_rounds > 0:
                 walls = interleaved_timing(dataset, args.methods, {m: config for m in args.methods},
                                            frames=args.timing_frames, rounds=args.timing_rounds)

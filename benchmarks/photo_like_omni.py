@@ -1,8 +1,9 @@
 """A "photo-like" omni image made offline: scikit-image's bundled CC0 photographs on a sphere.
 
-No real catadioptric photo is available offline. This stands in for one: a
-mosaic of the photographs bundled with scikit-image (CC0) mapped onto a
-sphere at infinity (:func:`ifmi.synthetic.environment_texture`, no added
+A stand-in for a real photo at any calibration (the one real catadioptric
+photo found offline, ``benchmarks/real_omni_photo.py``, comes with its own
+camera's calibration only): a mosaic of the photographs bundled with
+scikit-image (CC0) mapped onto a sphere at infinity (:func:`ifmi.synthetic.environment_texture`, no added
 noise) and imaged through CALIB, black outside the calibration's band. It
 is sharp like a photo of real texture, but it is not a real photo: no real
 optics, no real lighting. Feed it to ``omnisim warp``.

@@ -317,8 +317,15 @@ def pixels_from_sensor(model: OcamModel, sensor) -> np.ndarray:
         ``(row, col)`` = ``(u c + v d + xc, u e + v + yc)``, 0-based pixels
         (inverse of :func:`sensor_from_pixels`).
     """
-    offsets = pixel_offsets_from_sensor(model, sensor)
-    return np.stack([offsets[..., 0] + model.center[0], offsets[..., 1] + model.center[1]], axis=-1)
+    # pixel_offsets_from_sensor plus the centre, written into one array (the same sums, in the same
+    # order, without two interleaving stacks: a third of the time on a panorama's map).
+    sensor = np.asarray(sensor, dtype=np.float64)
+    u, v = sensor[..., 0], sensor[..., 1]
+    c, d, e = model.affine
+    pixels = np.empty(sensor.shape)
+    pixels[..., 0] = u * c + v * d + model.center[0]
+    pixels[..., 1] = u * e + v + model.center[1]
+    return pixels
 
 
 def radius_from_pixels(model: OcamModel, pixels: np.ndarray) -> np.ndarray:

@@ -76,7 +76,8 @@ def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
             raise InputError(f"ifmi.panorama.{name}", f"expected at most {limit} px for this camera "
                                                       f"({_MAX_OVERSAMPLING} x its image band's outer "
                                                       f"{kind}), got {value}")
-    if method == "ifmi":
+    registration = config.ifmi.registration
+    if method == "ifmi" and (registration.log_polar_angles is not None or registration.log_polar_radii is not None):
         _check_tiles(config, panorama_mapping(model, config=pano))
 
 

@@ -30,12 +30,13 @@ covers full-resolution ``((i + 0.5) s_r - 0.5, (j + 0.5) s_c - 0.5)``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
 import scipy.fft
 
-from .phase_correlation import correlation_surface, find_peaks, normalized_cross_power, phase_correlation
+from .phase_correlation import correlation_surface, find_peaks, hann_window, normalized_cross_power
 from .unwarp import PanoramaMapping, rays_from_panorama_pixels
 
 __all__ = ["GlobalMotionConfig", "GlobalMotion", "GlobalMotionEstimator", "rotation_from_ray_pairs"]
@@ -152,6 +153,22 @@ def rotation_from_ray_pairs(rays_a: np.ndarray, rays_b: np.ndarray,
     return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
 
 
+class _ReferenceSpectra:
+    """Spectra of panorama a, computed once per :meth:`GlobalMotionEstimator.estimate` on first use."""
+
+    def __init__(self, estimator: "GlobalMotionEstimator", coarse_a: np.ndarray):
+        self._estimator = estimator
+        self.coarse = coarse_a
+
+    @cached_property
+    def whole(self) -> np.ndarray:
+        return self._estimator._yaw_spectrum(self.coarse)
+
+    @cached_property
+    def sectors(self) -> np.ndarray:
+        return self._estimator._sector_spectra(self.coarse)
+
+
 class GlobalMotionEstimator:
     """Coarse rotation between two panoramas of one :class:`~ifmi.unwarp.PanoramaMapping`.
 
@@ -173,6 +190,7 @@ class GlobalMotionEstimator:
         self.rays32 = rays_from_panorama_pixels(mapping, full).astype(np.float32)
         self.sector_width = width // config.sectors
         self.row_window = np.sin(np.pi * (np.arange(height) + 0.5) / height).astype(np.float32)[:, None] ** 2
+        self.sector_window = hann_window((height, self.sector_width))
         # Sector centres (coarse (row, col)) and the sectors' first column.
         self.sector_cols = (np.arange(config.sectors) * width) // config.sectors
         self.sector_centres = np.stack([np.full(config.sectors, (height - 1) / 2.0),
@@ -215,23 +233,31 @@ class GlobalMotionEstimator:
         rays_b = rays_from_panorama_pixels(self.mapping, self._full_from_coarse(centres + shifts)) @ rotation
         return rays_a, rays_b
 
-    def _yaw_search(self, coarse_a: np.ndarray, warped_b: np.ndarray) -> tuple[np.ndarray, float]:
-        """Whole-panorama shift ``(row, col)`` of warped b against a, and its peak ratio."""
-        spectra = []
-        for image in (coarse_a, warped_b):
-            centred = (image - image.mean()) * self.row_window
-            spectra.append(scipy.fft.rfft2(centred)[None])
-        peaks = find_peaks(correlation_surface(normalized_cross_power(*spectra), self.shape))
+    def _yaw_spectrum(self, image: np.ndarray) -> np.ndarray:
+        """Spectrum ``(1, h, w//2+1)`` of a whole coarse panorama, mean removed, windowed along the rows."""
+        return scipy.fft.rfft2((image - image.mean()) * self.row_window)[None]
+
+    def _sector_spectra(self, image: np.ndarray) -> np.ndarray:
+        """Spectra ``(S, h, sector_width//2+1)`` of a coarse panorama's sectors, each mean-free and Hann-windowed."""
+        cols = self.sector_cols[:, None] + np.arange(self.sector_width)
+        sectors = np.moveaxis(image[:, cols], 1, 0)
+        return scipy.fft.rfft2((sectors - sectors.mean(axis=(1, 2), keepdims=True)) * self.sector_window)
+
+    def _yaw_search(self, spectrum_a: np.ndarray, warped_b: np.ndarray) -> tuple[np.ndarray, float]:
+        """Whole-panorama shift ``(row, col)`` of warped b against a (a's :meth:`_yaw_spectrum`), and its peak ratio."""
+        peaks = find_peaks(correlation_surface(normalized_cross_power(spectrum_a, self._yaw_spectrum(warped_b)),
+                                               self.shape))
         return peaks.shift[0], float(peaks.peak_ratio[0])
 
-    def _sector_fit(self, coarse_a: np.ndarray, warped_b: np.ndarray, rotation: np.ndarray):
-        """Refined ``R_ab`` from the sector shifts, and the number of sectors used (None if too few)."""
+    def _sector_fit(self, sectors_a: np.ndarray, warped_b: np.ndarray, rotation: np.ndarray):
+        """Refined ``R_ab`` from the sector shifts (a's :meth:`_sector_spectra`), and the number of
+        sectors used (None if too few)."""
         c = self.config
-        cols = self.sector_cols[:, None] + np.arange(self.sector_width)
-        sectors_a = np.moveaxis(coarse_a[:, cols], 1, 0)
-        sectors_b = np.moveaxis(warped_b[:, cols], 1, 0)
-        shifts, peaks = phase_correlation(sectors_a, sectors_b, refine=False)
-        limit = np.array(self.shape[0:1] + (self.sector_width,)) / 2.0
+        shape = (self.shape[0], self.sector_width)
+        peaks = find_peaks(correlation_surface(normalized_cross_power(sectors_a, self._sector_spectra(warped_b)),
+                                               shape))
+        shifts = peaks.shift
+        limit = np.array(shape) / 2.0
         ok = (peaks.peak_ratio >= c.min_peak_ratio) & np.all(np.abs(shifts) < limit, axis=1)
         if ok.sum() < c.min_sectors:
             return None, int(ok.sum())
@@ -275,39 +301,47 @@ class GlobalMotionEstimator:
         GlobalMotion
         """
         results = []
+        reference = _ReferenceSpectra(self, coarse_a)
+        searched = []
         for prior in priors:
             start = np.eye(3) if prior is None else np.asarray(prior, dtype=np.float64)
-            found = self._search(coarse_a, coarse_b, start)
+            if any(np.array_equal(start, other) for other in searched):
+                continue  # the same search again (e.g. a prediction that is the identity) gives the same result
+            searched.append(start)
+            found, start_score = self._search(reference, coarse_b, start)
             results.append(found)
             if len(results) == 1 and _angle(start.T @ found.rotation) <= self.config.confirm_angle_rad:
                 break
-            start_score = self.score(coarse_a, self.warped(coarse_b, start))
             if start_score > found.score:
                 results.append(GlobalMotion(start, found.success, found.reason, found.yaw_peak_ratio, 0,
                                             start_score))
         return max(results, key=lambda result: (result.success, result.score))
 
-    def _search(self, coarse_a: np.ndarray, coarse_b: np.ndarray, start: np.ndarray) -> GlobalMotion:
-        """Yaw search and sector passes from ``start``."""
+    def _search(self, reference: _ReferenceSpectra, coarse_b: np.ndarray,
+                start: np.ndarray) -> tuple[GlobalMotion, float]:
+        """Yaw search and sector passes from ``start``; the result and the start's own :meth:`score`."""
+        c = self.config
+        coarse_a = reference.coarse
         rotation = start
         warped_b = self.warped(coarse_b, rotation)
-        shift, yaw_ratio = self._yaw_search(coarse_a, warped_b)
-        if yaw_ratio >= self.config.min_peak_ratio and np.all(np.abs(shift) < self.config.settled_shift_px):
+        start_score = self.score(coarse_a, warped_b)
+        shift, yaw_ratio = self._yaw_search(reference.whole, warped_b)
+        if yaw_ratio >= c.min_peak_ratio and np.all(np.abs(shift) < c.settled_shift_px):
             # The start already lines the panoramas up; the tiles measure what is left.
-            return GlobalMotion(start, True, "", yaw_ratio, 0, self.score(coarse_a, warped_b))
+            return GlobalMotion(start, True, "", yaw_ratio, 0, start_score), start_score
         shifts = np.broadcast_to(shift, self.sector_centres.shape)
         rotation = rotation_from_ray_pairs(*self._ray_pairs(self.sector_centres, shifts, rotation))
         used = 0
         warped_b = self.warped(coarse_b, rotation)
-        for _ in range(self.config.iterations):
-            fitted, count = self._sector_fit(coarse_a, warped_b, rotation)
+        for _ in range(c.iterations):
+            fitted, count = self._sector_fit(reference.sectors, warped_b, rotation)
             if fitted is None:
                 break
             rotation, used = fitted, count
             warped_b = self.warped(coarse_b, rotation)
         score = self.score(coarse_a, warped_b)
-        if used == 0 and yaw_ratio < self.config.min_peak_ratio:
+        if used == 0 and yaw_ratio < c.min_peak_ratio:
             # Neither the whole panorama nor enough sectors agree on a motion.
             return GlobalMotion(start, False, f"no clear whole-panorama peak (ratio {yaw_ratio:.2f}) "
-                                f"and fewer than {self.config.min_sectors} clear sectors", yaw_ratio, 0, score)
-        return GlobalMotion(rotation, True, "", yaw_ratio, used, score)
+                                f"and fewer than {c.min_sectors} clear sectors", yaw_ratio, 0, score), start_score
+        return GlobalMotion(rotation, True, "", yaw_ratio, used, score), start_score

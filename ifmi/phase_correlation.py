@@ -32,6 +32,9 @@ _POWER_FLOOR = 1e-12
 # Half size of the square around the main peak that is excluded when looking
 # for the second-highest peak (pixels); covers the main lobe of a windowed peak.
 _PEAK_EXCLUSION = 2
+# Row and column offsets of a peak's four neighbours: (row -1, row +1, col -1, col +1).
+_NEIGHBOUR_ROWS = (-1, 1, 0, 0)
+_NEIGHBOUR_COLS = (0, 0, -1, 1)
 
 
 def hann_window(shape: tuple[int, int]) -> np.ndarray:
@@ -122,18 +125,15 @@ def find_peaks(surface: np.ndarray) -> Peaks:
     r, c = np.divmod(arg, w)
     tiles = np.arange(t)
     value = flat[tiles, arg]
-
-    def neighbours(dr, dc):
-        return surface[tiles, (r + dr) % h, (c + dc) % w]
-
-    def vertex(minus, centre, plus):
-        denom = minus - 2.0 * centre + plus
-        safe = np.where(np.abs(denom) > 1e-12, denom, -1.0)
-        return np.clip(np.where(np.abs(denom) > 1e-12, 0.5 * (minus - plus) / safe, 0.0), -0.5, 0.5)
-
-    sub_r = vertex(neighbours(-1, 0), value, neighbours(1, 0))
-    sub_c = vertex(neighbours(0, -1), value, neighbours(0, 1))
-    shift = np.stack([_wrap(r, h) + sub_r, _wrap(c, w) + sub_c], axis=1)
+    # The four neighbours (row -1, row +1, col -1, col +1) of every peak in one gather; then the
+    # vertex of the parabola through each axis' three values, both axes at once.
+    near = surface[tiles[:, None], (r[:, None] + _NEIGHBOUR_ROWS) % h, (c[:, None] + _NEIGHBOUR_COLS) % w]
+    minus, plus = near[:, 0::2], near[:, 1::2]  # (T, 2): (row, col)
+    denom = minus - 2.0 * value[:, None] + plus
+    curved = np.abs(denom) > 1e-12
+    sub = np.where(curved, 0.5 * (minus - plus) / np.where(curved, denom, -1.0), 0.0)
+    sub = np.minimum(np.maximum(sub, -0.5), 0.5)
+    shift = np.stack([_wrap(r, h) + sub[:, 0], _wrap(c, w) + sub[:, 1]], axis=1)
 
     mean = flat.mean(axis=1)
     std = np.sqrt(np.maximum(np.einsum("ti,ti->t", flat, flat) / flat.shape[1] - mean * mean, 0.0))

@@ -214,8 +214,8 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     check_config_for_model(config, dataset.model, method=method)
     # The RANSAC threshold is resolved on the calibration's band first, as for any sequence; the
     # band the panorama uses is then decided from several frames (saved with the configuration).
-    config = resolved_config(config, dataset.model)
-    config = replace(config, ifmi=replace(config.ifmi, panorama=_panorama_with_band(dataset, config)))
+    config = _config_with_band(resolved_config(config, dataset.model), dataset.model,
+                               _dataset_band_frames(dataset))
     images = dataset.iter_images(prefetch=prefetch, skip_unreadable=True)
     try:
         estimate = estimate_sequence(images, dataset.model, method=method, config=config,
@@ -230,14 +230,13 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     return replace(estimate, frames=frames)
 
 
-# Frames, spread evenly over a dataset, that decide the mirror band together.
+# Frames, spread evenly over a dataset or a video, that decide the mirror band together.
 _BAND_FRAMES = 5
 
 
-def _panorama_with_band(dataset, config: EstimateConfig):
-    """The panorama options with the band decided from up to ``_BAND_FRAMES`` readable frames."""
+def _dataset_band_frames(dataset) -> list:
+    """Up to ``_BAND_FRAMES`` readable frames spread evenly over a dataset."""
     from .io.dataset import read_image
-    from .unwarp import panorama_config_with_band
 
     paths = dataset.image_paths
     index = np.unique(np.linspace(0, len(paths) - 1, min(_BAND_FRAMES, len(paths))).round().astype(int))
@@ -247,7 +246,15 @@ def _panorama_with_band(dataset, config: EstimateConfig):
             frames.append(read_image(paths[k], size=dataset.model.size))
         except InputError:
             continue  # an unreadable frame is flagged when the sequence reaches it
-    return panorama_config_with_band(dataset.model, frames, config=config.ifmi.panorama)
+    return frames
+
+
+def _config_with_band(config: EstimateConfig, model, frames) -> EstimateConfig:
+    """``config`` with the panorama's band decided from ``frames`` together (saved with the run)."""
+    from .unwarp import panorama_config_with_band
+
+    panorama = panorama_config_with_band(model, frames, config=config.ifmi.panorama)
+    return replace(config, ifmi=replace(config.ifmi, panorama=panorama))
 
 
 def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike, *, method: str,
@@ -255,7 +262,11 @@ def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike,
     """Estimate a video file's frames (decoded in order by OpenCV) with one calibration.
 
     The trajectory's timestamps are the frames' presentation times from the
-    container, in seconds (:class:`ifmi.io.video.VideoFrames`).
+    container, in seconds (:class:`ifmi.io.video.VideoFrames`). As for a
+    dataset folder, the mirror band is decided from up to five frames
+    spread over the clip (:meth:`ifmi.io.video.VideoFrames.spread_frames`),
+    so a dark object in the first frame does not narrow it; the result's
+    ``config`` holds the radii.
 
     Raises
     ------
@@ -270,6 +281,12 @@ def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike,
     model = read_camera(Path(calib_path))  # calib_results.txt or a Kalibr camera.yaml
     frames = VideoFrames(video_path, size=model.size)
     try:
+        # The RANSAC threshold is resolved on the calibration's band, then the band is decided
+        # (no frames decoded for it when both radii are given).
+        panorama = config.ifmi.panorama
+        given = panorama.radius_min_px is not None and panorama.radius_max_px is not None
+        config = _config_with_band(resolved_config(config, model), model,
+                                   [] if given else frames.spread_frames(_BAND_FRAMES))
         estimate = estimate_sequence(frames, model, method=method, config=config, progress=progress,
                                      total=len(frames) or None)
     except CalibrationFitError as exc:

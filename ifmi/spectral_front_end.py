@@ -235,7 +235,7 @@ class IfmiFrontEnd:
         self.engine: FourierMellin | None = None
         self.global_stage: GlobalMotionEstimator | None = None
         self.dense_layout: TileLayout | None = None
-        self.dense_engine: FourierMellin | None = None
+        self._dense_engine: FourierMellin | None = None  # built on the first dense retry
         self._points_b: np.ndarray | None = None
         self._padded_maps: tuple = ()
 
@@ -256,11 +256,17 @@ class IfmiFrontEnd:
         if self.config.dense_retry_fraction > 0 and self.config.use_prior:
             self.dense_layout = tile_layout((self.mapping.height, self.mapping.width),
                                             config=replace(self.config.tiling, overlap=self.config.dense_overlap))
-            self.dense_engine = FourierMellin(self.dense_layout.tile_size, self.dense_layout.count,
-                                              config=self.config.registration)
         self._points_b = flow_sample_points(self.layout.tile_size,
                                             points_per_tile=self.config.points_per_tile,
                                             spread=self.config.point_spread)
+
+    @property
+    def dense_engine(self) -> FourierMellin:
+        """Registration engine of the denser layout (built on first use: most sequences never retry)."""
+        if self._dense_engine is None:
+            self._dense_engine = FourierMellin(self.dense_layout.tile_size, self.dense_layout.count,
+                                               config=self.config.registration)
+        return self._dense_engine
 
     def _check_tiles_fit(self) -> None:
         """Raise :class:`~ifmi.errors.CalibrationFitError` when a tile is larger than the panorama."""
@@ -650,7 +656,7 @@ class IfmiFrontEnd:
             offsets_a, linear_a, placed, rotation = match
             curvature_a = state_a.reference_curvature
             valid = placed.valid
-            if self.dense_engine is not None and valid.sum() <= self.config.dense_retry_fraction * self.layout.count:
+            if self.dense_layout is not None and valid.sum() <= self.config.dense_retry_fraction * self.layout.count:
                 dense = self.register_dense(state_a, state_b, prior_rotation=rotation)
                 diagnostics = {**diagnostics, "n_tiles_kept_dense": int(dense[2].valid.sum())}
                 if dense[2].valid.sum() > valid.sum():

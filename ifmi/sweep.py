@@ -36,6 +36,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable, Sequence
 
+from .dataset_names import dataset_folder_id, dataset_labels, resolved_folder
 from .errors import InputError, OutputError
 from .io.atomic import atomic_write_json
 
@@ -55,7 +56,7 @@ __all__ = [
     "dataset_labels",
 ]
 
-# Hex digits of the digests that identify a dataset folder and its content.
+# Hex digits of the digest that identifies a dataset's content.
 _ID_DIGITS = 12
 # Allocations up to this size stay on the heap in local-cluster workers (see run_sweep).
 _WORKER_MMAP_THRESHOLD_BYTES = 64 * 2**20
@@ -108,11 +109,8 @@ class SweepCell:
     @property
     def cell_id(self) -> str:
         """File-name-safe identifier, unique per dataset folder (resolved path), method and tiling."""
-        folder = str(Path(self.dataset).resolve())
-        where = hashlib.sha256(folder.encode("utf-8")).hexdigest()[:_ID_DIGITS]
-        raw = (f"{Path(folder).name}-{where}__{self.method}__tile{self.tile_size:g}"
-               f"__overlap{self.overlap:g}")
-        return re.sub(r"[^A-Za-z0-9_.=-]", "_", raw)
+        raw = f"{self.method}__tile{self.tile_size:g}__overlap{self.overlap:g}"
+        return f"{dataset_folder_id(self.dataset)}__{re.sub(r'[^A-Za-z0-9_.=-]', '_', raw)}"
 
 
 @dataclass(frozen=True)
@@ -149,31 +147,11 @@ class SweepOptions:
             raise ValueError(f"expected connect_timeout_s > 0, got {self.connect_timeout_s}")
 
 
-def dataset_labels(datasets: Sequence[str]) -> dict[str, str]:
-    """Distinct display names of dataset folders: the folder name, with parents where needed.
-
-    Two folders of one name (``a/office``, ``b/office``) are told apart by
-    as many parent folders as it takes (``a/office``, ``b/office``).
-
-    Returns
-    -------
-    dict
-        Resolved folder (str) -> label.
-    """
-    folders = list(dict.fromkeys(str(Path(d).resolve()) for d in datasets))
-    depth = 1
-    while True:
-        labels = {f: "/".join(Path(f).parts[-depth:]) for f in folders}
-        if len(set(labels.values())) == len(folders) or depth > max(len(Path(f).parts) for f in folders):
-            return labels
-        depth += 1
-
-
 def sweep_cells(datasets: Sequence[str], *, method: str, tile_sizes: Sequence[float],
                 overlaps: Sequence[float]) -> list[SweepCell]:
     """All cells of the grid, dataset-major; datasets labelled distinctly (:func:`dataset_labels`)."""
     labels = dataset_labels([str(d) for d in datasets])
-    return [SweepCell(str(d), method, float(t), float(o), label=labels[str(Path(d).resolve())])
+    return [SweepCell(str(d), method, float(t), float(o), label=labels[resolved_folder(d)])
             for d in datasets for t in tile_sizes for o in overlaps]
 
 
@@ -279,7 +257,7 @@ def run_cell(cell: SweepCell, *, out_dir: str, base_config: dict) -> dict:
     """
     out = Path(out_dir)
     record = {"cell_id": cell.cell_id, "dataset": cell.dataset_name,
-              "dataset_path": str(Path(cell.dataset).resolve()),
+              "dataset_path": resolved_folder(cell.dataset),
               "dataset_digest": dataset_digest(cell.dataset),
               "method": cell.method, "tile_size": cell.tile_size, "overlap": cell.overlap,
               "config_digest": config_digest(base_config)}

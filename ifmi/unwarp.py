@@ -211,18 +211,22 @@ def _monotonic_radius(model: OcamModel, limit: float) -> float:
     return float(r[int(np.argmin(grows))])
 
 
-def _ring_lit_fractions(model: OcamModel, image: np.ndarray, radii: np.ndarray,
+def _ring_maps(model: OcamModel, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Remap maps ``(cols, rows)`` float32 of ``_PROFILE_AZIMUTHS`` points on each sensor ring of ``radii``."""
+    phi = np.linspace(0.0, 2 * np.pi, _PROFILE_AZIMUTHS, endpoint=False)
+    sensor = np.stack([radii[:, None] * np.cos(phi)[None], radii[:, None] * np.sin(phi)[None]], axis=-1)
+    pixels = pixels_from_sensor(model, sensor).astype(np.float32)
+    return np.ascontiguousarray(pixels[..., 1]), np.ascontiguousarray(pixels[..., 0])
+
+
+def _ring_lit_fractions(ring_maps: tuple[np.ndarray, np.ndarray], image: np.ndarray,
                         dark_level: float) -> np.ndarray:
-    """Fraction of each ring's pixels brighter than ``dark_level`` (median-filtered image)."""
+    """Fraction of each ring's pixels (:func:`_ring_maps`) brighter than ``dark_level`` (median-filtered image)."""
     # Median filtering removes isolated noisy pixels (sensor noise in the black regions,
     # JPEG ringing) before rings are judged; the band's edges move by less than a pixel.
     gray = cv2.medianBlur(np.clip(gray_from_image(image), 0, 255).astype(np.uint8),
                           _NOISE_MEDIAN_PX).astype(np.float32)
-    phi = np.linspace(0.0, 2 * np.pi, _PROFILE_AZIMUTHS, endpoint=False)
-    sensor = np.stack([radii[:, None] * np.cos(phi)[None], radii[:, None] * np.sin(phi)[None]], axis=-1)
-    pixels = pixels_from_sensor(model, sensor).astype(np.float32)
-    rows, cols = np.ascontiguousarray(pixels[..., 0]), np.ascontiguousarray(pixels[..., 1])
-    ring = cv2.remap(gray, cols, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    ring = cv2.remap(gray, *ring_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     return (ring > dark_level).mean(axis=1)
 
 
@@ -258,13 +262,17 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
     (float, float)
         Inner and outer sensor radius, pixels.
     """
+    if config.radius_min_px is not None and config.radius_max_px is not None:
+        # Both radii given: nothing to detect or derive.
+        return _checked_band(float(config.radius_min_px), float(config.radius_max_px))
     outer = _monotonic_radius(model, _inscribed_radius(model))
     calib_inner = config.min_radius_fraction * outer
     inner = 0.0
     images = ([] if image is None else [image]) + list(frames)
     if images:
         radii = np.linspace(0.0, outer, _PROFILE_RADII)
-        lit_fraction = np.median([_ring_lit_fractions(model, im, radii, config.dark_level) for im in images],
+        ring_maps = _ring_maps(model, radii)
+        lit_fraction = np.median([_ring_lit_fractions(ring_maps, im, config.dark_level) for im in images],
                                  axis=0)
         detected = _band_from_lit_rings(lit_fraction >= config.rim_lit_fraction, radii, config.margin_px)
         if detected is None or detected[1] - max(detected[0], calib_inner) < \
@@ -278,6 +286,10 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
         inner = float(config.radius_min_px)
     if config.radius_max_px is not None:
         outer = float(config.radius_max_px)
+    return _checked_band(inner, outer)
+
+
+def _checked_band(inner: float, outer: float) -> tuple[float, float]:
     if not 0 <= inner < outer:
         raise ValueError(f"empty radius band: inner {inner:.1f} px >= outer {outer:.1f} px")
     return inner, outer
@@ -437,7 +449,7 @@ def panorama_image_from_omni_image(mapping: PanoramaMapping, image: np.ndarray, 
     if gray.shape != mapping.model.size:
         raise ValueError(f"expected an image of size {mapping.model.size}, got {gray.shape}")
     if gray.dtype != np.uint8:
-        gray = gray.astype(np.float32)
+        gray = gray.astype(np.float32, copy=False)
     map1, map2 = maps or mapping.fixed_maps or (mapping.map_cols, mapping.map_rows)
     pano = cv2.remap(gray, map1, map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return pano.astype(np.float32, copy=False)

@@ -7,6 +7,7 @@ import signal
 import sys
 import threading
 
+from ifmi.cli.warning_lines import input_warnings_as_lines
 from ifmi.errors import InputError, OutputError
 
 # Everything heavier (numpy, the scene settings, Mitsuba) is imported inside main(),
@@ -200,7 +201,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         command = args.command
-        return COMMANDS[command](args)
+        with input_warnings_as_lines(lambda: f"omnisim {command}"):
+            return COMMANDS[command](args)
     except BaseException as exc:
         status = _exit_status(exc, interrupted=flag.seen, command=command)
         if status is None:

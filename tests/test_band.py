@@ -84,6 +84,16 @@ def test_a_clean_band_gives_no_warning():
         _check(radius_band(MODEL, _frame(0), config=CONFIG))
 
 
+def test_given_radii_are_the_band_without_detection_or_warning():
+    # Both radii fixed (e.g. decided from several frames): the frame is not judged again, so an
+    # all-dark frame neither warns nor moves the band.
+    fixed = PanoramaConfig(min_radius_fraction=0.0, radius_min_px=42.5, radius_max_px=97.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert radius_band(MODEL, np.zeros(MODEL.size, np.uint8), config=fixed) == (42.5, 97.0)
+        assert radius_band(MODEL, _frame(0), config=fixed, frames=[_frame(1)]) == (42.5, 97.0)
+
+
 def test_band_options_are_checked():
     with pytest.raises(ValueError, match="rim_lit_fraction"):
         PanoramaConfig(rim_lit_fraction=1.5)

@@ -65,6 +65,27 @@ def test_a_wrong_prediction_is_corrected_and_a_good_one_kept(scene):
     assert np.array_equal(kept.rotation, near) and kept.n_sectors == 0
 
 
+def test_a_start_equal_to_one_searched_is_not_searched_again(scene, monkeypatch):
+    # The first pair of a sequence predicts the identity, which is also the re-acquisition start:
+    # one search gives the result of searching from both.
+    texture, mapping = scene
+    estimator = GlobalMotionEstimator(mapping)
+    truth = _rotation(-40.0, 6.0, 70.0)
+    a = _coarse(texture, mapping, estimator, np.eye(3))
+    b = _coarse(texture, mapping, estimator, truth)
+    alone = estimator.estimate(a, b)
+    searches = []
+    original = GlobalMotionEstimator._search
+    monkeypatch.setattr(GlobalMotionEstimator, "_search",
+                        lambda self, *args: searches.append(1) or original(self, *args))
+    both = estimator.estimate(a, b, priors=(np.eye(3), None))
+    assert len(searches) == 1 and np.array_equal(both.rotation, alone.rotation)
+    assert np.degrees(geodesic_angle(truth, both.rotation)) < 1.0
+    # A different second start is searched: the first moved the identity by more than 0.1 rad.
+    estimator.estimate(a, b, priors=(np.eye(3), truth))
+    assert len(searches) == 3
+
+
 def test_kabsch_fit_is_exact_on_exact_rays():
     rng = np.random.default_rng(3)
     rays_b = rng.normal(size=(10, 3))

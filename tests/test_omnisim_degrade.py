@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import cv2
 import numpy as np
@@ -116,3 +117,14 @@ def test_each_out_of_range_setting_is_named(field, value):
 def test_negative_seed_is_refused(source, tmp_path):
     with pytest.raises(InputError, match="seed"):
         degrade_dataset(source, tmp_path / "x", effects=EffectsSettings(), seed=-1, progress=False)
+
+
+def test_skipped_file_in_the_source_is_one_warning_line(source, tmp_path, capsys):
+    copy = tmp_path / "copy"
+    shutil.copytree(source, copy)
+    (copy / "images" / "Thumbs.db").write_bytes(b"\0")
+    assert omnisim_main(["degrade", str(copy), "--out", str(tmp_path / "out"),
+                         "--noise-sigma", "1", "--no-progress"]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("omnisim degrade: warning: ") and "Thumbs.db" in lines[0]

@@ -91,3 +91,90 @@ def test_video_panorama_smaller_than_a_tile_names_the_calibration(video, tmp_pat
     assert code == 2 and len(err.strip().splitlines()) == 1 and not out.exists()
     assert f"{root / 'calib_results.txt'}: the 160x160 px image gives a " in err
     assert "smaller than the 128 px tile; expected a panorama at least 128x128 px" in err
+
+
+def _indices_of(decoded, images):
+    """Index of the source image closest to each decoded frame (MJPG is lossy)."""
+    return [int(np.argmin([np.abs(d.astype(float) - im.astype(float)).mean() for im in images]))
+            for d in decoded]
+
+
+@pytest.fixture(scope="module")
+def shaded_clip(tmp_path_factory):
+    """Nine frames; in the first, a dark object covers the outer part of the ring at almost every azimuth."""
+    root = tmp_path_factory.mktemp("shaded")
+    sequence = synthetic_sequence(MODEL, 9, seed=7, max_step_rad=0.04, band_px=BAND)
+    rows, cols = np.mgrid[0:SIZE, 0:SIZE]
+    radius = np.hypot(rows - MODEL.center[0], cols - MODEL.center[1])
+    azimuth = np.arctan2(cols - MODEL.center[1], rows - MODEL.center[0])
+    first = sequence.images[0].copy()
+    first[(radius > 45.0) & (np.abs(azimuth) < np.radians(170))] = 2
+    images = (first,) + sequence.images[1:]
+    _write_video(root / "clip.avi", images)
+    write_calib(root / "calib_results.txt", MODEL)
+    return root, images
+
+
+# Imaged band of the shaded clip's frames (sensor radius, pixels).
+BAND = (16.0, 75.0)
+
+
+def test_spread_frames_come_from_the_whole_clip(shaded_clip):
+    root, images = shaded_clip
+    video = VideoFrames(root / "clip.avi", size=MODEL.size)
+    assert _indices_of(video.spread_frames(5), images) == [0, 2, 4, 6, 8]
+    assert _indices_of(video.spread_frames(20), images) == list(range(9))
+    # A container that declares no frame count: one decoding pass keeping at most 2 x 2 frames.
+    video.frame_count = 0
+    assert _indices_of(video.spread_frames(2), images) == [0, 8]
+    assert _indices_of(video.spread_frames(3), images) == [0, 4, 8]
+    assert video.timestamps == []
+    with pytest.raises(ValueError, match="expected count >= 1, got 0"):
+        video.spread_frames(0)
+
+
+def test_spread_frames_of_a_broken_video_name_the_file(shaded_clip, tmp_path):
+    root, _ = shaded_clip
+    garbage = tmp_path / "garbage.avi"
+    garbage.write_bytes(b"not a video at all")
+    with pytest.raises(InputError, match="garbage.avi"):
+        VideoFrames(garbage).spread_frames(5)
+    with pytest.raises(InputError, match="calibration names 100x100"):
+        VideoFrames(root / "clip.avi", size=(100, 100)).spread_frames(5)
+
+
+def test_a_dark_first_frame_does_not_narrow_a_videos_band(shaded_clip, tmp_path):
+    from ifmi.pipeline import EstimateConfig, estimate_video
+    from ifmi.unwarp import radius_band
+
+    root, images = shaded_clip
+    config = EstimateConfig()
+    panorama = config.ifmi.panorama
+    alone = radius_band(MODEL, images[0], config=panorama)
+    clean = radius_band(MODEL, images[1], config=panorama, frames=images[2:])
+    assert alone[1] < 46.0 and clean[1] > BAND[1] - 5.0  # the first frame alone would cut the band
+    estimate = estimate_video(root / "clip.avi", root / "calib_results.txt", method="ifmi", config=config)
+    band = (estimate.config.ifmi.panorama.radius_min_px, estimate.config.ifmi.panorama.radius_max_px)
+    # Judged on frames decoded through MJPG: measured 0.1 and 0.3 px (about one ring step of the
+    # band profile) from the band of the uncompressed frames.
+    assert band == pytest.approx(clean, abs=1.0)
+    assert all(r.success for r in estimate.frames)
+
+
+def test_given_band_radii_decode_no_band_frames(shaded_clip, monkeypatch):
+    from dataclasses import replace
+
+    from ifmi.pipeline import EstimateConfig, estimate_video
+
+    root, _ = shaded_clip
+
+    def refuse(self, count):
+        raise AssertionError("band frames decoded although both radii are given")
+
+    monkeypatch.setattr(VideoFrames, "spread_frames", refuse)
+    base = EstimateConfig()
+    config = replace(base, ifmi=replace(base.ifmi, panorama=replace(base.ifmi.panorama, radius_min_px=22.0,
+                                                                    radius_max_px=73.0)))
+    estimate = estimate_video(root / "clip.avi", root / "calib_results.txt", method="ifmi", config=config)
+    panorama = estimate.config.ifmi.panorama
+    assert (panorama.radius_min_px, panorama.radius_max_px) == (22.0, 73.0)

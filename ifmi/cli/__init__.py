@@ -10,9 +10,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-import warnings
 
-from ..errors import InputError, InputWarning, OutputError
+from ..errors import InputError, OutputError
+from .warning_lines import input_warnings_as_lines
 
 __all__ = ["main"]
 
@@ -51,16 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
 
-    def show_warning(message, category, filename, lineno, file=None, line=None):
-        if issubclass(category, InputWarning):
-            print(f"ifmi {args.command}: warning: {message}", file=sys.stderr)
-        else:
-            default_show(message, category, filename, lineno, file, line)
-
-    with warnings.catch_warnings():
-        default_show = warnings.showwarning
-        warnings.showwarning = show_warning
-        warnings.simplefilter("always", InputWarning)
+    with input_warnings_as_lines(lambda: f"ifmi {args.command}"):
         try:
             return int(args.func(args) or 0)
         except InputError as exc:

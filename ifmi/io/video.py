@@ -3,8 +3,11 @@
 A phone filming through a clip-on omni lens gives a video, not an image
 folder. :class:`VideoFrames` yields its frames one by one (8-bit gray, or
 RGB) as OpenCV's ``VideoCapture`` decodes them, and records each frame's
-presentation time (``CAP_PROP_POS_MSEC``) in seconds. Problems raise
-:class:`~ifmi.errors.InputError` naming the file.
+presentation time (``CAP_PROP_POS_MSEC``) in seconds.
+:meth:`VideoFrames.spread_frames` gives a few frames spread over the whole
+clip (by seeking, or by one decoding pass that keeps a bounded number of
+frames), e.g. to decide the mirror band from more than the first frame.
+Problems raise :class:`~ifmi.errors.InputError` naming the file.
 """
 
 from __future__ import annotations
@@ -106,3 +109,78 @@ class VideoFrames:
                 raise InputError(self.path, "no frames could be decoded")
         finally:
             capture.release()
+
+    def spread_frames(self, count: int) -> list[np.ndarray]:
+        """Up to ``count`` frames spread evenly over the clip, from its first frame to its end.
+
+        With a declared frame count, each frame is read by seeking to it
+        (the first and the last frame included).
+        When the container declares none, or a seek yields no frame (a
+        count larger than the frames that decode), one decoding pass keeps
+        every ``s``-th frame, doubling ``s`` whenever more than ``2 count``
+        are kept, so memory stays bounded whatever the clip's length; the
+        ``count`` returned are spread over those kept (the last of them
+        less than ``s`` frames from the end). Does not touch
+        :attr:`timestamps`.
+
+        Parameters
+        ----------
+        count : int
+            Number of frames wanted, >= 1.
+
+        Returns
+        -------
+        list of (H, W) or (H, W, 3) uint8 ndarray
+            In clip order; fewer than ``count`` when the clip is shorter.
+
+        Raises
+        ------
+        InputError
+            No frame decodes, or a frame's size differs from ``size``.
+        """
+        if count < 1:
+            raise ValueError(f"expected count >= 1, got {count}")
+        if self.frame_count > 0:
+            wanted = np.unique(np.linspace(0, self.frame_count - 1, min(count, self.frame_count)).round())
+            frames = self._frames_by_seeking([int(k) for k in wanted])
+            if frames is not None:
+                return frames
+        return self._frames_by_one_pass(count)
+
+    def _frames_by_seeking(self, indices: list[int]) -> list[np.ndarray] | None:
+        """The frames at ``indices``, each read after a seek; None when a seek yields no frame."""
+        capture = self._open()
+        try:
+            frames = []
+            for index in indices:
+                capture.set(cv2.CAP_PROP_POS_FRAMES, index)
+                ok, frame = capture.read()
+                if not ok:
+                    return None
+                frames.append(self._converted(frame, index))
+            return frames
+        finally:
+            capture.release()
+
+    def _frames_by_one_pass(self, count: int) -> list[np.ndarray]:
+        """``count`` frames spread over the clip, from one decoding pass with bounded memory."""
+        capture = self._open()
+        kept: list[tuple[int, np.ndarray]] = []
+        stride = 1
+        try:
+            index = 0
+            while capture.grab():
+                if index % stride == 0:
+                    ok, frame = capture.retrieve()
+                    if ok:
+                        kept.append((index, self._converted(frame, index)))
+                    if len(kept) > 2 * count:
+                        stride *= 2
+                        kept = [(k, f) for k, f in kept if k % stride == 0]
+                index += 1
+        finally:
+            capture.release()
+        if not kept:
+            raise InputError(self.path, "no frames could be decoded")
+        chosen = np.unique(np.linspace(0, len(kept) - 1, min(count, len(kept))).round().astype(int))
+        return [kept[k][1] for k in chosen]

@@ -1,0 +1,143 @@
+"""iFMI with its default options against variants: accuracy and compute per frame, in one process.
+
+Measures what one option costs or buys, e.g. the dense retry
+(``dense_retry_fraction=0`` turns it off) or the coarse stage
+(``coarse_to_fine=false``)::
+
+    python benchmarks/bench_ifmi_options.py /work/data/sets36/office_trans_x10 \
+        --variant no_retry:dense_retry_fraction=0 --rounds 5 --out out/bench_ifmi_options
+
+A variant is ``NAME:KEY=VALUE[,KEY=VALUE...]`` with keys of the ``ifmi``
+section of the configuration (dotted for nested ones,
+``global_motion.iterations=1``) and JSON values. Every configuration runs
+through the same odometry and back end as ``ifmi estimate``.
+
+Accuracy comes from one full run per configuration and dataset, written and
+evaluated as in ``benchmarks/bench_methods.py`` (geodesic ATE RMSE, failed
+frames). Compute per frame is measured with the frames decoded into memory
+beforehand, in ``--rounds`` rounds, the configurations taking turns within
+each round so that load from other processes hits all alike; the median
+over the rounds is used, as wall time and as this thread's CPU time (the
+CPU time is steadier on a loaded machine). Printed per dataset and
+variant: the ATE of default and variant, how many frames ran the dense
+retry, and the variant's compute over the default's (1.25 = 25 % more).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from bench_methods import mode_config, run_method
+from ifmi.io.calib import read_calib
+from ifmi.io.dataset import read_dataset
+from ifmi.pipeline import EstimateConfig, estimate_sequence, resolved_config
+from ifmi.spectral_front_end import IfmiConfig
+
+
+def parse_variant(text: str) -> tuple[str, dict]:
+    """``NAME:KEY=VALUE,...`` -> (name, {dotted key: JSON value})."""
+    name, sep, assignments = text.partition(":")
+    if not sep or not name or not assignments:
+        raise argparse.ArgumentTypeError(f"expected NAME:KEY=VALUE[,KEY=VALUE...], got {text!r}")
+    changes = {}
+    for item in assignments.split(","):
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise argparse.ArgumentTypeError(f"expected KEY=VALUE in {text!r}, got {item!r}")
+        try:
+            changes[key.strip()] = json.loads(value)
+        except json.JSONDecodeError:
+            raise argparse.ArgumentTypeError(f"expected a JSON value for {key!r}, got {value!r}") from None
+    return name, changes
+
+
+def ifmi_variant(config: IfmiConfig, changes: dict) -> IfmiConfig:
+    """``config`` with dotted-key ``changes``, type-checked like a configuration file."""
+    data = config.to_dict()
+    for key, value in changes.items():
+        node = data
+        *parents, leaf = key.split(".")
+        for part in parents:
+            if not isinstance(node.get(part), dict):
+                raise ValueError(f"ifmi.{key}: {part!r} is not a section of the ifmi options")
+            node = node[part]
+        node[leaf] = value
+    return IfmiConfig.from_dict(data)
+
+
+def compute_times(dataset: str, configs: dict, *, rounds: int) -> tuple[dict, dict]:
+    """Median (wall, thread-CPU) seconds per frame of each configuration, frames in memory, interleaved;
+    and the number of frames that ran the dense retry."""
+    data = read_dataset(dataset)
+    frames = list(data.iter_images(skip_unreadable=True))
+    wall = {name: [] for name in configs}
+    cpu = {name: [] for name in configs}
+    retries = {}
+    for _ in range(rounds):
+        for name, config in configs.items():
+            start, start_cpu = time.perf_counter(), time.thread_time()
+            estimate = estimate_sequence(frames, data.model, method="ifmi", config=config)
+            wall[name].append((time.perf_counter() - start) / len(frames))
+            cpu[name].append((time.thread_time() - start_cpu) / len(frames))
+            retries[name] = sum("n_tiles_kept_dense" in record.diagnostics for record in estimate.frames)
+    medians = {name: (float(np.median(wall[name])), float(np.median(cpu[name]))) for name in configs}
+    return medians, retries
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("datasets", nargs="+")
+    parser.add_argument("--variant", type=parse_variant, action="append", required=True,
+                        help="NAME:KEY=VALUE[,KEY=VALUE...] (keys of the ifmi options); repeatable")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--out", default="out/bench_ifmi_options")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    rows = []
+    print("ATE: geodesic RMSE (rad); retry: frames that ran the dense retry; ms: thread CPU per frame, "
+          "frames in memory; ratios: variant / default (wall, CPU)")
+    print(f"{'dataset':<18}{'variant':<14}{'ATE default':>12}{'ATE variant':>12}{'retry':>7}{'retry var':>10}"
+          f"{'ms default':>11}{'ms variant':>11}{'wall v/d':>9}{'cpu v/d':>8}")
+    for dataset in args.datasets:
+        model = read_calib(Path(dataset) / "calib_results.txt")
+        base = resolved_config(mode_config(EstimateConfig(), "frame"), model)
+        configs = {"default": base}
+        for name, changes in args.variant:
+            try:
+                configs[name] = replace(base, ifmi=ifmi_variant(base.ifmi, changes))
+            except ValueError as exc:  # an unknown key or a bad value, named by its key path
+                parser.error(f"--variant {name}: {exc}")
+        accuracy = {name: run_method(dataset, "ifmi", "frame", config, out / name)
+                    for name, config in configs.items()}
+        times, retries = compute_times(dataset, configs, rounds=max(1, args.rounds))
+        for name in list(configs)[1:]:
+            ratio_wall = times[name][0] / times["default"][0]
+            ratio_cpu = times[name][1] / times["default"][1]
+            print(f"{Path(dataset).name:<18}{name:<14}{accuracy['default']['geodesic_rmse']:>12.5f}"
+                  f"{accuracy[name]['geodesic_rmse']:>12.5f}{retries['default']:>7}{retries[name]:>10}"
+                  f"{times['default'][1] * 1e3:>11.2f}{times[name][1] * 1e3:>11.2f}{ratio_wall:>9.3f}"
+                  f"{ratio_cpu:>8.3f}")
+            rows.append({"dataset": Path(dataset).name, "variant": name, "changes": dict(args.variant)[name],
+                         "ate_default": accuracy["default"]["geodesic_rmse"],
+                         "ate_variant": accuracy[name]["geodesic_rmse"],
+                         "failures_default": accuracy["default"]["failures"],
+                         "failures_variant": accuracy[name]["failures"],
+                         "retry_frames_default": retries["default"], "retry_frames_variant": retries[name],
+                         "wall_default_s": times["default"][0], "wall_variant_s": times[name][0],
+                         "cpu_default_s": times["default"][1], "cpu_variant_s": times[name][1]})
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "bench_ifmi_options.json").write_text(json.dumps({"rows": rows, "rounds": args.rounds,
+                                                             "argv": sys.argv if argv is None else argv},
+                                                            indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

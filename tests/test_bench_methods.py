@@ -1,0 +1,53 @@
+"""The method benchmark (benchmarks/bench_methods.py) keeps datasets of one name apart."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("skimage")
+from ifmi.synthetic import (example_band_px, example_omni_model, synthetic_sequence,  # noqa: E402
+                            write_synthetic_dataset)
+
+BENCHMARK = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_methods.py"
+
+
+def _benchmark_module():
+    spec = importlib.util.spec_from_file_location("bench_methods", BENCHMARK)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _write_dataset(folder, *, seed, max_step_rad):
+    model = example_omni_model(128)
+    sequence = synthetic_sequence(model, 4, seed=seed, max_step_rad=max_step_rad,
+                                  band_px=example_band_px(model))
+    return write_synthetic_dataset(folder, sequence)
+
+
+def test_two_datasets_of_one_name_get_their_own_rows_and_folders(tmp_path, capsys):
+    a = _write_dataset(tmp_path / "site_a" / "office", seed=5, max_step_rad=0.03)
+    b = _write_dataset(tmp_path / "site_b" / "office", seed=6, max_step_rad=0.06)
+    out = tmp_path / "bench"
+    bench = _benchmark_module()
+    # The first folder twice (once through a "..") is measured once.
+    again = a.parent / ".." / "site_a" / "office"
+    assert bench.main([str(a), str(b), str(again), "--methods", "ifmi", "--modes", "frame",
+                       "--timing-rounds", "0", "--out", str(out)]) == 0
+    rows = json.loads((out / "bench_methods.json").read_text())["rows"]
+    assert [r["dataset"] for r in rows] == ["site_a/office", "site_b/office"]
+    assert [r["dataset_path"] for r in rows] == [str(a.resolve()), str(b.resolve())]
+    folders = [out / "frame" / r["dataset_id"] for r in rows]
+    assert folders[0] != folders[1]
+    assert all(f.name.startswith("office-") for f in folders)
+    for folder, dataset in zip(folders, (a, b)):
+        evaluation = json.loads((folder / "ifmi.eval" / "evaluation.json").read_text())
+        assert Path(evaluation["groundtruth_path"]) == (dataset / "groundtruth.txt").resolve()
+    # Each row holds its own dataset's numbers: the second sequence turns twice as fast.
+    assert rows[0]["geodesic_rmse"] != rows[1]["geodesic_rmse"]
+    printed = capsys.readouterr().out
+    assert "site_a/office" in printed and "site_b/office" in printed
