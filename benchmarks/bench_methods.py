@@ -37,8 +37,8 @@ run, the interleaved wall time per frame and the failures, then per mode and
 scene the ratios: iFMI RMSE / the better baseline's (mean of the axes and
 geodesic), iFMI time / ORB time end to end, and iFMI compute time / AKAZE
 compute time with the frames in memory; and last one summary table over
-all sets (geodesic ATE, frame-to-frame geodesic RMSE, failed frames, ms per frame end to end and in
-memory, and those ratios).
+all sets (geodesic ATE, frame-to-frame geodesic RMSE, failed frames, ms
+per frame end to end and in memory, and those ratios).
 """
 
 from __future__ import annotations
