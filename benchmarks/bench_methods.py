@@ -37,8 +37,8 @@ run, the interleaved wall time per frame and the failures, then per mode and
 scene the ratios: iFMI RMSE / the better baseline's (mean of the axes and
 geodesic), iFMI time / ORB time end to end, and iFMI compute time / AKAZE
 compute time with the frames in memory; and last one summary table over
-all sets (geodesic ATE, failed frames, ms per frame end to end and in
-memory, and those ratios).
+all sets (geodesic ATE, frame-to-frame geodesic RMSE, failed frames, ms
+per frame end to end and in memory, and those ratios).
 """
 
 from __future__ import annotations
@@ -107,13 +107,16 @@ def print_summary(rows: list, ratios: dict, key: str) -> None:
     """One line per mode and set: geodesic ATE, failures and times of each method, and the ratios."""
     methods = [m for m in METHODS if any(r["method"] == m for r in rows)]
     width = max([12] + [len(r["dataset"]) + 1 for r in rows])
-    head = "".join(f"{'ATE ' + m:>11}" for m in methods) + "".join(f"{'fail ' + m:>11}" for m in methods)
+    head = "".join(f"{'ATE ' + m:>11}" for m in methods) + "".join(f"{'f2f ' + m:>11}" for m in methods)
+    head += "".join(f"{'fail ' + m:>11}" for m in methods)
     head += "".join(f"{'ms ' + m:>10}" for m in methods) + "".join(f"{'mem ' + m:>11}" for m in methods)
-    print(f"\nsummary (geodesic ATE RMSE in rad; ms per frame end to end ({key}) and with frames in memory)")
+    print(f"\nsummary (geodesic ATE RMSE and frame-to-frame (f2f) geodesic RMSE in rad; ms per frame end to "
+          f"end ({key}) and with frames in memory)")
     print(f"{'mode':<9}{'dataset':<{width}}{head}{'ATE/best':>9}{'e2e/ORB':>9}{'mem/AKAZE':>10}")
     for mode, dataset in dict.fromkeys((r["mode"], r["dataset"]) for r in rows):
         by = {r["method"]: r for r in rows if r["dataset"] == dataset and r["mode"] == mode}
         line = "".join(f"{by[m]['geodesic_rmse']:>11.5f}" if m in by else f"{'-':>11}" for m in methods)
+        line += "".join(f"{by[m]['relative_rmse']:>11.2e}" if m in by else f"{'-':>11}" for m in methods)
         line += "".join(f"{str(by[m]['failures']) + '/' + str(by[m]['frames']):>11}" if m in by else f"{'-':>11}"
                         for m in methods)
         line += "".join(f"{by[m].get(key, float('nan')) * 1e3:>10.1f}" if m in by else f"{'-':>10}"
@@ -145,6 +148,7 @@ def run_method(dataset: str, method: str, mode: str, config: EstimateConfig, out
     return {"mode": mode, "dataset": label, "dataset_path": resolved_folder(dataset),
             "dataset_id": folder.name, "scene": meta["scene"], "method": method,
             "mean_rmse": s["mean_rmse"], "geodesic_rmse": s["geodesic"]["rmse"],
+            "relative_rmse": s["relative_geodesic"]["rmse"],
             "roll": s["axes"]["roll"]["rmse"], "pitch": s["axes"]["pitch"]["rmse"],
             "yaw": s["axes"]["yaw"]["rmse"],
             "median_s": float(np.median(seconds)), "mean_s": float(seconds.mean()),

@@ -120,7 +120,8 @@ def _flow_pairs(pano_a: np.ndarray, pano_b: np.ndarray, mapping: PanoramaMapping
 
 def flow_from_placements(offsets_a: np.ndarray, linear_a: np.ndarray, offsets_b: np.ndarray,
                          linear_b: np.ndarray, valid: np.ndarray, mapping: PanoramaMapping, *,
-                         points: np.ndarray, tile_size: int) -> FlowPairs:
+                         points: np.ndarray, tile_size: int, curvature_a: np.ndarray | None = None,
+                         curvature_b: np.ndarray | None = None) -> FlowPairs:
     """Pixel and ray pairs of tiles placed in both frames.
 
     A tile placed at ``(o, L)`` in a panorama holds the panorama point
@@ -140,6 +141,9 @@ def flow_from_placements(offsets_a: np.ndarray, linear_a: np.ndarray, offsets_b:
     points : (K, 2) ndarray, keyword-only
         Tile ``(row, col)`` points of :func:`flow_sample_points`.
     tile_size : int, keyword-only
+    curvature_a, curvature_b : (T, 2, 2, 2) ndarray, optional, keyword-only
+        Second-order terms ``Q`` of the placements: tile point ``u`` (from the
+        centre) is at ``o + L u + (u^T Q_0 u, u^T Q_1 u)``; default none.
 
     Returns
     -------
@@ -148,10 +152,13 @@ def flow_from_placements(offsets_a: np.ndarray, linear_a: np.ndarray, offsets_b:
     keep = np.flatnonzero(valid)
     u = np.asarray(points, dtype=np.float64) - (tile_size - 1) / 2.0
 
-    def panorama(offsets, linear):
+    def panorama(offsets, linear, curvature):
         offsets = np.asarray(offsets, dtype=np.float64)[keep]
         linear = np.asarray(linear, dtype=np.float64)[keep]
-        return (offsets[:, None, :] + np.einsum("tij,kj->tki", linear, u)).reshape(-1, 2)
+        placed = offsets[:, None, :] + np.einsum("tij,kj->tki", linear, u)
+        if curvature is not None:
+            placed += np.einsum("ki,toij,kj->tko", u, np.asarray(curvature, dtype=np.float64)[keep], u)
+        return placed.reshape(-1, 2)
 
-    return _flow_pairs(panorama(offsets_a, linear_a), panorama(offsets_b, linear_b), mapping,
-                       np.repeat(keep, len(u)))
+    return _flow_pairs(panorama(offsets_a, linear_a, curvature_a), panorama(offsets_b, linear_b, curvature_b),
+                       mapping, np.repeat(keep, len(u)))

@@ -362,12 +362,15 @@ class PlacedTiles:
     linear : (T, 2, 2) ndarray
     spectra : TileSpectra or None
         Their spectra, when already computed.
+    curvature : (T, 2, 2, 2) ndarray or None
+        Second-order part of the placement (see :meth:`FourierMellin.resample_placed`); None is zero.
     """
 
     tiles: np.ndarray | None
     offsets: np.ndarray
     linear: np.ndarray
     spectra: TileSpectra | None
+    curvature: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -540,8 +543,8 @@ class FourierMellin:
         return "linear" if self.config.refine_passes else self.config.resample_interpolation
 
     def resample_placed(self, source: np.ndarray, offsets: np.ndarray, linear: np.ndarray, *,
-                        interpolation: str | None = None) -> np.ndarray:
-        """Tiles ``x(p) = source(o + L (p - c))`` sampled at affine placements (one remap call).
+                        interpolation: str | None = None, curvature: np.ndarray | None = None) -> np.ndarray:
+        """Tiles ``x(p) = source(o + L u + q(u))``, ``u = p - c``, sampled at placements (one remap call).
 
         Parameters
         ----------
@@ -552,6 +555,9 @@ class FourierMellin:
             ``L``: source ``(row, col)`` per tile ``(row, col)`` step.
         interpolation : {"cubic", "lanczos4", "linear"}, optional, keyword-only
             Default: ``config.resample_interpolation``.
+        curvature : (K, 2, 2, 2) ndarray, optional, keyword-only
+            Symmetric matrices ``Q_i`` of the second-order term, ``q(u)_i = u^T Q_i u``
+            for source row (``i = 0``) and column (``i = 1``); default none.
 
         Returns
         -------
@@ -567,6 +573,11 @@ class FourierMellin:
                     + off[:, 0, None, None]).reshape(-1, n)
         map_cols = (lin[:, 1, 0, None, None] * gr + lin[:, 1, 1, None, None] * gc
                     + off[:, 1, None, None]).reshape(-1, n)
+        if curvature is not None:
+            q = np.asarray(curvature, dtype=f32)
+            for out, i in ((map_rows, 0), (map_cols, 1)):
+                out += (q[:, i, 0, 0, None, None] * gr * gr + 2 * q[:, i, 0, 1, None, None] * gr * gc
+                        + q[:, i, 1, 1, None, None] * gc * gc).reshape(-1, n)
         kind = _INTERPOLATIONS[interpolation or self.config.resample_interpolation]
         # One remap call per chunk of fewer than 2^15 rows (OpenCV's limit).
         step = ((_REMAP_MAX_ROWS - 1) // n) * n
@@ -616,7 +627,7 @@ class FourierMellin:
         return d_scale, d_angle, d_shift, spectra
 
     def _refined_placement(self, spectra_a: TileSpectra, source_b: np.ndarray, offsets: np.ndarray,
-                           linear: np.ndarray, *, with_rotation: bool):
+                           linear: np.ndarray, *, with_rotation: bool, curvature: np.ndarray | None = None):
         """``refine_passes`` passes: resample b at the placement, measure the residual, compose.
 
         Returns the final placement and the last resampled tiles with their
@@ -624,10 +635,10 @@ class FourierMellin:
         """
         last = None
         for _ in range(self.config.refine_passes):
-            tiles = self.resample_placed(source_b, offsets, linear)
+            tiles = self.resample_placed(source_b, offsets, linear, curvature=curvature)
             d_scale, d_angle, d_shift, spectra = self._residual_motion(spectra_a, tiles,
                                                                        with_rotation=with_rotation)
-            last = PlacedTiles(tiles=tiles, offsets=offsets, linear=linear, spectra=spectra)
+            last = PlacedTiles(tiles=tiles, offsets=offsets, linear=linear, spectra=spectra, curvature=curvature)
             offsets, linear = compose_placement(offsets, linear, d_scale, d_angle, d_shift)
         return offsets, linear, last
 
@@ -641,7 +652,7 @@ class FourierMellin:
         return reason
 
     def register_placed(self, spectra_a: TileSpectra, source_b: np.ndarray, offsets_b: np.ndarray,
-                        linear_b: np.ndarray) -> "PlacedRegistration":
+                        linear_b: np.ndarray, *, curvature_b: np.ndarray | None = None) -> "PlacedRegistration":
         """Register tiles of b cut at predicted affine placements against tiles a.
 
         Tile b is resampled at its placement (the prediction of where, and how
@@ -659,6 +670,10 @@ class FourierMellin:
             Predicted ``(row, col)`` in ``source_b`` of each tile centre.
         linear_b : (T, 2, 2) ndarray
             Predicted ``L`` of each tile (see :meth:`resample_placed`).
+        curvature_b : (T, 2, 2, 2) ndarray, optional, keyword-only
+            Predicted second-order term of each placement (see :meth:`resample_placed`),
+            kept as it is: only the translation (and, if configured, rotation and scale)
+            is measured.
 
         Returns
         -------
@@ -668,7 +683,8 @@ class FourierMellin:
         offsets_b = np.asarray(offsets_b, dtype=np.float64)
         linear_b = np.asarray(linear_b, dtype=np.float64)
         shape = (self.tile_size, self.tile_size)
-        tiles = self.resample_placed(source_b, offsets_b, linear_b, interpolation=self._search_interpolation)
+        tiles = self.resample_placed(source_b, offsets_b, linear_b, interpolation=self._search_interpolation,
+                                     curvature=curvature_b)
         fb, std_b = self._windowed_fft(tiles)
         fa = spectra_a.spectrum
         peaks = find_peaks(correlation_surface(normalized_cross_power(fa, fb), shape,
@@ -681,16 +697,56 @@ class FourierMellin:
         # Only the tiles the filters kept are refined; the others keep the search placement.
         keep = np.flatnonzero(reason == TileRejection.KEPT)
         last = PlacedTiles(tiles=tiles, offsets=offsets_b.copy(), linear=linear_b.copy(),
-                           spectra=TileSpectra(spectrum=fb, descriptor=None, std=std_b.copy()))
+                           spectra=TileSpectra(spectrum=fb, descriptor=None, std=std_b.copy()),
+                           curvature=curvature_b)
         if self.config.refine_passes and keep.size:
             with_rotation = self.config.estimate_rotation_scale and self.config.refine_predicted_rotation_scale
             kept_offsets, kept_linear, kept_last = self._refined_placement(
-                spectra_a.rows(keep), source_b, offsets[keep], linear[keep], with_rotation=with_rotation)
+                spectra_a.rows(keep), source_b, offsets[keep], linear[keep], with_rotation=with_rotation,
+                curvature=None if curvature_b is None else curvature_b[keep])
             offsets[keep], linear[keep] = kept_offsets, kept_linear
             last = _replace_rows(last, keep, kept_last)
         return PlacedRegistration(offsets=offsets, linear=linear, peak_ratio=peaks.peak_ratio,
                                   peak_to_noise=peaks.peak_to_noise, peak_value=peaks.value,
                                   valid=reason == TileRejection.KEPT, reason=reason, last=last)
+
+    def refine_placed(self, spectra_a: TileSpectra, source_b: np.ndarray, placed: "PlacedRegistration",
+                      linear_b: np.ndarray, *, curvature_b: np.ndarray | None = None) -> "PlacedRegistration":
+        """Re-measure the kept tiles of ``placed`` cut with a new shape: refinement passes only.
+
+        The centres start where ``placed`` found them; the tiles are cut with
+        ``linear_b`` (and ``curvature_b``) instead of the shape they were
+        registered with, and the passes measure the residual as in
+        :meth:`register_placed`. Quality figures and rejections stay those of
+        ``placed``.
+
+        Parameters
+        ----------
+        spectra_a : TileSpectra
+        source_b : (H, W) float32 ndarray
+        placed : PlacedRegistration
+            From :meth:`register_placed` on the same tiles and source.
+        linear_b : (T, 2, 2) ndarray
+        curvature_b : (T, 2, 2, 2) ndarray, optional, keyword-only
+
+        Returns
+        -------
+        PlacedRegistration
+        """
+        keep = np.flatnonzero(placed.valid)
+        offsets, linear = placed.offsets.copy(), np.array(linear_b, dtype=np.float64)
+        last = replace(placed.last, tiles=placed.last.tiles.copy(), offsets=placed.last.offsets.copy(),
+                       linear=placed.last.linear.copy(), curvature=curvature_b,
+                       spectra=replace(placed.last.spectra, spectrum=placed.last.spectra.spectrum.copy(),
+                                       std=placed.last.spectra.std.copy()))
+        if self.config.refine_passes and keep.size:
+            with_rotation = self.config.estimate_rotation_scale and self.config.refine_predicted_rotation_scale
+            kept_offsets, kept_linear, kept_last = self._refined_placement(
+                spectra_a.rows(keep), np.ascontiguousarray(source_b, dtype=np.float32), offsets[keep], linear[keep],
+                with_rotation=with_rotation, curvature=None if curvature_b is None else curvature_b[keep])
+            offsets[keep], linear[keep] = kept_offsets, kept_linear
+            last = _replace_rows(last, keep, kept_last)
+        return replace(placed, offsets=offsets, linear=linear, last=last)
 
     def _search_rotation_scale(self, spectra_a: TileSpectra, spectra_b: TileSpectra, source_b: np.ndarray,
                                origins_b: np.ndarray):

@@ -20,11 +20,19 @@ from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_point
 from .global_motion import GlobalMotionConfig, GlobalMotionEstimator
 from .fourier_mellin import FourierMellin, TileRejection, FourierMellinConfig, PlacedTiles, TileSpectra
 from .errors import CalibrationFitError
+from .relative_pose import rotation_angles, rotation_from_rays
 from .tiling import TileLayout, TilingConfig, tile_layout, tile_size_px, tiles_from_panorama
 from .unwarp import (PanoramaConfig, PanoramaMapping, gray_from_image, panorama_image_from_omni_image,
                      panorama_mapping, panorama_pixels_from_rays, rays_from_panorama_pixels, wrapped_panorama_maps)
 
 __all__ = ["IfmiConfig", "IfmiFrameState", "IfmiFrontEnd"]
+
+# Step (panorama pixels) of the central differences that give a predicted map's curvature: about
+# a quarter of a 64 px tile, where the second-order term matters, and far above rounding.
+_CURVATURE_STEP_PX = 16.0
+# Cauchy reweighting steps of the tiles' own rotation fit (refit passes), and the fewest kept tiles it needs.
+_REFIT_ITERATIONS = 3
+_MIN_REFIT_TILES = 8
 
 
 @dataclass(frozen=True)
@@ -89,6 +97,14 @@ class IfmiConfig:
         placement's error and the resampling blur along the track (the
         tests measure 0.05 against 0.17 px two frames on; 20-frame drift on
         the rendered benchmark, sum of six runs, 227e-5 against 250e-5 rad).
+    curved_placement : bool
+        With a prediction, tile b is cut along the predicted map's second-order
+        term as well as its affine part (the curvature is composed along a
+        tracked tile's frames). The panorama's displacement field of a tilt
+        is sinusoidal in azimuth; under an affine cut the windowed tile
+        measures its mean over the tile, which shrinks a tilt by about
+        ``(2 pi / W)^2 s^2 / 2`` (``s`` the window's spread, a few 1e-4 for
+        64 px tiles at W = 2048). See the README's sharp-image section.
     """
 
     panorama: PanoramaConfig = field(default_factory=PanoramaConfig)
@@ -105,6 +121,10 @@ class IfmiConfig:
     dense_retry_fraction: float = 0.33
     dense_overlap: float = 0.5
     anchor_templates: bool = True
+    curved_placement: bool = True
+    refit_passes: int = 1
+    refit_max_residual_px: float = 0.25
+    min_width_curved: int = 1536
 
     def __post_init__(self) -> None:
         if self.points_per_tile not in (1, 5, 9):
@@ -115,6 +135,9 @@ class IfmiConfig:
         if not 0 <= self.dense_retry_fraction <= 1 or not 0 <= self.dense_overlap < 1:
             raise ValueError(f"expected 0 <= dense_retry_fraction <= 1 and 0 <= dense_overlap < 1, got "
                              f"{self.dense_retry_fraction}, {self.dense_overlap}")
+        if self.refit_passes < 0 or not self.refit_max_residual_px > 0 or self.min_width_curved < 0:
+            raise ValueError(f"expected refit_passes >= 0, refit_max_residual_px > 0 and min_width_curved >= 0, "
+                             f"got {self.refit_passes}, {self.refit_max_residual_px}, {self.min_width_curved}")
         if not self.max_tile_distortion > 1:
             raise ValueError(f"expected max_tile_distortion > 1, got {self.max_tile_distortion}")
 
@@ -130,6 +153,18 @@ class IfmiConfig:
     def to_dict(self) -> dict:
         """Nested dict of plain values (inverse of :meth:`from_dict`)."""
         return asdict(self)
+
+
+def _robust_rotation(rays_a: np.ndarray, rays_b: np.ndarray) -> tuple[np.ndarray, float]:
+    """``R_ab`` with ``rays_a ~ R_ab rays_b`` (Kabsch re-solved with Cauchy weights whose scale is
+    the median residual) and the median residual angle of the last weighting (radians)."""
+    weights = np.ones(len(rays_a))
+    for _ in range(_REFIT_ITERATIONS):
+        rotation = rotation_from_rays(rays_a, rays_b, weights)
+        residual = rotation_angles(rays_a, rays_b, rotation)
+        scale = np.median(residual) + np.finfo(np.float64).tiny
+        weights = 1.0 / (1.0 + (residual / scale) ** 2)
+    return rotation_from_rays(rays_a, rays_b, weights), float(scale)
 
 
 class IfmiFrameState:
@@ -164,6 +199,7 @@ class IfmiFrameState:
         self.tracked: PlacedTiles | None = None
         self.tracked_valid: np.ndarray | None = None
         self.reference: tuple | None = None
+        self.reference_curvature: np.ndarray | None = None
 
     def layout_tiles(self, index: np.ndarray | None = None) -> np.ndarray:
         """Layout tiles ``(K, N, N)`` float32, all or ``index`` (bool mask or indices) of them."""
@@ -263,6 +299,11 @@ class IfmiFrontEnd:
         return IfmiFrameState(padded, self._pad, self.layout, self.engine, coarse)
 
     @property
+    def _curved(self) -> bool:
+        """Curved placements (and refit passes) on this panorama (``IfmiConfig.min_width_curved``)."""
+        return self.config.curved_placement and self.mapping.width >= self.config.min_width_curved
+
+    @property
     def _pad(self) -> int:
         # Columns wrapped onto each side of the panorama: a tile rotated about its centre
         # reaches 0.71 N beyond it, and predicted origins may sit anywhere in [0, width).
@@ -309,6 +350,51 @@ class IfmiFrontEnd:
         jacobian = np.stack([d[:, 0] - d[:, 1], d[:, 2] - d[:, 3]], axis=-1)
         return centre, jacobian @ linear_a
 
+    def predicted_curvature(self, offsets_a: np.ndarray, linear_a: np.ndarray, curvature_a: np.ndarray | None,
+                            prior_rotation: np.ndarray) -> np.ndarray:
+        """Second-order term in frame b of tiles placed at ``(offsets_a, linear_a, curvature_a)`` in a.
+
+        With ``f`` the panorama map from frame a to b under ``R_ab`` and a tile
+        point ``u`` placed at ``o + L u + q_a(u)`` in a, its place in b is, to
+        second order, ``f(o) + J L u + J q_a(u) + (L u)^T H (L u) / 2``, so
+        ``Q_b,i = sum_k J_ik Q_a,k + L^T H_i L / 2``. ``J`` and the Hessians
+        ``H_i`` come from central differences of ``f`` over
+        ``_CURVATURE_STEP_PX`` around ``o``.
+
+        Parameters
+        ----------
+        offsets_a : (T, 2) ndarray
+            Panorama ``(row, col)`` of the tile centres in frame a.
+        linear_a : (T, 2, 2) ndarray
+        curvature_a : (T, 2, 2, 2) ndarray or None
+            ``Q_a`` (see :meth:`ifmi.fourier_mellin.FourierMellin.resample_placed`); None is zero.
+        prior_rotation : (3, 3) ndarray
+            Predicted ``R_ab``.
+
+        Returns
+        -------
+        (T, 2, 2, 2) ndarray
+            ``Q_b``, panorama pixels per squared tile pixel.
+        """
+        h = _CURVATURE_STEP_PX
+        grid = np.array([[i, j] for i in (-1, 0, 1) for j in (-1, 0, 1)], dtype=np.float64) * h
+        probes = np.asarray(offsets_a, dtype=np.float64)[:, None, :] + grid
+        rays = rays_from_panorama_pixels(self.mapping, probes) @ np.asarray(prior_rotation, dtype=np.float64)
+        f = panorama_pixels_from_rays(self.mapping, rays).reshape(-1, 3, 3, 2)  # (T, row step, col step, out)
+        width = self.mapping.width
+        centre_col = f[:, 1:2, 1:2, 1]
+        f[..., 1] = centre_col + np.mod(f[..., 1] - centre_col + width / 2, width) - width / 2
+        jacobian = np.stack([(f[:, 2, 1] - f[:, 0, 1]) / (2 * h), (f[:, 1, 2] - f[:, 1, 0]) / (2 * h)], axis=-1)
+        h_rr = (f[:, 2, 1] - 2 * f[:, 1, 1] + f[:, 0, 1]) / h ** 2
+        h_cc = (f[:, 1, 2] - 2 * f[:, 1, 1] + f[:, 1, 0]) / h ** 2
+        h_rc = (f[:, 2, 2] - f[:, 2, 0] - f[:, 0, 2] + f[:, 0, 0]) / (4 * h ** 2)
+        hessian = np.stack([np.stack([h_rr, h_rc], axis=-1), np.stack([h_rc, h_cc], axis=-1)], axis=-1)  # (T, 2o, 2, 2)
+        linear_a = np.asarray(linear_a, dtype=np.float64)
+        curvature = 0.5 * np.einsum("tki,tokl,tlj->toij", linear_a, hessian, linear_a)
+        if curvature_a is not None:
+            curvature += np.einsum("tok,tkij->toij", jacobian, curvature_a)
+        return curvature
+
     def predicted_origins(self, prior_rotation: np.ndarray) -> np.ndarray:
         """Panorama ``(row, col)`` in frame b of each layout tile's first pixel under ``R_ab``.
 
@@ -348,6 +434,7 @@ class IfmiFrontEnd:
             return state.reference
         offsets, linear = self._layout_placement
         tracked = state.tracked
+        state.reference_curvature = None
         if not self.config.track_tiles or tracked is None:
             state.reference = (offsets, linear, state.spectra, self.layout.count)
             return state.reference
@@ -378,6 +465,9 @@ class IfmiFrontEnd:
             linear = np.where(new[:, None, None], linear, tracked.linear)
         else:
             offsets, linear = tracked.offsets, tracked.linear
+        if tracked.curvature is not None:
+            # Tiles cut anew from the layout are axis-aligned in this frame: no curvature.
+            state.reference_curvature = np.where(new[:, None, None, None], 0.0, tracked.curvature)
         state.reference = (offsets, linear, spectra, int(new.sum()))
         return state.reference
 
@@ -422,6 +512,9 @@ class IfmiFrontEnd:
         """
         offsets_a, linear_a, spectra_a, n_new = self.reference_tiles(state_a)
         offsets_b, linear_b = self.predicted_placements(offsets_a, linear_a, prior_rotation)
+        curvature_b = None
+        if self._curved:
+            curvature_b = self.predicted_curvature(offsets_a, linear_a, state_a.reference_curvature, prior_rotation)
         shift = np.array([0.0, self._pad])
         width = self.mapping.width
 
@@ -431,13 +524,28 @@ class IfmiFrontEnd:
             return offsets
 
         offsets_b[:, 1] = np.mod(offsets_b[:, 1], width)
-        placed = self.engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + shift, linear_b)
+        placed = self.engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + shift, linear_b,
+                                             curvature_b=curvature_b)
+        for _ in range(self.config.refit_passes if self._curved else 0):
+            if placed.valid.sum() < max(self.config.min_tiles, _MIN_REFIT_TILES):
+                break
+            # The tiles' own rotation replaces the prediction in their shape (affine and
+            # curvature), which the registration does not measure; the centres stay as measured.
+            rotation, residual = _robust_rotation(
+                rays_from_panorama_pixels(self.mapping, offsets_a[placed.valid]),
+                rays_from_panorama_pixels(self.mapping, unpadded(placed.offsets)[placed.valid]))
+            if residual > self.config.refit_max_residual_px * 2 * np.pi / width:
+                break  # parallax or wrong tiles: the tiles do not agree on a rotation
+            _, linear_b = self.predicted_placements(offsets_a, linear_a, rotation)
+            curvature_b = self.predicted_curvature(offsets_a, linear_a, state_a.reference_curvature, rotation)
+            placed = self.engine.refine_placed(spectra_a, state_b.padded_panorama, placed, linear_b,
+                                               curvature_b=curvature_b)
         last = replace(placed.last, offsets=unpadded(placed.last.offsets))
         placed = replace(placed, offsets=unpadded(placed.offsets), last=last)
         if self.config.anchor_templates:
             # The reference's templates, placed where they were found in b.
             state_b.tracked = PlacedTiles(tiles=None, offsets=placed.offsets, linear=placed.linear,
-                                          spectra=spectra_a)
+                                          spectra=spectra_a, curvature=curvature_b)
         else:
             state_b.tracked = last
         state_b.tracked_valid = placed.valid
@@ -497,9 +605,13 @@ class IfmiFrontEnd:
         offsets_a = layout.origins.astype(np.float64) + (layout.tile_size - 1) / 2.0
         linear_a = np.broadcast_to(np.eye(2), (layout.count, 2, 2)).copy()
         offsets_b, linear_b = self.predicted_placements(offsets_a, linear_a, prior_rotation)
+        curvature_b = None
+        if self._curved:
+            curvature_b = self.predicted_curvature(offsets_a, linear_a, None, prior_rotation)
         offsets_b[:, 1] = np.mod(offsets_b[:, 1], self.mapping.width)
         shift = np.array([0.0, self._pad])
-        placed = self.dense_engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + shift, linear_b)
+        placed = self.dense_engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + shift, linear_b,
+                                                   curvature_b=curvature_b)
         offsets = placed.offsets - shift
         offsets[:, 1] = np.mod(offsets[:, 1], self.mapping.width)
         return offsets_a, linear_a, replace(placed, offsets=offsets)
@@ -542,12 +654,14 @@ class IfmiFrontEnd:
                 if retry[2].valid.sum() > match[2].valid.sum():
                     match, diagnostics = retry, {**retry_diagnostics, "reacquired": True}
             offsets_a, linear_a, placed, rotation = match
+            curvature_a = state_a.reference_curvature
             valid = placed.valid
             if self.dense_layout is not None and valid.sum() <= self.config.dense_retry_fraction * self.layout.count:
                 dense = self.register_dense(state_a, state_b, prior_rotation=rotation)
                 diagnostics = {**diagnostics, "n_tiles_kept_dense": int(dense[2].valid.sum())}
                 if dense[2].valid.sum() > valid.sum():
                     offsets_a, linear_a, placed = dense
+                    curvature_a = None
                     valid = placed.valid
         if valid.sum() < min_tiles:
             return Correspondences.failed(
@@ -558,7 +672,8 @@ class IfmiFrontEnd:
                                           origins_b=origins_b)
         else:
             pairs = flow_from_placements(offsets_a, linear_a, placed.offsets, placed.linear, valid,
-                                         self.mapping, points=self._points_b, tile_size=self.layout.tile_size)
+                                         self.mapping, points=self._points_b, tile_size=self.layout.tile_size,
+                                         curvature_a=curvature_a, curvature_b=placed.last.curvature)
         return Correspondences(pixels_a=pairs.pixels_a, pixels_b=pairs.pixels_b,
                                rays_a=pairs.rays_a, rays_b=pairs.rays_b, diagnostics=diagnostics,
                                rays_per_measurement=len(self._points_b))
