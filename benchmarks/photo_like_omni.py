@@ -21,6 +21,8 @@ import sys
 import cv2
 import numpy as np
 
+from ifmi.errors import OutputError
+from ifmi.io.atomic import atomic_write_bytes
 from ifmi.io.calib import read_calib
 from ifmi.synthetic import environment_texture, omni_from_environment
 from ifmi.unwarp import PanoramaConfig, radius_band
@@ -38,8 +40,10 @@ def main(argv=None) -> int:
     height = 2 * int(np.ceil(1.5 * np.pi * band[1] / 2))
     texture = environment_texture(height=height, seed=args.seed, noise_level=0.0)
     image = omni_from_environment(texture, model, np.eye(3), band_px=band)
-    if not cv2.imwrite(args.out, image):
-        print(f"cannot write {args.out}", file=sys.stderr)
+    try:
+        atomic_write_bytes(args.out, cv2.imencode(".png", image)[1].tobytes())
+    except OutputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 1
     print(f"{args.out}: {image.shape[0]}x{image.shape[1]}, band {band[0]:.1f}..{band[1]:.1f} px, "
           f"texture {height}x{2 * height}")
