@@ -35,6 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from bench_methods import mode_config, run_method
+from ifmi.dataset_names import dataset_labels, resolved_folder
+from ifmi.io.atomic import atomic_write_json
 from ifmi.io.calib import read_calib
 from ifmi.io.dataset import read_dataset
 from ifmi.pipeline import EstimateConfig, estimate_sequence, resolved_config
@@ -105,7 +107,9 @@ def main(argv=None) -> int:
           "frames in memory; ratios: variant / default (wall, CPU)")
     print(f"{'dataset':<18}{'variant':<14}{'ATE default':>12}{'ATE variant':>12}{'retry':>7}{'retry var':>10}"
           f"{'ms default':>11}{'ms variant':>11}{'wall v/d':>9}{'cpu v/d':>8}")
+    labels = dataset_labels(args.datasets)
     for dataset in args.datasets:
+        label = labels[resolved_folder(dataset)]
         model = read_calib(Path(dataset) / "calib_results.txt")
         base = resolved_config(mode_config(EstimateConfig(), "frame"), model)
         configs = {"default": base}
@@ -114,17 +118,17 @@ def main(argv=None) -> int:
                 configs[name] = replace(base, ifmi=ifmi_variant(base.ifmi, changes))
             except ValueError as exc:  # an unknown key or a bad value, named by its key path
                 parser.error(f"--variant {name}: {exc}")
-        accuracy = {name: run_method(dataset, "ifmi", "frame", config, out / name)
+        accuracy = {name: run_method(dataset, "ifmi", "frame", config, out / name, label=label)
                     for name, config in configs.items()}
         times, retries = compute_times(dataset, configs, rounds=max(1, args.rounds))
         for name in list(configs)[1:]:
             ratio_wall = times[name][0] / times["default"][0]
             ratio_cpu = times[name][1] / times["default"][1]
-            print(f"{Path(dataset).name:<18}{name:<14}{accuracy['default']['geodesic_rmse']:>12.5f}"
+            print(f"{label:<18}{name:<14}{accuracy['default']['geodesic_rmse']:>12.5f}"
                   f"{accuracy[name]['geodesic_rmse']:>12.5f}{retries['default']:>7}{retries[name]:>10}"
                   f"{times['default'][1] * 1e3:>11.2f}{times[name][1] * 1e3:>11.2f}{ratio_wall:>9.3f}"
                   f"{ratio_cpu:>8.3f}")
-            rows.append({"dataset": Path(dataset).name, "variant": name, "changes": dict(args.variant)[name],
+            rows.append({"dataset": label, "variant": name, "changes": dict(args.variant)[name],
                          "ate_default": accuracy["default"]["geodesic_rmse"],
                          "ate_variant": accuracy[name]["geodesic_rmse"],
                          "failures_default": accuracy["default"]["failures"],
@@ -132,10 +136,8 @@ def main(argv=None) -> int:
                          "retry_frames_default": retries["default"], "retry_frames_variant": retries[name],
                          "wall_default_s": times["default"][0], "wall_variant_s": times[name][0],
                          "cpu_default_s": times["default"][1], "cpu_variant_s": times[name][1]})
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "bench_ifmi_options.json").write_text(json.dumps({"rows": rows, "rounds": args.rounds,
-                                                             "argv": sys.argv if argv is None else argv},
-                                                            indent=2))
+    atomic_write_json(out / "bench_ifmi_options.json",
+                      {"rows": rows, "rounds": args.rounds, "argv": sys.argv if argv is None else argv})
     return 0
 
 

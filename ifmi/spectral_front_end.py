@@ -105,6 +105,16 @@ class IfmiConfig:
         measures its mean over the tile, which shrinks a tilt by about
         ``(2 pi / W)^2 s^2 / 2`` (``s`` the window's spread, a few 1e-4 for
         64 px tiles at W = 2048). See the README's sharp-image section.
+    refit_passes : int
+        With curved placements: passes that fit a robust rotation to the
+        kept tiles' measured centres and re-measure the kept tiles cut with
+        that rotation's shape instead of the prediction's (0 = none).
+    refit_max_residual_px : float
+        A refit is skipped when the tiles' median residual against their own
+        rotation exceeds this (panorama pixels): parallax or wrong tiles.
+    min_width_curved : int
+        Curved placements and refit passes apply from this panorama width
+        (pixels) up; narrower panoramas keep the affine cut.
     """
 
     panorama: PanoramaConfig = field(default_factory=PanoramaConfig)

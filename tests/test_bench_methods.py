@@ -51,3 +51,21 @@ def test_two_datasets_of_one_name_get_their_own_rows_and_folders(tmp_path, capsy
     assert rows[0]["geodesic_rmse"] != rows[1]["geodesic_rmse"]
     printed = capsys.readouterr().out
     assert "site_a/office" in printed and "site_b/office" in printed
+
+
+def test_options_benchmark_names_same_named_sets_apart_and_compares_a_variant(tmp_path, monkeypatch):
+    monkeypatch.syspath_prepend(str(BENCHMARK.parent))
+    spec = importlib.util.spec_from_file_location("bench_ifmi_options",
+                                                  BENCHMARK.parent / "bench_ifmi_options.py")
+    options = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(options)
+    a = _write_dataset(tmp_path / "site_a" / "office", seed=5, max_step_rad=0.03)
+    b = _write_dataset(tmp_path / "site_b" / "office", seed=6, max_step_rad=0.06)
+    out = tmp_path / "options"
+    assert options.main([str(a), str(b), "--variant", "affine:use_prior=false", "--rounds", "1",
+                         "--out", str(out)]) == 0
+    rows = json.loads((out / "bench_ifmi_options.json").read_text())["rows"]
+    assert [(r["dataset"], r["variant"]) for r in rows] == [("site_a/office", "affine"),
+                                                            ("site_b/office", "affine")]
+    assert all(r["cpu_default_s"] > 0 and r["cpu_variant_s"] > 0 for r in rows)
+    assert rows[0]["ate_default"] != rows[1]["ate_default"]
