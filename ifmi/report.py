@@ -18,13 +18,14 @@ import platform
 import shutil
 import sys
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from .dataset_names import dataset_labels, resolved_folder
 from .errors import InputError, OutputError
 from .io.atomic import atomic_write_json, atomic_write_text
 from .io.provenance import package_versions as _package_versions
@@ -120,6 +121,37 @@ def machine_info() -> dict:
 def package_versions() -> dict:
     """Installed versions of the packages that shape the results (None if absent)."""
     return _package_versions(PACKAGES)
+
+
+def records_with_distinct_scenes(records: Sequence[EvaluationRecord]) -> list[EvaluationRecord]:
+    """The records, with scene names made distinct where datasets of one scene meet.
+
+    The report groups evaluations by scene. When evaluations of one scene
+    come from different dataset folders (``office_200`` and
+    ``office_200_phone``, or ``site_a/office`` and ``site_b/office``), each
+    such record's scene becomes ``SCENE-LABEL`` (LABEL the folder's
+    distinct display name, :func:`ifmi.dataset_names.dataset_labels`, with
+    ``/`` as ``_``) so that no row, figure or copied folder replaces another.
+    A scene evaluated on a single dataset keeps its name.
+    """
+    def folder(rec: EvaluationRecord) -> str:
+        gt = rec.meta.get("groundtruth_path")
+        return str(Path(gt).parent) if gt else str(rec.meta.get("dataset") or rec.path)
+
+    folders_by_scene: dict = {}
+    for rec in records:
+        folders_by_scene.setdefault(rec.scene, set()).add(folder(rec))
+    shared = {scene for scene, folders in folders_by_scene.items() if len(folders) > 1}
+    if not shared:
+        return list(records)
+    labels = dataset_labels(sorted({folder(r) for r in records if r.scene in shared}))
+    out = []
+    for rec in records:
+        if rec.scene in shared:
+            label = labels[resolved_folder(folder(rec))].replace("/", "_")
+            rec = replace(rec, meta={**rec.meta, "scene": f"{rec.scene}-{label}"})
+        out.append(rec)
+    return out
 
 
 def scene_tables(records: Sequence[EvaluationRecord]) -> dict:
@@ -527,7 +559,7 @@ def _write_report(inputs: ReportInputs, out: Path, options: ReportOptions) -> No
     """Write every file of the report into the (new, empty) folder ``out``."""
     figures = out / "figures"
     figures.mkdir(parents=True)
-    records = [read_evaluation(p) for p in inputs.evaluations]
+    records = records_with_distinct_scenes([read_evaluation(p) for p in inputs.evaluations])
     data = out / "data" if options.copy_data else None
     if data is not None:
         _copy_data(inputs, records, data)

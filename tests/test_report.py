@@ -273,3 +273,23 @@ def test_unreadable_dataset_gives_a_motion_flow_warning_not_an_error(tmp_path, c
     err = capsys.readouterr().err
     assert "warning: no motion-flow figure for lawn:" in err and "calib" in err
     assert not list((tmp_path / "r" / "figures").glob("motion_flow_*"))
+
+
+def test_one_scene_from_two_dataset_folders_gets_two_rows_figures_and_folders(tmp_path):
+    site_a = _make_results(tmp_path / "site_a", scenes=("office",))
+    site_b = _make_results(tmp_path / "site_b", scenes=("lawn", "office"))  # office's errors doubled here
+    out = tmp_path / "report"
+    assert main(["report", str(site_a / "eval"), str(site_b / "eval"), "--out", str(out)]) == 0
+    doc = json.loads((out / "report.json").read_text())
+    names = {"site_a": "office-site_a_data_office_20", "site_b": "office-site_b_data_office_20"}
+    assert sorted(doc["scenes"]) == sorted(["lawn", *names.values()])
+    yaw = {site: doc["scenes"][name]["ifmi"]["rmse_yaw_rad"] for site, name in names.items()}
+    assert yaw["site_b"] == pytest.approx(2 * yaw["site_a"], rel=1e-6)
+    for name in names.values():
+        assert (out / "figures" / f"rpy_{name}.png").is_file()
+        assert (out / "data" / "eval" / name / "orb" / "evaluation.json").is_file()
+    rebuilt = tmp_path / "rebuilt"
+    assert main(["report", str(out / "data"), "--out", str(rebuilt)]) == 0
+    again = json.loads((rebuilt / "report.json").read_text())
+    assert sorted(again["scenes"]) == sorted(doc["scenes"])
+    assert again["scenes"][names["site_b"]]["ifmi"]["rmse_yaw_rad"] == yaw["site_b"]
