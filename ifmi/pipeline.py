@@ -215,7 +215,7 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     # The RANSAC threshold is resolved on the calibration's band first, as for any sequence; the
     # band the panorama uses is then decided from several frames (saved with the configuration).
     config = _config_with_band(resolved_config(config, dataset.model), dataset.model,
-                               _dataset_band_frames(dataset))
+                               lambda: _dataset_band_frames(dataset))
     images = dataset.iter_images(prefetch=prefetch, skip_unreadable=True)
     try:
         estimate = estimate_sequence(images, dataset.model, method=method, config=config,
@@ -249,11 +249,14 @@ def _dataset_band_frames(dataset) -> list:
     return frames
 
 
-def _config_with_band(config: EstimateConfig, model, frames) -> EstimateConfig:
-    """``config`` with the panorama's band decided from ``frames`` together (saved with the run)."""
-    from .unwarp import panorama_config_with_band
+def _config_with_band(config: EstimateConfig, model, read_frames) -> EstimateConfig:
+    """``config`` with the panorama's band decided from the frames ``read_frames()`` returns
+    (saved with the run); frames are read only when the band needs them."""
+    from .unwarp import band_needs_frames, panorama_config_with_band
 
-    panorama = panorama_config_with_band(model, frames, config=config.ifmi.panorama)
+    if not band_needs_frames(model, config=config.ifmi.panorama):
+        return config
+    panorama = panorama_config_with_band(model, read_frames(), config=config.ifmi.panorama)
     return replace(config, ifmi=replace(config.ifmi, panorama=panorama))
 
 
@@ -281,12 +284,9 @@ def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike,
     model = read_camera(Path(calib_path))  # calib_results.txt or a Kalibr camera.yaml
     frames = VideoFrames(video_path, size=model.size)
     try:
-        # The RANSAC threshold is resolved on the calibration's band, then the band is decided
-        # (no frames decoded for it when both radii are given).
-        panorama = config.ifmi.panorama
-        given = panorama.radius_min_px is not None and panorama.radius_max_px is not None
+        # The RANSAC threshold is resolved on the calibration's band, then the band is decided.
         config = _config_with_band(resolved_config(config, model), model,
-                                   [] if given else frames.spread_frames(_BAND_FRAMES))
+                                   lambda: frames.spread_frames(_BAND_FRAMES))
         estimate = estimate_sequence(frames, model, method=method, config=config, progress=progress,
                                      total=len(frames) or None)
     except CalibrationFitError as exc:

@@ -295,6 +295,17 @@ def _checked_band(inner: float, outer: float) -> tuple[float, float]:
     return inner, outer
 
 
+def band_needs_frames(model, *, config: PanoramaConfig) -> bool:
+    """Whether :func:`panorama_config_with_band` would look at frames for ``model`` and ``config``.
+
+    Only an OCamCalib model's band is detected in the images, and only the
+    radii ``config`` leaves open (None); other models' bands follow from
+    the model (:func:`off_axis_band`). Callers use it to skip reading frames.
+    """
+    open_radius = config.radius_min_px is None or config.radius_max_px is None
+    return open_radius and isinstance(model, OcamModel)
+
+
 def panorama_config_with_band(model: OcamModel, frames: Sequence[np.ndarray], *,
                               config: PanoramaConfig = PanoramaConfig()) -> PanoramaConfig:
     """``config`` with the radius band decided from several frames of a sequence.
@@ -319,9 +330,7 @@ def panorama_config_with_band(model: OcamModel, frames: Sequence[np.ndarray], *,
     -------
     PanoramaConfig
     """
-    if not len(frames) or (config.radius_min_px is not None and config.radius_max_px is not None):
-        return config
-    if not isinstance(model, OcamModel):  # other models: the band follows from the model (off_axis_band)
+    if not len(frames) or not band_needs_frames(model, config=config):
         return config
     inner, outer = radius_band(model, frames[0], config=config, frames=frames[1:])
     return replace(config, radius_min_px=inner if config.radius_min_px is None else config.radius_min_px,

@@ -148,3 +148,29 @@ def test_dataset_band_is_decided_from_several_frames(tmp_path):
     panorama = estimate.config.ifmi.panorama
     assert panorama.radius_max_px > band[1] - 5
     assert estimate.config.relative_pose.ransac_threshold_rad is not None
+
+
+def test_given_radii_read_no_frames_for_the_band(tmp_path, monkeypatch):
+    # With both radii in the configuration no frame is read to decide the band (videos share
+    # the same step, pipeline._config_with_band); the run keeps the given radii.
+    from dataclasses import replace
+
+    import ifmi.pipeline as pipeline
+    from ifmi.synthetic import synthetic_sequence, write_synthetic_dataset
+
+    model = paracatadioptric_model((160, 160), horizon_radius_px=50.0)
+    sequence = synthetic_sequence(model, 4, seed=1, max_step_rad=0.03, band_px=(16.0, 75.0))
+    root = write_synthetic_dataset(tmp_path / "ds", sequence)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("frames were read for a band that was given")
+
+    monkeypatch.setattr(pipeline, "_dataset_band_frames", refuse)
+    config = pipeline.EstimateConfig()
+    panorama = replace(config.ifmi.panorama, radius_min_px=18.0, radius_max_px=74.0)
+    config = replace(config, ifmi=replace(config.ifmi, panorama=panorama))
+    estimate = pipeline.estimate_dataset(root, method="ifmi", config=config)
+    given = estimate.config.ifmi.panorama
+    assert (given.radius_min_px, given.radius_max_px) == (18.0, 74.0)
+    with pytest.raises(AssertionError, match="band that was given"):
+        pipeline.estimate_dataset(root, method="ifmi", config=pipeline.EstimateConfig())
