@@ -36,7 +36,8 @@ import cv2
 import numpy as np
 import scipy.fft
 
-from .phase_correlation import correlation_surface, find_peaks, hann_window, normalized_cross_power
+from .phase_correlation import (correlation_surface, find_peaks, hann_window, normalized_cross_power,
+                                windowed_spectra)
 from .unwarp import PanoramaMapping, rays_from_panorama_pixels
 
 __all__ = ["GlobalMotionConfig", "GlobalMotion", "GlobalMotionEstimator", "rotation_from_ray_pairs"]
@@ -241,7 +242,7 @@ class GlobalMotionEstimator:
         """Spectra ``(S, h, sector_width//2+1)`` of a coarse panorama's sectors, each mean-free and Hann-windowed."""
         cols = self.sector_cols[:, None] + np.arange(self.sector_width)
         sectors = np.moveaxis(image[:, cols], 1, 0)
-        return scipy.fft.rfft2((sectors - sectors.mean(axis=(1, 2), keepdims=True)) * self.sector_window)
+        return windowed_spectra(sectors, self.sector_window)
 
     def _yaw_search(self, spectrum_a: np.ndarray, warped_b: np.ndarray) -> tuple[np.ndarray, float]:
         """Whole-panorama shift ``(row, col)`` of warped b against a (a's :meth:`_yaw_spectrum`), and its peak ratio."""

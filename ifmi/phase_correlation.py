@@ -19,6 +19,7 @@ import scipy.fft
 
 __all__ = [
     "hann_window",
+    "windowed_spectra",
     "normalized_cross_power",
     "correlation_surface",
     "Peaks",
@@ -52,6 +53,24 @@ def hann_window(shape: tuple[int, int]) -> np.ndarray:
     rows = np.sin(np.pi * (np.arange(shape[0]) + 0.5) / shape[0]) ** 2
     cols = np.sin(np.pi * (np.arange(shape[1]) + 0.5) / shape[1]) ** 2
     return np.outer(rows, cols).astype(np.float32)
+
+
+def windowed_spectra(stack: np.ndarray, window: np.ndarray, *, workers: int = 1) -> np.ndarray:
+    """Real FFTs of images with each image's mean removed and ``window`` applied.
+
+    Parameters
+    ----------
+    stack : (T, H, W) ndarray
+    window : (H, W) ndarray
+        E.g. :func:`hann_window`.
+    workers : int, keyword-only
+        FFT threads.
+
+    Returns
+    -------
+    (T, H, W // 2 + 1) complex ndarray
+    """
+    return scipy.fft.rfft2((stack - stack.mean(axis=(1, 2), keepdims=True)) * window, workers=workers)
 
 
 def normalized_cross_power(spectra_a: np.ndarray, spectra_b: np.ndarray) -> np.ndarray:
@@ -261,8 +280,8 @@ def phase_correlation(a: np.ndarray, b: np.ndarray, *, refine: bool = True,
         raise ValueError(f"expected two stacks of equal shape (T, H, W), got {a.shape} and {b.shape}")
     shape = a.shape[1:]
     window = hann_window(shape)
-    fa = scipy.fft.rfft2((a - a.mean(axis=(1, 2), keepdims=True)) * window, workers=workers)
-    fb = scipy.fft.rfft2((b - b.mean(axis=(1, 2), keepdims=True)) * window, workers=workers)
+    fa = windowed_spectra(a, window, workers=workers)
+    fb = windowed_spectra(b, window, workers=workers)
     peaks = find_peaks(correlation_surface(normalized_cross_power(fa, fb), shape, workers=workers))
     shift = peaks.shift
     if refine:
