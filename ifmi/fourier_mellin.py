@@ -419,6 +419,34 @@ def _replace_rows(placed: PlacedTiles, rows: np.ndarray, update: PlacedTiles) ->
     return replace(placed, spectra=replace(placed.spectra, descriptor=descriptor))
 
 
+def _placement_maps(n: int, offsets: np.ndarray, linear: np.ndarray,
+                    curvature: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Source ``(row, col)`` maps ``(K N, N)`` float32 of tiles placed at ``o + L u + q(u)``.
+
+    Each map is ``((L_i0 u_r + L_i1 u_c) + o_i) + ((Q_i00 u_r^2 + 2 Q_i01 u_r u_c) + Q_i11 u_c^2)``
+    in float32, summed in this order into preallocated arrays: two full-size passes per map
+    (six with curvature) and no full-size temporaries.
+    """
+    f32 = np.float32
+    g = np.arange(n, dtype=f32) - f32((n - 1) / 2.0)
+    lin = np.asarray(linear, dtype=f32)
+    off = np.asarray(offsets, dtype=f32)
+    gr, gc = g[None, :, None], g[None, None, :]
+    maps = np.empty((2, len(off), n, n), dtype=f32)
+    q = None if curvature is None else np.asarray(curvature, dtype=f32)
+    term = None if q is None else np.empty((len(off), n, n), dtype=f32)
+    for i in (0, 1):
+        out = maps[i]
+        np.add(lin[:, i, 0, None, None] * gr, lin[:, i, 1, None, None] * gc, out=out)
+        out += off[:, i, None, None]
+        if q is not None:
+            np.multiply(2 * q[:, i, 0, 1, None, None] * gr, gc, out=term)
+            np.add(q[:, i, 0, 0, None, None] * gr * gr, term, out=term)
+            term += q[:, i, 1, 1, None, None] * gc * gc
+            out += term
+    return maps[0].reshape(-1, n), maps[1].reshape(-1, n)
+
+
 class FourierMellin:
     """Precomputed windows, filters and log-polar maps for ``count`` tiles of size ``tile_size``.
 
@@ -564,28 +592,16 @@ class FourierMellin:
         (K, N, N) float32 ndarray
         """
         n = self.tile_size
-        f32 = np.float32
-        g = np.arange(n, dtype=f32) - f32((n - 1) / 2.0)
-        lin = np.asarray(linear, dtype=f32)
-        off = np.asarray(offsets, dtype=f32)
-        gr, gc = g[None, :, None], g[None, None, :]
-        map_rows = (lin[:, 0, 0, None, None] * gr + lin[:, 0, 1, None, None] * gc
-                    + off[:, 0, None, None]).reshape(-1, n)
-        map_cols = (lin[:, 1, 0, None, None] * gr + lin[:, 1, 1, None, None] * gc
-                    + off[:, 1, None, None]).reshape(-1, n)
-        if curvature is not None:
-            q = np.asarray(curvature, dtype=f32)
-            for out, i in ((map_rows, 0), (map_cols, 1)):
-                out += (q[:, i, 0, 0, None, None] * gr * gr + 2 * q[:, i, 0, 1, None, None] * gr * gc
-                        + q[:, i, 1, 1, None, None] * gc * gc).reshape(-1, n)
+        map_rows, map_cols = _placement_maps(n, offsets, linear, curvature)
         kind = _INTERPOLATIONS[interpolation or self.config.resample_interpolation]
-        # One remap call per chunk of fewer than 2^15 rows (OpenCV's limit).
+        # One remap call per chunk of fewer than 2^15 rows (OpenCV's limit), written in place.
         step = ((_REMAP_MAX_ROWS - 1) // n) * n
         out = np.empty(map_rows.shape, dtype=np.float32)
         for first in range(0, len(map_rows), step):
             rows = slice(first, first + step)
-            out[rows] = cv2.remap(source, map_cols[rows], map_rows[rows], kind, borderMode=cv2.BORDER_REFLECT_101)
-        return out.reshape(len(off), n, n)
+            cv2.remap(source, map_cols[rows], map_rows[rows], kind, dst=out[rows],
+                      borderMode=cv2.BORDER_REFLECT_101)
+        return out.reshape(-1, n, n)
 
     def resample(self, source: np.ndarray, origins: np.ndarray, scale: np.ndarray,
                  angle: np.ndarray, translation: np.ndarray, *, interpolation: str | None = None) -> np.ndarray:

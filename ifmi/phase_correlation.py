@@ -227,23 +227,34 @@ def refine_shift_phase_plane(spectra_a: np.ndarray, spectra_b: np.ndarray, shift
         Refined shifts.
     """
     band, freqs, products = _frequency_band(tuple(shape), float(max_frequency))
-    cross = np.conj(spectra_a.reshape(len(spectra_a), -1)[:, band])
-    cross *= spectra_b.reshape(len(spectra_b), -1)[:, band]
+    cross = np.take(spectra_a.reshape(len(spectra_a), -1), band, axis=1)
+    np.conj(cross, out=cross)
+    cross *= np.take(spectra_b.reshape(len(spectra_b), -1), band, axis=1)
     weight = np.abs(cross)
     if weight_power != 1.0:
         weight **= weight_power
     phase = np.angle(cross)
-    normal = (weight @ products).astype(np.float64)  # (T, 3): sums of w fr^2, w fr fc, w fc^2
+    # (T, 3): sums of w fr^2, w fr fc, w fc^2. The weights go in column-major, the layout BLAS
+    # has always summed them in (its float32 rounding depends on it: estimates stay bit-identical).
+    normal = (np.asfortranarray(weight) @ products).astype(np.float64)
     a11, a12, a22 = normal[:, 0], normal[:, 1], normal[:, 2]
     det = a11 * a22 - a12 * a12
     ok = det > 1e-12 * np.maximum(a11 * a22, 1e-300)
     safe = np.where(ok, det, 1.0)
     shift = np.array(shift, dtype=np.float64)
     two_pi = np.float32(2 * np.pi)
+    residual = np.empty(phase.shape, dtype=np.float32)
+    turns = np.empty_like(residual)
     for _ in range(iterations):
         # Residual phase after removing the current shift, wrapped to [-pi, pi): ~ -2 pi f . delta.
-        residual = phase + two_pi * (shift.astype(np.float32) @ freqs.T)
-        residual -= two_pi * np.round(residual / two_pi)
+        # (In place; the same float32 operations as phase + 2 pi (shift . f) - 2 pi round(...).)
+        np.matmul(shift.astype(np.float32), freqs.T, out=residual)
+        residual *= two_pi
+        residual += phase
+        np.divide(residual, two_pi, out=turns)
+        np.round(turns, out=turns)
+        turns *= two_pi
+        residual -= turns
         residual *= weight
         rhs = -(residual @ freqs).astype(np.float64) / (2 * np.pi)  # (T, 2)
         delta = np.stack([(a22 * rhs[:, 0] - a12 * rhs[:, 1]) / safe,
