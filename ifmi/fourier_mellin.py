@@ -72,6 +72,8 @@ __all__ = [
 
 # Rows (exclusive) OpenCV's remap accepts, and the range of its 16-bit fixed-point maps.
 _REMAP_MAX_ROWS = 2 ** 15
+# Pixels of the tiles whose remap maps are built and used at a time (512 kB per float32 map).
+_MAP_CHUNK_PIXELS = 2 ** 17
 
 
 class TileRejection(IntEnum):
@@ -402,21 +404,38 @@ class PlacedRegistration:
     last: PlacedTiles
 
 
-def _replace_rows(placed: PlacedTiles, rows: np.ndarray, update: PlacedTiles) -> PlacedTiles:
-    """``placed`` (whose arrays are overwritten) with ``rows`` set from ``update``.
+def _replace_rows(placed: PlacedTiles, rows: np.ndarray, update: PlacedTiles, *,
+                  in_place: bool = True) -> PlacedTiles:
+    """``placed`` with ``rows`` set from ``update``.
 
+    With ``in_place`` the arrays of ``placed`` are overwritten; otherwise new
+    arrays are filled (``placed`` is left as it was, and only its other rows are copied).
     Descriptors are kept only when ``update`` has them (zero in the other rows).
     """
-    for name in ("tiles", "offsets", "linear"):
-        getattr(placed, name)[rows] = getattr(update, name)
-    placed.spectra.spectrum[rows] = update.spectra.spectrum
-    placed.spectra.std[rows] = update.spectra.std
+    others = None
+    if not in_place:
+        others = np.ones(len(placed.offsets), dtype=bool)
+        others[rows] = False
+
+    def merged(old: np.ndarray, new: np.ndarray) -> np.ndarray:
+        if in_place:
+            old[rows] = new
+            return old
+        out = np.empty_like(old)
+        out[others] = old[others]
+        out[rows] = new
+        return out
+
+    arrays = {name: merged(getattr(placed, name), getattr(update, name)) for name in ("tiles", "offsets", "linear")}
+    spectrum = merged(placed.spectra.spectrum, update.spectra.spectrum)
+    std = merged(placed.spectra.std, update.spectra.std)
     descriptor = None
     if update.spectra.descriptor is not None:
-        descriptor = np.zeros((len(placed.tiles),) + update.spectra.descriptor.shape[1:],
+        descriptor = np.zeros((len(placed.offsets),) + update.spectra.descriptor.shape[1:],
                               dtype=update.spectra.descriptor.dtype)
         descriptor[rows] = update.spectra.descriptor
-    return replace(placed, spectra=replace(placed.spectra, descriptor=descriptor))
+    return replace(placed, **arrays, spectra=replace(placed.spectra, spectrum=spectrum, std=std,
+                                                     descriptor=descriptor))
 
 
 def _placement_maps(n: int, offsets: np.ndarray, linear: np.ndarray,
@@ -592,14 +611,17 @@ class FourierMellin:
         (K, N, N) float32 ndarray
         """
         n = self.tile_size
-        map_rows, map_cols = _placement_maps(n, offsets, linear, curvature)
+        offsets, linear = np.asarray(offsets), np.asarray(linear)
         kind = _INTERPOLATIONS[interpolation or self.config.resample_interpolation]
-        # One remap call per chunk of fewer than 2^15 rows (OpenCV's limit), written in place.
-        step = ((_REMAP_MAX_ROWS - 1) // n) * n
-        out = np.empty(map_rows.shape, dtype=np.float32)
-        for first in range(0, len(map_rows), step):
-            rows = slice(first, first + step)
-            cv2.remap(source, map_cols[rows], map_rows[rows], kind, dst=out[rows],
+        # Maps and remap chunk by chunk of tiles: a chunk's maps are remapped while they are in
+        # the cache, and a chunk stays below OpenCV's 2^15 rows. The output is written in place.
+        step = max(1, min(_MAP_CHUNK_PIXELS // (n * n), (_REMAP_MAX_ROWS - 1) // n))
+        out = np.empty((len(offsets) * n, n), dtype=np.float32)
+        for first in range(0, len(offsets), step):
+            part = slice(first, first + step)
+            map_rows, map_cols = _placement_maps(n, offsets[part], linear[part],
+                                                 None if curvature is None else np.asarray(curvature)[part])
+            cv2.remap(source, map_cols, map_rows, kind, dst=out[first * n:(first + step) * n],
                       borderMode=cv2.BORDER_REFLECT_101)
         return out.reshape(-1, n, n)
 
@@ -751,17 +773,19 @@ class FourierMellin:
         """
         keep = np.flatnonzero(placed.valid)
         offsets, linear = placed.offsets.copy(), np.array(linear_b, dtype=np.float64)
-        last = replace(placed.last, tiles=placed.last.tiles.copy(), offsets=placed.last.offsets.copy(),
-                       linear=placed.last.linear.copy(), curvature=curvature_b,
-                       spectra=replace(placed.last.spectra, spectrum=placed.last.spectra.spectrum.copy(),
-                                       std=placed.last.spectra.std.copy()))
+        last = replace(placed.last, curvature=curvature_b)
         if self.config.refine_passes and keep.size:
             with_rotation = self.config.estimate_rotation_scale and self.config.refine_predicted_rotation_scale
             kept_offsets, kept_linear, kept_last = self._refined_placement(
                 spectra_a.rows(keep), np.ascontiguousarray(source_b, dtype=np.float32), offsets[keep], linear[keep],
                 with_rotation=with_rotation, curvature=None if curvature_b is None else curvature_b[keep])
             offsets[keep], linear[keep] = kept_offsets, kept_linear
-            last = _replace_rows(last, keep, kept_last)
+            # New arrays: ``placed`` stays as it was.
+            return replace(placed, offsets=offsets, linear=linear,
+                           last=_replace_rows(last, keep, kept_last, in_place=False))
+        last = replace(last, tiles=last.tiles.copy(), offsets=last.offsets.copy(), linear=last.linear.copy(),
+                       spectra=replace(last.spectra, spectrum=last.spectra.spectrum.copy(),
+                                       std=last.spectra.std.copy()))
         return replace(placed, offsets=offsets, linear=linear, last=last)
 
     def _search_rotation_scale(self, spectra_a: TileSpectra, spectra_b: TileSpectra, source_b: np.ndarray,

@@ -150,7 +150,6 @@ def tiles_from_panorama(panorama: np.ndarray, layout: TileLayout, *, index: np.n
     if pad < n:
         panorama = np.concatenate([panorama[:, pad:pad + width], panorama[:, pad:pad + n]], axis=1)
         pad = 0
-    steps = np.arange(n)
-    rows = origins[:, 0, None] + steps
-    cols = origins[:, 1, None] + pad + steps
-    return panorama[rows[:, :, None], cols[:, None, :]]
+    # Every N x N window of the panorama as a view; the tiles are a gather of whole windows.
+    windows = np.lib.stride_tricks.sliding_window_view(panorama, (n, n))
+    return windows[origins[:, 0], origins[:, 1] + pad]
