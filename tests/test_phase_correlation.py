@@ -282,3 +282,93 @@ def test_resampling_more_tiles_than_one_remap_call_takes():
     tiles = engine.resample_placed(source, offsets, linear)
     for t in (0, 511, 512, 599):
         assert np.array_equal(tiles[t], engine.resample_placed(source, offsets[t:t + 1], linear[:1])[0])
+
+
+def test_curved_lanczos_tiles_resampled_in_chunks_equal_those_cut_one_at_a_time():
+    # 300 tiles of 32 px are mapped and remapped 128 at a time; tiles on either side of a chunk
+    # border equal the same tile resampled alone (same maps, same kernel: bit for bit).
+    rng = np.random.default_rng(7)
+    source = rng.uniform(0, 255, (300, 400)).astype(np.float32)
+    engine = FourierMellin(32, 300)
+    offsets = np.stack([rng.uniform(40, 260, 300), rng.uniform(40, 360, 300)], axis=1)
+    linear = np.eye(2) + rng.normal(0, 0.05, (300, 2, 2))
+    curvature = rng.normal(0, 2e-3, (300, 2, 2, 2))
+    curvature = (curvature + np.swapaxes(curvature, -1, -2)) / 2
+    tiles = engine.resample_placed(source, offsets, linear, curvature=curvature, interpolation="lanczos4")
+    for t in (0, 127, 128, 255, 256, 299):
+        alone = engine.resample_placed(source, offsets[t:t + 1], linear[t:t + 1], curvature=curvature[t:t + 1],
+                                       interpolation="lanczos4")[0]
+        assert np.array_equal(tiles[t], alone)
+
+
+def test_curved_tile_maps_follow_the_second_order_placement_to_float32_rounding():
+    from ifmi.fourier_mellin import _placement_maps
+
+    rng = np.random.default_rng(8)
+    n, count = 16, 7
+    offsets = np.stack([rng.uniform(50, 300, count), rng.uniform(100, 2200, count)], axis=1)
+    linear = np.eye(2) + rng.normal(0, 0.1, (count, 2, 2))
+    curvature = rng.normal(0, 1e-2, (count, 2, 2, 2))
+    curvature = (curvature + np.swapaxes(curvature, -1, -2)) / 2
+    u = np.arange(n) - (n - 1) / 2.0
+    grid = np.stack(np.meshgrid(u, u, indexing="ij"), axis=-1)  # (N, N, 2): (u_r, u_c)
+    exact = (offsets[:, None, None] + np.einsum("kij,rcj->krci", linear, grid)
+             + np.einsum("rca,kiab,rcb->krci", grid, curvature, grid))
+    map_rows, map_cols = _placement_maps(n, offsets, linear, curvature)
+    # A few float32 roundings of values up to 2300 px (ulp 2.4e-4 px).
+    assert np.abs(map_rows.reshape(count, n, n) - exact[..., 0]).max() < 1e-3
+    assert np.abs(map_cols.reshape(count, n, n) - exact[..., 1]).max() < 1e-3
+
+
+def test_phase_plane_fit_solves_the_weighted_normal_equations():
+    # One iteration from a start near the truth is the weighted least-squares shift of the
+    # residual phase over the band: the same solve written out in float64.
+    from ifmi.phase_correlation import _frequency_band, refine_shift_phase_plane
+
+    rng = np.random.default_rng(9)
+    count, n = 4, 32
+    a = rng.uniform(0, 1, (count, n, n))
+    b = np.roll(a, (1, -2), axis=(1, 2)) + 0.05 * rng.normal(size=(count, n, n))
+    spectra_a = np.fft.rfft2(a).astype(np.complex64)
+    spectra_b = np.fft.rfft2(b).astype(np.complex64)
+    start = np.array([[1.2, -1.9], [0.9, -2.2], [1.0, -2.0], [1.3, -1.7]])
+    refined = refine_shift_phase_plane(spectra_a, spectra_b, start, (n, n), weight_power=0.5, iterations=1)
+    band, freqs, _ = _frequency_band((n, n), 0.35)
+    f = freqs.astype(np.float64)
+    for t in range(count):
+        cross = np.conj(spectra_a[t].ravel()[band].astype(np.complex128)) * spectra_b[t].ravel()[band]
+        weight = np.abs(cross) ** 0.5
+        residual = np.angle(cross) + 2 * np.pi * f @ start[t]
+        residual -= 2 * np.pi * np.round(residual / (2 * np.pi))
+        # Minimise sum w (residual + 2 pi f . delta)^2 over delta.
+        normal = (f * weight[:, None]).T @ f
+        delta = np.linalg.solve(normal, -(f * weight[:, None]).T @ residual / (2 * np.pi))
+        assert np.abs(refined[t] - (start[t] + delta)).max() < 1e-4
+    assert np.abs(refined - [1.0, -2.0]).max() < 0.05
+
+
+def test_refine_placed_replaces_the_kept_rows_and_leaves_its_input_alone():
+    image = _photo()
+    image[:64, :64] = 100.0  # a textureless tile: rejected, not refined
+    engine = FourierMellin(32, 4)
+    origins = np.array([[16, 16], [200, 150], [300, 260], [120, 330]])
+    a = np.stack([image[r:r + 32, c:c + 32] for r, c in origins])
+    spectra_a = engine.spectra(a, with_descriptor=False)
+    offsets = origins + 15.5 + np.array([0.3, -0.4])
+    linear = np.broadcast_to(np.eye(2), (4, 2, 2))
+    placed = engine.register_placed(spectra_a, image, offsets, linear)
+    assert placed.valid.tolist() == [False, True, True, True]
+    before = {name: getattr(placed.last, name).copy() for name in ("tiles", "offsets", "linear")}
+    spectrum_before = placed.last.spectra.spectrum.copy()
+    turned = np.array([[np.cos(0.01), -np.sin(0.01)], [np.sin(0.01), np.cos(0.01)]])
+    refined = engine.refine_placed(spectra_a, image, placed, np.broadcast_to(turned, (4, 2, 2)))
+    for name, array in before.items():
+        assert np.array_equal(getattr(placed.last, name), array)
+        assert np.array_equal(getattr(refined.last, name)[0], array[0])
+    assert np.array_equal(placed.last.spectra.spectrum, spectrum_before)
+    assert np.array_equal(refined.last.spectra.spectrum[0], spectrum_before[0])
+    # The kept tiles are cut anew with the turned shape.
+    assert np.allclose(refined.last.linear[1:], turned)
+    assert not np.array_equal(refined.last.tiles[1:], before["tiles"][1:])
+    assert np.array_equal(refined.last.tiles[1], engine.resample_placed(
+        image, refined.last.offsets[1:2], refined.last.linear[1:2])[0])
