@@ -1,4 +1,4 @@
-"""The method benchmark (benchmarks/bench_methods.py) keeps datasets of one name apart."""
+"""The benchmarks: bench_methods keeps datasets of one name apart; bench_versions compares two source trees."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("skimage")
@@ -69,3 +70,20 @@ def test_options_benchmark_names_same_named_sets_apart_and_compares_a_variant(tm
                                                             ("site_b/office", "affine")]
     assert all(r["cpu_default_s"] > 0 and r["cpu_variant_s"] > 0 for r in rows)
     assert rows[0]["ate_default"] != rows[1]["ate_default"]
+
+
+def test_versions_benchmark_finds_one_tree_bit_identical_to_itself(tmp_path, capsys):
+    spec = importlib.util.spec_from_file_location("bench_versions", BENCHMARK.parent / "bench_versions.py")
+    versions = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(versions)
+    data = _write_dataset(tmp_path / "office", seed=7, max_step_rad=0.03)
+    tree = str(BENCHMARK.parents[1])
+    out = tmp_path / "versions.json"
+    versions.main([tree, tree, "--sets", str(data), "--frames", "3", "--rounds", "1", "--out", str(out)])
+    row = json.loads(out.read_text())["sets"][str(data)]
+    assert row["max_rotation_difference"] == 0.0
+    assert 0 < row[tree]["ate"] < 0.05 and row[tree]["thread_ms"] > 0
+    assert "office" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        versions.main([tree, "--sets", str(data)])
+    assert versions._largest_difference([np.eye(3)], [np.eye(3) * 0.5]) == 0.5
