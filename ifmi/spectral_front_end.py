@@ -692,9 +692,11 @@ class IfmiFrontEnd:
         (``config.coarse_to_fine``) corrects the prediction, and the
         reference's tiles (tracked or from the layout) are looked for in
         frame b where the corrected prediction puts them, cut with its local
-        affine map; frame b then keeps the tiles it was registered with
-        (``track_tiles``). If too few tiles pass, the coarse stage searches
-        again from the identity and the tiles are registered once more.
+        affine map (a small correction is checked by registering at the
+        prediction too, ``config.prediction_check_tiles``); frame b then
+        keeps the tiles it was registered with (``track_tiles``). If too few
+        tiles pass, the coarse stage searches again from the identity and
+        the tiles are registered once more.
 
         Parameters
         ----------
