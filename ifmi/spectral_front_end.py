@@ -622,9 +622,10 @@ class IfmiFrontEnd:
         offsets_a, linear_a, placed, n_new = self.register_predicted(state_a, state_b, prior_rotation=rotation)
         return _TileMatch(offsets_a, linear_a, placed, rotation, n_new, state_b.tracked, state_b.tracked_valid)
 
-    def _checks_prediction(self, prediction: np.ndarray | None, correction_rad: float) -> bool:
-        """Whether the tiles are registered at a prediction the coarse stage moved by ``correction_rad``."""
-        if prediction is None or correction_rad <= 0 or self.config.prediction_check_tiles <= 0:
+    def _checks_prediction(self, prediction: np.ndarray | None, rotation: np.ndarray, correction_rad: float) -> bool:
+        """Whether the tiles are registered at a prediction the coarse stage moved to ``rotation``
+        (by ``correction_rad``); a prediction the coarse stage returned unchanged is not."""
+        if prediction is None or self.config.prediction_check_tiles <= 0 or np.array_equal(rotation, prediction):
             return False
         correction_px = correction_rad * self.mapping.width / (2 * np.pi)
         return correction_px <= self.config.prediction_check_tiles * self.layout.tile_size
@@ -634,13 +635,16 @@ class IfmiFrontEnd:
         """Coarse stage from ``starts``, then the tiles at the placements it predicts.
 
         When the coarse stage moved the first start (the prediction) by less
-        than ``config.prediction_check_tiles``, the tiles are registered at the
-        prediction too and the registration keeping more tiles is returned;
-        frame b keeps that registration's tracked tiles.
+        than ``config.prediction_check_tiles`` and not every tile passed, the
+        tiles are registered at the prediction too and the registration
+        keeping more tiles is returned; frame b keeps that registration's
+        tracked tiles.
         """
         rotation, coarse = self._coarse_rotation(state_a, state_b, starts)
         match = self._tiles_at(state_a, state_b, rotation)
-        if self._checks_prediction(starts[0], coarse.get("coarse_correction_rad", 0.0)):
+        # With every tile kept the prediction cannot keep more: no second registration.
+        if match.placed.valid.sum() < self.layout.count and \
+                self._checks_prediction(starts[0], rotation, coarse.get("coarse_correction_rad", 0.0)):
             at_prediction = self._tiles_at(state_a, state_b, starts[0])
             coarse["n_tiles_kept_coarse"] = int(match.placed.valid.sum())
             coarse["prediction_kept"] = bool(at_prediction.placed.valid.sum() > match.placed.valid.sum())
