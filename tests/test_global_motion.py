@@ -195,3 +195,19 @@ def test_prediction_check_option_is_checked():
 
     with pytest.raises(ValueError, match="prediction_check_tiles"):
         IfmiConfig(prediction_check_tiles=0.5)
+
+
+def test_a_prediction_the_coarse_stage_confirmed_is_registered_once(scene, monkeypatch):
+    from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
+
+    texture, _ = scene
+    truth = _rotation(12.0, 2.0, 60.0)
+    panorama = PanoramaConfig(radius_min_px=BAND[0], radius_max_px=BAND[1])
+    front_end, (a, b) = _front_end_pair(texture, truth, IfmiConfig(panorama=panorama))
+    _coarse_result_off_by(monkeypatch, 0.0)  # returned unchanged: its correction angle is float noise
+    calls = []
+    original = IfmiFrontEnd.register_predicted
+    monkeypatch.setattr(IfmiFrontEnd, "register_predicted",
+                        lambda self, *args, **kwargs: calls.append(1) or original(self, *args, **kwargs))
+    diagnostics = front_end.correspondences(a, b, prior_rotation=truth).diagnostics
+    assert len(calls) == 1 and "prediction_kept" not in diagnostics
