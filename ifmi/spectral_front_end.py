@@ -18,7 +18,8 @@ from .options import options_from_dict
 from .front_end import Correspondences
 from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
 from .global_motion import GlobalMotionConfig, GlobalMotionEstimator
-from .fourier_mellin import FourierMellin, TileRejection, FourierMellinConfig, PlacedTiles, TileSpectra
+from .fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, PlacedRegistration, PlacedTiles,
+                            TileSpectra)
 from .errors import CalibrationFitError
 from .relative_pose import rotation_angles, rotation_from_rays
 from .tiling import TileLayout, TilingConfig, tile_layout, tile_size_px, tiles_from_panorama
@@ -75,6 +76,15 @@ class IfmiConfig:
         (re-acquisition after a lost track). Needs ``use_prior``.
     global_motion : GlobalMotionConfig
         Options of the coarse stage.
+    prediction_check_tiles : float
+        When the coarse stage moves a prediction by at most this many tile
+        widths (panorama pixels of the correction angle over the tile
+        size), the tiles are registered at the prediction as well and the
+        registration that keeps more tiles wins (ties go to the coarse
+        stage). The prediction is then still well inside the tiles' capture
+        range, so the coarse stage's own error, a fraction of a coarse
+        pixel, does not replace a prediction that the tiles match better.
+        0 disables the check.
     max_tile_distortion : float
         A tracked tile whose placement stretches or shrinks the panorama by
         more than this factor along any direction is cut anew.
@@ -127,6 +137,7 @@ class IfmiConfig:
     track_tiles: bool = True
     coarse_to_fine: bool = True
     global_motion: GlobalMotionConfig = field(default_factory=GlobalMotionConfig)
+    prediction_check_tiles: float = 0.125
     max_tile_distortion: float = 1.25
     dense_retry_fraction: float = 0.33
     dense_overlap: float = 0.5
@@ -148,6 +159,8 @@ class IfmiConfig:
         if self.refit_passes < 0 or not self.refit_max_residual_px > 0 or self.min_width_curved < 0:
             raise ValueError(f"expected refit_passes >= 0, refit_max_residual_px > 0 and min_width_curved >= 0, "
                              f"got {self.refit_passes}, {self.refit_max_residual_px}, {self.min_width_curved}")
+        if not 0 <= self.prediction_check_tiles < 0.5:
+            raise ValueError(f"expected 0 <= prediction_check_tiles < 0.5, got {self.prediction_check_tiles}")
         if not self.max_tile_distortion > 1:
             raise ValueError(f"expected max_tile_distortion > 1, got {self.max_tile_distortion}")
 
@@ -221,6 +234,24 @@ class IfmiFrameState:
         if self._spectra is None:
             self._spectra = self._engine.spectra(self.layout_tiles())
         return self._spectra
+
+
+@dataclass(frozen=True)
+class _TileMatch:
+    """One registration of a reference's tiles in frame b (:meth:`IfmiFrontEnd.register_predicted`)
+    at ``rotation`` (``R_ab``), and the tracked tiles it gave frame b."""
+
+    offsets_a: np.ndarray
+    linear_a: np.ndarray
+    placed: PlacedRegistration
+    rotation: np.ndarray
+    n_new: int
+    tracked: PlacedTiles
+    tracked_valid: np.ndarray
+
+    def restore_tracking(self, state_b: IfmiFrameState) -> None:
+        """Give frame b this registration's tracked tiles again (after another registration replaced them)."""
+        state_b.tracked, state_b.tracked_valid = self.tracked, self.tracked_valid
 
 
 class IfmiFrontEnd:
@@ -586,12 +617,43 @@ class IfmiFrontEnd:
                                  "coarse_correction_rad": float(np.arccos(change)),
                                  "coarse_sectors": coarse.n_sectors, "coarse_score": coarse.score}
 
-    def _match_predicted(self, state_a: IfmiFrameState, state_b: IfmiFrameState, starts: tuple):
-        """Coarse stage from ``starts``, then the tiles at the placements it predicts."""
-        rotation, coarse = self._coarse_rotation(state_a, state_b, starts)
+    def _tiles_at(self, state_a: IfmiFrameState, state_b: IfmiFrameState, rotation: np.ndarray) -> _TileMatch:
+        """:meth:`register_predicted` at ``rotation``, with the tracking it left in frame b."""
         offsets_a, linear_a, placed, n_new = self.register_predicted(state_a, state_b, prior_rotation=rotation)
-        diagnostics = self._diagnostics(placed.reason, placed.peak_ratio, placed.peak_to_noise, n_new)
-        return (offsets_a, linear_a, placed, rotation), {**diagnostics, **coarse}
+        return _TileMatch(offsets_a, linear_a, placed, rotation, n_new, state_b.tracked, state_b.tracked_valid)
+
+    def _checks_prediction(self, prediction: np.ndarray | None, rotation: np.ndarray, correction_rad: float) -> bool:
+        """Whether the tiles are registered at a prediction the coarse stage moved to ``rotation``
+        (by ``correction_rad``); a prediction the coarse stage returned unchanged is not."""
+        if prediction is None or self.config.prediction_check_tiles <= 0 or np.array_equal(rotation, prediction):
+            return False
+        correction_px = correction_rad * self.mapping.width / (2 * np.pi)
+        return correction_px <= self.config.prediction_check_tiles * self.layout.tile_size
+
+    def _match_predicted(self, state_a: IfmiFrameState, state_b: IfmiFrameState,
+                         starts: tuple) -> tuple[_TileMatch, dict]:
+        """Coarse stage from ``starts``, then the tiles at the placements it predicts.
+
+        When the coarse stage moved the first start (the prediction) by less
+        than ``config.prediction_check_tiles`` and not every tile passed, the
+        tiles are registered at the prediction too and the registration
+        keeping more tiles is returned; frame b keeps that registration's
+        tracked tiles.
+        """
+        rotation, coarse = self._coarse_rotation(state_a, state_b, starts)
+        match = self._tiles_at(state_a, state_b, rotation)
+        # With every tile kept the prediction cannot keep more: no second registration.
+        if match.placed.valid.sum() < self.layout.count and \
+                self._checks_prediction(starts[0], rotation, coarse.get("coarse_correction_rad", 0.0)):
+            at_prediction = self._tiles_at(state_a, state_b, starts[0])
+            coarse["n_tiles_kept_coarse"] = int(match.placed.valid.sum())
+            coarse["prediction_kept"] = bool(at_prediction.placed.valid.sum() > match.placed.valid.sum())
+            if coarse["prediction_kept"]:
+                match = at_prediction
+            match.restore_tracking(state_b)
+        diagnostics = self._diagnostics(match.placed.reason, match.placed.peak_ratio, match.placed.peak_to_noise,
+                                        match.n_new)
+        return match, {**diagnostics, **coarse}
 
     def register_dense(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
                        prior_rotation: np.ndarray):
@@ -634,9 +696,11 @@ class IfmiFrontEnd:
         (``config.coarse_to_fine``) corrects the prediction, and the
         reference's tiles (tracked or from the layout) are looked for in
         frame b where the corrected prediction puts them, cut with its local
-        affine map; frame b then keeps the tiles it was registered with
-        (``track_tiles``). If too few tiles pass, the coarse stage searches
-        again from the identity and the tiles are registered once more.
+        affine map (a small correction is checked by registering at the
+        prediction too, ``config.prediction_check_tiles``); frame b then
+        keeps the tiles it was registered with (``track_tiles``). If too few
+        tiles pass, the coarse stage searches again from the identity and
+        the tiles are registered once more.
 
         Parameters
         ----------
@@ -658,12 +722,13 @@ class IfmiFrontEnd:
             valid = motion.valid
         else:
             match, diagnostics = self._match_predicted(state_a, state_b, (prior_rotation, None))
-            if match[2].valid.sum() < min_tiles and self.global_stage is not None:
+            if match.placed.valid.sum() < min_tiles and self.global_stage is not None:
                 # Re-acquisition: the prediction may be far off after fast motion or a lost frame.
                 retry, retry_diagnostics = self._match_predicted(state_a, state_b, (None, prior_rotation))
-                if retry[2].valid.sum() > match[2].valid.sum():
+                if retry.placed.valid.sum() > match.placed.valid.sum():
                     match, diagnostics = retry, {**retry_diagnostics, "reacquired": True}
-            offsets_a, linear_a, placed, rotation = match
+                match.restore_tracking(state_b)
+            offsets_a, linear_a, placed, rotation = match.offsets_a, match.linear_a, match.placed, match.rotation
             curvature_a = state_a.reference_curvature
             valid = placed.valid
             if self.dense_layout is not None and valid.sum() <= self.config.dense_retry_fraction * self.layout.count:
