@@ -342,7 +342,7 @@ class GlobalMotionEstimator:
         return max(results, key=lambda result: (result.success, result.score))
 
     def wide_search(self, coarse_a: np.ndarray, coarse_b: np.ndarray, *, start: np.ndarray | None,
-                    current: GlobalMotion) -> GlobalMotion | None:
+                    current_rotation: np.ndarray, current_score: float) -> GlobalMotion | None:
         """The search from tilted copies of ``start``, when it clearly beats ``current``.
 
         For pairs whose tiles failed at the rotation :meth:`estimate` gave:
@@ -358,14 +358,16 @@ class GlobalMotionEstimator:
         coarse_a, coarse_b : (h, w) float32 ndarray
         start : (3, 3) ndarray or None, keyword-only
             ``R_ab`` the grid is centred on (None: the identity).
-        current : GlobalMotion, keyword-only
-            What :meth:`estimate` returned for the pair.
+        current_rotation : (3, 3) ndarray, keyword-only
+            ``R_ab`` found before (by :meth:`estimate`).
+        current_score : float, keyword-only
+            Its :meth:`score`.
 
         Returns
         -------
         GlobalMotion or None
             The best search from the grid, if it succeeded, lies more than
-            ``config.confirm_angle_rad`` from ``current`` and leaves at most
+            ``config.confirm_angle_rad`` from ``current_rotation`` and leaves at most
             ``config.wide_mismatch_ratio`` of its mismatch ``1 - score``;
             else None.
         """
@@ -374,8 +376,8 @@ class GlobalMotionEstimator:
         reference = _ReferenceSpectra(self, coarse_a)
         wide = max((self._search(reference, coarse_b, tilted)[0] for tilted in self._tilted_starts(start)),
                    key=lambda result: (result.success, result.score), default=None)
-        if (wide is None or not wide.success or _angle(current.rotation.T @ wide.rotation) <= c.confirm_angle_rad
-                or 1.0 - wide.score > c.wide_mismatch_ratio * (1.0 - current.score)):
+        if (wide is None or not wide.success or _angle(current_rotation.T @ wide.rotation) <= c.confirm_angle_rad
+                or 1.0 - wide.score > c.wide_mismatch_ratio * (1.0 - current_score)):
             return None
         return wide
 
