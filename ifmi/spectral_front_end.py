@@ -90,8 +90,7 @@ class IfmiConfig:
         rotation (after any re-acquisition), its wide search
         (:meth:`ifmi.global_motion.GlobalMotionEstimator.wide_search`, from
         starts tilted around the prediction) looks for a clearly better
-        rotation, and the tiles registered there replace the first ones if
-        more of them pass. A tilt of ten degrees between frames can smear
+        rotation, and the tiles are registered there instead. A tilt of ten degrees between frames can smear
         the whole-panorama correlation into a wrong yaw that a few tiles
         still agree with. 0 disables the search.
     max_tile_distortion : float
@@ -636,17 +635,19 @@ class IfmiFrontEnd:
     def _wide_match(self, state_a: IfmiFrameState, state_b: IfmiFrameState, match: "_TileMatch",
                     diagnostics: dict, prediction: np.ndarray) -> tuple["_TileMatch", dict] | None:
         """Tiles at the coarse stage's wide search (around ``prediction``), if it finds a clearly
-        better rotation than ``match``'s and they keep more tiles; else None (frame b's tracking
-        is left as ``match`` gave it)."""
+        better rotation than ``match``'s; else None.
+
+        The coarse match decides, not the tile count: both registrations come
+        here with few tiles passing, and under parallax (lawn with
+        translation) the right rotation can keep as few as the wrong one
+        (2 against 3) until the dense retry registers more.
+        """
         coarse = self.global_stage.wide_search(state_a.coarse_panorama, state_b.coarse_panorama, start=prediction,
                                                current_rotation=match.rotation,
                                                current_score=diagnostics["coarse_score"])
         if coarse is None:
             return None
         wide = self._tiles_at(state_a, state_b, coarse.rotation)
-        if wide.placed.valid.sum() <= match.placed.valid.sum():
-            match.restore_tracking(state_b)
-            return None
         tiles = self._diagnostics(wide.placed.reason, wide.placed.peak_ratio, wide.placed.peak_to_noise, wide.n_new)
         return wide, {**tiles, **_coarse_diagnostics(prediction, coarse), "wide_search": True}
 

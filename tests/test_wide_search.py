@@ -95,7 +95,8 @@ def test_the_front_end_searches_wide_when_the_tiles_fail(texture, monkeypatch):
 
 @pytest.mark.parametrize("kwargs, name", [({"wide_tilt_max_deg": -1.0}, "wide_tilt_max_deg"),
                                           ({"wide_tilt_step_deg": 0.0}, "wide_tilt_step_deg"),
-                                          ({"wide_mismatch_ratio": 1.5}, "wide_mismatch_ratio")])
+                                          ({"wide_mismatch_ratio": 1.5}, "wide_mismatch_ratio"),
+                                          ({"wide_candidates": 0}, "wide_candidates")])
 def test_wide_search_options_are_checked(kwargs, name):
     with pytest.raises(ValueError, match=name):
         GlobalMotionConfig(**kwargs)
