@@ -17,7 +17,7 @@ from .camera import OcamModel
 from .options import options_from_dict
 from .front_end import Correspondences
 from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
-from .global_motion import GlobalMotionConfig, GlobalMotionEstimator
+from .global_motion import GlobalMotion, GlobalMotionConfig, GlobalMotionEstimator
 from .fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, PlacedRegistration, PlacedTiles,
                             TileSpectra)
 from .errors import CalibrationFitError
@@ -85,6 +85,14 @@ class IfmiConfig:
         range, so the coarse stage's own error, a fraction of a coarse
         pixel, does not replace a prediction that the tiles match better.
         0 disables the check.
+    wide_search_fraction : float
+        When at most this fraction of the tiles pass at the coarse stage's
+        rotation (after any re-acquisition), its wide search
+        (:meth:`ifmi.global_motion.GlobalMotionEstimator.wide_search`, from
+        starts tilted around the prediction) looks for a clearly better
+        rotation, and the tiles are registered there instead. A tilt of ten degrees between frames can smear
+        the whole-panorama correlation into a wrong yaw that a few tiles
+        still agree with. 0 disables the search.
     max_tile_distortion : float
         A tracked tile whose placement stretches or shrinks the panorama by
         more than this factor along any direction is cut anew.
@@ -138,6 +146,7 @@ class IfmiConfig:
     coarse_to_fine: bool = True
     global_motion: GlobalMotionConfig = field(default_factory=GlobalMotionConfig)
     prediction_check_tiles: float = 0.125
+    wide_search_fraction: float = 0.33
     max_tile_distortion: float = 1.25
     dense_retry_fraction: float = 0.33
     dense_overlap: float = 0.5
@@ -159,6 +168,8 @@ class IfmiConfig:
         if self.refit_passes < 0 or not self.refit_max_residual_px > 0 or self.min_width_curved < 0:
             raise ValueError(f"expected refit_passes >= 0, refit_max_residual_px > 0 and min_width_curved >= 0, "
                              f"got {self.refit_passes}, {self.refit_max_residual_px}, {self.min_width_curved}")
+        if not 0 <= self.wide_search_fraction <= 1:
+            raise ValueError(f"expected 0 <= wide_search_fraction <= 1, got {self.wide_search_fraction}")
         if not 0 <= self.prediction_check_tiles < 0.5:
             raise ValueError(f"expected 0 <= prediction_check_tiles < 0.5, got {self.prediction_check_tiles}")
         if not self.max_tile_distortion > 1:
@@ -252,6 +263,13 @@ class _TileMatch:
     def restore_tracking(self, state_b: IfmiFrameState) -> None:
         """Give frame b this registration's tracked tiles again (after another registration replaced them)."""
         state_b.tracked, state_b.tracked_valid = self.tracked, self.tracked_valid
+
+
+def _coarse_diagnostics(start: np.ndarray, coarse: GlobalMotion) -> dict:
+    """Per-frame figures of a coarse-stage result reached from ``start`` (``R_ab``)."""
+    change = np.clip((np.trace(start.T @ coarse.rotation) - 1.0) / 2.0, -1.0, 1.0)
+    return {"coarse_success": bool(coarse.success), "coarse_correction_rad": float(np.arccos(change)),
+            "coarse_sectors": coarse.n_sectors, "coarse_score": coarse.score}
 
 
 class IfmiFrontEnd:
@@ -612,10 +630,26 @@ class IfmiFrontEnd:
         if self.global_stage is None:
             return first, {}
         coarse = self.global_stage.estimate(state_a.coarse_panorama, state_b.coarse_panorama, priors=starts)
-        change = np.clip((np.trace(first.T @ coarse.rotation) - 1.0) / 2.0, -1.0, 1.0)
-        return coarse.rotation, {"coarse_success": bool(coarse.success),
-                                 "coarse_correction_rad": float(np.arccos(change)),
-                                 "coarse_sectors": coarse.n_sectors, "coarse_score": coarse.score}
+        return coarse.rotation, _coarse_diagnostics(first, coarse)
+
+    def _wide_match(self, state_a: IfmiFrameState, state_b: IfmiFrameState, match: "_TileMatch",
+                    diagnostics: dict, prediction: np.ndarray) -> tuple["_TileMatch", dict] | None:
+        """Tiles at the coarse stage's wide search (around ``prediction``), if it finds a clearly
+        better rotation than ``match``'s; else None.
+
+        The coarse match decides, not the tile count: both registrations come
+        here with few tiles passing, and under parallax (lawn with
+        translation) the right rotation can keep as few as the wrong one
+        (2 against 3) until the dense retry registers more.
+        """
+        coarse = self.global_stage.wide_search(state_a.coarse_panorama, state_b.coarse_panorama, start=prediction,
+                                               current_rotation=match.rotation,
+                                               current_score=diagnostics["coarse_score"])
+        if coarse is None:
+            return None
+        wide = self._tiles_at(state_a, state_b, coarse.rotation)
+        tiles = self._diagnostics(wide.placed.reason, wide.placed.peak_ratio, wide.placed.peak_to_noise, wide.n_new)
+        return wide, {**tiles, **_coarse_diagnostics(prediction, coarse), "wide_search": True}
 
     def _tiles_at(self, state_a: IfmiFrameState, state_b: IfmiFrameState, rotation: np.ndarray) -> _TileMatch:
         """:meth:`register_predicted` at ``rotation``, with the tracking it left in frame b."""
@@ -728,6 +762,11 @@ class IfmiFrontEnd:
                 if retry.placed.valid.sum() > match.placed.valid.sum():
                     match, diagnostics = retry, {**retry_diagnostics, "reacquired": True}
                 match.restore_tracking(state_b)
+            if self.global_stage is not None and self.config.wide_search_fraction > 0 and \
+                    match.placed.valid.sum() <= self.config.wide_search_fraction * self.layout.count:
+                wide = self._wide_match(state_a, state_b, match, diagnostics, prior_rotation)
+                if wide is not None:
+                    match, diagnostics = wide
             offsets_a, linear_a, placed, rotation = match.offsets_a, match.linear_a, match.placed, match.rotation
             curvature_a = state_a.reference_curvature
             valid = placed.valid

@@ -154,7 +154,9 @@ def test_a_coarse_correction_the_tiles_match_worse_than_the_prediction_is_overru
     texture, _ = scene
     truth = _rotation(12.0, 2.0, 60.0)
     panorama = PanoramaConfig(radius_min_px=BAND[0], radius_max_px=BAND[1])
-    config = IfmiConfig(panorama=panorama, prediction_check_tiles=0.45, dense_retry_fraction=0.0)
+    # No dense retry and no wide search: the prediction check alone decides.
+    config = IfmiConfig(panorama=panorama, prediction_check_tiles=0.45, dense_retry_fraction=0.0,
+                        wide_search_fraction=0.0)
     front_end, (a, b) = _front_end_pair(texture, truth, config)
     # The coarse stage moves an exact prediction by 0.4 of a tile (away from the identity, which the
     # re-acquisition starts from): the tiles barely overlap there.
