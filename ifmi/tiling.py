@@ -196,8 +196,10 @@ def tile_corner_strengths(panorama: np.ndarray, layout: TileLayout, *, wrapped_c
         raise ValueError(f"expected a panorama of shape {(height, width + 2 * pad)}, got {panorama.shape}")
     n = layout.tile_size
     if pad < n:
-        panorama = np.concatenate([panorama[:, pad:pad + width], panorama[:, pad:pad + n]], axis=1)
-        pad = 0
+        # Wrapped here, with one column more on each side for the tiles' outer gradients.
+        core = panorama[:, pad:pad + width]
+        panorama = np.concatenate([core[:, -1:], core, core[:, :n]], axis=1)
+        pad = 1
     panorama = np.asarray(panorama, dtype=np.float32)
     grad_rows = cv2.Sobel(panorama, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
     grad_cols = cv2.Sobel(panorama, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
