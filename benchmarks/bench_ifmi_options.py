@@ -20,7 +20,10 @@ each round so that load from other processes hits all alike; the median
 over the rounds is used, as wall time and as this thread's CPU time (the
 CPU time is steadier on a loaded machine). Printed per dataset and
 variant: the ATE of default and variant, how many frames ran the dense
-retry, and the variant's compute over the default's (1.25 = 25 % more).
+retry, and the variant's compute over the default's (1.25 = 25 % more);
+then, per variant, a summary over the datasets where the retry ran (for
+comparing retry variants over many sets, e.g. subsampled from several start
+frames with ``subsample_dataset.py --start``).
 """
 
 from __future__ import annotations
@@ -93,6 +96,34 @@ def compute_times(dataset: str, configs: dict, *, rounds: int) -> tuple[dict, di
     return medians, retries
 
 
+def variant_summary(rows: list) -> dict:
+    """Per variant, over the datasets where default or variant ran the dense retry: how the
+    variant's ATE compares (sets on which one configuration alone differs say little when
+    single pairs decide a set's ATE).
+
+    Returns ``{variant: {sets, ate_ratio_geomean, ate_median_default, ate_median_variant,
+    worse, better, failures_default, failures_variant, cpu_ratio_median}}``; worse/better
+    count sets whose ATE changed by more than 5 %.
+    """
+    summary = {}
+    for name in dict.fromkeys(r["variant"] for r in rows):
+        chosen = [r for r in rows if r["variant"] == name
+                  and (r["retry_frames_default"] or r["retry_frames_variant"])]
+        if not chosen:
+            continue
+        default = np.array([r["ate_default"] for r in chosen])
+        variant = np.array([r["ate_variant"] for r in chosen])
+        summary[name] = {
+            "sets": len(chosen),
+            "ate_ratio_geomean": float(np.exp(np.mean(np.log(variant / default)))),
+            "ate_median_default": float(np.median(default)), "ate_median_variant": float(np.median(variant)),
+            "worse": int(np.sum(variant > 1.05 * default)), "better": int(np.sum(variant < default / 1.05)),
+            "failures_default": sum(r["failures_default"] for r in chosen),
+            "failures_variant": sum(r["failures_variant"] for r in chosen),
+            "cpu_ratio_median": float(np.median([r["cpu_variant_s"] / r["cpu_default_s"] for r in chosen]))}
+    return summary
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("datasets", nargs="+")
@@ -136,8 +167,15 @@ def main(argv=None) -> int:
                          "retry_frames_default": retries["default"], "retry_frames_variant": retries[name],
                          "wall_default_s": times["default"][0], "wall_variant_s": times[name][0],
                          "cpu_default_s": times["default"][1], "cpu_variant_s": times[name][1]})
+    summary = variant_summary(rows)
+    for name, v in summary.items():
+        print(f"{name}: over the {v['sets']} sets with a dense retry: ATE variant/default geometric mean "
+              f"{v['ate_ratio_geomean']:.3f}, median {v['ate_median_default']:.5f} -> {v['ate_median_variant']:.5f}, "
+              f"{v['worse']} sets worse and {v['better']} better by > 5 %, failed frames "
+              f"{v['failures_default']} -> {v['failures_variant']}, median cpu v/d {v['cpu_ratio_median']:.3f}")
     atomic_write_json(out / "bench_ifmi_options.json",
-                      {"rows": rows, "rounds": args.rounds, "argv": sys.argv if argv is None else argv})
+                      {"rows": rows, "summary": summary, "rounds": args.rounds,
+                       "argv": sys.argv if argv is None else argv})
     return 0
 
 
