@@ -96,3 +96,22 @@ def test_options_benchmark_summary_over_the_sets_with_a_retry(monkeypatch):
     assert np.isclose(few["ate_median_default"], 0.02) and np.isclose(few["ate_median_variant"], 0.02)
     assert (few["failures_default"], few["failures_variant"]) == (0, 1)
     assert np.isclose(few["cpu_ratio_median"], 0.8)
+
+
+def test_retry_pair_stability_reports_both_priors(tmp_path, monkeypatch, capsys):
+    monkeypatch.syspath_prepend(str(BENCHMARK.parent))
+    spec = importlib.util.spec_from_file_location("retry_pair_stability",
+                                                  BENCHMARK.parent / "retry_pair_stability.py")
+    stability = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(stability)
+    data = _write_dataset(tmp_path / "office", seed=5, max_step_rad=0.03)
+    assert stability.main([str(data), "--pair", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[1] for line in lines] == ["coarse", "truth"]
+    # Noise-free pure rotation: at the true rotation the tiles give it back to a tenth of a pixel
+    # (measured 0.0025 rad, with every tile or one left out; one pixel of the 256 px wide panorama
+    # of these 128 px frames is 0.025 rad). Bound: a quarter pixel.
+    truth = lines[1].split()
+    assert truth[3] == "0.0000" and float(truth[9]) < 6e-3 and float(truth[14]) < 6e-3
+    with pytest.raises(SystemExit):
+        stability.main([str(data), "--pair", "4"])
