@@ -171,11 +171,11 @@ def tile_corner_strengths(panorama: np.ndarray, layout: TileLayout, *, wrapped_c
     """How well each tile's content fixes a shift in both directions (Shi-Tomasi corner strength).
 
     The smaller eigenvalue of the tile's gradient structure tensor (mean of
-    ``g g^T`` over the tile, central differences): near zero on flat tiles and
-    on tiles with texture along one direction only (an edge, stripes), whose
-    phase correlation peak is weak or smeared; large where texture varies in
-    both directions. Gradients are central differences (the panorama's
-    first and last rows mirrored).
+    ``g g^T`` over the tile): near zero on flat tiles and on tiles with
+    texture along one direction only (an edge, stripes), whose phase
+    correlation peak is weak or smeared; large where texture varies in both
+    directions. Gradients are central differences, the panorama's first and
+    last rows mirrored and its columns continued across the seam.
 
     Parameters
     ----------
