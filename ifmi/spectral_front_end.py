@@ -22,7 +22,8 @@ from .fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, 
                             TileSpectra)
 from .errors import CalibrationFitError
 from .relative_pose import rotation_angles, rotation_from_rays
-from .tiling import TileLayout, TilingConfig, tile_layout, tile_size_px, tiles_from_panorama
+from .tiling import (TileLayout, TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_layout,
+                     tile_size_px, tiles_from_panorama)
 from .unwarp import (PanoramaConfig, PanoramaMapping, gray_from_image, panorama_image_from_omni_image,
                      panorama_mapping, panorama_pixels_from_rays, rays_from_panorama_pixels, wrapped_panorama_maps)
 
@@ -106,6 +107,12 @@ class IfmiConfig:
         layout's tracked tiles. 0 disables it.
     dense_overlap : float
         Overlap of the denser layout (``TilingConfig.overlap``).
+    dense_tiles_per_column : int or None
+        The retry registers only this many tiles of each column of the
+        denser layout, those whose texture best fixes a shift in frame a
+        (:func:`ifmi.tiling.tile_corner_strengths`), instead of all of them
+        (None). Its cost falls with the tile count; see the README's retry
+        section for what it does to the accuracy.
     anchor_templates : bool
         Tracked tiles keep the template (spectrum) of the frame they were
         first cut from, and every later frame's placement of them is
@@ -150,6 +157,7 @@ class IfmiConfig:
     max_tile_distortion: float = 1.25
     dense_retry_fraction: float = 0.33
     dense_overlap: float = 0.5
+    dense_tiles_per_column: int | None = None
     anchor_templates: bool = True
     curved_placement: bool = True
     refit_passes: int = 1
@@ -165,6 +173,8 @@ class IfmiConfig:
         if not 0 <= self.dense_retry_fraction <= 1 or not 0 <= self.dense_overlap < 1:
             raise ValueError(f"expected 0 <= dense_retry_fraction <= 1 and 0 <= dense_overlap < 1, got "
                              f"{self.dense_retry_fraction}, {self.dense_overlap}")
+        if self.dense_tiles_per_column is not None and self.dense_tiles_per_column < 1:
+            raise ValueError(f"expected dense_tiles_per_column >= 1 or None, got {self.dense_tiles_per_column}")
         if self.refit_passes < 0 or not self.refit_max_residual_px > 0 or self.min_width_curved < 0:
             raise ValueError(f"expected refit_passes >= 0, refit_max_residual_px > 0 and min_width_curved >= 0, "
                              f"got {self.refit_passes}, {self.refit_max_residual_px}, {self.min_width_curved}")
@@ -689,27 +699,39 @@ class IfmiFrontEnd:
                                         match.n_new)
         return match, {**diagnostics, **coarse}
 
+    def _dense_selection(self, state_a: IfmiFrameState) -> np.ndarray | None:
+        """Indices of the denser layout's tiles the retry registers (None: all of them)."""
+        per_column = self.config.dense_tiles_per_column
+        if per_column is None or per_column >= self.dense_layout.grid_shape[0]:
+            return None
+        strength = tile_corner_strengths(state_a.padded_panorama, self.dense_layout, wrapped_columns=self._pad)
+        return strongest_tiles_per_column(strength, self.dense_layout, per_column)
+
     def register_dense(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
                        prior_rotation: np.ndarray):
         """Tiles of the denser layout cut from frame a, found in frame b where ``R_ab`` puts them.
 
-        Frame b's tracked tiles are left as they are.
+        Frame b's tracked tiles are left as they are. With
+        ``dense_tiles_per_column`` only that many tiles of each layout
+        column are registered (the most textured in frame a).
 
         Returns
         -------
-        offsets_a : (T, 2) ndarray
-            Panorama ``(row, col)`` of the tile centres in frame a.
-        linear_a : (T, 2, 2) ndarray
+        offsets_a : (K, 2) ndarray
+            Panorama ``(row, col)`` of the registered tiles' centres in frame a.
+        linear_a : (K, 2, 2) ndarray
         placed : PlacedRegistration
             With panorama coordinates of frame b (columns in ``[0, width)``).
         """
         layout = self.dense_layout
         registration = self.config.registration
         with_descriptor = registration.estimate_rotation_scale and registration.refine_predicted_rotation_scale
-        tiles = tiles_from_panorama(state_a.padded_panorama, layout, wrapped_columns=self._pad)
+        index = self._dense_selection(state_a)
+        tiles = tiles_from_panorama(state_a.padded_panorama, layout, index=index, wrapped_columns=self._pad)
         spectra_a = self.dense_engine.spectra(tiles, with_descriptor=with_descriptor)
-        offsets_a = layout.origins.astype(np.float64) + (layout.tile_size - 1) / 2.0
-        linear_a = np.broadcast_to(np.eye(2), (layout.count, 2, 2)).copy()
+        origins = layout.origins if index is None else layout.origins[index]
+        offsets_a = origins.astype(np.float64) + (layout.tile_size - 1) / 2.0
+        linear_a = np.broadcast_to(np.eye(2), (len(origins), 2, 2)).copy()
         offsets_b, linear_b = self.predicted_placements(offsets_a, linear_a, prior_rotation)
         curvature_b = None
         if self._curved:
