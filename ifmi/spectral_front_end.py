@@ -17,11 +17,13 @@ from .camera import OcamModel
 from .options import options_from_dict
 from .front_end import Correspondences
 from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
-from .global_motion import GlobalMotionConfig, GlobalMotionEstimator
-from .fourier_mellin import FourierMellin, TileRejection, FourierMellinConfig, PlacedTiles, TileSpectra
+from .global_motion import GlobalMotion, GlobalMotionConfig, GlobalMotionEstimator
+from .fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, PlacedRegistration, PlacedTiles,
+                            TileSpectra)
 from .errors import CalibrationFitError
 from .relative_pose import rotation_angles, rotation_from_rays
-from .tiling import TileLayout, TilingConfig, tile_layout, tile_size_px, tiles_from_panorama
+from .tiling import (TileLayout, TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_layout,
+                     tile_size_px, tiles_from_panorama)
 from .unwarp import (PanoramaConfig, PanoramaMapping, gray_from_image, panorama_image_from_omni_image,
                      panorama_mapping, panorama_pixels_from_rays, rays_from_panorama_pixels, wrapped_panorama_maps)
 
@@ -75,6 +77,23 @@ class IfmiConfig:
         (re-acquisition after a lost track). Needs ``use_prior``.
     global_motion : GlobalMotionConfig
         Options of the coarse stage.
+    prediction_check_tiles : float
+        When the coarse stage moves a prediction by at most this many tile
+        widths (panorama pixels of the correction angle over the tile
+        size), the tiles are registered at the prediction as well and the
+        registration that keeps more tiles wins (ties go to the coarse
+        stage). The prediction is then still well inside the tiles' capture
+        range, so the coarse stage's own error, a fraction of a coarse
+        pixel, does not replace a prediction that the tiles match better.
+        0 disables the check.
+    wide_search_fraction : float
+        When at most this fraction of the tiles pass at the coarse stage's
+        rotation (after any re-acquisition), its wide search
+        (:meth:`ifmi.global_motion.GlobalMotionEstimator.wide_search`, from
+        starts tilted around the prediction) looks for a clearly better
+        rotation, and the tiles are registered there instead. A tilt of ten degrees between frames can smear
+        the whole-panorama correlation into a wrong yaw that a few tiles
+        still agree with. 0 disables the search.
     max_tile_distortion : float
         A tracked tile whose placement stretches or shrinks the panorama by
         more than this factor along any direction is cut anew.
@@ -88,6 +107,12 @@ class IfmiConfig:
         layout's tracked tiles. 0 disables it.
     dense_overlap : float
         Overlap of the denser layout (``TilingConfig.overlap``).
+    dense_tiles_per_column : int or None
+        The retry registers only this many tiles of each column of the
+        denser layout, those whose texture best fixes a shift in frame a
+        (:func:`ifmi.tiling.tile_corner_strengths`), instead of all of them
+        (None). Its cost falls with the tile count; see the README's retry
+        section for what it does to the accuracy.
     anchor_templates : bool
         Tracked tiles keep the template (spectrum) of the frame they were
         first cut from, and every later frame's placement of them is
@@ -127,9 +152,12 @@ class IfmiConfig:
     track_tiles: bool = True
     coarse_to_fine: bool = True
     global_motion: GlobalMotionConfig = field(default_factory=GlobalMotionConfig)
+    prediction_check_tiles: float = 0.125
+    wide_search_fraction: float = 0.33
     max_tile_distortion: float = 1.25
     dense_retry_fraction: float = 0.33
     dense_overlap: float = 0.5
+    dense_tiles_per_column: int | None = None
     anchor_templates: bool = True
     curved_placement: bool = True
     refit_passes: int = 1
@@ -145,9 +173,15 @@ class IfmiConfig:
         if not 0 <= self.dense_retry_fraction <= 1 or not 0 <= self.dense_overlap < 1:
             raise ValueError(f"expected 0 <= dense_retry_fraction <= 1 and 0 <= dense_overlap < 1, got "
                              f"{self.dense_retry_fraction}, {self.dense_overlap}")
+        if self.dense_tiles_per_column is not None and self.dense_tiles_per_column < 1:
+            raise ValueError(f"expected dense_tiles_per_column >= 1 or None, got {self.dense_tiles_per_column}")
         if self.refit_passes < 0 or not self.refit_max_residual_px > 0 or self.min_width_curved < 0:
             raise ValueError(f"expected refit_passes >= 0, refit_max_residual_px > 0 and min_width_curved >= 0, "
                              f"got {self.refit_passes}, {self.refit_max_residual_px}, {self.min_width_curved}")
+        if not 0 <= self.wide_search_fraction <= 1:
+            raise ValueError(f"expected 0 <= wide_search_fraction <= 1, got {self.wide_search_fraction}")
+        if not 0 <= self.prediction_check_tiles < 0.5:
+            raise ValueError(f"expected 0 <= prediction_check_tiles < 0.5, got {self.prediction_check_tiles}")
         if not self.max_tile_distortion > 1:
             raise ValueError(f"expected max_tile_distortion > 1, got {self.max_tile_distortion}")
 
@@ -221,6 +255,31 @@ class IfmiFrameState:
         if self._spectra is None:
             self._spectra = self._engine.spectra(self.layout_tiles())
         return self._spectra
+
+
+@dataclass(frozen=True)
+class _TileMatch:
+    """One registration of a reference's tiles in frame b (:meth:`IfmiFrontEnd.register_predicted`)
+    at ``rotation`` (``R_ab``), and the tracked tiles it gave frame b."""
+
+    offsets_a: np.ndarray
+    linear_a: np.ndarray
+    placed: PlacedRegistration
+    rotation: np.ndarray
+    n_new: int
+    tracked: PlacedTiles
+    tracked_valid: np.ndarray
+
+    def restore_tracking(self, state_b: IfmiFrameState) -> None:
+        """Give frame b this registration's tracked tiles again (after another registration replaced them)."""
+        state_b.tracked, state_b.tracked_valid = self.tracked, self.tracked_valid
+
+
+def _coarse_diagnostics(start: np.ndarray, coarse: GlobalMotion) -> dict:
+    """Per-frame figures of a coarse-stage result reached from ``start`` (``R_ab``)."""
+    change = np.clip((np.trace(start.T @ coarse.rotation) - 1.0) / 2.0, -1.0, 1.0)
+    return {"coarse_success": bool(coarse.success), "coarse_correction_rad": float(np.arccos(change)),
+            "coarse_sectors": coarse.n_sectors, "coarse_score": coarse.score}
 
 
 class IfmiFrontEnd:
@@ -581,39 +640,98 @@ class IfmiFrontEnd:
         if self.global_stage is None:
             return first, {}
         coarse = self.global_stage.estimate(state_a.coarse_panorama, state_b.coarse_panorama, priors=starts)
-        change = np.clip((np.trace(first.T @ coarse.rotation) - 1.0) / 2.0, -1.0, 1.0)
-        return coarse.rotation, {"coarse_success": bool(coarse.success),
-                                 "coarse_correction_rad": float(np.arccos(change)),
-                                 "coarse_sectors": coarse.n_sectors, "coarse_score": coarse.score}
+        return coarse.rotation, _coarse_diagnostics(first, coarse)
 
-    def _match_predicted(self, state_a: IfmiFrameState, state_b: IfmiFrameState, starts: tuple):
-        """Coarse stage from ``starts``, then the tiles at the placements it predicts."""
-        rotation, coarse = self._coarse_rotation(state_a, state_b, starts)
+    def _wide_match(self, state_a: IfmiFrameState, state_b: IfmiFrameState, match: "_TileMatch",
+                    diagnostics: dict, prediction: np.ndarray) -> tuple["_TileMatch", dict] | None:
+        """Tiles at the coarse stage's wide search (around ``prediction``), if it finds a clearly
+        better rotation than ``match``'s; else None.
+
+        The coarse match decides, not the tile count: both registrations come
+        here with few tiles passing, and under parallax (lawn with
+        translation) the right rotation can keep as few as the wrong one
+        (2 against 3) until the dense retry registers more.
+        """
+        coarse = self.global_stage.wide_search(state_a.coarse_panorama, state_b.coarse_panorama, start=prediction,
+                                               current_rotation=match.rotation,
+                                               current_score=diagnostics["coarse_score"])
+        if coarse is None:
+            return None
+        wide = self._tiles_at(state_a, state_b, coarse.rotation)
+        tiles = self._diagnostics(wide.placed.reason, wide.placed.peak_ratio, wide.placed.peak_to_noise, wide.n_new)
+        return wide, {**tiles, **_coarse_diagnostics(prediction, coarse), "wide_search": True}
+
+    def _tiles_at(self, state_a: IfmiFrameState, state_b: IfmiFrameState, rotation: np.ndarray) -> _TileMatch:
+        """:meth:`register_predicted` at ``rotation``, with the tracking it left in frame b."""
         offsets_a, linear_a, placed, n_new = self.register_predicted(state_a, state_b, prior_rotation=rotation)
-        diagnostics = self._diagnostics(placed.reason, placed.peak_ratio, placed.peak_to_noise, n_new)
-        return (offsets_a, linear_a, placed, rotation), {**diagnostics, **coarse}
+        return _TileMatch(offsets_a, linear_a, placed, rotation, n_new, state_b.tracked, state_b.tracked_valid)
+
+    def _checks_prediction(self, prediction: np.ndarray | None, rotation: np.ndarray, correction_rad: float) -> bool:
+        """Whether the tiles are registered at a prediction the coarse stage moved to ``rotation``
+        (by ``correction_rad``); a prediction the coarse stage returned unchanged is not."""
+        if prediction is None or self.config.prediction_check_tiles <= 0 or np.array_equal(rotation, prediction):
+            return False
+        correction_px = correction_rad * self.mapping.width / (2 * np.pi)
+        return correction_px <= self.config.prediction_check_tiles * self.layout.tile_size
+
+    def _match_predicted(self, state_a: IfmiFrameState, state_b: IfmiFrameState,
+                         starts: tuple) -> tuple[_TileMatch, dict]:
+        """Coarse stage from ``starts``, then the tiles at the placements it predicts.
+
+        When the coarse stage moved the first start (the prediction) by less
+        than ``config.prediction_check_tiles`` and not every tile passed, the
+        tiles are registered at the prediction too and the registration
+        keeping more tiles is returned; frame b keeps that registration's
+        tracked tiles.
+        """
+        rotation, coarse = self._coarse_rotation(state_a, state_b, starts)
+        match = self._tiles_at(state_a, state_b, rotation)
+        # With every tile kept the prediction cannot keep more: no second registration.
+        if match.placed.valid.sum() < self.layout.count and \
+                self._checks_prediction(starts[0], rotation, coarse.get("coarse_correction_rad", 0.0)):
+            at_prediction = self._tiles_at(state_a, state_b, starts[0])
+            coarse["n_tiles_kept_coarse"] = int(match.placed.valid.sum())
+            coarse["prediction_kept"] = bool(at_prediction.placed.valid.sum() > match.placed.valid.sum())
+            if coarse["prediction_kept"]:
+                match = at_prediction
+            match.restore_tracking(state_b)
+        diagnostics = self._diagnostics(match.placed.reason, match.placed.peak_ratio, match.placed.peak_to_noise,
+                                        match.n_new)
+        return match, {**diagnostics, **coarse}
+
+    def _dense_selection(self, state_a: IfmiFrameState) -> np.ndarray | None:
+        """Indices of the denser layout's tiles the retry registers (None: all of them)."""
+        per_column = self.config.dense_tiles_per_column
+        if per_column is None or per_column >= self.dense_layout.grid_shape[0]:
+            return None
+        strength = tile_corner_strengths(state_a.padded_panorama, self.dense_layout, wrapped_columns=self._pad)
+        return strongest_tiles_per_column(strength, self.dense_layout, per_column)
 
     def register_dense(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
                        prior_rotation: np.ndarray):
         """Tiles of the denser layout cut from frame a, found in frame b where ``R_ab`` puts them.
 
-        Frame b's tracked tiles are left as they are.
+        Frame b's tracked tiles are left as they are. With
+        ``dense_tiles_per_column`` only that many tiles of each layout
+        column are registered (the most textured in frame a).
 
         Returns
         -------
-        offsets_a : (T, 2) ndarray
-            Panorama ``(row, col)`` of the tile centres in frame a.
-        linear_a : (T, 2, 2) ndarray
+        offsets_a : (K, 2) ndarray
+            Panorama ``(row, col)`` of the registered tiles' centres in frame a.
+        linear_a : (K, 2, 2) ndarray
         placed : PlacedRegistration
             With panorama coordinates of frame b (columns in ``[0, width)``).
         """
         layout = self.dense_layout
         registration = self.config.registration
         with_descriptor = registration.estimate_rotation_scale and registration.refine_predicted_rotation_scale
-        tiles = tiles_from_panorama(state_a.padded_panorama, layout, wrapped_columns=self._pad)
+        index = self._dense_selection(state_a)
+        tiles = tiles_from_panorama(state_a.padded_panorama, layout, index=index, wrapped_columns=self._pad)
         spectra_a = self.dense_engine.spectra(tiles, with_descriptor=with_descriptor)
-        offsets_a = layout.origins.astype(np.float64) + (layout.tile_size - 1) / 2.0
-        linear_a = np.broadcast_to(np.eye(2), (layout.count, 2, 2)).copy()
+        origins = layout.origins if index is None else layout.origins[index]
+        offsets_a = origins.astype(np.float64) + (layout.tile_size - 1) / 2.0
+        linear_a = np.broadcast_to(np.eye(2), (len(origins), 2, 2)).copy()
         offsets_b, linear_b = self.predicted_placements(offsets_a, linear_a, prior_rotation)
         curvature_b = None
         if self._curved:
@@ -634,9 +752,11 @@ class IfmiFrontEnd:
         (``config.coarse_to_fine``) corrects the prediction, and the
         reference's tiles (tracked or from the layout) are looked for in
         frame b where the corrected prediction puts them, cut with its local
-        affine map; frame b then keeps the tiles it was registered with
-        (``track_tiles``). If too few tiles pass, the coarse stage searches
-        again from the identity and the tiles are registered once more.
+        affine map (a small correction is checked by registering at the
+        prediction too, ``config.prediction_check_tiles``); frame b then
+        keeps the tiles it was registered with (``track_tiles``). If too few
+        tiles pass, the coarse stage searches again from the identity and
+        the tiles are registered once more.
 
         Parameters
         ----------
@@ -658,12 +778,18 @@ class IfmiFrontEnd:
             valid = motion.valid
         else:
             match, diagnostics = self._match_predicted(state_a, state_b, (prior_rotation, None))
-            if match[2].valid.sum() < min_tiles and self.global_stage is not None:
+            if match.placed.valid.sum() < min_tiles and self.global_stage is not None:
                 # Re-acquisition: the prediction may be far off after fast motion or a lost frame.
                 retry, retry_diagnostics = self._match_predicted(state_a, state_b, (None, prior_rotation))
-                if retry[2].valid.sum() > match[2].valid.sum():
+                if retry.placed.valid.sum() > match.placed.valid.sum():
                     match, diagnostics = retry, {**retry_diagnostics, "reacquired": True}
-            offsets_a, linear_a, placed, rotation = match
+                match.restore_tracking(state_b)
+            if self.global_stage is not None and self.config.wide_search_fraction > 0 and \
+                    match.placed.valid.sum() <= self.config.wide_search_fraction * self.layout.count:
+                wide = self._wide_match(state_a, state_b, match, diagnostics, prior_rotation)
+                if wide is not None:
+                    match, diagnostics = wide
+            offsets_a, linear_a, placed, rotation = match.offsets_a, match.linear_a, match.placed, match.rotation
             curvature_a = state_a.reference_curvature
             valid = placed.valid
             if self.dense_layout is not None and valid.sum() <= self.config.dense_retry_fraction * self.layout.count:

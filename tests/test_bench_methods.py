@@ -87,3 +87,48 @@ def test_versions_benchmark_finds_one_tree_bit_identical_to_itself(tmp_path, cap
     with pytest.raises(SystemExit):
         versions.main([tree, "--sets", str(data)])
     assert versions._largest_difference([np.eye(3)], [np.eye(3) * 0.5]) == 0.5
+
+
+def test_options_benchmark_summary_over_the_sets_with_a_retry(monkeypatch):
+    monkeypatch.syspath_prepend(str(BENCHMARK.parent))
+    spec = importlib.util.spec_from_file_location("bench_ifmi_options",
+                                                  BENCHMARK.parent / "bench_ifmi_options.py")
+    options = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(options)
+
+    def row(variant, ate_default, ate_variant, retries, failures=(0, 0), cpu=(1.0, 1.0)):
+        return {"variant": variant, "ate_default": ate_default, "ate_variant": ate_variant,
+                "retry_frames_default": retries[0], "retry_frames_variant": retries[1],
+                "failures_default": failures[0], "failures_variant": failures[1],
+                "cpu_default_s": cpu[0], "cpu_variant_s": cpu[1]}
+
+    rows = [row("few", 0.01, 0.02, (2, 2), cpu=(1.0, 0.8)), row("few", 0.04, 0.01, (1, 3), (0, 1), (2.0, 1.0)),
+            row("few", 0.02, 0.0201, (0, 1)), row("few", 0.5, 0.1, (0, 0)),  # no retry: left out
+            row("none", 0.01, 0.02, (0, 0))]
+    summary = options.variant_summary(rows)
+    assert list(summary) == ["few"]
+    few = summary["few"]
+    assert few["sets"] == 3 and few["worse"] == 1 and few["better"] == 1
+    assert np.isclose(few["ate_ratio_geomean"], (2.0 * 0.25 * 1.005) ** (1 / 3))
+    assert np.isclose(few["ate_median_default"], 0.02) and np.isclose(few["ate_median_variant"], 0.02)
+    assert (few["failures_default"], few["failures_variant"]) == (0, 1)
+    assert np.isclose(few["cpu_ratio_median"], 0.8)
+
+
+def test_retry_pair_stability_reports_both_priors(tmp_path, monkeypatch, capsys):
+    monkeypatch.syspath_prepend(str(BENCHMARK.parent))
+    spec = importlib.util.spec_from_file_location("retry_pair_stability",
+                                                  BENCHMARK.parent / "retry_pair_stability.py")
+    stability = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(stability)
+    data = _write_dataset(tmp_path / "office", seed=5, max_step_rad=0.03)
+    assert stability.main([str(data), "--pair", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[1] for line in lines] == ["coarse", "truth"]
+    # Noise-free pure rotation: at the true rotation the tiles give it back to a tenth of a pixel
+    # (measured 0.0025 rad, with every tile or one left out; one pixel of the 256 px wide panorama
+    # of these 128 px frames is 0.025 rad). Bound: a quarter pixel.
+    truth = lines[1].split()
+    assert truth[3] == "0.0000" and float(truth[9]) < 6e-3 and float(truth[14]) < 6e-3
+    with pytest.raises(SystemExit):
+        stability.main([str(data), "--pair", "4"])

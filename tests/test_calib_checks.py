@@ -138,3 +138,10 @@ def test_byte_order_mark_and_non_utf8_comments_are_read(tmp_path):
     text = PUBLISHED.replace("(C convention)", "(C convention, caméra)")
     path.write_bytes(b"\xef\xbb\xbf" + text.encode("latin-1"))
     assert read_calib(path) == parse_calib(PUBLISHED)
+
+
+def test_a_single_unrecognisable_block_is_not_guessed_at():
+    # One three-number line fits several blocks: listing every reading would name them all.
+    with pytest.raises(InputError, match=r"expected 5 data blocks, got 1 \(missing: cannot tell which "
+                                         r"from the values\)$"):
+        parse_calib("garbage 1 2 3\n")

@@ -124,3 +124,92 @@ def test_config_is_checked():
         GlobalMotionConfig(sectors=6, min_sectors=8)
     with pytest.raises(ValueError, match="width"):
         GlobalMotionConfig(width=16)
+
+
+def _front_end_pair(texture, truth, config):
+    from ifmi.spectral_front_end import IfmiFrontEnd
+
+    front_end = IfmiFrontEnd(MODEL, config)
+    states = [front_end.prepare(omni_from_environment(texture, MODEL, r, band_px=BAND)) for r in (np.eye(3), truth)]
+    return front_end, states
+
+
+def _coarse_result_off_by(monkeypatch, yaw_error_deg):
+    """Make the coarse stage return its first start turned by ``yaw_error_deg`` (a coarse-stage error)."""
+    from ifmi.global_motion import GlobalMotion
+
+    def off(self, coarse_a, coarse_b, *, priors=(None,)):
+        start = np.eye(3) if priors[0] is None else priors[0]
+        rotation = start @ Rotation.from_euler("z", yaw_error_deg, degrees=True).as_matrix()
+        return GlobalMotion(rotation, True, "", 2.0, 12, 0.9)
+
+    monkeypatch.setattr(GlobalMotionEstimator, "estimate", off)
+
+
+def test_a_coarse_correction_the_tiles_match_worse_than_the_prediction_is_overruled(scene, monkeypatch):
+    from dataclasses import replace
+
+    from ifmi.spectral_front_end import IfmiConfig
+
+    texture, _ = scene
+    truth = _rotation(12.0, 2.0, 60.0)
+    panorama = PanoramaConfig(radius_min_px=BAND[0], radius_max_px=BAND[1])
+    # No dense retry and no wide search: the prediction check alone decides.
+    config = IfmiConfig(panorama=panorama, prediction_check_tiles=0.45, dense_retry_fraction=0.0,
+                        wide_search_fraction=0.0)
+    front_end, (a, b) = _front_end_pair(texture, truth, config)
+    # The coarse stage moves an exact prediction by 0.4 of a tile (away from the identity, which the
+    # re-acquisition starts from): the tiles barely overlap there.
+    tile_deg = 360.0 * front_end.layout.tile_size / front_end.mapping.width
+    _coarse_result_off_by(monkeypatch, -0.4 * tile_deg)
+    checked = front_end.correspondences(a, b, prior_rotation=truth)
+    d = checked.diagnostics
+    assert d["prediction_kept"] and d["n_tiles_kept"] > d["n_tiles_kept_coarse"]
+    # Frame b keeps the tiles of the registration that won (measured 23 of 24 against 2 at the coarse rotation).
+    assert b.tracked_valid.sum() == d["n_tiles_kept"] >= 0.9 * front_end.layout.count
+    rotation = rotation_from_ray_pairs(checked.rays_a, checked.rays_b)
+    # Measured 0.004 degree (noise-free synthetic frames).
+    assert np.degrees(geodesic_angle(truth, rotation)) < 0.05
+    # Without the check the coarse stage's rotation places the tiles, too few pass and the pair fails.
+    unchecked, (a, b) = _front_end_pair(texture, truth, replace(config, prediction_check_tiles=0.0))
+    plain = unchecked.correspondences(a, b, prior_rotation=truth)
+    assert not plain.success and "prediction_kept" not in plain.diagnostics
+    assert plain.diagnostics["n_tiles_kept"] == d["n_tiles_kept_coarse"] < config.min_tiles
+
+
+def test_the_prediction_is_checked_only_within_the_tiles_reach(scene, monkeypatch):
+    from ifmi.spectral_front_end import IfmiConfig
+
+    texture, _ = scene
+    truth = _rotation(12.0, 2.0, 60.0)
+    panorama = PanoramaConfig(radius_min_px=BAND[0], radius_max_px=BAND[1])
+    front_end, (a, b) = _front_end_pair(texture, truth, IfmiConfig(panorama=panorama))
+    tile_deg = 360.0 * front_end.layout.tile_size / front_end.mapping.width
+    # A correction beyond prediction_check_tiles (0.125 tile) is taken without registering at the prediction.
+    _coarse_result_off_by(monkeypatch, 0.2 * tile_deg)
+    diagnostics = front_end.correspondences(a, b, prior_rotation=truth).diagnostics
+    assert "prediction_kept" not in diagnostics
+    assert diagnostics["coarse_correction_rad"] == pytest.approx(np.radians(0.2 * tile_deg))
+
+
+def test_prediction_check_option_is_checked():
+    from ifmi.spectral_front_end import IfmiConfig
+
+    with pytest.raises(ValueError, match="prediction_check_tiles"):
+        IfmiConfig(prediction_check_tiles=0.5)
+
+
+def test_a_prediction_the_coarse_stage_confirmed_is_registered_once(scene, monkeypatch):
+    from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
+
+    texture, _ = scene
+    truth = _rotation(12.0, 2.0, 60.0)
+    panorama = PanoramaConfig(radius_min_px=BAND[0], radius_max_px=BAND[1])
+    front_end, (a, b) = _front_end_pair(texture, truth, IfmiConfig(panorama=panorama))
+    _coarse_result_off_by(monkeypatch, 0.0)  # returned unchanged: its correction angle is float noise
+    calls = []
+    original = IfmiFrontEnd.register_predicted
+    monkeypatch.setattr(IfmiFrontEnd, "register_predicted",
+                        lambda self, *args, **kwargs: calls.append(1) or original(self, *args, **kwargs))
+    diagnostics = front_end.correspondences(a, b, prior_rotation=truth).diagnostics
+    assert len(calls) == 1 and "prediction_kept" not in diagnostics

@@ -208,8 +208,37 @@ def test_dense_retry_registers_a_denser_layout_and_leaves_frame_bs_tracked_tiles
     assert len(corr.rays_a) == corr.diagnostics["n_tiles_kept"] * corr.rays_per_measurement
 
 
+def test_dense_retry_on_the_most_textured_tiles_of_each_column(clean_frames):
+    from ifmi.tiling import strongest_tiles_per_column, tile_corner_strengths
+
+    fe = IfmiFrontEnd(MODEL, replace(CONFIG, dense_retry_fraction=1.0, dense_tiles_per_column=2))
+    s0, s1 = fe.prepare(clean_frames[0]), fe.prepare(clean_frames[1])
+    offsets_a, linear_a, placed = fe.register_dense(s0, s1, prior_rotation=STEP)
+    layout = fe.dense_layout
+    rows, cols = layout.grid_shape
+    assert rows > 2 and len(offsets_a) == 2 * cols
+    strength = tile_corner_strengths(s0.padded_panorama, layout, wrapped_columns=fe._pad)
+    chosen = strongest_tiles_per_column(strength, layout, 2)
+    assert np.array_equal(offsets_a, layout.origins[chosen] + (layout.tile_size - 1) / 2.0)
+    # The same tiles as the full retry registers, placed the same way.
+    full = IfmiFrontEnd(MODEL, replace(CONFIG, dense_retry_fraction=1.0))
+    f0, f1 = full.prepare(clean_frames[0]), full.prepare(clean_frames[1])
+    _, _, placed_all = full.register_dense(f0, f1, prior_rotation=STEP)
+    assert np.array_equal(placed.valid, placed_all.valid[chosen])
+    assert np.allclose(placed.offsets, placed_all.offsets[chosen], atol=1e-9)
+    corr = fe.correspondences(s0, s1, prior_rotation=STEP)
+    assert corr.diagnostics["n_tiles_kept_dense"] == placed.valid.sum()
+    assert len(corr.rays_a) == placed.valid.sum() * corr.rays_per_measurement
+    # As many per column as the layout has rows: all tiles, no selection.
+    every = IfmiFrontEnd(MODEL, replace(CONFIG, dense_retry_fraction=1.0, dense_tiles_per_column=rows))
+    e0, e1 = every.prepare(clean_frames[0]), every.prepare(clean_frames[1])
+    assert len(every.register_dense(e0, e1, prior_rotation=STEP)[0]) == layout.count
+
+
 def test_dense_retry_options_are_validated():
     with pytest.raises(ValueError, match="dense_retry_fraction"):
         IfmiConfig(dense_retry_fraction=1.5)
     with pytest.raises(ValueError, match="dense_overlap"):
         IfmiConfig(dense_overlap=1.0)
+    with pytest.raises(ValueError, match="expected dense_tiles_per_column >= 1 or None, got 0"):
+        IfmiConfig(dense_tiles_per_column=0)

@@ -168,7 +168,8 @@ def _missing_blocks(data: list[str], comments: list[str]) -> str:
     candidates = sorted(tuple(i for i in range(len(_BLOCKS)) if i not in present)
                         for present in itertools.combinations(range(len(_BLOCKS)), len(data))
                         if all(_fits(block, line) for block, line in zip(present, data)))
-    if not candidates:
+    # More than two readings name nearly every block: say so instead of listing them all.
+    if not candidates or len(candidates) > 2:
         return "cannot tell which from the values"
     return " or ".join(", ".join(_BLOCKS[i] for i in missing) for missing in candidates)
 
