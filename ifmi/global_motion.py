@@ -377,9 +377,9 @@ class GlobalMotionEstimator:
         -------
         GlobalMotion or None
             The best search from the grid, if it succeeded, lies more than
-            ``config.confirm_angle_rad`` from ``current_rotation`` and leaves at most
-            ``config.wide_mismatch_ratio`` of its mismatch ``1 - score``;
-            else None.
+            ``config.confirm_angle_rad`` from ``current_rotation`` and leaves
+            at most ``config.wide_mismatch_ratio`` of its mismatch
+            ``1 - score``; else None.
         """
         c = self.config
         start = np.eye(3) if start is None else np.asarray(start, dtype=np.float64)
@@ -388,6 +388,7 @@ class GlobalMotionEstimator:
         # Only the starts whose yaw search peaks clearest get the sector passes.
         ratios = [self._yaw_search(reference.whole, self.warped(coarse_b, tilted))[1] for tilted in starts]
         clearest = np.argsort(ratios, kind="stable")[::-1][:c.wide_candidates]
+        # Every candidate is searched: the clearest can land on the same wrong yaw as before.
         wide = max((self._search(reference, coarse_b, starts[k])[0] for k in clearest),
                    key=lambda result: (result.success, result.score), default=None)
         if (wide is None or not wide.success or _angle(current_rotation.T @ wide.rotation) <= c.confirm_angle_rad

@@ -88,7 +88,8 @@ class IfmiConfig:
         0 disables the check.
     wide_search_fraction : float
         When at most this fraction of the tiles pass at the coarse stage's
-        rotation (after any re-acquisition), its wide search
+        rotation (after any re-acquisition) and that rotation is more than
+        ``global_motion.confirm_angle_rad`` from the prediction, its wide search
         (:meth:`ifmi.global_motion.GlobalMotionEstimator.wide_search`, from
         starts tilted around the prediction) looks for a clearly better
         rotation, and the tiles are registered there instead. A tilt of ten degrees between frames can smear
@@ -642,6 +643,14 @@ class IfmiFrontEnd:
         coarse = self.global_stage.estimate(state_a.coarse_panorama, state_b.coarse_panorama, priors=starts)
         return coarse.rotation, _coarse_diagnostics(first, coarse)
 
+    def _needs_wide_search(self, match: "_TileMatch", diagnostics: dict) -> bool:
+        """Few tiles passed after the coarse stage moved the prediction far (more than
+        ``global_motion.confirm_angle_rad``): it may have jumped to a wrong yaw. Where it kept or
+        nudged the prediction, the tiles fail for noise or parallax, which the wide search cannot help."""
+        return (self.global_stage is not None and self.config.wide_search_fraction > 0
+                and match.placed.valid.sum() <= self.config.wide_search_fraction * self.layout.count
+                and diagnostics.get("coarse_correction_rad", 0.0) > self.config.global_motion.confirm_angle_rad)
+
     def _wide_match(self, state_a: IfmiFrameState, state_b: IfmiFrameState, match: "_TileMatch",
                     diagnostics: dict, prediction: np.ndarray) -> tuple["_TileMatch", dict] | None:
         """Tiles at the coarse stage's wide search (around ``prediction``), if it finds a clearly
@@ -784,8 +793,7 @@ class IfmiFrontEnd:
                 if retry.placed.valid.sum() > match.placed.valid.sum():
                     match, diagnostics = retry, {**retry_diagnostics, "reacquired": True}
                 match.restore_tracking(state_b)
-            if self.global_stage is not None and self.config.wide_search_fraction > 0 and \
-                    match.placed.valid.sum() <= self.config.wide_search_fraction * self.layout.count:
+            if self._needs_wide_search(match, diagnostics):
                 wide = self._wide_match(state_a, state_b, match, diagnostics, prior_rotation)
                 if wide is not None:
                     match, diagnostics = wide
