@@ -84,12 +84,6 @@ _NOISE_MAX_FRACTION = 0.25
 # of the pure-rotation benchmark sequences (36 and 8 spp) where the plain criterion took 1 to 7
 # of 60 for translation.
 _NOISE_5PT_MARGIN = 0.5
-# The rotation model is not chosen when its inliers are fewer than this share of the 5-point
-# model's, with the 5-point noise (as above) at most a third of the threshold: a third of what one
-# motion explains misses every rotation (parallax near walls). GRIC's capped residuals over 10-20
-# measurements do not weigh that: on the fast translated office renders it kept rotations 2 to 6
-# degrees off at shares 0.33-0.68, where every pure-rotation or correctly chosen pair had 0.77 or more.
-_ROTATION_MIN_INLIER_SHARE = 0.7
 
 
 @dataclass(frozen=True)
@@ -138,6 +132,18 @@ class RelativePoseOptions:
         times with Cauchy weights of the residual angles (0: plain
         least squares on the inliers), so that loosely registered inliers
         near the threshold count less.
+    rotation_min_inlier_share : float
+        Without ``noise_sigma_rad``, the rotation model is not chosen when
+        its inlier rays are fewer than this share of the 5-point model's
+        while the 5-point model's noise estimate is at most a third of the
+        threshold: a third of what one motion explains then misses every
+        rotation, e.g. tiles on one wall of a room whose parallax under a
+        sideways step looks like a yaw of step / distance. GRIC's capped
+        residuals over the 10-20 measurements of such a pair did not weigh
+        that: on the fast translated office renders it kept rotations 2 to
+        6 degrees off at shares 0.33-0.68, where every other pair, and
+        every pair where the rotation model was right, had 0.77 or more.
+        0 disables the rule.
     robust_scale : float
         Cauchy scale in units of the noise level (``noise_sigma_rad`` or
         its estimate). Matched rays have heavy-tailed errors (a core of
@@ -161,6 +167,7 @@ class RelativePoseOptions:
     rotation_threshold_factor: float = 1.25
     robust_iterations: int = 5
     robust_scale: float = 1.0
+    rotation_min_inlier_share: float = 0.7
 
     def __post_init__(self) -> None:
         if self.ransac_threshold_rad is not None and not self.ransac_threshold_rad > 0:
@@ -178,6 +185,8 @@ class RelativePoseOptions:
         if self.robust_iterations < 0 or not self.robust_scale > 0:
             raise ValueError(f"expected robust_iterations >= 0 and robust_scale > 0, got "
                              f"{self.robust_iterations}, {self.robust_scale}")
+        if not 0 <= self.rotation_min_inlier_share <= 1:
+            raise ValueError(f"expected 0 <= rotation_min_inlier_share <= 1, got {self.rotation_min_inlier_share}")
         if (self.noise_sigma_rad is not None and not self.noise_sigma_rad > 0) or not self.rotation_threshold_factor > 0:
             raise ValueError(
                 "expected noise_sigma_rad > 0 or None and rotation_threshold_factor > 0, got "
@@ -730,12 +739,11 @@ def _selection_noise(sigma_5pt: float | None, sigma_rotation: float, threshold: 
 
 
 def _rotation_misses_motion(rotation_inliers: int, inliers_5pt: int, sigma_5pt: float | None,
-                            threshold: float) -> bool:
+                            threshold: float, min_share: float) -> bool:
     """Whether the 5-point model is taken without GRIC: it explains the rays with noise at most a
-    third of ``threshold`` and the rotation model's inliers are fewer than
-    ``_ROTATION_MIN_INLIER_SHARE`` of its own (counts of rays)."""
-    return sigma_5pt is not None and sigma_5pt <= threshold / 3.0 and \
-        rotation_inliers < _ROTATION_MIN_INLIER_SHARE * inliers_5pt
+    third of ``threshold`` and the rotation model's inliers are fewer than ``min_share`` of its
+    own (counts of rays; ``RelativePoseOptions.rotation_min_inlier_share``)."""
+    return sigma_5pt is not None and sigma_5pt <= threshold / 3.0 and rotation_inliers < min_share * inliers_5pt
 
 
 def _gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int,
@@ -815,7 +823,7 @@ def _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options: Re
     :func:`_selection_noise`'s (given options win); taken from the 5-point
     model, that model must win by ``_NOISE_5PT_MARGIN`` per measurement.
     Without given noise, a rotation model leaving many of the 5-point
-    model's inliers out loses without GRIC (:func:`_rotation_misses_motion`).
+    model's inliers out loses without GRIC (``rotation_min_inlier_share``).
     """
     threshold = options.ransac_threshold_rad
     _, rot_errors, rot_mask, sigma = rotation_fit
@@ -834,7 +842,8 @@ def _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options: Re
     noise, from_5pt = options.noise_sigma_rad, False
     if noise is None:
         sigma_5pt = _noise_sigma_of_5pt(errors_5pt, threshold, group)
-        if _rotation_misses_motion(rot_mask.sum(), (errors_5pt < threshold).sum(), sigma_5pt, threshold):
+        if _rotation_misses_motion(rot_mask.sum(), (errors_5pt < threshold).sum(), sigma_5pt, threshold,
+                                   options.rotation_min_inlier_share):
             return rotation_5pt, translation / np.linalg.norm(translation), errors_5pt < threshold
         noise, from_5pt = _selection_noise(sigma_5pt, sigma, threshold, options.rotation_threshold_factor * threshold)
     margin = _NOISE_5PT_MARGIN * either.sum() / group if from_5pt else 0.0
