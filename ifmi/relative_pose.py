@@ -186,7 +186,8 @@ class RelativePoseOptions:
             raise ValueError(f"expected robust_iterations >= 0 and robust_scale > 0, got "
                              f"{self.robust_iterations}, {self.robust_scale}")
         if not 0 <= self.rotation_min_inlier_share <= 1:
-            raise ValueError(f"expected 0 <= rotation_min_inlier_share <= 1, got {self.rotation_min_inlier_share}")
+            raise ValueError(f"expected 0 <= rotation_min_inlier_share <= 1, "
+                             f"got {self.rotation_min_inlier_share}")
         if (self.noise_sigma_rad is not None and not self.noise_sigma_rad > 0) or not self.rotation_threshold_factor > 0:
             raise ValueError(
                 "expected noise_sigma_rad > 0 or None and rotation_threshold_factor > 0, got "
