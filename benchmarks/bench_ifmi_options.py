@@ -9,7 +9,8 @@ Measures what one option costs or buys, e.g. the dense retry
 
 A variant is ``NAME:KEY=VALUE[,KEY=VALUE...]`` with keys of the ``ifmi``
 section of the configuration (dotted for nested ones,
-``global_motion.iterations=1``) and JSON values. Every configuration runs
+``global_motion.iterations=1``) and JSON values; ``relative_pose.KEY`` sets
+an option of the back end instead. Every configuration runs
 through the same odometry and back end as ``ifmi estimate``.
 
 Accuracy comes from one full run per configuration and dataset, written and
@@ -62,6 +63,19 @@ def parse_variant(text: str) -> tuple[str, dict]:
         except json.JSONDecodeError:
             raise argparse.ArgumentTypeError(f"expected a JSON value for {key!r}, got {value!r}") from None
     return name, changes
+
+
+def estimate_variant(config: EstimateConfig, changes: dict) -> EstimateConfig:
+    """``config`` with dotted-key ``changes``: keys of the ``ifmi`` options, or
+    ``relative_pose.NAME`` for an option of the shared back end."""
+    prefix = "relative_pose."
+    pose = {key[len(prefix):]: value for key, value in changes.items() if key.startswith(prefix)}
+    ifmi = {key: value for key, value in changes.items() if not key.startswith(prefix)}
+    try:
+        relative_pose = replace(config.relative_pose, **pose)
+    except TypeError as exc:  # an unknown option name
+        raise ValueError(f"relative_pose: {exc}") from None
+    return replace(config, ifmi=ifmi_variant(config.ifmi, ifmi), relative_pose=relative_pose)
 
 
 def ifmi_variant(config: IfmiConfig, changes: dict) -> IfmiConfig:
@@ -159,7 +173,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("datasets", nargs="+")
     parser.add_argument("--variant", type=parse_variant, action="append", required=True,
-                        help="NAME:KEY=VALUE[,KEY=VALUE...] (keys of the ifmi options); repeatable")
+                        help="NAME:KEY=VALUE[,KEY=VALUE...] (keys of the ifmi options, or "
+                             "relative_pose.KEY); repeatable")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--out", default="out/bench_ifmi_options")
     args = parser.parse_args(argv)
@@ -178,7 +193,7 @@ def main(argv=None) -> int:
         configs = {"default": base}
         for name, changes in args.variant:
             try:
-                configs[name] = replace(base, ifmi=ifmi_variant(base.ifmi, changes))
+                configs[name] = estimate_variant(base, changes)
             except ValueError as exc:  # an unknown key or a bad value, named by its key path
                 parser.error(f"--variant {name}: {exc}")
         accuracy = {name: run_method(dataset, "ifmi", "frame", config, out / name, label=label)

@@ -132,3 +132,20 @@ def test_retry_pair_stability_reports_both_priors(tmp_path, monkeypatch, capsys)
     assert truth[3] == "0.0000" and float(truth[9]) < 6e-3 and float(truth[14]) < 6e-3
     with pytest.raises(SystemExit):
         stability.main([str(data), "--pair", "4"])
+
+
+def test_options_benchmark_variant_sets_back_end_options_and_names_unknown_ones(monkeypatch):
+    monkeypatch.syspath_prepend(str(BENCHMARK.parent))
+    spec = importlib.util.spec_from_file_location("bench_ifmi_options",
+                                                  BENCHMARK.parent / "bench_ifmi_options.py")
+    options = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(options)
+    from ifmi.pipeline import EstimateConfig
+    base = EstimateConfig()
+    changed = options.estimate_variant(base, {"relative_pose.rotation_min_inlier_share": 0.0,
+                                              "dense_retry_fraction": 0.0})
+    assert changed.relative_pose.rotation_min_inlier_share == 0.0
+    assert changed.ifmi.dense_retry_fraction == 0.0
+    assert changed.relative_pose.seed == base.relative_pose.seed
+    with pytest.raises(ValueError, match="relative_pose"):
+        options.estimate_variant(base, {"relative_pose.no_such_option": 1})
