@@ -54,6 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from ifmi.dataset_names import dataset_folder_id, dataset_labels, resolved_folder
+from ifmi.errors import InputError
 from ifmi.evaluation import evaluate_files
 from ifmi.io.calib import read_calib
 from ifmi.io.dataset import read_dataset
@@ -225,6 +226,15 @@ def main(argv=None) -> int:
     parser.add_argument("--timing-frames", type=int, default=50)
     parser.add_argument("--timing-rounds", type=int, default=5)
     args = parser.parse_args(argv)
+    try:
+        return run_benchmark(args, argv)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+def run_benchmark(args: argparse.Namespace, argv) -> int:
+    """Measure every dataset, mode and method of the parsed command line; write the JSON."""
     modes = ["keyframe"] if args.keyframes else list(dict.fromkeys(args.modes))
     base = EstimateConfig()
     if args.ransac_threshold_px is not None:

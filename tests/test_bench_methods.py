@@ -54,6 +54,18 @@ def test_two_datasets_of_one_name_get_their_own_rows_and_folders(tmp_path, capsy
     assert "site_a/office" in printed and "site_b/office" in printed
 
 
+def test_a_file_instead_of_a_dataset_folder_is_a_one_line_error(tmp_path, capsys):
+    not_a_folder = tmp_path / "groundtruth.txt"
+    not_a_folder.write_text("0 0 0 0 0 0 0 1\n")
+    out = tmp_path / "bench"
+    assert _benchmark_module().main([str(not_a_folder), "--methods", "ifmi", "--modes", "frame",
+                                     "--timing-rounds", "0", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ")
+    assert str(not_a_folder) in err and "Traceback" not in err
+    assert not out.exists()
+
+
 def test_options_benchmark_names_same_named_sets_apart_and_compares_a_variant(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(BENCHMARK.parent))
     spec = importlib.util.spec_from_file_location("bench_ifmi_options",
