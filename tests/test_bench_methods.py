@@ -16,8 +16,11 @@ from ifmi.synthetic import (example_band_px, example_omni_model, synthetic_seque
 BENCHMARK = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_methods.py"
 
 
-def _benchmark_module():
-    spec = importlib.util.spec_from_file_location("bench_methods", BENCHMARK)
+def _benchmark_module(name="bench_methods", monkeypatch=None):
+    """Load ``benchmarks/NAME.py``; with ``monkeypatch``, its folder is importable for this test."""
+    if monkeypatch is not None:
+        monkeypatch.syspath_prepend(str(BENCHMARK.parent))
+    spec = importlib.util.spec_from_file_location(name, BENCHMARK.parent / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -67,11 +70,7 @@ def test_a_file_instead_of_a_dataset_folder_is_a_one_line_error(tmp_path, capsys
 
 
 def test_options_benchmark_names_same_named_sets_apart_and_compares_a_variant(tmp_path, monkeypatch):
-    monkeypatch.syspath_prepend(str(BENCHMARK.parent))
-    spec = importlib.util.spec_from_file_location("bench_ifmi_options",
-                                                  BENCHMARK.parent / "bench_ifmi_options.py")
-    options = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(options)
+    options = _benchmark_module("bench_ifmi_options", monkeypatch)
     a = _write_dataset(tmp_path / "site_a" / "office", seed=5, max_step_rad=0.03)
     b = _write_dataset(tmp_path / "site_b" / "office", seed=6, max_step_rad=0.06)
     out = tmp_path / "options"
@@ -85,9 +84,7 @@ def test_options_benchmark_names_same_named_sets_apart_and_compares_a_variant(tm
 
 
 def test_versions_benchmark_finds_one_tree_bit_identical_to_itself(tmp_path, capsys):
-    spec = importlib.util.spec_from_file_location("bench_versions", BENCHMARK.parent / "bench_versions.py")
-    versions = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(versions)
+    versions = _benchmark_module("bench_versions")
     data = _write_dataset(tmp_path / "office", seed=7, max_step_rad=0.03)
     tree = str(BENCHMARK.parents[1])
     out = tmp_path / "versions.json"
@@ -102,11 +99,7 @@ def test_versions_benchmark_finds_one_tree_bit_identical_to_itself(tmp_path, cap
 
 
 def test_options_benchmark_summary_over_the_sets_with_a_retry(monkeypatch):
-    monkeypatch.syspath_prepend(str(BENCHMARK.parent))
-    spec = importlib.util.spec_from_file_location("bench_ifmi_options",
-                                                  BENCHMARK.parent / "bench_ifmi_options.py")
-    options = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(options)
+    options = _benchmark_module("bench_ifmi_options", monkeypatch)
 
     def row(variant, ate_default, ate_variant, retries, failures=(0, 0), cpu=(1.0, 1.0)):
         return {"variant": variant, "ate_default": ate_default, "ate_variant": ate_variant,
@@ -128,11 +121,7 @@ def test_options_benchmark_summary_over_the_sets_with_a_retry(monkeypatch):
 
 
 def test_retry_pair_stability_reports_both_priors(tmp_path, monkeypatch, capsys):
-    monkeypatch.syspath_prepend(str(BENCHMARK.parent))
-    spec = importlib.util.spec_from_file_location("retry_pair_stability",
-                                                  BENCHMARK.parent / "retry_pair_stability.py")
-    stability = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(stability)
+    stability = _benchmark_module("retry_pair_stability", monkeypatch)
     data = _write_dataset(tmp_path / "office", seed=5, max_step_rad=0.03)
     assert stability.main([str(data), "--pair", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()
@@ -147,11 +136,7 @@ def test_retry_pair_stability_reports_both_priors(tmp_path, monkeypatch, capsys)
 
 
 def test_options_benchmark_variant_sets_back_end_options_and_names_unknown_ones(monkeypatch):
-    monkeypatch.syspath_prepend(str(BENCHMARK.parent))
-    spec = importlib.util.spec_from_file_location("bench_ifmi_options",
-                                                  BENCHMARK.parent / "bench_ifmi_options.py")
-    options = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(options)
+    options = _benchmark_module("bench_ifmi_options", monkeypatch)
     from ifmi.pipeline import EstimateConfig
     base = EstimateConfig()
     changed = options.estimate_variant(base, {"relative_pose.rotation_min_inlier_share": 0.0,
