@@ -201,6 +201,7 @@ def ray_costs(args) -> dict:
 def estimator_ates(args) -> dict:
     """Geodesic ATE (rad) of ifmi, orb and akaze per model on a rendered urban sequence."""
     from ifmi.io.tum import read_tum
+    from ifmi.metrics import error_stats
     from ifmi.pipeline import estimate_dataset
     from ifmi.rotations import geodesic_angle
     from omnisim.config import write_scene_with_kalibr_camera
@@ -218,7 +219,7 @@ def estimator_ates(args) -> dict:
         for method in ("ifmi", "orb", "akaze"):
             est = estimate_dataset(folder / "dataset", method=method)
             err = geodesic_angle(gt.rotations, est.trajectory.rotations)
-            row[method] = (float(np.sqrt(np.mean(err ** 2))), sum(not r.success for r in est.frames))
+            row[method] = (error_stats(err).rmse, sum(not r.success for r in est.frames))
         ates[name] = row
         print(f"  {name:22s} ATE (rad): " + ", ".join(f"{m} {a:.4f} ({f} failed)" for m, (a, f) in row.items()),
               flush=True)

@@ -42,7 +42,7 @@ def _worker(sets: list, frames: int, repeats: int, mode: str) -> dict:
 
     from ifmi.io.dataset import read_dataset
     from ifmi.io.tum import read_tum
-    from ifmi.metrics import trajectory_errors
+    from ifmi.metrics import error_stats, trajectory_errors
     from ifmi.pipeline import EstimateConfig, estimate_sequence, resolved_config
 
     sys.path.insert(0, str(_BENCHMARKS))
@@ -67,9 +67,8 @@ def _worker(sets: list, frames: int, repeats: int, mode: str) -> dict:
                "failures": int(sum(not r.success for r in estimate.frames))}
         if data.groundtruth_path is not None:
             errors = trajectory_errors(read_tum(data.groundtruth_path), estimate.trajectory)
-            relative = errors.relative_geodesic[np.isfinite(errors.relative_geodesic)]
-            row["ate"] = float(np.sqrt(np.mean(errors.geodesic ** 2)))
-            row["f2f"] = float(np.sqrt(np.mean(relative ** 2))) if relative.size else float("nan")
+            row["ate"] = error_stats(errors.geodesic).rmse
+            row["f2f"] = error_stats(errors.relative_geodesic).rmse  # NaN when no pair is finite
         out[name] = row
     return out
 
@@ -85,6 +84,16 @@ def _run_tree(tree: str, args) -> dict:
         return json.loads(result.read_text())
 
 
+def _worker_result(args) -> dict:
+    """The worker's figures, or ``{"error": message}`` for bad input (a one-line message)."""
+    from ifmi.errors import InputError
+
+    try:
+        return _worker(args.sets, args.frames, args.repeats, args.mode)
+    except InputError as exc:
+        return {"error": str(exc)}
+
+
 def _largest_difference(rotations_a: list, rotations_b: list) -> float:
     """Largest entry of ``|R_a - R_b|`` over two lists of orientation matrices (about the angle
     between them in radians when small; 0 exactly when they are bit-identical)."""
@@ -94,7 +103,7 @@ def _largest_difference(rotations_a: list, rotations_b: list) -> float:
     return float(np.max(np.abs(a - b)))
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("trees", nargs="*", help="two checkouts (baseline first)")
     parser.add_argument("--sets", nargs="+", required=True, help="dataset folders")
@@ -106,14 +115,18 @@ def main(argv=None) -> None:
     parser.add_argument("--worker", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker is not None:
-        args.worker.write_text(json.dumps(_worker(args.sets, args.frames, args.repeats, args.mode)))
-        return
+        args.worker.write_text(json.dumps(_worker_result(args)))
+        return 0
     if len(args.trees) != 2:
         parser.error(f"expected two source trees, got {len(args.trees)}")
     runs = {tree: [] for tree in args.trees}
     for _ in range(args.rounds):
         for tree in args.trees:
-            runs[tree].append(_run_tree(tree, args))
+            result = _run_tree(tree, args)
+            if "error" in result:
+                print(f"error: {result['error']}", file=sys.stderr)
+                return 2
+            runs[tree].append(result)
     base, new = args.trees
     summary = {}
     print(f"{'set':<28}{'thread ms':>20}{'process ms':>20}{'ATE':>24}{'f2f':>24}{'fail':>8}{'max diff':>10}")
@@ -137,7 +150,8 @@ def main(argv=None) -> None:
         from ifmi.io.atomic import atomic_write_json
         atomic_write_json(args.out, {"trees": args.trees, "frames": args.frames, "rounds": args.rounds,
                                      "sets": summary})
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -612,6 +612,7 @@ class FourierMellin:
         """
         n = self.tile_size
         offsets, linear = np.asarray(offsets), np.asarray(linear)
+        curvature = None if curvature is None else np.asarray(curvature)
         kind = _INTERPOLATIONS[interpolation or self.config.resample_interpolation]
         # Maps and remap chunk by chunk of tiles: a chunk's maps are remapped while they are in
         # the cache, and a chunk stays below OpenCV's 2^15 rows. The output is written in place.
@@ -620,7 +621,7 @@ class FourierMellin:
         for first in range(0, len(offsets), step):
             part = slice(first, first + step)
             map_rows, map_cols = _placement_maps(n, offsets[part], linear[part],
-                                                 None if curvature is None else np.asarray(curvature)[part])
+                                                 None if curvature is None else curvature[part])
             cv2.remap(source, map_cols, map_rows, kind, dst=out[first * n:(first + step) * n],
                       borderMode=cv2.BORDER_REFLECT_101)
         return out.reshape(-1, n, n)

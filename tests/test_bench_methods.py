@@ -88,7 +88,7 @@ def test_versions_benchmark_finds_one_tree_bit_identical_to_itself(tmp_path, cap
     data = _write_dataset(tmp_path / "office", seed=7, max_step_rad=0.03)
     tree = str(BENCHMARK.parents[1])
     out = tmp_path / "versions.json"
-    versions.main([tree, tree, "--sets", str(data), "--frames", "3", "--rounds", "1", "--out", str(out)])
+    assert versions.main([tree, tree, "--sets", str(data), "--frames", "3", "--rounds", "1", "--out", str(out)]) == 0
     row = json.loads(out.read_text())["sets"][str(data)]
     assert row["max_rotation_difference"] == 0.0
     assert 0 < row[tree]["ate"] < 0.05 and row[tree]["thread_ms"] > 0
@@ -96,6 +96,15 @@ def test_versions_benchmark_finds_one_tree_bit_identical_to_itself(tmp_path, cap
     with pytest.raises(SystemExit):
         versions.main([tree, "--sets", str(data)])
     assert versions._largest_difference([np.eye(3)], [np.eye(3) * 0.5]) == 0.5
+
+
+def test_versions_benchmark_missing_set_is_a_one_line_error(tmp_path, capsys):
+    missing = tmp_path / "no_such_set"
+    versions = _benchmark_module("bench_versions")
+    tree = str(BENCHMARK.parents[1])
+    assert versions.main([tree, tree, "--sets", str(missing), "--rounds", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: {missing}: dataset folder not found\n"
 
 
 def test_options_benchmark_summary_over_the_sets_with_a_retry(monkeypatch):
