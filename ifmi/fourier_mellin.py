@@ -691,7 +691,8 @@ class FourierMellin:
         return reason
 
     def register_placed(self, spectra_a: TileSpectra, source_b: np.ndarray, offsets_b: np.ndarray,
-                        linear_b: np.ndarray, *, curvature_b: np.ndarray | None = None) -> "PlacedRegistration":
+                        linear_b: np.ndarray, *, curvature_b: np.ndarray | None = None,
+                        refine: bool = True) -> "PlacedRegistration":
         """Register tiles of b cut at predicted affine placements against tiles a.
 
         Tile b is resampled at its placement (the prediction of where, and how
@@ -713,6 +714,10 @@ class FourierMellin:
             Predicted second-order term of each placement (see :meth:`resample_placed`),
             kept as it is: only the translation (and, if configured, rotation and scale)
             is measured.
+        refine : bool, keyword-only
+            Run the refinement passes. When false, the translation is the
+            phase-plane fit on the search pass's tiles, for a caller that runs
+            the refinement itself (:meth:`refine_placed`) with a better shape.
 
         Returns
         -------
@@ -729,7 +734,10 @@ class FourierMellin:
         peaks = find_peaks(correlation_surface(normalized_cross_power(fa, fb), shape,
                                                workers=self.config.workers))
         # b'(p) = a(p + t) means b' is a moved by d = -t.
-        translation = -self._search_shift(fa, fb, peaks.shift, shape)
+        if refine:
+            translation = -self._search_shift(fa, fb, peaks.shift, shape)
+        else:
+            translation = -self._refine(fa, fb, peaks.shift, shape)
         count = len(offsets_b)
         offsets, linear = compose_placement(offsets_b, linear_b, np.ones(count), np.zeros(count), translation)
         reason = self._reasons(spectra_a, std_b, peaks.peak_ratio, peaks.peak_to_noise)
@@ -738,7 +746,7 @@ class FourierMellin:
         last = PlacedTiles(tiles=tiles, offsets=offsets_b.copy(), linear=linear_b.copy(),
                            spectra=TileSpectra(spectrum=fb, descriptor=None, std=std_b.copy()),
                            curvature=curvature_b)
-        if self.config.refine_passes and keep.size:
+        if refine and self.config.refine_passes and keep.size:
             with_rotation = self.config.estimate_rotation_scale and self.config.refine_predicted_rotation_scale
             kept_offsets, kept_linear, kept_last = self._refined_placement(
                 spectra_a.rows(keep), source_b, offsets[keep], linear[keep], with_rotation=with_rotation,

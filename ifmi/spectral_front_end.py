@@ -138,6 +138,13 @@ class IfmiConfig:
     refit_max_residual_px : float
         A refit is skipped when the tiles' median residual against their own
         rotation exceeds this (panorama pixels): parallax or wrong tiles.
+    single_refinement_max_px : float
+        With a refit to follow, the refinement passes run only on the refitted
+        shape when the search pass moved the kept tiles by at most this
+        (median, panorama pixels): a good prediction, from which one pass
+        converges. A larger move (fast or erratic motion) first refines on the
+        predicted shape, as without a refit. 0 always refines twice. See the
+        README's sharp-image section for what it saves and costs.
     min_width_curved : int
         Curved placements and refit passes apply from this panorama width
         (pixels) up; narrower panoramas keep the affine cut.
@@ -163,6 +170,7 @@ class IfmiConfig:
     curved_placement: bool = True
     refit_passes: int = 1
     refit_max_residual_px: float = 0.25
+    single_refinement_max_px: float = 0.5
     min_width_curved: int = 1536
 
     def __post_init__(self) -> None:
@@ -179,6 +187,8 @@ class IfmiConfig:
         if self.refit_passes < 0 or not self.refit_max_residual_px > 0 or self.min_width_curved < 0:
             raise ValueError(f"expected refit_passes >= 0, refit_max_residual_px > 0 and min_width_curved >= 0, "
                              f"got {self.refit_passes}, {self.refit_max_residual_px}, {self.min_width_curved}")
+        if not self.single_refinement_max_px >= 0:
+            raise ValueError(f"expected single_refinement_max_px >= 0, got {self.single_refinement_max_px}")
         if not 0 <= self.wide_search_fraction <= 1:
             raise ValueError(f"expected 0 <= wide_search_fraction <= 1, got {self.wide_search_fraction}")
         if not 0 <= self.prediction_check_tiles < 0.5:
@@ -594,8 +604,7 @@ class IfmiFrontEnd:
             return offsets
 
         offsets_b[:, 1] = np.mod(offsets_b[:, 1], width)
-        placed = self.engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + shift, linear_b,
-                                             curvature_b=curvature_b)
+        placed, refined = self._register_for_refit(spectra_a, state_b, offsets_b + shift, linear_b, curvature_b)
         for _ in range(self.config.refit_passes if self._curved else 0):
             if placed.valid.sum() < max(self.config.min_tiles, _MIN_REFIT_TILES):
                 break
@@ -610,6 +619,10 @@ class IfmiFrontEnd:
             curvature_b = self.predicted_curvature(offsets_a, linear_a, state_a.reference_curvature, rotation)
             placed = self.engine.refine_placed(spectra_a, state_b.padded_panorama, placed, linear_b,
                                                curvature_b=curvature_b)
+            refined = True
+        if not refined:  # no refit: refine with the predicted shape
+            placed = self.engine.refine_placed(spectra_a, state_b.padded_panorama, placed, linear_b,
+                                               curvature_b=curvature_b)
         last = replace(placed.last, offsets=unpadded(placed.last.offsets))
         placed = replace(placed, offsets=unpadded(placed.offsets), last=last)
         if self.config.anchor_templates:
@@ -621,6 +634,23 @@ class IfmiFrontEnd:
         state_b.tracked_valid = placed.valid
         state_b.reference = None
         return offsets_a, linear_a, placed, n_new
+
+    def _register_for_refit(self, spectra_a: TileSpectra, state_b: IfmiFrameState, offsets_b: np.ndarray,
+                            linear_b: np.ndarray, curvature_b: np.ndarray | None):
+        """``register_placed`` at the prediction, and whether its refinement passes ran.
+
+        With a refit to follow and a search move within ``single_refinement_max_px``
+        the passes are left to the refit (``single_refinement_max_px``).
+        """
+        engine, source = self.engine, state_b.padded_panorama
+        if not (self._curved and self.config.refit_passes and self.config.single_refinement_max_px > 0):
+            return engine.register_placed(spectra_a, source, offsets_b, linear_b, curvature_b=curvature_b), True
+        placed = engine.register_placed(spectra_a, source, offsets_b, linear_b, curvature_b=curvature_b,
+                                        refine=False)
+        moved = np.hypot(*(placed.offsets - offsets_b)[placed.valid].T)
+        if moved.size and np.median(moved) <= self.config.single_refinement_max_px:
+            return placed, False
+        return engine.refine_placed(spectra_a, source, placed, linear_b, curvature_b=curvature_b), True
 
     def _diagnostics(self, reason: np.ndarray, peak_ratio: np.ndarray, peak_to_noise: np.ndarray,
                      n_new: int) -> dict:
