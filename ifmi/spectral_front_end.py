@@ -639,8 +639,9 @@ class IfmiFrontEnd:
                             linear_b: np.ndarray, curvature_b: np.ndarray | None):
         """``register_placed`` at the prediction, and whether its refinement passes ran.
 
-        With a refit to follow and a search move within ``single_refinement_max_px``
-        the passes are left to the refit (``single_refinement_max_px``).
+        With a refit to follow and the kept tiles' median search move within
+        ``config.single_refinement_max_px`` (panorama pixels), the passes are
+        left to the refit; otherwise they run on the predicted shape.
         """
         engine, source = self.engine, state_b.padded_panorama
         if not (self._curved and self.config.refit_passes and self.config.single_refinement_max_px > 0):
