@@ -401,3 +401,11 @@ def test_rotation_fitting_only_the_parallax_of_one_wall_loses_to_the_five_point_
 def test_rotation_min_inlier_share_is_validated(share):
     with pytest.raises(ValueError, match="rotation_min_inlier_share"):
         RelativePoseOptions(rotation_min_inlier_share=share)
+
+
+@pytest.mark.parametrize("options", [{"max_iterations": 0}, {"max_iterations": 10 ** 12},
+                                     {"min_iterations": -1}, {"min_iterations": 10 ** 9}])
+def test_ransac_sample_counts_out_of_range_are_refused(options):
+    # A count past 100 000 only turns a hopeless pair into a hang (or, as a minimum, one huge chunk).
+    with pytest.raises(ValueError, match=r"expected 1 <= max_iterations <= 100000 and 0 <= min_iterations"):
+        RelativePoseOptions(**options)
