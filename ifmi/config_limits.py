@@ -24,10 +24,6 @@ __all__ = ["check_config_for_model"]
 # (quadratically) without new detail. Log-polar grids are bounded by the same
 # factor times the tile side.
 _MAX_OVERSAMPLING = 4
-# Most AKAZE sublevels per octave. Each holds a few full-size float images of its octave, so
-# memory grows linearly with them (a million layers asks for hundreds of gigabytes); at 32 the
-# scale step between sublevels (2^(1/32), 2 %) is already finer than the detector resolves.
-_MAX_AKAZE_LAYERS = 32
 
 
 def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
@@ -118,8 +114,6 @@ def _check_feature_sizes(features, model: OcamModel) -> None:
                        if features.orb_scale_factor > 1 else 1,
                        f"levels down to one pixel at scale factor {features.orb_scale_factor:g}"),
         "akaze_octaves": (features.akaze_octaves, int(np.log2(side)), "octaves down to one pixel"),
-        "akaze_octave_layers": (features.akaze_octave_layers, _MAX_AKAZE_LAYERS,
-                                f"scale steps of 2^(1/{_MAX_AKAZE_LAYERS}) per sublevel"),
         "orb_patch_size": (features.orb_patch_size, side, "the image's shorter side"),
         "orb_edge_threshold": (features.orb_edge_threshold, side, "the image's shorter side"),
     }

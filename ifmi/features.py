@@ -39,6 +39,10 @@ __all__ = [
 DETECTORS = ("orb", "akaze")
 # OpenCV's own default keypoint count of ORB, used when n_features is 0.
 ORB_DEFAULT_FEATURES = 500
+# Most AKAZE sublevels per octave. Each holds a few full-size float images of its octave, so
+# memory grows linearly with them (a million layers asks for hundreds of gigabytes); at 32 the
+# scale step between sublevels (2^(1/32), 2 %) is already finer than the detector resolves.
+_MAX_AKAZE_LAYERS = 32
 
 
 @dataclass(frozen=True)
@@ -70,7 +74,7 @@ class FeatureConfig:
     akaze_threshold : float
         ``cv2.AKAZE_create`` detector response threshold.
     akaze_octaves, akaze_octave_layers : int
-        AKAZE scale space size.
+        AKAZE scale space size (at most 32 layers per octave).
     radius_band : (2,) tuple of float or None
         Override of the mirror band ``(inner, outer)`` radius in sensor
         pixels; ``None`` uses the iFMI front end's default band for the
@@ -114,6 +118,9 @@ class FeatureConfig:
             raise ValueError(f"min_matches must be >= 5 (the 5-point solver), got {self.min_matches}")
         if self.mask_margin_px < 0:
             raise ValueError(f"mask_margin_px must be >= 0, got {self.mask_margin_px}")
+        if self.akaze_octave_layers > _MAX_AKAZE_LAYERS:
+            raise ValueError(f"akaze_octave_layers must be at most {_MAX_AKAZE_LAYERS} (scale steps of "
+                             f"2^(1/{_MAX_AKAZE_LAYERS}) per sublevel), got {self.akaze_octave_layers}")
 
     def to_dict(self) -> dict:
         return {f.name: (list(getattr(self, f.name)) if isinstance(getattr(self, f.name), tuple)

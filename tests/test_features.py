@@ -129,6 +129,9 @@ def test_config_round_trip_and_validation():
         FeatureConfig(ratio=1.5)
     with pytest.raises(ValueError, match="radius_band"):
         FeatureConfig(radius_band=(50, 10))
+    with pytest.raises(ValueError, match=r"akaze_octave_layers must be at most 32 \(scale steps of 2\^\(1/32\) "
+                                         r"per sublevel\), got 1000000"):
+        FeatureConfig(akaze_octave_layers=10 ** 6)
     with pytest.raises(ValueError, match="features: unknown key n_feature; expected n_features"):
         FeatureConfig.from_dict({"n_feature": 3})
 
