@@ -42,7 +42,7 @@ import numpy as np
 from bench_methods import mode_config, run_method
 from ifmi.dataset_names import dataset_labels, resolved_folder
 from ifmi.io.atomic import atomic_write_json
-from ifmi.io.calib import read_calib
+from ifmi.io.camera_file import calibration_path, read_camera
 from ifmi.io.dataset import read_dataset
 from ifmi.pipeline import EstimateConfig, estimate_sequence, resolved_config
 from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
@@ -188,7 +188,7 @@ def main(argv=None) -> int:
     labels = dataset_labels(args.datasets)
     for dataset in args.datasets:
         label = labels[resolved_folder(dataset)]
-        model = read_calib(Path(dataset) / "calib_results.txt")
+        model = read_camera(calibration_path(dataset))
         base = resolved_config(mode_config(EstimateConfig(), "frame"), model)
         configs = {"default": base}
         for name, changes in args.variant:

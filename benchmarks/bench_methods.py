@@ -56,7 +56,7 @@ import numpy as np
 from ifmi.dataset_names import dataset_folder_id, dataset_labels, resolved_folder
 from ifmi.errors import InputError
 from ifmi.evaluation import evaluate_files
-from ifmi.io.calib import read_calib
+from ifmi.io.camera_file import calibration_path, read_camera
 from ifmi.io.dataset import read_dataset
 from ifmi.io.results import write_estimate_run
 from ifmi.pipeline import EstimateConfig, estimate_dataset, estimate_sequence, resolved_config
@@ -246,7 +246,7 @@ def run_benchmark(args: argparse.Namespace, argv) -> int:
     # One entry per folder: a folder given twice (under two spellings too) is measured once.
     datasets = list({resolved_folder(d): d for d in args.datasets}.values())
     for dataset in datasets:
-        model = read_calib(Path(dataset) / "calib_results.txt")
+        model = read_camera(calibration_path(dataset))
         for mode in modes:
             # One configuration for every method of this mode and dataset.
             config = resolved_config(mode_config(base, mode), model)

@@ -47,6 +47,7 @@ __all__ = [
     "radius_band",
     "panorama_config_with_band",
     "off_axis_band",
+    "lit_off_axis_band",
     "panorama_axis_rotation",
     "band_mask",
     "angular_pixel_size_in_band",
@@ -630,6 +631,60 @@ def off_axis_band(model, *, config: PanoramaConfig = PanoramaConfig()) -> tuple[
     if not inner < outer:
         raise ValueError(f"empty band: inner {np.degrees(inner):.1f} deg >= outer {np.degrees(outer):.1f} deg")
     return inner, outer
+
+
+def lit_off_axis_band(model, image: np.ndarray, *, margin_rad: float = 0.0,
+                      config: PanoramaConfig = PanoramaConfig()) -> tuple[float, float]:
+    """Off-axis angles ``(inner, outer)`` (radians) of the lit rings of an image of a non-OCamCalib model.
+
+    The image counterpart of :func:`radius_band` for the models of
+    :mod:`ifmi.camera_models`: rings of rays at a fixed angle from the
+    panorama axis (:func:`panorama_axis_rotation`) are probed from 0 to pi,
+    each on the pixels of it that lie inside the image and the model's
+    valid region. A ring is lit when at least ``config.rim_lit_fraction``
+    of those pixels are brighter than ``config.dark_level`` (median-filtered
+    image, as for :func:`radius_band`). The band runs over the lit rings
+    connected to the first lit one, so a fisheye's black surround beyond its
+    image circle, which the model's valid region may include, is left out.
+
+    Parameters
+    ----------
+    model : CameraModel
+        Not an :class:`~ifmi.camera.OcamModel` (use :func:`radius_band`).
+    image : (H, W) or (H, W, 3) ndarray
+    margin_rad : float, keyword-only
+        Taken off each edge of the band that is not the axis or its opposite
+        pole, radians.
+    config : PanoramaConfig, keyword-only
+
+    Returns
+    -------
+    (float, float)
+
+    Raises
+    ------
+    ValueError
+        An OCamCalib model, or no lit ring in the image.
+    """
+    if isinstance(model, OcamModel):
+        raise ValueError("expected a non-OCamCalib camera model, got an OcamModel (use radius_band)")
+    angles = np.linspace(0.0, np.pi, _BAND_ANGLES)
+    azimuths = np.linspace(0.0, 2 * np.pi, _BAND_AZIMUTHS, endpoint=False)
+    pixels = _circle_pixels(model, panorama_axis_rotation(model), angles, azimuths)
+    with np.errstate(invalid="ignore"):
+        usable = ((pixels[..., 0] >= 0) & (pixels[..., 0] <= model.height - 1)
+                  & (pixels[..., 1] >= 0) & (pixels[..., 1] <= model.width - 1))
+    usable[usable] = model.valid_pixels(pixels[usable])
+    # Unusable points are sampled outside the image (black) and left out of the share.
+    maps = np.where(usable[..., None], pixels, -1.0).astype(np.float32)
+    lit = _ring_lit_fractions((np.ascontiguousarray(maps[..., 1]), np.ascontiguousarray(maps[..., 0])),
+                              image, config.dark_level)
+    count = usable.sum(axis=1)
+    share = np.divide(lit * usable.shape[1], count, out=np.zeros(len(count)), where=count > 0)
+    band = _band_from_lit_rings((share >= config.rim_lit_fraction) & (count > 0), angles, margin_rad)
+    if band is None or not band[0] < band[1]:
+        raise ValueError(f"no lit ring of rays about the camera's axis in the image (band {band})")
+    return band
 
 
 def _panorama_size(config: PanoramaConfig, circumference: float, theta_lo: float,

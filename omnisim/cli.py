@@ -64,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
     warp = sub.add_parser("warp", help="turn one omni image into a pure-rotation sequence with exact "
                           "ground truth (no Mitsuba needed)")
     warp.add_argument("image", help="omni image (PNG/JPEG) of the calibration's size: frame 0")
-    warp.add_argument("--calib", required=True, help="its calib_results.txt (OCamCalib)")
+    warp.add_argument("--calib", required=True,
+                      help="its calib_results.txt (OCamCalib) or camera.yaml (Kalibr: fisheye, pinhole, equirectangular)")
     warp.add_argument("--out", required=True, help="dataset folder to write (resumed if it exists)")
     warp.add_argument("--frames", type=int, required=True, help="number of frames")
     warp.add_argument("--seed", type=int, default=0, help="motion seed (default 0)")

@@ -10,9 +10,21 @@ output pixel ``p``::
     frame_k(p) = source(q)
 
 with the source image as frame 0. Pixels whose own ray, or whose source
-pixel, lies outside the mirror band of the source (detected on the image,
-:func:`ifmi.unwarp.radius_band`, with the calibration's band as fallback),
-or too close to the image edge for the interpolation kernel, are black.
+pixel, lies outside the region of the source that images the scene, or too
+close to the image edge for the interpolation kernel, are black. That
+region is, for an OCamCalib calibration (``calib_results.txt``), the mirror
+band of sensor radii detected on the image (:func:`ifmi.unwarp.radius_band`,
+with the calibration's band as fallback); for a Kalibr ``camera.yaml``
+(fisheyes, pinhole, equirectangular; :mod:`ifmi.camera_models`), the lit
+band of angles about the camera's panorama axis
+(:func:`ifmi.unwarp.lit_off_axis_band`) inside the model's valid region, so
+a fisheye's black surround stays black and fixed in the image.
+
+The random walk turns about the calibration's z axis for an OCamCalib
+model (the mirror axis) and about the panorama axis for the others (the
+optical axis of a fisheye, up for an equirectangular camera), so its yaw is
+the heading in both; the ground truth is written in the camera's own frame.
+An equirectangular image's columns wrap around.
 
 Interpolation: cubic B-spline (``scipy.ndimage.map_coordinates`` with
 ``order=3`` and its prefilter), which interpolates the samples exactly and
@@ -35,20 +47,21 @@ import numpy as np
 from scipy.ndimage import map_coordinates
 from scipy.spatial.transform import Rotation
 
-from ifmi.camera import OcamModel, pixels_from_rays, radius_from_pixels, rays_from_pixels
+from ifmi.camera import (OcamModel, angles_from_axis, angular_pixel_size, pixels_from_rays, radius_from_pixels,
+                         rays_from_pixels)
 from ifmi.errors import InputError
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_json
-from ifmi.io.calib import read_calib
+from ifmi.io.camera_file import camera_file_name, read_camera
 from ifmi.io.dataset import read_image
 from ifmi.io.provenance import package_versions
 from ifmi.io.tum import write_tum
 from ifmi.trajectory import Trajectory
-from ifmi.unwarp import PanoramaConfig, gray_from_image, radius_band
+from ifmi.unwarp import PanoramaConfig, gray_from_image, lit_off_axis_band, panorama_axis_rotation, radius_band
 
 from .render import META_FORMAT, encode_png, open_output_folder, pending_images
 
 __all__ = ["WarpSettings", "WarpResult", "rotation_walk", "valid_source_band", "warp_image",
-           "round_trip_error", "warp_dataset"]
+           "round_trip_error", "rotations_in_camera_frame", "warp_dataset"]
 
 # Version of the warping procedure; part of an output folder's identity.
 WARP_VERSION = 1
@@ -119,21 +132,64 @@ def rotation_walk(settings: WarpSettings) -> np.ndarray:
     return Rotation.from_euler("ZYX", np.stack(angles, axis=1)).as_matrix()
 
 
-def valid_source_band(model: OcamModel, image: np.ndarray) -> tuple[float, float]:
-    """Sensor-radius band ``(inner, outer)`` of the source image that the mirror images (pixels)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the fallback to the calibration's band is fine here
-        return radius_band(model, gray_from_image(image), config=PanoramaConfig(min_radius_fraction=0.0))
+def _pixel_angle(model) -> float:
+    """Median angle (radians) one pixel subtends over a coarse grid of the model's valid pixels."""
+    rows = np.linspace(0, model.height - 1, 33)
+    cols = np.linspace(0, model.width - 1, 33)
+    grid = np.stack(np.meshgrid(rows, cols, indexing="ij"), axis=-1).reshape(-1, 2)
+    return float(np.nanmedian(angular_pixel_size(model, grid[model.valid_pixels(grid)])))
 
 
-def _inside(model: OcamModel, pixels: np.ndarray, band: tuple[float, float]) -> np.ndarray:
-    radius = radius_from_pixels(model, pixels)
+def valid_source_band(model, image: np.ndarray) -> tuple[float, float]:
+    """Band ``(inner, outer)`` of the source image that images the scene.
+
+    Sensor radius in pixels for an :class:`~ifmi.camera.OcamModel` (the
+    mirror band, :func:`ifmi.unwarp.radius_band`); off-axis angle in
+    radians about the panorama axis for the other models (the lit band,
+    :func:`ifmi.unwarp.lit_off_axis_band`, kept ``_EDGE_PX`` pixels inside
+    its edges for the interpolation kernel).
+
+    Raises
+    ------
+    ValueError
+        A non-OCamCalib image with no lit ring.
+    """
+    if isinstance(model, OcamModel):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the fallback to the calibration's band is fine here
+            return radius_band(model, gray_from_image(image), config=PanoramaConfig(min_radius_fraction=0.0))
+    return lit_off_axis_band(model, gray_from_image(image), margin_rad=_EDGE_PX * _pixel_angle(model))
+
+
+def _shrunk(model, band: tuple[float, float], pixels: float) -> tuple[float, float]:
+    """``band`` moved ``pixels`` inward at each edge that is not the axis or its opposite pole."""
+    if isinstance(model, OcamModel):
+        return band[0] + pixels, band[1] - pixels
+    step = pixels * _pixel_angle(model)
+    return (band[0] + step if band[0] > 0 else 0.0), (band[1] - step if band[1] < np.pi else np.pi)
+
+
+def _wraps(model) -> bool:
+    return bool(getattr(model, "wraps_columns", False))
+
+
+def _inside(model, pixels: np.ndarray, band: tuple[float, float]) -> np.ndarray:
     rows, cols = pixels[..., 0], pixels[..., 1]
-    return ((radius >= band[0]) & (radius <= band[1]) & (rows >= _EDGE_PX) & (cols >= _EDGE_PX)
-            & (rows <= model.height - 1 - _EDGE_PX) & (cols <= model.width - 1 - _EDGE_PX))
+    with np.errstate(invalid="ignore"):
+        inside = (rows >= _EDGE_PX) & (rows <= model.height - 1 - _EDGE_PX)
+        if not _wraps(model):
+            inside &= (cols >= _EDGE_PX) & (cols <= model.width - 1 - _EDGE_PX)
+        if isinstance(model, OcamModel):
+            radius = radius_from_pixels(model, pixels)
+            return inside & (radius >= band[0]) & (radius <= band[1])
+        inside &= np.isfinite(pixels).all(axis=-1)
+        inside[inside] &= model.valid_pixels(pixels[inside])
+        axis = getattr(model, "panorama_axis", model.optical_axis)
+        angle = angles_from_axis(rays_from_pixels(model, np.where(inside[..., None], pixels, 0.0)), axis)
+        return inside & (angle >= band[0]) & (angle <= band[1])
 
 
-def warp_image(source: np.ndarray, model: OcamModel, rotation: np.ndarray, *,
+def warp_image(source: np.ndarray, model, rotation: np.ndarray, *,
                band: tuple[float, float]) -> np.ndarray:
     """The source seen by the camera turned by ``rotation`` (``R_0k``), black outside the valid region.
 
@@ -141,11 +197,11 @@ def warp_image(source: np.ndarray, model: OcamModel, rotation: np.ndarray, *,
     ----------
     source : (H, W) or (H, W, 3) uint8 ndarray
         Frame 0, of the calibration's size.
-    model : OcamModel
+    model : OcamModel or CameraModel
     rotation : (3, 3) ndarray
-        ``R_0k``: frame-k directions to frame-0 directions.
+        ``R_0k``: frame-k directions to frame-0 directions, camera frame.
     band : (float, float), keyword-only
-        Valid sensor-radius band of the source (:func:`valid_source_band`).
+        Valid band of the source (:func:`valid_source_band`).
 
     Returns
     -------
@@ -156,9 +212,16 @@ def warp_image(source: np.ndarray, model: OcamModel, rotation: np.ndarray, *,
     rays = rays_from_pixels(model, grid) @ np.asarray(rotation, dtype=np.float64).T
     where = pixels_from_rays(model, rays)
     valid = _inside(model, grid, band) & _inside(model, where, band)
-    coords = [where[..., 0], where[..., 1]]
+    where = np.where(valid[..., None], where, 0.0)
     channels = source[..., None] if source.ndim == 2 else source
-    out = np.zeros(channels.shape, dtype=np.float64)
+    pad = 0
+    if _wraps(model):
+        # Columns of a 360-degree image wrap around: sample a copy padded with the far side.
+        pad = int(np.ceil(_EDGE_PX)) + 1
+        channels = np.concatenate([channels[:, -pad:], channels, channels[:, :pad]], axis=1)
+        where[..., 1] = np.mod(where[..., 1] + 0.5, w) - 0.5
+    coords = [where[..., 0], where[..., 1] + pad]
+    out = np.zeros(source.shape[:2] + channels.shape[2:], dtype=np.float64)
     for c in range(channels.shape[-1]):
         out[..., c] = map_coordinates(channels[..., c].astype(np.float64), coords, order=3, mode="nearest")
     out[~valid] = 0.0
@@ -166,7 +229,7 @@ def warp_image(source: np.ndarray, model: OcamModel, rotation: np.ndarray, *,
     return out[..., 0] if source.ndim == 2 else out
 
 
-def round_trip_error(source: np.ndarray, frame: np.ndarray, model: OcamModel, rotation: np.ndarray, *,
+def round_trip_error(source: np.ndarray, frame: np.ndarray, model, rotation: np.ndarray, *,
                      band: tuple[float, float]) -> tuple[float, float]:
     """Frame ``k`` warped back onto frame 0 with its ground truth, compared with the source.
 
@@ -183,8 +246,7 @@ def round_trip_error(source: np.ndarray, frame: np.ndarray, model: OcamModel, ro
     # Compare where frame k's pixel is valid: away from its black border by the kernel's reach.
     rays = rays_from_pixels(model, grid) @ np.asarray(rotation, dtype=np.float64)
     in_k = pixels_from_rays(model, rays)
-    inner, outer = band
-    shrunk = (inner + 3 * _EDGE_PX, outer - 3 * _EDGE_PX)
+    shrunk = _shrunk(model, band, 3 * _EDGE_PX)
     valid = _inside(model, grid, shrunk) & _inside(model, in_k, shrunk)
     a = gray_from_image(source).astype(np.float64)
     b = gray_from_image(np.clip(back, 0, 255).astype(np.uint8)).astype(np.float64)
@@ -192,11 +254,24 @@ def round_trip_error(source: np.ndarray, frame: np.ndarray, model: OcamModel, ro
     return float(np.sqrt(np.mean((a[valid] - b[valid]) ** 2))), float(valid.sum() / max(band_pixels, 1))
 
 
+def rotations_in_camera_frame(model, walk: np.ndarray) -> np.ndarray:
+    """Orientations ``R_0k`` (K, 3, 3) of a walk about z, turned about ``model``'s panorama axis.
+
+    An OCamCalib model keeps its own z (the mirror axis, the walk
+    unchanged); other models turn about :func:`ifmi.unwarp.panorama_axis_rotation`.
+    """
+    if isinstance(model, OcamModel):
+        return walk
+    axis = panorama_axis_rotation(model)
+    return axis @ walk @ axis.T
+
+
 def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = WarpSettings(),
                  progress: bool = True) -> WarpResult:
     """Write a DATASET folder: the source warped through ``settings.frames`` orientations.
 
-    Writes ``calib_results.txt`` (the given file's bytes), ``images/NNNNNN.png``
+    Writes the calibration (the given file's bytes, as ``calib_results.txt``
+    or ``camera.yaml`` by its format), ``images/NNNNNN.png``
     (gray or RGB like the source), ``groundtruth.txt`` (TUM, ``T_0k``, no
     translation) and ``meta.json`` (inputs' SHA-256, settings, measured
     round-trip error of the last frame, per-image SHA-256). An interrupted
@@ -209,7 +284,7 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
         the calibration's, or an output folder holding something else.
     """
     image_path, calib_path, out_dir = Path(image_path), Path(calib_path), Path(out_dir)
-    model = read_calib(calib_path)
+    model = read_camera(calib_path)
     source = read_image(image_path, size=model.size, gray=False)
     if source.ndim == 3 and source.shape[2] == 4:
         source = source[..., :3]
@@ -218,13 +293,16 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
         "calib_sha256": hashlib.sha256(calib_path.read_bytes()).hexdigest(),
         "settings": asdict(settings), "format": META_FORMAT, "warp": WARP_VERSION,
     }
+    try:
+        band = valid_source_band(model, source)
+    except ValueError as exc:
+        raise InputError(image_path, str(exc)) from None
     meta = open_output_folder(out_dir, identity)
-    band = valid_source_band(model, source)
-    rotations = rotation_walk(settings)
+    rotations = rotations_in_camera_frame(model, rotation_walk(settings))
     meta.update({"source": str(image_path.resolve()), "settings": asdict(settings), "frames": settings.frames,
-                 "valid_band_px": list(band), "interpolation": "cubic B-spline (scipy map_coordinates, order 3)",
+                 ("valid_band_px" if isinstance(model, OcamModel) else "valid_band_rad"): list(band), "interpolation": "cubic B-spline (scipy map_coordinates, order 3)",
                  "versions": package_versions(("numpy", "scipy", "opencv-python-headless", "omnisim-ifmi"))})
-    atomic_write_bytes(out_dir / "calib_results.txt", calib_path.read_bytes())
+    atomic_write_bytes(out_dir / camera_file_name(model), calib_path.read_bytes())
     write_tum(out_dir / "groundtruth.txt",
               Trajectory(timestamps=np.arange(settings.frames, dtype=np.float64),
                          positions=np.zeros((settings.frames, 3)), rotations=rotations),

@@ -69,6 +69,33 @@ def test_a_file_instead_of_a_dataset_folder_is_a_one_line_error(tmp_path, capsys
     assert not out.exists()
 
 
+def test_a_kalibr_camera_dataset_is_benchmarked(tmp_path):
+    """A camera.yaml dataset (a fisheye sequence from omnisim warp) runs through the benchmark."""
+    import cv2
+    from camera_examples import EXAMPLES
+
+    from ifmi.io.kalibr import write_kalibr
+    from ifmi.synthetic import environment_texture, omni_from_environment
+    from omnisim.warp import WarpSettings, warp_dataset
+
+    model = EXAMPLES["kb"].scaled(0.5)
+    grid = np.stack(np.mgrid[0:model.height, 0:model.width], axis=-1).astype(np.float64)
+    image = omni_from_environment(environment_texture(height=256, seed=4), model, np.eye(3))
+    image[~model.valid_pixels(grid)] = 0
+    cv2.imwrite(str(tmp_path / "fisheye.png"), image)
+    write_kalibr(tmp_path / "camera.yaml", model)
+    dataset = tmp_path / "fisheye_warp"
+    warp_dataset(tmp_path / "fisheye.png", tmp_path / "camera.yaml", dataset, progress=False,
+                 settings=WarpSettings(frames=5, seed=2, max_step_deg=4.0, max_tilt_deg=3.0))
+    out = tmp_path / "bench"
+    assert _benchmark_module().main([str(dataset), "--methods", "ifmi", "--modes", "frame",
+                                     "--timing-rounds", "0", "--out", str(out)]) == 0
+    (row,) = json.loads((out / "bench_methods.json").read_text())["rows"]
+    # Steps of up to 4 degrees on a 256 px fisheye: measured 1.5e-4 rad; a failed or wrong
+    # pair would leave an error of the order of the step (0.07 rad).
+    assert row["failures"] == 0 and row["geodesic_rmse"] < 2e-3, row
+
+
 def test_options_benchmark_names_same_named_sets_apart_and_compares_a_variant(tmp_path, monkeypatch):
     options = _benchmark_module("bench_ifmi_options", monkeypatch)
     a = _write_dataset(tmp_path / "site_a" / "office", seed=5, max_step_rad=0.03)
