@@ -264,8 +264,10 @@ def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike,
                    config: EstimateConfig = EstimateConfig(), progress: bool = False) -> SequenceEstimate:
     """Estimate a video file's frames (decoded in order by OpenCV) with one calibration.
 
-    The trajectory's timestamps are the frames' presentation times from the
-    container, in seconds (:class:`ifmi.io.video.VideoFrames`). As for a
+    The trajectory's timestamps are the frames' presentation times in
+    seconds from the first frame (:class:`ifmi.io.video.VideoFrames`); a
+    damaged frame is flagged failed, and a truncated or damaged file gives
+    one :class:`~ifmi.errors.InputWarning`. As for a
     dataset folder, the mirror band is decided from up to five frames
     spread over the clip (:meth:`ifmi.io.video.VideoFrames.spread_frames`),
     so a dark object in the first frame does not narrow it; the result's

@@ -94,6 +94,53 @@ def test_cli_prints_the_warning_as_one_line(tmp_path, capsys):
     assert lines[1].startswith("ifmi estimate: error: ") and len(lines) == 2
 
 
+def test_cli_prints_the_mirror_band_fallback_as_one_line(tmp_path, capfd):
+    """An all-black dataset: the project's own UserWarning is one ``ifmi estimate: warning:`` line."""
+    root = tmp_path / "black"
+    (root / "images").mkdir(parents=True)
+    write_calib(root / "calib_results.txt", MODEL)
+    for k in range(2):
+        (root / "images" / f"{k:06d}.png").write_bytes(cv2.imencode(".png", np.zeros((64, 64), np.uint8))[1])
+    main(["estimate", str(root), "--out", str(tmp_path / "e.txt"), "--no-progress"])
+    lines = capfd.readouterr().err.strip().splitlines()
+    band = [line for line in lines if "no clear mirror band" in line]
+    assert len(band) == 1 and band[0].startswith("ifmi estimate: warning: no clear mirror band in the image")
+    assert not any("UserWarning" in line or "radius_band(" in line for line in lines)
+
+
+def _warn_inside_own_package(code: str) -> None:
+    """Run ``code`` as if it were a module of the ifmi package (its frames name a file there)."""
+    import ifmi
+
+    exec(compile(code, str(Path(ifmi.__file__).parent / "example_module.py"), "exec"), {})
+
+
+def test_warning_lines_of_own_and_foreign_user_warnings(capsys):
+    from ifmi.cli.warning_lines import input_warnings_as_lines
+
+    # pytest.warns records what reaches Python's default display.
+    with pytest.warns(UserWarning) as default_display, input_warnings_as_lines(lambda: "ifmi test"):
+        _warn_inside_own_package("import warnings\nwarnings.warn('fell back to the default')")
+        warnings.warn("a library's own warning")  # raised from this test file: not the project's
+    assert capsys.readouterr().err == "ifmi test: warning: fell back to the default\n"
+    assert [str(w.message) for w in default_display] == ["a library's own warning"]
+
+
+def test_warning_lines_of_numpy_runtime_warnings_name_the_project_line(capsys):
+    from ifmi.cli.warning_lines import input_warnings_as_lines
+
+    with input_warnings_as_lines(lambda: "omnisim warp"):
+        with np.errstate(invalid="warn"):
+            for _ in range(3):  # shown once
+                _warn_inside_own_package("import numpy as np\n\nnp.zeros(2) / np.zeros(2)")
+            np.mean(np.zeros(0))  # only NumPy's own line and this test on the stack
+    err = capsys.readouterr().err.splitlines()
+    prefix = "omnisim warp: warning: "
+    assert err[0] == prefix + "invalid value encountered in divide (at ifmi/example_module.py:3)"
+    assert err[1].startswith(prefix + "Mean of empty slice (at ")
+    assert len(err) == 3 and err[2].startswith(prefix + "invalid value encountered in scalar divide (at ")
+
+
 def test_no_frame_images_names_the_folder(tmp_path):
     root = _folder(tmp_path, ["preview.png"])
     with pytest.raises(InputError, match=r"images: no frame images in folder .*; found only preview.png$"):

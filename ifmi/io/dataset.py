@@ -6,8 +6,11 @@ natural order, never the position in a sorted list: a missing file leaves a
 gap. Two files with one index are an error; files that are not frames
 (hidden files such as ``._000003.png``, ``Thumbs.db``, names without an
 index) are skipped with one :class:`~ifmi.errors.InputWarning`. Images are
-read as 8-bit gray or RGB and must have the size the calibration names.
-Problems raise :class:`~ifmi.errors.InputError` naming the file.
+read as 8-bit gray or RGB, as their raw sensor grid (an EXIF orientation tag
+is ignored: the calibration refers to sensor pixels), and must have the size
+the calibration names. Problems raise :class:`~ifmi.errors.InputError`
+naming the file; a file whose image data the decoder finds damaged is one
+too (see :mod:`ifmi.io.images`).
 
 :func:`read_dataset` turns a path into the camera model and the frame
 source; the camera file is found by :func:`ifmi.io.camera_file.calibration_path`

@@ -1,24 +1,38 @@
 """Image files of a dataset: 8-bit PNG or JPEG, decoded with OpenCV.
 
-A damaged file is found before it reaches the decoder, so that its problem
-comes back as one :class:`~ifmi.errors.InputError` naming the file instead of
-the decoder's own lines on stderr (libpng prints ``libpng error: ...`` for a
-broken PNG and OpenCV returns nothing): a PNG's chunks are checked against
-their CRCs, its image data is inflated and measured against the size its
-header names, and a JPEG must carry its end-of-image marker.
+A damaged file comes back as one :class:`~ifmi.errors.InputError` naming the
+file instead of the decoder's own lines on stderr (libpng prints ``libpng
+error: ...`` for a broken PNG, libjpeg ``Corrupt JPEG data: ...`` for a
+damaged JPEG, and OpenCV returns nothing or a damaged image). Most damage is
+found before the decoder runs: a PNG's chunks are checked against their CRCs,
+its image data is inflated and must have exactly the size its header names
+(interlaced or not) with valid row filters, and a JPEG must carry its
+end-of-image marker. Damage only the decoder sees (a JPEG's entropy-coded
+data) is caught from the messages libjpeg and libpng write to the C-level
+standard error, which are captured around each decode (:func:`_decode`): a
+message about the image data makes the file an error, a message about
+metadata only (e.g. a PNG's colour profile) becomes one
+:class:`~ifmi.errors.InputWarning`, and nothing raw reaches the terminal.
+
+Images are decoded as their raw pixel grid: an EXIF orientation tag (JPEG or
+a PNG's ``eXIf`` chunk) is ignored, because a calibration refers to sensor
+pixels, so that a file decodes the same in gray and in colour.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import struct
+import warnings
 import zlib
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, InputWarning
+from .native_stderr import call_with_captured_stderr
 
 __all__ = ["read_image", "IMAGE_SUFFIXES", "image_file_problem"]
 
@@ -33,6 +47,29 @@ _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
 _PNG_BIT_DEPTHS = (1, 2, 4, 8, 16)
 # Largest row filter type of PNG (none, sub, up, average, Paeth).
 _PNG_MAX_FILTER = 4
+# Interlace methods of PNG: none, Adam7.
+_PNG_INTERLACE_METHODS = (0, 1)
+# The seven passes of Adam7 interlacing: (first column, first row, column step, row step).
+_ADAM7_PASSES = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2),
+                 (0, 1, 1, 2))
+
+# Decode flags. Gray: the raw pixel grid, without applying an EXIF orientation tag.
+# Colour: as stored (depth, alpha); IMREAD_UNCHANGED (-1) never applies the orientation
+# tag and cannot be combined with other flags (-1 | flag == -1).
+_GRAY_FLAGS = cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION
+_COLOUR_FLAGS = cv2.IMREAD_UNCHANGED
+
+# Messages of libjpeg (one line each, no prefix) that mean damaged image data ...
+_JPEG_DAMAGE = ("Corrupt JPEG data", "Premature end of JPEG file", "Inconsistent progression sequence",
+                "Invalid SOS parameters", "Unknown Adobe color transform code")
+# ... and that concern the JFIF header only (the pixels are sound).
+_JPEG_NOTES = ("Warning: unknown JFIF revision number", "Warning: thumbnail image size does not match")
+# libpng's lines; a warning about an ancillary chunk (name with a lower-case first letter,
+# e.g. "iCCP: known incorrect sRGB profile") concerns metadata only, the rest the image.
+_PNG_MESSAGE = re.compile(r"libpng (warning|error): (.*)")
+_PNG_ANCILLARY_CHUNK = re.compile(r"[a-z][A-Za-z]{3}: ")
+# File descriptor of the C-level standard error (lines not the decoder's are written back there).
+_STDERR_FD = 2
 
 
 def _png_chunks(data: bytes) -> tuple[dict, str | None]:
@@ -60,6 +97,19 @@ def _png_chunks(data: bytes) -> tuple[dict, str | None]:
         pos = end
 
 
+def _png_rows(width: int, height: int, bits_per_pixel: int, interlace: int) -> list[tuple[int, int]]:
+    """(rows, bytes per row with its filter byte) of each pass of a PNG's inflated image data."""
+    if interlace == 0:
+        return [(height, (width * bits_per_pixel + 7) // 8 + 1)]
+    passes = []
+    for col, row, col_step, row_step in _ADAM7_PASSES:
+        cols = (width - col + col_step - 1) // col_step
+        rows = (height - row + row_step - 1) // row_step
+        if cols > 0 and rows > 0:  # an empty pass has no rows at all
+            passes.append((rows, (cols * bits_per_pixel + 7) // 8 + 1))
+    return passes
+
+
 def _png_problem(data: bytes) -> str | None:
     chunks, problem = _png_chunks(data)
     if problem:
@@ -69,28 +119,37 @@ def _png_problem(data: bytes) -> str | None:
         return "corrupt PNG (no valid header chunk)"
     width, height, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", header)
     channels = _PNG_CHANNELS.get(colour)
-    if channels is None or depth not in _PNG_BIT_DEPTHS or width == 0 or height == 0:
-        return f"corrupt PNG (invalid header: {width}x{height}, colour type {colour}, depth {depth})"
+    if (channels is None or depth not in _PNG_BIT_DEPTHS or width == 0 or height == 0
+            or interlace not in _PNG_INTERLACE_METHODS):
+        return (f"corrupt PNG (invalid header: {width}x{height}, colour type {colour}, depth {depth}, "
+                f"interlace method {interlace})")
     try:
         raw = zlib.decompress(b"".join(chunks["IDAT"]))
     except zlib.error as exc:
         return f"corrupt PNG (image data: {exc})"
-    if interlace == 0:
-        stride = (width * channels * depth + 7) // 8 + 1
-        if len(raw) < height * stride:
-            return f"truncated PNG image data ({len(raw)} of {height * stride} bytes)"
-        filters = np.frombuffer(raw, dtype=np.uint8, count=height * stride)[::stride]
-        if filters.max() > _PNG_MAX_FILTER:
-            return "corrupt PNG (invalid row filter)"
+    passes = _png_rows(width, height, channels * depth, interlace)
+    expected = sum(rows * stride for rows, stride in passes)
+    if len(raw) < expected:
+        return f"truncated PNG image data ({len(raw)} of {expected} bytes)"
+    if len(raw) > expected:
+        return (f"corrupt PNG (image data too long: {len(raw)} bytes, expected {expected} for its "
+                f"{width}x{height} header)")
+    filters, start = [], 0
+    for rows, stride in passes:
+        filters.append(np.frombuffer(raw, dtype=np.uint8, count=rows * stride, offset=start)[::stride])
+        start += rows * stride
+    if np.concatenate(filters).max() > _PNG_MAX_FILTER:
+        return "corrupt PNG (invalid row filter)"
     return None
 
 
 def image_file_problem(data: bytes) -> str | None:
     """Why the bytes of an image file cannot be decoded, or ``None`` when they look sound.
 
-    PNG: every chunk's CRC, the inflated image data's length and row filters
-    (non-interlaced files). JPEG: start and end-of-image markers. Other
-    content: "not a readable PNG/JPEG image".
+    PNG: every chunk's CRC, the inflated image data's exact length and its
+    row filters (interlaced or not). JPEG: start and end-of-image markers
+    (damaged entropy-coded data is found while decoding, by
+    :func:`read_image`). Other content: "not a readable PNG/JPEG image".
     """
     if data.startswith(_PNG_SIGNATURE):
         return _png_problem(data)
@@ -101,9 +160,71 @@ def image_file_problem(data: bytes) -> str | None:
     return "not a readable PNG/JPEG image"
 
 
+def _decode(data: bytes, flags: int) -> tuple[np.ndarray | None, list[bytes]]:
+    """``cv2.imdecode`` with what the decoder writes to the C-level standard error captured.
+
+    Lines another thread wrote meanwhile are not the decoder's: the caller
+    passes them on with :func:`_pass_on`.
+
+    Returns
+    -------
+    image : ndarray or None
+    lines : list of bytes
+        Everything written to standard error during the decode, line by line.
+    """
+    buffer = np.frombuffer(data, dtype=np.uint8)
+    image, written = call_with_captured_stderr(lambda: cv2.imdecode(buffer, flags))
+    return image, written.splitlines(keepends=True)
+
+
+def _pass_on(lines: list[bytes]) -> None:
+    """Write ``lines`` (not the decoder's) to standard error, where they were headed."""
+    data = b"".join(lines)
+    try:
+        while data:
+            data = data[os.write(_STDERR_FD, data):]
+    except OSError:  # standard error closed meanwhile: nowhere to write
+        pass
+
+
+def _decoder_messages(lines: list[bytes], *, png: bool) -> tuple[list[str], list[str], list[bytes]]:
+    """Split captured ``lines`` into the decoder's damage and metadata messages, and the rest."""
+    damage, notes, other = [], [], []
+    for line in lines:
+        text = line.decode("utf-8", errors="replace").strip()
+        if png and (match := _PNG_MESSAGE.fullmatch(text)):
+            benign = match.group(1) == "warning" and _PNG_ANCILLARY_CHUNK.match(match.group(2))
+            (notes if benign else damage).append(text)
+        elif not png and text.startswith(_JPEG_DAMAGE):
+            damage.append(f"libjpeg: {text}")
+        elif not png and text.startswith(_JPEG_NOTES):
+            notes.append(f"libjpeg: {text}")
+        else:
+            other.append(line)
+    return damage, notes, other
+
+
+def _decode_checked(path: Path, data: bytes, *, gray: bool) -> np.ndarray:
+    """Decode the sound-looking ``data`` of ``path``; the decoder's complaints become errors or warnings."""
+    png = data.startswith(_PNG_SIGNATURE)
+    image, lines = _decode(data, _GRAY_FLAGS if gray else _COLOUR_FLAGS)
+    damage, notes, other = _decoder_messages(lines, png=png)
+    if other:
+        _pass_on(other)
+    kind = "PNG" if png else "JPEG"
+    if damage:
+        raise InputError(path, f"damaged {kind} image data ({'; '.join(damage)})")
+    if image is None:
+        raise InputError(path, "not a readable PNG/JPEG image")
+    if notes:
+        warnings.warn(f"{path}: {kind} metadata problem ignored, the pixels are read as stored "
+                      f"({'; '.join(notes)})", InputWarning, stacklevel=3)
+    return image
+
+
 def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
                gray: bool = True) -> np.ndarray:
-    """Read an 8-bit image.
+    """Read an 8-bit image as its raw pixel grid (an EXIF orientation tag is ignored).
 
     Parameters
     ----------
@@ -117,12 +238,19 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
     Returns
     -------
     ndarray of uint8
-        Indexed ``[row, col]``.
+        Indexed ``[row, col]`` of the stored pixels.
 
     Raises
     ------
     InputError
-        Unreadable or damaged file, or wrong size.
+        Unreadable or damaged file (also damage only the decoder finds), or
+        wrong size.
+
+    Warns
+    -----
+    InputWarning
+        The decoder found a problem in metadata that does not change the
+        pixels (e.g. a PNG's colour profile).
     """
     path = Path(path)
     try:
@@ -134,10 +262,7 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
     problem = image_file_problem(data)
     if problem:
         raise InputError(path, problem)
-    flag = cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_UNCHANGED
-    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flag)
-    if image is None:
-        raise InputError(path, "not a readable PNG/JPEG image")
+    image = _decode_checked(path, data, gray=gray)
     if image.dtype != np.uint8:
         if image.dtype == np.uint16:
             image = (image >> 8).astype(np.uint8)
