@@ -7,17 +7,20 @@ frames of each scene for the Fig. 2-style figure (once per scene, kept in
 the report's data). It writes ``README.md``, ``index.html``, ``report.json``
 (every number shown, to rebuild tables and plots) and ``figures/*.png``: into
 a temporary folder beside the output folder, swapped in only when complete,
-so a failed report leaves the previous one intact.
+so a failed report leaves the previous one intact. An existing output folder
+is replaced only when it holds a report (``report.json`` of kind
+:data:`REPORT_KIND`) or nothing; files of the user's in a report folder are
+kept.
 """
 
 from __future__ import annotations
 
 import html
+import json
 import os
 import platform
 import shutil
 import sys
-import tempfile
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
@@ -26,8 +29,8 @@ from typing import Sequence
 import numpy as np
 
 from .dataset_names import dataset_labels, resolved_folder
-from .errors import InputError, OutputError
-from .io.atomic import atomic_write_json, atomic_write_text
+from .errors import InputError
+from .io.atomic import atomic_write_json, atomic_write_text, check_output_folder, write_folder
 from .io.provenance import package_versions as _package_versions
 from .io.results import (EvaluationRecord, is_evaluation_dir, jsonable, read_evaluation,
                          read_motion_flow, write_motion_flow)
@@ -45,6 +48,8 @@ __all__ = [
     "baseline_ratios",
     "ReportOptions",
     "build_report",
+    "is_report_dir",
+    "REPORT_KIND",
 ]
 
 # Packages whose versions the report lists.
@@ -52,6 +57,10 @@ PACKAGES = ("omnisim-ifmi", "numpy", "scipy", "opencv-python-headless", "poselib
             "distributed", "pandas", "pyarrow", "matplotlib", "mitsuba", "drjit", "evo")
 # File a sweep folder is recognised by.
 SWEEP_MARKER = "sweep.json"
+# Marker stored in report.json so that report folders can be recognised.
+REPORT_KIND = "ifmi-report"
+# Keys of every report.json, also of those written before REPORT_KIND existed.
+_REPORT_KEYS = ("title", "scenes", "average", "machine", "versions")
 
 
 @dataclass
@@ -593,7 +602,7 @@ def _write_report(inputs: ReportInputs, out: Path, options: ReportOptions) -> No
                    ("p", "Each estimate run's configuration is in its evaluation folder "
                          "(config.json) and in report.json.")]
     atomic_write_json(out / "report.json", jsonable({
-        "title": options.title, "command": options.command, "scenes": tables, "average": avg,
+        "kind": REPORT_KIND, "title": options.title, "command": options.command, "scenes": tables, "average": avg,
         "ratios": ratios, "plots": plots, "series": _series(records), "sweeps": sweeps,
         "datasets": provenance, "machine": machine, "versions": versions, "configs": configs,
         "evaluations": [str(p) for p in inputs.evaluations],
@@ -606,27 +615,22 @@ def _write_report(inputs: ReportInputs, out: Path, options: ReportOptions) -> No
 REPORT_ENTRIES = ("README.md", "index.html", "report.json", "figures", "data")
 
 
-def _swap_in(staging: Path, out: Path) -> None:
-    """Replace the report in ``out`` by the finished one in ``staging`` (same parent folder).
+def is_report_dir(path: str | os.PathLike) -> bool:
+    """True when ``path`` holds a ``report.json`` written by :func:`build_report`.
 
-    Entries of an existing ``out`` that a report does not write are moved
-    into the new one, so nothing of the user's is lost; if the swap fails,
-    the old folder is put back.
+    That is a JSON object of kind :data:`REPORT_KIND`, or (reports written
+    before the kind was stored) one without a kind that has every key a
+    report has.
     """
-    if not out.exists():
-        os.rename(staging, out)
-        return
-    old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent)) / out.name
-    os.rename(out, old)
     try:
-        os.rename(staging, out)
-    except OSError:
-        os.rename(old, out)
-        raise
-    for entry in old.iterdir():
-        if entry.name not in REPORT_ENTRIES:
-            os.rename(entry, out / entry.name)
-    shutil.rmtree(old.parent)
+        document = json.loads((Path(path) / "report.json").read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    if not isinstance(document, dict):
+        return False
+    if "kind" in document:
+        return document["kind"] == REPORT_KIND
+    return all(key in document for key in _REPORT_KEYS)
 
 
 def build_report(paths: Sequence[str | os.PathLike], *, out_dir: str | os.PathLike,
@@ -634,7 +638,9 @@ def build_report(paths: Sequence[str | os.PathLike], *, out_dir: str | os.PathLi
     """Write the report of the results found under ``paths`` into ``out_dir``.
 
     The report is built in a temporary folder beside ``out_dir`` and swapped
-    in only when complete: a failure leaves an existing report unchanged.
+    in only when complete (:func:`~ifmi.io.atomic.write_folder`): a failure
+    leaves an existing report unchanged. An existing ``out_dir`` must be a
+    report folder or empty; files of the user's in it are kept.
 
     Parameters
     ----------
@@ -653,23 +659,13 @@ def build_report(paths: Sequence[str | os.PathLike], *, out_dir: str | os.PathLi
     InputError
         A results path that is missing or holds no results, or a malformed one.
     OutputError
-        The report cannot be written (names ``out_dir`` and the OS reason).
+        ``out_dir`` is a file or an existing folder that is neither empty
+        nor a report folder (checked before any work), or the report cannot
+        be written (names ``out_dir`` and the OS reason).
     """
     inputs = find_results(paths)
-    out = Path(out_dir).resolve()  # a symlinked report folder is written through, not replaced
-    if out.exists() and not out.is_dir():
-        raise OutputError(out, "exists and is not a folder")
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.new-", dir=out.parent))
-    except OSError as exc:
-        raise OutputError.from_os_error(out, exc) from None
-    try:
-        _write_report(inputs, staging, options)
-        _swap_in(staging, out)
-    except OSError as exc:
-        raise OutputError.from_os_error(out, exc) from None
-    finally:
-        if staging.exists():
-            shutil.rmtree(staging, ignore_errors=True)
+    # A symlinked report folder is written through, not replaced.
+    out = check_output_folder(out_dir, is_own=is_report_dir,
+                              what="a report folder written by ifmi report")
+    write_folder(out, lambda folder: _write_report(inputs, folder, options), replaces=REPORT_ENTRIES)
     return Path(out_dir) / "README.md"

@@ -13,6 +13,16 @@ cells, changed datasets and unreadable records are computed again). At the end
 the records are gathered into one table (``sweep.csv``, ``sweep.parquet``)
 and heatmaps per dataset and metric (``heatmaps/*.png``).
 
+The result set (:data:`SWEEP_RESULTS`: ``sweep.json``, the table and the
+heatmaps) is written as one set: built in a temporary folder beside ``OUT``
+and swapped in when complete (:func:`~ifmi.io.atomic.write_folder`), so a
+failure leaves the previous set intact and a new grid's set never holds
+heatmaps of an earlier one. The cell records and runs (resumed from) and
+files of the user's in ``OUT`` are kept. An existing ``OUT`` must be new,
+empty, or a sweep folder (:func:`is_sweep_dir`), checked before any work; a
+new folder gets its ``sweep.json`` at once, so that an interrupted first
+sweep is recognised and resumed.
+
 Layout of ``OUT``::
 
     sweep.json                    grid, method, base configuration
@@ -38,12 +48,16 @@ from typing import Iterable, Sequence
 
 from .dataset_names import dataset_folder_id, dataset_labels, resolved_folder
 from .errors import InputError, OutputError
-from .io.atomic import atomic_write_json
+from .io.atomic import (atomic_write_bytes, atomic_write_json, atomic_write_text,
+                        check_output_folder, probe_writable, write_folder)
 
 __all__ = [
     "SweepCell",
     "SweepOptions",
     "METRICS",
+    "SWEEP_KIND",
+    "SWEEP_RESULTS",
+    "is_sweep_dir",
     "sweep_cells",
     "config_with_tiling",
     "run_cell",
@@ -60,6 +74,14 @@ __all__ = [
 _ID_DIGITS = 12
 # Allocations up to this size stay on the heap in local-cluster workers (see run_sweep).
 _WORKER_MMAP_THRESHOLD_BYTES = 64 * 2**20
+# Marker stored in sweep.json so that sweep folders can be recognised.
+SWEEP_KIND = "ifmi-sweep"
+# Keys of every sweep.json, also of one written without SWEEP_KIND.
+_SWEEP_KEYS = ("cells", "base_config", "scheduler")
+# Entries of a sweep folder written as one set at the end of a sweep (an old one is dropped
+# even when the new set lacks it); anything else in the folder is kept: cells/ and runs/,
+# which a rerun resumes from, and files of the user's.
+SWEEP_RESULTS = ("sweep.json", "sweep.csv", "sweep.parquet", "heatmaps")
 
 # Table columns drawn as heatmaps, with their display names.
 METRICS = {
@@ -295,6 +317,47 @@ def _progress(total: int, enabled: bool):
     return tqdm(total=total, disable=not enabled, file=sys.stderr, unit="cell", desc="sweep")
 
 
+def is_sweep_dir(path: str | os.PathLike) -> bool:
+    """True when ``path`` holds a ``sweep.json`` written by :func:`run_sweep`.
+
+    That is a JSON object of kind :data:`SWEEP_KIND`, or one without a kind
+    that has every key a sweep writes (``cells``, ``base_config``,
+    ``scheduler``); an unreadable or foreign ``sweep.json`` does not count.
+    """
+    try:
+        document = json.loads((Path(path) / "sweep.json").read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    if not isinstance(document, dict):
+        return False
+    if "kind" in document:
+        return document["kind"] == SWEEP_KIND
+    return all(key in document for key in _SWEEP_KEYS)
+
+
+def _prepare_output(out_dir: str | os.PathLike, document: dict) -> Path:
+    """Check and create the sweep folder before any cell runs; returns it with links resolved.
+
+    A new or empty folder gets ``sweep.json`` at once (an interrupted sweep is
+    then recognised as one). The folder's parent must be writable too: the
+    result set is built beside the folder at the end.
+    """
+    out = check_output_folder(out_dir, is_own=is_sweep_dir,
+                              what="a sweep folder written by ifmi sweep")
+    try:
+        probe_writable(out.parent / f".{out.name}.probe")
+    except OutputError as exc:
+        where = f" (the results are built beside it, in {out.parent})"
+        raise OutputError(out_dir, exc.reason + (where if out.parent.is_dir() else "")) from None
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError.from_os_error(out_dir, exc) from None
+    if not (out / "sweep.json").exists():
+        atomic_write_json(out / "sweep.json", document)
+    return out
+
+
 def run_sweep(cells: Iterable[SweepCell], *, out_dir: str | os.PathLike, base_config: dict,
               options: SweepOptions = SweepOptions()) -> list[dict]:
     """Run every unfinished cell through Dask and write the table and heatmaps.
@@ -303,6 +366,9 @@ def run_sweep(cells: Iterable[SweepCell], *, out_dir: str | os.PathLike, base_co
     ----------
     cells : iterable of SweepCell
     out_dir : path, keyword-only
+        Sweep folder: new, empty, or an earlier sweep folder
+        (:func:`is_sweep_dir`; its finished cells are reused). A symbolic
+        link is written through.
     base_config : dict, keyword-only
         ``EstimateConfig.to_dict()`` shared by all cells (tiling replaced per cell).
     options : SweepOptions, keyword-only
@@ -311,19 +377,22 @@ def run_sweep(cells: Iterable[SweepCell], *, out_dir: str | os.PathLike, base_co
     -------
     list of dict
         The records of all cells of this grid (finished earlier or now).
+
+    Raises
+    ------
+    OutputError
+        ``out_dir`` is a file or an existing folder that is neither empty nor
+        a sweep folder (checked before any cell runs), or it cannot be
+        written. Writing the result set (:data:`SWEEP_RESULTS`) fails as a
+        whole: the earlier set stays as it was, and the cell records stay for
+        a rerun.
+    InputError
+        A Dask scheduler that cannot be reached.
     """
-    out = Path(out_dir)
     cells = list(cells)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError.from_os_error(out, exc) from None
-    atomic_write_json(out / "sweep.json", {
-        "kind": "ifmi-sweep",
-        "cells": [c.__dict__ for c in cells],
-        "base_config": base_config,
-        "scheduler": options.scheduler or "local-cluster",
-    })
+    document = {"kind": SWEEP_KIND, "cells": [c.__dict__ for c in cells],
+                "base_config": base_config, "scheduler": options.scheduler or "local-cluster"}
+    out = _prepare_output(out_dir, document)
     digest = config_digest(base_config)
     contents = {d: dataset_digest(d) for d in {c.dataset for c in cells}}
     pending = [c for c in cells if not _finished(out, c, digest, contents[c.dataset])]
@@ -333,7 +402,12 @@ def run_sweep(cells: Iterable[SweepCell], *, out_dir: str | os.PathLike, base_co
     if pending:
         _execute(pending, out_dir=str(out), base_config=base_config, options=options)
     records = read_cells(out, cells)
-    write_sweep_table(out, records)
+
+    def fill(folder: Path) -> None:
+        write_sweep_table(folder, records)
+        atomic_write_json(folder / "sweep.json", document)
+
+    write_folder(out, fill, replaces=SWEEP_RESULTS)
     return records
 
 
@@ -400,12 +474,16 @@ def read_cells(out_dir: str | os.PathLike, cells: Sequence[SweepCell] | None = N
 
 
 def write_sweep_table(out_dir: str | os.PathLike, records: list[dict]) -> None:
-    """Write ``sweep.csv``, ``sweep.parquet`` and the heatmaps of ``records``."""
+    """Write ``sweep.csv``, ``sweep.parquet`` and the heatmaps of ``records`` into ``out_dir``.
+
+    Each file is written atomically, but not the files as a set, and
+    heatmaps already in ``out_dir`` are left: :func:`run_sweep` calls this on
+    a new temporary folder that it swaps in when complete.
+    """
     import io
 
     import pandas as pd
 
-    from .io.atomic import atomic_write_bytes, atomic_write_text
     from .plots import sweep_heatmap
 
     out = Path(out_dir)

@@ -254,8 +254,9 @@ def test_report_into_a_symlinked_folder_writes_through_the_link(tmp_path):
     root = _make_results(tmp_path, scenes=("office",))
     real = tmp_path / "real_report"
     real.mkdir()
-    (real / "notes.txt").write_text("mine")
     (tmp_path / "link").symlink_to(real)
+    assert main(["report", str(root / "eval"), "--out", str(tmp_path / "link")]) == 0
+    (real / "notes.txt").write_text("mine")
     assert main(["report", str(root / "eval"), "--out", str(tmp_path / "link")]) == 0
     assert (tmp_path / "link").is_symlink()
     assert (real / "README.md").is_file() and (real / "notes.txt").read_text() == "mine"

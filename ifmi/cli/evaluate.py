@@ -39,12 +39,14 @@ def add_parser(subparsers) -> None:
         help="orientation errors of an estimate against ground truth (and a pass/fail gate)",
         description="Per-axis roll/pitch/yaw RMSE and mean ± std, geodesic, relative and "
                     "translation-direction errors, failures and time per frame. Results are "
-                    "written to --out (default: ESTIMATE.eval/ beside the estimate). With "
+                    "written to --out (default: ESTIMATE.eval/ beside the estimate) as one set; "
+                    "an existing --out must be an earlier evaluation folder or empty. With "
                     "--max-rmse it is a CI gate: one PASS/FAIL line, exit 0 on PASS, 1 on FAIL.",
     )
     p.add_argument("--gt", required=True, metavar="GROUNDTRUTH", help="ground-truth TUM file")
     p.add_argument("--est", required=True, metavar="ESTIMATE", help="estimated TUM file")
-    p.add_argument("--out", metavar="DIR", help="evaluation folder to write")
+    p.add_argument("--out", metavar="DIR",
+                   help="evaluation folder to write (new, empty or an earlier evaluation)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--max-time-difference", type=_non_negative(float), default=1e-3, metavar="T",
                    help="largest timestamp difference for associating poses (default 1e-3)")

@@ -17,10 +17,12 @@ def add_parser(subparsers) -> None:
         description="Reads evaluation folders (ifmi evaluate) and sweep folders (ifmi sweep), "
                     "or folders containing them, and writes README.md, index.html, report.json "
                     "and figures/ into --out (built beside it and swapped in when complete). "
-                    "Estimates are never recomputed.",
+                    "An existing --out must be an earlier report folder (your other files in it "
+                    "are kept) or empty. Estimates are never recomputed.",
     )
     p.add_argument("results", nargs="+", metavar="RESULTS", help="evaluation or sweep folders")
-    p.add_argument("--out", required=True, metavar="DIR", help="report folder, e.g. reports/NAME")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="report folder, e.g. reports/NAME (new, empty or an earlier report)")
     p.add_argument("--title", default=None, help="report title")
     # dest is not "command": that name holds the subcommand (used in error messages).
     p.add_argument("--command", dest="regenerate", default=None,

@@ -42,7 +42,10 @@ def add_parser(subparsers) -> None:
         help="tile size x overlap grid per dataset, run through Dask",
         description="Estimate and evaluate every (dataset, tile size, overlap) cell; one JSON "
                     "per cell in OUT/cells/ (failed cells recorded, finished ones skipped on a "
-                    "rerun), then OUT/sweep.csv, OUT/sweep.parquet and OUT/heatmaps/*.png.",
+                    "rerun), then OUT/sweep.json, OUT/sweep.csv, OUT/sweep.parquet and "
+                    "OUT/heatmaps/*.png as one set (built beside OUT and swapped in when "
+                    "complete). An existing --out must be an earlier sweep folder (your other "
+                    "files in it are kept) or empty.",
     )
     p.add_argument("datasets", nargs="+", metavar="DATASET",
                    help="dataset folders with calib_results.txt, images/ and groundtruth.txt")
@@ -61,7 +64,8 @@ def add_parser(subparsers) -> None:
                         "process (default: a local cluster)")
     p.add_argument("--workers", type=_positive_int, default=2,
                    help="worker processes of the local cluster (default 2, 1 thread each)")
-    p.add_argument("--out", required=True, metavar="DIR", help="sweep folder")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="sweep folder (new, empty or an earlier sweep)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 

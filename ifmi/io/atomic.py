@@ -11,6 +11,10 @@ to disk, then renamed over the target. Further rules:
   temporaries first, then the renames; if any step fails, the renamed ones
   are put back, so either the whole new set is in place or the old files
   are byte-identical.
+* :func:`write_folder` writes a whole output folder as one set: it is built
+  in a temporary sibling folder and swapped in when complete (an atomic
+  exchange where the system has one). :func:`check_output_folder` refuses,
+  before any work, an existing folder the command did not write itself.
 
 Failures raise :class:`~ifmi.errors.OutputError` naming the user's path
 and the OS reason.
@@ -18,34 +22,47 @@ and the OS reason.
 
 from __future__ import annotations
 
+import ctypes
 import errno
 import json
 import os
+import shutil
 import stat
+import sys
 import tempfile
+import warnings
 from pathlib import Path
-from typing import Mapping
+from typing import Callable, Collection, Mapping
 
 from ..errors import OutputError
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "atomic_write_files",
-           "writable_target", "probe_writable", "json_text"]
+           "writable_target", "probe_writable", "json_text", "check_output_folder", "write_folder"]
 
 # Tries at a free backup name (names are random; a clash is already unlikely).
 _BACKUP_ATTEMPTS = 16
+# Entries of a refused folder named in the error message (the rest are counted).
+_LISTED_ENTRIES = 3
+# renameat2(2) arguments (<linux/fs.h>, <fcntl.h>): swap two paths atomically, relative to the cwd.
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def _umask() -> int:
+    # Linux reports the umask in /proc without changing it; elsewhere it is read by setting it.
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            return next(int(ln.split()[1], 8) for ln in fh if ln.startswith("Umask:"))
+    except (OSError, StopIteration, ValueError):
+        umask = os.umask(0o022)
+        os.umask(umask)
+        return umask
 
 
 def _default_file_mode() -> int:
     # Temporary files are created 0600; a finished file gets the mode a plain
-    # open() would give it (0666 less the process umask). Linux reports the
-    # umask in /proc without changing it; elsewhere it is read by setting it.
-    try:
-        with open("/proc/self/status", encoding="ascii") as fh:
-            umask = next(int(ln.split()[1], 8) for ln in fh if ln.startswith("Umask:"))
-    except (OSError, StopIteration, ValueError):
-        umask = os.umask(0o022)
-        os.umask(umask)
-    return 0o666 & ~umask
+    # open() would give it (0666 less the process umask).
+    return 0o666 & ~_umask()
 
 
 def _blocking_file(folder: Path) -> Path | None:
@@ -271,3 +288,193 @@ def _backup(path: Path, target: Path) -> str | None:
                 raise OutputError.from_os_error(path, exc) from exc
             return _temporary_copy(path, target, target.read_bytes())
     raise OutputError(path, f"cannot make a backup name beside {target}")
+
+
+def _entries_text(names: list[str]) -> str:
+    """``a, b, c and 4 more`` for a folder's entry names."""
+    shown = ", ".join(names[:_LISTED_ENTRIES])
+    more = len(names) - _LISTED_ENTRIES
+    return f"{shown} and {more} more" if more > 0 else shown
+
+
+def check_output_folder(path: str | os.PathLike, *, is_own: Callable[[Path], bool],
+                        what: str) -> Path:
+    """Check, before any work, that a command may write its output folder ``path``.
+
+    A folder that does not exist yet, an empty one, or one ``is_own``
+    recognises (the command wrote it before) may be written; any other
+    existing folder holds files of the user's and is refused.
+
+    Parameters
+    ----------
+    path : path
+        The output folder. A symbolic link is followed: the folder it
+        points to is the one checked (and later replaced).
+    is_own : callable, keyword-only
+        ``is_own(folder)`` is True for a folder the command wrote.
+    what : str, keyword-only
+        What such a folder is, for the message (``"an evaluation folder"``).
+
+    Returns
+    -------
+    Path
+        The folder with links resolved (give it to :func:`write_folder`).
+
+    Raises
+    ------
+    OutputError
+        ``path`` is a file, or a folder holding other files than the
+        command's own (the message lists some of them).
+    """
+    path = Path(path)
+    try:
+        out = path.resolve()
+        if out.exists() and not out.is_dir():
+            raise OutputError(path, "exists and is not a folder")
+        entries = sorted(e.name for e in out.iterdir()) if out.is_dir() else []
+    except OutputError:
+        raise
+    except OSError as exc:
+        raise OutputError.from_os_error(path, exc) from None
+    except RuntimeError:  # Path.resolve of a link loop before Python 3.13
+        raise OutputError(path, "symbolic link loop") from None
+    if entries and not is_own(out):
+        raise OutputError(path, f"holds {_entries_text(entries)} but is not {what} (expected a new "
+                                "path, an empty folder or an earlier output of this command); "
+                                "refusing to replace it")
+    return out
+
+
+def _directory_mode(out: Path) -> int:
+    """The mode a finished folder gets: that of the folder it replaces, else 0777 less the umask."""
+    try:
+        return stat.S_IMODE(os.stat(out).st_mode)
+    except OSError:
+        return 0o777 & ~_umask()
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two existing paths in one atomic step (Linux ``renameat2``); False where unsupported."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    renameat2.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    renameat2.restype = ctypes.c_int
+    if renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _swap_folder(staging: Path, out: Path) -> Path | None:
+    """Put ``staging`` in the place of ``out``; returns where the old folder now is (to remove).
+
+    An atomic exchange where the system has one; else two renames, the old
+    folder put back if the second fails.
+    """
+    if not out.exists():
+        os.rename(staging, out)
+        return None
+    if _exchange(staging, out):
+        return staging
+    old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+    try:
+        os.rename(out, old / out.name)
+    except OSError:
+        old.rmdir()
+        raise
+    try:
+        os.rename(staging, out)
+    except OSError:
+        os.rename(old / out.name, out)
+        old.rmdir()
+        raise
+    return old
+
+
+def _move_entries(names: list[str], source: Path, destination: Path) -> None:
+    """Rename each entry ``names`` of ``source`` into ``destination``; on failure move them back."""
+    moved: list[str] = []
+    try:
+        for name in names:
+            if (destination / name).exists() or (destination / name).is_symlink():
+                raise OSError(errno.EEXIST, f"{name} is both kept and written", str(destination))
+            os.rename(source / name, destination / name)
+            moved.append(name)
+    except BaseException:
+        for name in reversed(moved):
+            os.rename(destination / name, source / name)
+        raise
+
+
+def _failure_reason(exc: OSError) -> str:
+    return exc.reason if isinstance(exc, OutputError) else (exc.strerror or str(exc))
+
+
+def write_folder(out: str | os.PathLike, fill: Callable[[Path], None], *,
+                 replaces: Collection[str]) -> None:
+    """Write the output folder ``out`` as one set: built beside it, swapped in when complete.
+
+    ``fill`` writes every file into a new temporary folder beside ``out``
+    (same parent, so the same file system). Entries of an existing ``out``
+    that are not in ``replaces`` (the user's notes, say) are moved into it;
+    then it takes the place of ``out`` (atomically where the system can
+    exchange two folders) and the old folder is removed. If anything fails
+    the old folder is unchanged and no temporary folder is left.
+
+    Parameters
+    ----------
+    out : path
+        The output folder, checked by :func:`check_output_folder` (links resolved).
+    fill : callable
+        ``fill(folder)`` writes the new content into the empty ``folder``.
+    replaces : collection of str, keyword-only
+        Names of the entries the command writes (an old one is dropped even
+        when the new set lacks it).
+
+    Raises
+    ------
+    OutputError
+        Names ``out`` and the OS reason (never the temporary folder).
+
+    Warns
+    -----
+    UserWarning
+        The new folder is in place but the old one could not be removed
+        entirely (e.g. an immutable file in it); names where it was left.
+    """
+    out = Path(out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.new-", dir=out.parent))
+    except OSError as exc:
+        raise OutputError(out, _failure_reason(exc)) from None
+    old, kept = None, []
+    try:
+        fill(staging)
+        os.chmod(staging, _directory_mode(out))
+        kept = sorted(e.name for e in out.iterdir() if e.name not in replaces) if out.is_dir() else []
+        _move_entries(kept, out, staging)
+        try:
+            old = _swap_folder(staging, out)
+        except BaseException:
+            _move_entries(kept, staging, out)
+            raise
+    except OSError as exc:
+        raise OutputError(out, _failure_reason(exc)) from None
+    finally:
+        # The temporary folder is removed unless entries of the user's are still in it
+        # (only if moving them back failed too): better a stray folder than lost files.
+        if (staging != old and staging.exists()
+                and not any(os.path.lexists(staging / name) for name in kept)):
+            shutil.rmtree(staging, ignore_errors=True)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+        if old.exists():
+            warnings.warn(f"{out}: written, but the previous folder could not be removed "
+                          f"entirely; what is left of it is in {old}", UserWarning, stacklevel=2)

@@ -14,7 +14,10 @@ An evaluation folder holds::
     config.json        copy of the estimate run's NAME.config.json (if any)
     frames.csv         copy of the estimate run's NAME.frames.csv (if any)
 
-Reports read these files and never recompute estimates.
+Reports read these files and never recompute estimates. The folder is
+written as one set (built beside it and swapped in); an existing folder is
+replaced only when it is an evaluation folder (``evaluation.json`` of kind
+:data:`EVALUATION_KIND`) or empty, and files of the user's in it are kept.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ import numpy as np
 
 from ..errors import InputError, OutputError
 from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
-                     json_text, probe_writable)
+                     check_output_folder, json_text, probe_writable, write_folder)
 from .provenance import package_versions
 from .text_file import read_text_file
 
@@ -46,6 +49,7 @@ __all__ = [
     "write_evaluation",
     "read_evaluation",
     "is_evaluation_dir",
+    "is_own_evaluation_dir",
     "jsonable",
     "check_estimate_outputs",
     "frames_csv_text",
@@ -56,6 +60,11 @@ __all__ = [
 
 # Marker stored in evaluation.json so that folders can be recognised.
 EVALUATION_KIND = "ifmi-evaluation"
+# Entries of an evaluation folder that a new evaluation replaces (anything else in it is
+# kept). A report's copy of an evaluation also holds the motion-flow sample computed for
+# it, which belongs to the estimate evaluated before.
+EVALUATION_FILES = ("evaluation.json", "per_frame.csv", "per_frame.npz", "config.json",
+                    "frames.csv", "motion_flow.npz")
 # Columns every frames.csv must have (contract of ``ifmi estimate``).
 REQUIRED_FRAME_COLUMNS = ("frame", "success", "seconds")
 
@@ -271,12 +280,18 @@ def jsonable(obj):
 
 def write_evaluation(out_dir: str | os.PathLike, *, meta: dict, arrays: dict,
                      side_files: EstimateSideFiles | None = None) -> Path:
-    """Write an evaluation folder (each file atomically).
+    """Write an evaluation folder as one set.
+
+    The files are written into a temporary folder beside ``out_dir`` that
+    takes its place when complete (:func:`~ifmi.io.atomic.write_folder`):
+    after a failure an earlier evaluation there is unchanged. Files of the
+    user's in an earlier evaluation folder are kept.
 
     Parameters
     ----------
     out_dir : path
-        Folder to create or update.
+        Folder to create, or an earlier evaluation folder (or an empty
+        folder) to replace. A symbolic link is written through.
     meta : dict, keyword-only
         JSON-serialisable description with at least ``summary``;
         ``kind`` is set here.
@@ -289,24 +304,54 @@ def write_evaluation(out_dir: str | os.PathLike, *, meta: dict, arrays: dict,
     -------
     Path
         ``out_dir/evaluation.json``.
+
+    Raises
+    ------
+    OutputError
+        ``out_dir`` is a file or an existing folder that is neither empty
+        nor an evaluation folder (checked before anything is written), or
+        the folder cannot be written (names ``out_dir`` and the OS reason).
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out / "per_frame.npz", _npz_bytes(arrays))
-    atomic_write_text(out / "per_frame.csv", _csv_text(arrays))
-    if side_files is not None:
-        if side_files.config is not None:
-            atomic_write_json(out / "config.json", side_files.config)
-        if side_files.frames is not None:
-            atomic_write_bytes(out / "frames.csv", side_files.frames_path.read_bytes())
+    out = check_output_folder(out_dir, is_own=is_own_evaluation_dir,
+                              what="an evaluation folder written by ifmi evaluate")
+    frames_csv = None
+    if side_files is not None and side_files.frames is not None:
+        try:
+            frames_csv = side_files.frames_path.read_bytes()
+        except OSError as exc:
+            raise InputError(side_files.frames_path,
+                             f"cannot read frames file ({exc.__class__.__name__})") from None
     document = jsonable(dict(meta, kind=EVALUATION_KIND))
-    atomic_write_json(out / "evaluation.json", document)
-    return out / "evaluation.json"
+
+    def fill(folder: Path) -> None:
+        atomic_write_bytes(folder / "per_frame.npz", _npz_bytes(arrays))
+        atomic_write_text(folder / "per_frame.csv", _csv_text(arrays))
+        if side_files is not None and side_files.config is not None:
+            atomic_write_json(folder / "config.json", side_files.config)
+        if frames_csv is not None:
+            atomic_write_bytes(folder / "frames.csv", frames_csv)
+        atomic_write_json(folder / "evaluation.json", document)
+
+    write_folder(out, fill, replaces=EVALUATION_FILES)
+    return Path(out_dir) / "evaluation.json"
 
 
 def is_evaluation_dir(path: str | os.PathLike) -> bool:
     """True when ``path`` is a folder holding an ``evaluation.json``."""
     return (Path(path) / "evaluation.json").is_file()
+
+
+def is_own_evaluation_dir(path: str | os.PathLike) -> bool:
+    """True when ``path`` holds an ``evaluation.json`` that :func:`write_evaluation` wrote.
+
+    That is a JSON object of kind :data:`EVALUATION_KIND`; an unreadable or
+    foreign ``evaluation.json`` does not count.
+    """
+    try:
+        document = json.loads((Path(path) / "evaluation.json").read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    return isinstance(document, dict) and document.get("kind") == EVALUATION_KIND
 
 
 def read_evaluation(path: str | os.PathLike) -> EvaluationRecord:
