@@ -24,14 +24,25 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from .camera import OcamModel, model_from_direct_polynomial, valid_mask
+from .camera import (
+    INVERSE_CHECK_INNER_FRACTION,
+    INVERSE_TOLERANCE_PX,
+    OcamModel,
+    check_affine,
+    check_center_inside,
+    inverse_round_trip_error,
+    model_from_direct_polynomial,
+    valid_mask,
+)
 from .camera_models import (
     DoubleSphereModel,
     ExtendedUnifiedModel,
     KannalaBrandtModel,
     PinholeModel,
     UnifiedModel,
+    check_usable_region,
 )
+from .unwarp import PanoramaConfig, radius_band
 
 __all__ = ["TARGETS", "CalibrationFit", "fit_camera_model", "reprojection_errors", "rays_in_frame_of"]
 
@@ -53,6 +64,9 @@ _DS_SCAN_XIS = np.linspace(-0.95, 1.5, 50)
 # Every this many fitting samples enter the radial pre-fit (a radial profile needs few).
 _SCAN_STRIDE = 4
 _CHECK_STRIDE_PX = 2
+# Fewest fitting samples in the source's valid region: their residuals (two or three each)
+# must outnumber the nine parameters of the largest target model with room to spare.
+_MIN_FIT_SAMPLES = 10
 
 
 @dataclass(frozen=True)
@@ -116,6 +130,49 @@ def _axis_pixel_and_scale(source) -> tuple[np.ndarray, float]:
     centre = source.pixels_from_rays(source.optical_axis)
     ray0, ray1 = source.rays_from_pixels(np.array([centre, centre + [0.0, 1.0]]))
     return centre, 1.0 / np.arccos(np.clip(ray0 @ ray1, -1.0, 1.0))
+
+
+def _checked_start(source, pixels: np.ndarray) -> tuple[np.ndarray, float]:
+    """:func:`_axis_pixel_and_scale`, after checking that the source gives a fit something to start from.
+
+    Raises
+    ------
+    ValueError
+        Too few sample pixels in the source's valid region, or an optical axis
+        that images outside the image or with a degenerate pixel angle.
+    """
+    if len(pixels) < _MIN_FIT_SAMPLES:
+        raise ValueError(f"the camera's valid region holds {len(pixels)} of the {_FIT_GRID}x{_FIT_GRID} sample "
+                         f"pixels, at least {_MIN_FIT_SAMPLES} are needed to fit a model to it")
+    with np.errstate(all="ignore"):
+        centre, scale = _axis_pixel_and_scale(source)
+    if not (np.all(np.isfinite(centre)) and np.isfinite(scale) and scale > 0):
+        raise ValueError(f"the camera's optical axis images at pixel (row, col) = ({centre[0]:.6g}, "
+                         f"{centre[1]:.6g}) with {1.0 / scale:.3g} rad per pixel; expected a finite pixel and "
+                         f"pixel angle to start the fit from")
+    return centre, scale
+
+
+def _check_fitted(model, target: str) -> None:
+    """Raise ``ValueError`` unless the fitted model is a calibration that reads back (see :mod:`ifmi.io`)."""
+    try:
+        if not isinstance(model, OcamModel):
+            check_usable_region(model)
+            return
+        for name, check, args in (("affine (c d e)", check_affine, (model.affine,)),
+                                  ("center (row col)", check_center_inside, (model.center, model.size))):
+            try:
+                check(*args)
+            except ValueError as exc:
+                raise ValueError(f"{name}: {exc}") from None
+        inner, outer = radius_band(model, config=PanoramaConfig(min_radius_fraction=INVERSE_CHECK_INNER_FRACTION))
+        error, radius = inverse_round_trip_error(model, inner, outer)
+        if not error <= INVERSE_TOLERANCE_PX:
+            raise ValueError(f"its inverse polynomial does not invert the direct one: round-trip error "
+                             f"{error:.3g} px at radius {radius:.1f} px, at most {INVERSE_TOLERANCE_PX} px accepted")
+    except ValueError as exc:
+        raise ValueError(f"this camera cannot be converted to {target}: the fitted model is no valid "
+                         f"calibration ({exc})") from None
 
 
 def _kalibr_builder(kind: str, size):
@@ -189,7 +246,7 @@ def _radial_start(kind: str, rays: np.ndarray, pixels: np.ndarray, centre: np.nd
 
 def _fit_kalibr(source, kind: str, pixels: np.ndarray):
     initial, build = _kalibr_builder(kind, source.size)
-    centre, scale = _axis_pixel_and_scale(source)
+    centre, scale = _checked_start(source, pixels)
     rays = rays_in_frame_of(source.rays_from_pixels(pixels), source, "kalibr")
 
     def residuals(p):
@@ -209,8 +266,8 @@ def _fit_kalibr(source, kind: str, pixels: np.ndarray):
 
 
 def _fit_ocamcalib(source, pixels: np.ndarray) -> OcamModel:
+    centre, scale = _checked_start(source, pixels)
     rays = rays_in_frame_of(source.rays_from_pixels(pixels), source, "ocamcalib")
-    centre, scale = _axis_pixel_and_scale(source)
 
     def build(p):
         pol = (p[5], 0.0, p[6], p[7], p[8])
@@ -225,8 +282,12 @@ def _fit_ocamcalib(source, pixels: np.ndarray) -> OcamModel:
     start = np.array([centre[0], centre[1], 1.0, 0.0, 0.0, -scale, 0.0, 0.0, 0.0])
     solution = least_squares(residuals, start, method="lm", x_scale="jac", max_nfev=4000)
     p = solution.x
-    return model_from_direct_polynomial((p[5], 0.0, p[6], p[7], p[8]), center=(p[0], p[1]), size=source.size,
-                                        affine=(p[2], p[3], p[4]))
+    try:
+        return model_from_direct_polynomial((p[5], 0.0, p[6], p[7], p[8]), center=(p[0], p[1]), size=source.size,
+                                            affine=(p[2], p[3], p[4]))
+    except ValueError as exc:  # e.g. a fitted polynomial whose elevation does not grow from the centre
+        raise ValueError(f"this camera cannot be converted to ocamcalib: the fitted model has no inverse ({exc})") \
+            from None
 
 
 def fit_camera_model(source, target: str) -> CalibrationFit:
@@ -250,8 +311,11 @@ def fit_camera_model(source, target: str) -> CalibrationFit:
     ------
     ValueError
         For an equirectangular source, an OCamCalib source looking along +z,
-        or a pinhole target for a camera seeing 180 degrees or more (a
-        pinhole images less than a half space).
+        a pinhole target for a camera seeing 180 degrees or more (a
+        pinhole images less than a half space), a source whose valid region
+        or optical axis gives the fit nothing to start from, or a fitted
+        model that is no valid calibration (it would not read back: see
+        :func:`ifmi.io.calib.parse_calib`, :func:`ifmi.io.kalibr.parse_kalibr`).
     """
     if target not in TARGETS:
         raise ValueError(f"unknown target model {target!r}; expected one of {TARGETS}")
@@ -265,6 +329,7 @@ def fit_camera_model(source, target: str) -> CalibrationFit:
     pixels = _samples(source, _FIT_GRID)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         model = _fit_ocamcalib(source, pixels) if target == "ocamcalib" else _fit_kalibr(source, target, pixels)
+        _check_fitted(model, target)
         check = valid_mask(source)
         rows, cols = np.nonzero(check[::_CHECK_STRIDE_PX, ::_CHECK_STRIDE_PX])
         grid = np.stack([rows, cols], axis=-1).astype(np.float64) * _CHECK_STRIDE_PX

@@ -58,6 +58,15 @@ __all__ = [
     "pixels_from_sensor",
     "pixel_offsets_from_sensor",
     "angular_pixel_size",
+    "check_image_size",
+    "check_affine",
+    "check_center_inside",
+    "inverse_round_trip_error",
+    "MIN_IMAGE_SIDE_PX",
+    "MAX_IMAGE_SIDE_PX",
+    "AFFINE_MAX_DEVIATION",
+    "INVERSE_TOLERANCE_PX",
+    "INVERSE_CHECK_INNER_FRACTION",
 ]
 
 
@@ -90,6 +99,31 @@ class CameraModel(Protocol):
 
 # Pixels whose lifted ray re-projects farther than this (px) are outside a model's valid region.
 VALID_ROUND_TRIP_PX = 1e-3
+# Smallest image side a calibration file may name, pixels: a panorama is at least 8 px
+# on a side (ifmi.unwarp.PanoramaConfig) and omnisim renders at least 8 px.
+MIN_IMAGE_SIDE_PX = 8
+# Largest image side a calibration file may name, pixels: the panorama's fixed-point remap
+# maps (OpenCV CV_16SC2) hold pixel coordinates up to 32767.
+MAX_IMAGE_SIDE_PX = 32768
+# Largest accepted |c - 1|, |d| and |e| of OCamCalib's affine matrix [[c, d], [e, 1]]. It
+# models the pixel aspect ratio and a slight sensor misalignment, so real calibrations are
+# close to the identity (the published file of DESIGN.md: 0.045; this project's cameras:
+# 0.02); 0.5 still admits pixel aspect ratios 0.5..1.5 (anamorphic video: 1.46) and keeps
+# the matrix far from singular (c - d e >= 0.25).
+AFFINE_MAX_DEVIATION = 0.5
+# Largest accepted round-trip error of an OCamCalib inverse polynomial, pixels. OCamCalib
+# fits its inverse to 0.01 px; printed files measure at most 0.004 px over the band (the
+# DESIGN.md example 0.0024 px, six other published files 0.0014..0.0031 px, this project's
+# own calibrations under 1e-4 px). The estimator places tiles to a few hundredths of a
+# pixel, so an inverse off by more than a tenth of a pixel would bias its rays.
+INVERSE_TOLERANCE_PX = 0.1
+# The band of that check starts at this fraction of its outer radius. The centre of an omni
+# image shows the camera itself, and OCamCalib's inverse is least accurate at -90 degrees
+# (one published 33-coefficient file is 0.65 px off at the very centre, 0.004 px from a
+# tenth of the radius out).
+INVERSE_CHECK_INNER_FRACTION = 0.1
+# Radii sampled across that band.
+_INVERSE_CHECK_SAMPLES = 2048
 
 
 def _image_grid(size: tuple[int, int]) -> np.ndarray:
@@ -254,6 +288,71 @@ class OcamModel(SizedImage):
         center = tuple((x + 0.5) * factor - 0.5 for x in self.center)
         size = (int(round(self.height * factor)), int(round(self.width * factor)))
         return replace(self, pol=pol, invpol=invpol, center=center, size=size)
+
+
+def check_image_size(size) -> None:
+    """Raise ``ValueError`` unless ``size`` is two integers from :data:`MIN_IMAGE_SIDE_PX` to :data:`MAX_IMAGE_SIDE_PX`.
+
+    Parameters
+    ----------
+    size : (2,) sequence of int
+        ``(height, width)`` or ``(width, height)``: both sides are bounded alike.
+    """
+    if not all(MIN_IMAGE_SIDE_PX <= side <= MAX_IMAGE_SIDE_PX for side in size):
+        raise ValueError(f"expected image sides from {MIN_IMAGE_SIDE_PX} to {MAX_IMAGE_SIDE_PX} px, got "
+                         f"{' x '.join(f'{side:.0f}' for side in size)}")
+
+
+def check_affine(affine) -> None:
+    """Raise ``ValueError`` unless OCamCalib's affine part ``(c, d, e)`` is close to the identity.
+
+    ``|c - 1|``, ``|d|`` and ``|e|`` must be at most :data:`AFFINE_MAX_DEVIATION`
+    (see there why).
+    """
+    c, d, e = (float(v) for v in affine)
+    if not max(abs(c - 1.0), abs(d), abs(e)) <= AFFINE_MAX_DEVIATION:
+        raise ValueError(f"expected an affine part close to the identity (|c - 1|, |d|, |e| at most "
+                         f"{AFFINE_MAX_DEVIATION}; real sensors are within 0.05), got {c:g} {d:g} {e:g}")
+
+
+def check_center_inside(center, size) -> None:
+    """Raise ``ValueError`` unless the ``(row, col)`` centre lies inside an image of ``size`` ``(height, width)``.
+
+    Inside means strictly between the outermost pixel centres, ``0 < row < H - 1``
+    and ``0 < col < W - 1``, so that a circle about the centre fits in the image.
+    """
+    (row, col), (height, width) = center, size
+    if not (0 < row < height - 1 and 0 < col < width - 1):
+        raise ValueError(f"expected a point inside the {height}x{width} image (0 < row < {height - 1}, "
+                         f"0 < col < {width - 1}), got {row:g} {col:g}")
+
+
+def inverse_round_trip_error(model: OcamModel, inner: float, outer: float, *,
+                             samples: int = _INVERSE_CHECK_SAMPLES) -> tuple[float, float]:
+    """Largest ``|invpol(theta(r)) - r|`` of an OCamCalib model over sensor radii ``inner..outer``.
+
+    Parameters
+    ----------
+    model : OcamModel
+    inner, outer : float
+        Sensor radii (pixels) of the band checked.
+    samples : int, keyword-only
+        Radii sampled evenly across the band.
+
+    Returns
+    -------
+    error_px : float
+        The largest round-trip error, pixels (inf where it is not finite).
+    radius_px : float
+        The radius where it occurs.
+    """
+    radii = np.linspace(inner, outer, samples)
+    theta = elevation_from_radius(np.asarray(model.pol), radii)
+    with np.errstate(all="ignore"):
+        error = np.abs(np.polynomial.polynomial.polyval(theta, model.invpol) - radii)
+    error = np.where(np.isfinite(error), error, np.inf)
+    worst = int(np.argmax(error))
+    return float(error[worst]), float(radii[worst])
 
 
 def sensor_from_pixels(model: OcamModel, pixels) -> np.ndarray:

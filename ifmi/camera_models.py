@@ -37,7 +37,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .camera import VALID_ROUND_TRIP_PX, SizedImage, measured_field_of_view
+from .camera import VALID_ROUND_TRIP_PX, SizedImage, angular_pixel_size, measured_field_of_view
 
 __all__ = [
     "UnifiedModel",
@@ -48,7 +48,10 @@ __all__ = [
     "EquirectangularModel",
     "distort_radtan",
     "undistort_radtan",
+    "check_usable_region",
     "KALIBR_MODELS",
+    "MIN_PIXEL_ANGLE_RAD",
+    "MAX_PIXEL_ANGLE_RAD",
 ]
 
 # Newton's iteration of the radtan undistortion stops when the distorted point is
@@ -61,6 +64,12 @@ _UNDISTORT_MAX_STEPS = 50
 _KB_THETA_SAMPLES = 20001
 # Largest undistorted normalised radius searched for a radtan fold (about 84 degrees off axis).
 _RADTAN_FOLD_SEARCH = 10.0
+# Bounds of the angle one pixel subtends at the principal point (check_usable_region), radians.
+# Below: a focal length over a million pixels (a 1000 mm lens on 1 um pixels is 1e6 px), whose
+# whole image is a speck of the sphere. Above: a hemisphere in under four pixels (the
+# project's smallest cameras, 64 px fisheyes, measure under 0.05 rad).
+MIN_PIXEL_ANGLE_RAD = 1e-6
+MAX_PIXEL_ANGLE_RAD = 0.5
 
 
 def _check_pixels(pixels) -> np.ndarray:
@@ -640,6 +649,37 @@ class EquirectangularModel(_Undistorted, SizedImage):
     def valid_pixels(self, pixels) -> np.ndarray:
         """``(...,)`` bool: inside the image (every pixel of the image is valid)."""
         return self.inside_image(_check_pixels(pixels))
+
+
+def check_usable_region(model) -> None:
+    """Raise ``ValueError`` unless a Kalibr model images a usable region about its principal point.
+
+    The principal point must lie strictly inside the image (between the
+    outermost pixel centres), its pixel must be in the valid region, and
+    the angle one pixel subtends there must be finite and within
+    :data:`MIN_PIXEL_ANGLE_RAD` .. :data:`MAX_PIXEL_ANGLE_RAD`. Extreme
+    parameters (``xi`` of a million, a focal length of 1e-300 or 1e300 px)
+    fail here instead of giving an empty or degenerate valid region.
+    An equirectangular camera images the whole sphere and always passes.
+
+    Parameters
+    ----------
+    model : camera model of this module
+    """
+    if isinstance(model, EquirectangularModel):
+        return
+    pu, pv = model.principal_point
+    if not (0 < pu < model.width - 1 and 0 < pv < model.height - 1):
+        raise ValueError(f"principal point (pu, pv) = ({pu:g}, {pv:g}) is outside the {model.width}x{model.height} "
+                         f"image (expected 0 < pu < {model.width - 1}, 0 < pv < {model.height - 1})")
+    centre = np.array([pv, pu])
+    with np.errstate(all="ignore"):
+        angle = float(angular_pixel_size(model, centre))
+        valid = bool(model.valid_pixels(centre))
+    if not (valid and MIN_PIXEL_ANGLE_RAD <= angle <= MAX_PIXEL_ANGLE_RAD):
+        raise ValueError(f"the camera images no usable region: one pixel at the principal point subtends "
+                         f"{angle:.3g} rad{'' if valid else ' and the pixel is outside the valid region'} "
+                         f"(expected {MIN_PIXEL_ANGLE_RAD:g} to {MAX_PIXEL_ANGLE_RAD:g} rad)")
 
 
 # Kalibr camera_model name -> model classes that carry it.

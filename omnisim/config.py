@@ -20,7 +20,8 @@ import sys
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
-from ifmi.camera import OcamModel, model_from_direct_polynomial
+from ifmi.camera import (OcamModel, check_affine, check_center_inside, check_image_size, max_image_radius,
+                         model_from_direct_polynomial)
 from ifmi.errors import InputError
 
 from . import meshes, procedural  # noqa: F401  (register the built-in generators)
@@ -305,15 +306,12 @@ def _camera(path: Path, table, resolution) -> CameraSettings:
     if spec.calib:
         model = read_calib(_relative_file(path, spec.calib, "[camera] calib"))
     else:
-        try:
-            model = model_from_direct_polynomial(spec.pol, center=spec.center, size=spec.size,
-                                                 affine=spec.affine)
-        except ValueError as exc:
-            raise InputError(path, f"[camera] pol: {exc}") from None
+        model = _polynomial_camera(path, spec)
     radius_min = spec.radius_min
     radius_max = float(max(model.size)) if spec.radius_max is None else spec.radius_max
     if radius_max <= radius_min:
         raise InputError(path, f"[camera] radius_max: expected > radius_min = {radius_min}, got {radius_max}")
+    _check_band(path, model, radius_min)
     height, width = resolution
     factor_h, factor_w = height / model.height, width / model.width
     if abs(factor_h - factor_w) > 1e-9:
@@ -323,6 +321,29 @@ def _camera(path: Path, table, resolution) -> CameraSettings:
         model = model.scaled(factor_h)
         radius_min, radius_max = radius_min * factor_h, radius_max * factor_h
     return CameraSettings(model=model, radius_min=radius_min, radius_max=radius_max)
+
+
+def _polynomial_camera(path: Path, spec: CameraTable) -> OcamModel:
+    """The OCamCalib model of ``[camera]`` pol, center, size and affine, checked as calibration files are."""
+    for key, check, args in (("size", check_image_size, (spec.size,)), ("affine", check_affine, (spec.affine,)),
+                             ("center", check_center_inside, (spec.center, spec.size))):
+        try:
+            check(*args)
+        except ValueError as exc:
+            raise InputError(path, f"[camera] {key}: {exc}") from None
+    try:
+        return model_from_direct_polynomial(spec.pol, center=spec.center, size=spec.size, affine=spec.affine)
+    except ValueError as exc:
+        raise InputError(path, f"[camera] pol: {exc}") from None
+
+
+def _check_band(path: Path, model: OcamModel, radius_min: float) -> None:
+    """Refuse a mirror band that images no pixel: it must start inside the image and the calibration's range."""
+    reach = min(max_image_radius(model.size, model.center, model.affine), model.monotonic_radius)
+    if not radius_min < reach:
+        raise InputError(path, f"[camera] radius_min: expected under {reach:.1f} px (where the image or the "
+                               f"calibration's monotonic range ends, so the mirror band holds pixels), "
+                               f"got {radius_min:g}")
 
 
 def _kalibr_camera(path: Path, name: str, resolution) -> CameraSettings:

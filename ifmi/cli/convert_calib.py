@@ -3,11 +3,17 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from ..calib_fit import TARGETS
+from ..errors import InputError
 from ..io.camera_file import convert_calibration_file
 
-__all__ = ["add_parser", "run", "fit_summary"]
+__all__ = ["add_parser", "run", "fit_summary", "check_out_suffix"]
+
+# Suffixes that ifmi.io.camera_file.read_camera reads as a Kalibr camchain (any other: OCamCalib
+# text); --out must carry one exactly when the target is a Kalibr model, so the file reads back.
+_KALIBR_SUFFIXES = (".yaml", ".yml")
 
 
 def add_parser(subparsers) -> None:
@@ -20,7 +26,8 @@ def add_parser(subparsers) -> None:
     )
     p.add_argument("calib", metavar="IN", help="calib_results.txt, camera.yaml, or a DATASET folder")
     p.add_argument("--to", required=True, choices=TARGETS, help="model to fit")
-    p.add_argument("--out", required=True, help="calibration file to write")
+    p.add_argument("--out", required=True, help="calibration file to write: .yaml/.yml for a Kalibr model, "
+                                                "another suffix (calib_results.txt) for ocamcalib")
     p.add_argument("--force", action="store_true", help="replace an existing --out")
     p.set_defaults(func=run)
 
@@ -33,7 +40,27 @@ def fit_summary(fit) -> str:
             f"{region}")
 
 
+def check_out_suffix(out, target: str) -> None:
+    """Refuse an ``--out`` whose suffix would make the written file read back in the other format.
+
+    Raises
+    ------
+    InputError
+        A Kalibr target without a ``.yaml``/``.yml`` suffix, or ``ocamcalib`` with one.
+    """
+    suffix = Path(out).suffix
+    is_kalibr_name = suffix.lower() in _KALIBR_SUFFIXES
+    if target == "ocamcalib" and is_kalibr_name:
+        raise InputError(out, f"--out: an ocamcalib model is written as OCamCalib text, but a {suffix} file is "
+                              f"read as Kalibr YAML; expected another suffix, e.g. calib_results.txt")
+    if target != "ocamcalib" and not is_kalibr_name:
+        raise InputError(out, f"--out: a {target} model is written as a Kalibr camchain, which is read back "
+                              f"from a .yaml or .yml file only; expected e.g. camera.yaml, got suffix "
+                              f"{suffix or '(none)'}")
+
+
 def run(args) -> int:
+    check_out_suffix(args.out, args.to)
     fit = convert_calibration_file(args.calib, args.to, args.out, overwrite=args.force)
     print(f"{args.out}: {args.to} fitted to {args.calib}: {fit_summary(fit)}")
     if not fit.success:

@@ -9,11 +9,15 @@ lines, in this order:
 4. affine parameters: ``c d e``;
 5. image size: ``height width``.
 
-Reading checks more than the layout: every value must be finite, and the
-inverse polynomial must invert the direct one over the image band to within
-:data:`INVERSE_TOLERANCE_PX` (see :func:`inverse_polynomial_error`). A
-missing block is named from the comment line above each block (OCamCalib
-writes them) or, without comments, from the shapes of the remaining lines.
+Reading checks more than the layout: every value must be finite; the image
+sides must be integers from :data:`~ifmi.camera.MIN_IMAGE_SIDE_PX` to
+:data:`~ifmi.camera.MAX_IMAGE_SIDE_PX`; the affine part must be close to the
+identity (:data:`~ifmi.camera.AFFINE_MAX_DEVIATION`); the centre must lie
+inside the image; and the inverse polynomial must invert the direct one over
+the image band to within :data:`INVERSE_TOLERANCE_PX` (see
+:func:`inverse_polynomial_error`). A missing block is named from the comment
+line above each block (OCamCalib writes them) or, without comments, from the
+shapes of the remaining lines.
 """
 
 from __future__ import annotations
@@ -24,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import OcamModel, elevation_from_radius
+from ..camera import (INVERSE_CHECK_INNER_FRACTION, INVERSE_TOLERANCE_PX, OcamModel, check_affine,
+                      check_center_inside, check_image_size, inverse_round_trip_error)
 from ..errors import InputError
 from .atomic import atomic_write_text
 from .text_file import read_text_file
@@ -37,20 +42,9 @@ _BLOCKS = ("direct polynomial", "inverse polynomial", "center (row col)",
 # Words of OCamCalib's comment line above each block, in block order.
 _BLOCK_WORDS = (("direct", "cam2world"), ("inverse", "world2cam"), ("center", "centre"),
                 ("affine",), ("size",))
-# Largest accepted round-trip error of the inverse polynomial, pixels. OCamCalib
-# fits its inverse to 0.01 px; printed files measure at most 0.004 px over the
-# band (the DESIGN.md example 0.0024 px, six other published files
-# 0.0014..0.0031 px, this project's own calibrations under 1e-4 px). The
-# estimator places tiles to a few hundredths of a pixel, so an inverse off by
-# more than a tenth of a pixel would bias its rays.
-INVERSE_TOLERANCE_PX = 0.1
-# The band checked: from this fraction of the outer radius outward. The
-# centre of an omni image shows the camera itself, and OCamCalib's inverse
-# is least accurate at -90 degrees (one published 33-coefficient file is
-# 0.65 px off at the very centre, 0.004 px from a tenth of the radius out).
-_CHECK_INNER_FRACTION = 0.1
-# Radii sampled across the band.
-_CHECK_SAMPLES = 2048
+# The inverse polynomial check: INVERSE_TOLERANCE_PX, the largest accepted round-trip error,
+# over a band from INVERSE_CHECK_INNER_FRACTION of its outer radius out (both in ifmi.camera,
+# with their reasons).
 
 
 def _numbers(path, block: str, line: str) -> list[float]:
@@ -124,13 +118,24 @@ def parse_calib(text: str, *, source: str | os.PathLike = "<calib>") -> OcamMode
     size = _pair(source, _BLOCKS[4], values[4], 2)
     if any(v != int(v) or v <= 0 for v in size):
         raise InputError(source, f"image size must be positive integers, got {size[0]:g} {size[1]:g}")
+    _checked(source, _BLOCKS[4], check_image_size, size)
     try:
         model = OcamModel(pol=pol, invpol=invpol, center=center, affine=affine,
                           size=(int(size[0]), int(size[1])))
     except ValueError as exc:
         raise InputError(source, str(exc)) from None
+    _checked(source, _BLOCKS[3], check_affine, affine)
+    _checked(source, _BLOCKS[2], check_center_inside, center, model.size)
     _check_inverse(source, model)
     return model
+
+
+def _checked(source, block: str, check, *args) -> None:
+    """Run a ``check`` of :mod:`ifmi.camera` on ``args``; its ``ValueError`` becomes a one-line error on ``block``."""
+    try:
+        check(*args)
+    except ValueError as exc:
+        raise InputError(source, f"{block}: {exc}") from None
 
 
 def _data_lines(text: str) -> tuple[list[str], list[str]]:
@@ -198,13 +203,8 @@ def inverse_polynomial_error(model: OcamModel) -> tuple[float, float]:
     """
     from ..unwarp import PanoramaConfig, radius_band
 
-    inner, outer = radius_band(model, config=PanoramaConfig(min_radius_fraction=_CHECK_INNER_FRACTION))
-    radii = np.linspace(inner, outer, _CHECK_SAMPLES)
-    theta = elevation_from_radius(np.asarray(model.pol), radii)
-    with np.errstate(all="ignore"):
-        error = np.abs(np.polynomial.polynomial.polyval(theta, model.invpol) - radii)
-    worst = int(np.argmax(np.where(np.isfinite(error), error, np.inf)))
-    return float(error[worst]), float(radii[worst])
+    inner, outer = radius_band(model, config=PanoramaConfig(min_radius_fraction=INVERSE_CHECK_INNER_FRACTION))
+    return inverse_round_trip_error(model, inner, outer)
 
 
 def _check_inverse(source, model: OcamModel) -> None:

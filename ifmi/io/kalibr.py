@@ -21,6 +21,12 @@ camera_model       intrinsics                  distortion_model (coefficients)
                                                for 360-degree cameras)
 =================  ==========================  ==================================
 
+Reading checks every value: numbers must be finite floats; ``resolution``
+two integers from :data:`~ifmi.camera.MIN_IMAGE_SIDE_PX` to
+:data:`~ifmi.camera.MAX_IMAGE_SIDE_PX`; and the model must image a usable
+region (:func:`~ifmi.camera_models.check_usable_region`: the principal point
+inside the image, the pixel there valid and of a plausible angle).
+
 Numbers are written with Python's shortest round-trip representation, so
 ``read_kalibr(write_kalibr(model))`` gives back the same model bit for bit.
 """
@@ -29,8 +35,10 @@ from __future__ import annotations
 
 import math
 import os
+import reprlib
 from pathlib import Path
 
+from ..camera import MAX_IMAGE_SIDE_PX, MIN_IMAGE_SIDE_PX
 from ..camera_models import (
     DoubleSphereModel,
     EquirectangularModel,
@@ -38,6 +46,7 @@ from ..camera_models import (
     KannalaBrandtModel,
     PinholeModel,
     UnifiedModel,
+    check_usable_region,
 )
 from ..errors import InputError
 from .atomic import atomic_write_text
@@ -53,6 +62,11 @@ KALIBR_INTRINSICS = {
     "eucm": ("alpha", "beta", "fu", "fv", "pu", "pv"),
     "equirectangular": (),
 }
+# Messages show values of the file briefly: integers longer than this by their size (a float
+# reaches 2**1024), lists up to this many items, nestings this deep (cam0 lists have 6 items).
+_SHOWN_INT_BITS = 1024
+_SHOWN_ITEMS = 8
+_SHOWN_LEVELS = 3
 # camera_model -> distortion models it accepts, with their coefficient counts.
 _DISTORTIONS = {
     "pinhole": {"equidistant": 4, "radtan": 4, "none": 0},
@@ -73,23 +87,46 @@ def _as_number(value):
     return value
 
 
+class _ShortRepr(reprlib.Repr):
+    """``repr`` for messages: long lists, nestings and strings cut short, huge integers by their size."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.maxlist = self.maxtuple = self.maxdict = _SHOWN_ITEMS
+        self.maxlevel = _SHOWN_LEVELS
+
+    def repr_int(self, x, level) -> str:
+        if x.bit_length() > _SHOWN_INT_BITS:
+            return f"<integer of {x.bit_length()} bits>"
+        return super().repr_int(x, level)
+
+
+_shown = _ShortRepr().repr
+
+
 def _numbers(source, key: str, value, count: int | None) -> list[float]:
     if isinstance(value, list):
         value = [_as_number(v) for v in value]
     if not isinstance(value, list) or any(isinstance(v, bool) or not isinstance(v, (int, float))
                                           for v in value):
-        raise InputError(source, f"cam0.{key}: expected a list of numbers, got {value!r}")
+        raise InputError(source, f"cam0.{key}: expected a list of numbers, got {_shown(value)}")
     if count is not None and len(value) != count:
         raise InputError(source, f"cam0.{key}: expected {count} values, got {len(value)}")
-    if not all(math.isfinite(v) for v in value):
-        raise InputError(source, f"cam0.{key}: expected finite numbers, got {value!r}")
-    return [float(v) for v in value]
+    try:
+        numbers = [float(v) for v in value]
+    except OverflowError:  # an integer beyond the floating-point range
+        numbers = [math.inf]
+    if not all(math.isfinite(v) for v in numbers):
+        raise InputError(source, f"cam0.{key}: expected finite numbers, got {_shown(value)}")
+    return numbers
 
 
 def _resolution(source, value) -> tuple[int, int]:
     if (not isinstance(value, list) or len(value) != 2
-            or any(isinstance(v, bool) or not isinstance(v, int) or v <= 0 for v in value)):
-        raise InputError(source, f"cam0.resolution: expected [width, height] positive integers, got {value!r}")
+            or any(isinstance(v, bool) or not isinstance(v, int)
+                   or not MIN_IMAGE_SIDE_PX <= v <= MAX_IMAGE_SIDE_PX for v in value)):
+        raise InputError(source, f"cam0.resolution: expected [width, height] integers from {MIN_IMAGE_SIDE_PX} "
+                                 f"to {MAX_IMAGE_SIDE_PX}, got {_shown(value)}")
     width, height = value
     return int(height), int(width)
 
@@ -118,6 +155,8 @@ def _cam0(text: str, source) -> dict:
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or exc.__class__.__name__
         raise InputError(source, f"not valid YAML{where}: {problem}") from None
+    except ValueError as exc:  # Python refuses integers of more than 4300 digits
+        raise InputError(source, f"not valid YAML: {str(exc).split(';')[0]}") from None
     if not isinstance(data, dict) or not isinstance(data.get("cam0"), dict):
         raise InputError(source, "expected a Kalibr camchain with a 'cam0' mapping, found none")
     cam = data["cam0"]
@@ -147,23 +186,29 @@ def parse_kalibr(text: str, *, source: str | os.PathLike = "<camera.yaml>"):
     InputError
         YAML syntax error, missing ``cam0`` or key, unknown camera or
         distortion model, wrong number of values, non-finite values, bad
-        resolution or parameters out of the model's range.
+        resolution, parameters out of the model's range, or a model that
+        images no usable region.
     """
     cam = _cam0(text, source)
     kind, distortion = cam["camera_model"], cam["distortion_model"]
-    if kind not in KALIBR_INTRINSICS:
+    if not isinstance(kind, str) or kind not in KALIBR_INTRINSICS:
         raise InputError(source, f"cam0.camera_model: expected one of {', '.join(KALIBR_INTRINSICS)}, "
-                                 f"got {kind!r}")
-    if distortion not in _DISTORTIONS[kind]:
+                                 f"got {_shown(kind)}")
+    if not isinstance(distortion, str) or distortion not in _DISTORTIONS[kind]:
         raise InputError(source, f"cam0.distortion_model: expected one of "
-                                 f"{', '.join(_DISTORTIONS[kind])} for camera_model {kind}, got {distortion!r}")
+                                 f"{', '.join(_DISTORTIONS[kind])} for camera_model {kind}, got {_shown(distortion)}")
     intrinsics = _numbers(source, "intrinsics", cam["intrinsics"], len(KALIBR_INTRINSICS[kind]))
     coeffs = _numbers(source, "distortion_coeffs", cam["distortion_coeffs"], _DISTORTIONS[kind][distortion])
     size = _resolution(source, cam["resolution"])
     try:
-        return _model_from_fields(kind, distortion, intrinsics, coeffs, size)
+        model = _model_from_fields(kind, distortion, intrinsics, coeffs, size)
     except ValueError as exc:
         raise InputError(source, f"cam0: {exc}") from None
+    try:
+        check_usable_region(model)
+    except ValueError as exc:
+        raise InputError(source, f"cam0.intrinsics: {exc}") from None
+    return model
 
 
 def read_kalibr(path: str | os.PathLike):
