@@ -24,8 +24,9 @@ from .errors import CalibrationFitError
 from .relative_pose import rotation_angles, rotation_from_rays
 from .tiling import (TileLayout, TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_layout,
                      tile_size_px, tiles_from_panorama)
-from .unwarp import (PanoramaConfig, PanoramaMapping, gray_from_image, panorama_image_from_omni_image,
-                     panorama_mapping, panorama_pixels_from_rays, rays_from_panorama_pixels, wrapped_panorama_maps)
+from .unwarp import (PANORAMA_INTERPOLATIONS, PanoramaConfig, PanoramaMapping, gray_from_image,
+                     panorama_image_from_omni_image, panorama_mapping, panorama_pixels_from_rays,
+                     rays_from_panorama_pixels, wrapped_panorama_maps)
 
 __all__ = ["IfmiConfig", "IfmiFrameState", "IfmiFrontEnd"]
 
@@ -145,9 +146,18 @@ class IfmiConfig:
         converges. A larger move (fast or erratic motion) first refines on the
         predicted shape, as without a refit. 0 always refines twice. See the
         README's sharp-image section for what it saves and costs.
+    wide_panorama_interpolation : {"linear", "cubic", "lanczos4"}
+        OpenCV kernel that resamples the omni image into panoramas at least
+        ``min_width_curved`` wide (sharp high-resolution images); narrower
+        ones are bilinear. Bilinear interpolation shifts fine texture by a
+        sub-pixel amount fixed in the omni image
+        (:func:`~ifmi.unwarp.panorama_image_from_omni_image`); an anchored
+        template keeps its frame's shift for its whole track. See the
+        README's sharp-image section for what the Lanczos kernel gains and costs.
     min_width_curved : int
-        Curved placements and refit passes apply from this panorama width
-        (pixels) up; narrower panoramas keep the affine cut.
+        Curved placements, refit passes and ``wide_panorama_interpolation``
+        apply from this panorama width (pixels) up; narrower panoramas keep
+        the affine cut and bilinear resampling.
     """
 
     panorama: PanoramaConfig = field(default_factory=PanoramaConfig)
@@ -171,6 +181,7 @@ class IfmiConfig:
     refit_passes: int = 1
     refit_max_residual_px: float = 0.25
     single_refinement_max_px: float = 0.5
+    wide_panorama_interpolation: str = "lanczos4"
     min_width_curved: int = 1536
 
     def __post_init__(self) -> None:
@@ -187,6 +198,9 @@ class IfmiConfig:
         if self.refit_passes < 0 or not self.refit_max_residual_px > 0 or self.min_width_curved < 0:
             raise ValueError(f"expected refit_passes >= 0, refit_max_residual_px > 0 and min_width_curved >= 0, "
                              f"got {self.refit_passes}, {self.refit_max_residual_px}, {self.min_width_curved}")
+        if self.wide_panorama_interpolation not in PANORAMA_INTERPOLATIONS:
+            raise ValueError(f"wide_panorama_interpolation must be one of {sorted(PANORAMA_INTERPOLATIONS)}, "
+                             f"got {self.wide_panorama_interpolation!r}")
         if not self.single_refinement_max_px >= 0:
             raise ValueError(f"expected single_refinement_max_px >= 0, got {self.single_refinement_max_px}")
         if not 0 <= self.wide_search_fraction <= 1:
@@ -372,7 +386,10 @@ class IfmiFrontEnd:
         # Remapped as float: an 8-bit result would round every panorama pixel to a whole gray
         # level (on sharp 1024 px images that noise doubled the frame-to-frame error).
         gray = gray_from_image(image).astype(np.float32)
-        padded = panorama_image_from_omni_image(self.mapping, gray, maps=self._padded_maps)
+        wide = self.mapping.width >= self.config.min_width_curved
+        padded = panorama_image_from_omni_image(
+            self.mapping, gray, maps=self._padded_maps,
+            interpolation=self.config.wide_panorama_interpolation if wide else "linear")
         coarse = None
         if self.global_stage is not None:
             coarse = self.global_stage.coarse_panorama(padded[:, self._pad:self._pad + self.mapping.width])

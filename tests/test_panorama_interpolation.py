@@ -1,0 +1,96 @@
+"""The kernel that resamples the omni image into the panorama, and where it applies."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from ifmi.camera import paracatadioptric_model, radius_from_pixels, rays_from_pixels
+from ifmi.relative_pose import rotation_from_rays
+from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.unwarp import PanoramaConfig, rays_from_panorama_pixels
+
+SIZE = 1024
+MODEL = paracatadioptric_model((SIZE, SIZE), horizon_radius_px=SIZE * 0.3125)
+BAND = (SIZE * 0.12, SIZE * 0.49)
+# Plane waves on the sphere of directions, 20 to 80 cycles per radian: 2.8 to 11 pixels per
+# period at this size (about 4.5 mrad per pixel), sharp but below the sampling limit.
+WAVES = 48
+CYCLES_PER_RAD = (20.0, 80.0)
+
+
+def _scene(seed):
+    """Frame maker: the exact image of a band-limited texture on the sphere, no interpolation."""
+    rng = np.random.default_rng(seed)
+    directions = rng.normal(size=(WAVES, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    angular = (2 * np.pi * rng.uniform(*CYCLES_PER_RAD, WAVES)).astype(np.float32)
+    phase = rng.uniform(0.0, 2 * np.pi, WAVES).astype(np.float32)
+    grid = np.stack(np.mgrid[0:SIZE, 0:SIZE], axis=-1).astype(np.float64)
+    rays = rays_from_pixels(MODEL, grid).astype(np.float32)
+    radius = radius_from_pixels(MODEL, grid)
+    outside = (radius < BAND[0]) | (radius > BAND[1])
+
+    def frame(rotation):
+        # Frame turned by rotation (R_0k): its ray r sees the texture at R_0k r.
+        seen = rays @ np.asarray(rotation, dtype=np.float32).T
+        texture = np.cos((seen @ directions.T.astype(np.float32)) * angular + phase).sum(axis=-1)
+        image = 128.0 + 40.0 * texture / np.sqrt(WAVES / 2)
+        image[outside] = 0.0
+        return np.clip(np.round(image), 0, 255).astype(np.uint8)
+
+    return frame
+
+
+def _pair_error(config, frames, rotation):
+    """Rotation error (rad) of the kept tiles' centres, registered at the exact rotation as prediction."""
+    fe = IfmiFrontEnd(MODEL, config)
+    a, b = fe.prepare(frames[0]), fe.prepare(frames[1])
+    offsets_a, _, placed, _ = fe.register_predicted(a, b, prior_rotation=rotation)
+    ok = placed.valid
+    fitted = rotation_from_rays(rays_from_panorama_pixels(fe.mapping, offsets_a[ok]),
+                                rays_from_panorama_pixels(fe.mapping, placed.offsets[ok]))
+    return float(np.linalg.norm(Rotation.from_matrix(rotation.T @ fitted).as_rotvec()))
+
+
+def test_lanczos_panorama_lowers_the_pair_error_on_sharp_texture():
+    # The prediction is exact, so what is left is the registration's own error, to which the
+    # bilinear panorama adds a sub-pixel shift fixed in the omni image. Measured over six
+    # rotations (sum, rad): 1.19e-5 bilinear against 7.1e-6 Lanczos (texture seed 0); seeds 1
+    # and 2 gave 0.55x and 0.66x.
+    frame = _scene(seed=0)
+    rotations = [Rotation.from_rotvec(v).as_matrix()
+                 for v in np.random.default_rng(7).uniform(-0.04, 0.04, (6, 3))]
+    frames = [frame(np.eye(3))] + [frame(r) for r in rotations]
+    base = IfmiConfig(coarse_to_fine=False)
+    errors = {}
+    for kernel in ("linear", "lanczos4"):
+        config = replace(base, wide_panorama_interpolation=kernel)
+        errors[kernel] = sum(_pair_error(config, [frames[0], frames[k + 1]], r) for k, r in enumerate(rotations))
+    assert errors["lanczos4"] < 0.8 * errors["linear"], errors
+
+
+@pytest.mark.parametrize("width, expected", [(512, "linear"), (1536, "lanczos4")])
+def test_the_wide_panorama_kernel_applies_from_the_configured_width(monkeypatch, width, expected):
+    import ifmi.spectral_front_end as front_end
+
+    used = []
+    original = front_end.panorama_image_from_omni_image
+
+    def recording(*args, **kwargs):
+        used.append(kwargs["interpolation"])
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(front_end, "panorama_image_from_omni_image", recording)
+    model = paracatadioptric_model((256, 256), horizon_radius_px=80.0)
+    fe = IfmiFrontEnd(model, IfmiConfig(panorama=PanoramaConfig(width=width)))
+    fe.prepare(np.full((256, 256), 100, np.uint8))
+    assert used == [expected]
+
+
+def test_an_unknown_panorama_kernel_is_rejected():
+    with pytest.raises(ValueError, match="wide_panorama_interpolation must be one of"):
+        IfmiConfig(wide_panorama_interpolation="nearest")
