@@ -16,7 +16,6 @@ kept.
 from __future__ import annotations
 
 import html
-import json
 import os
 import platform
 import shutil
@@ -30,7 +29,7 @@ import numpy as np
 
 from .dataset_names import dataset_labels, resolved_folder
 from .errors import InputError
-from .io.atomic import atomic_write_json, atomic_write_text, check_output_folder, write_folder
+from .io.atomic import folder_of_kind, atomic_write_json, atomic_write_text, check_output_folder, write_folder
 from .io.provenance import package_versions as _package_versions
 from .io.results import (EvaluationRecord, is_evaluation_dir, jsonable, read_evaluation,
                          read_motion_flow, write_motion_flow)
@@ -622,15 +621,7 @@ def is_report_dir(path: str | os.PathLike) -> bool:
     before the kind was stored) one without a kind that has every key a
     report has.
     """
-    try:
-        document = json.loads((Path(path) / "report.json").read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
-        return False
-    if not isinstance(document, dict):
-        return False
-    if "kind" in document:
-        return document["kind"] == REPORT_KIND
-    return all(key in document for key in _REPORT_KEYS)
+    return folder_of_kind(path, "report.json", REPORT_KIND, legacy_keys=_REPORT_KEYS)
 
 
 def build_report(paths: Sequence[str | os.PathLike], *, out_dir: str | os.PathLike,

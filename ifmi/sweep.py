@@ -48,7 +48,7 @@ from typing import Iterable, Sequence
 
 from .dataset_names import dataset_folder_id, dataset_labels, resolved_folder
 from .errors import InputError, OutputError
-from .io.atomic import (atomic_write_bytes, atomic_write_json, atomic_write_text,
+from .io.atomic import (folder_of_kind, atomic_write_bytes, atomic_write_json, atomic_write_text,
                         check_output_folder, probe_writable, write_folder)
 
 __all__ = [
@@ -324,15 +324,7 @@ def is_sweep_dir(path: str | os.PathLike) -> bool:
     that has every key a sweep writes (``cells``, ``base_config``,
     ``scheduler``); an unreadable or foreign ``sweep.json`` does not count.
     """
-    try:
-        document = json.loads((Path(path) / "sweep.json").read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
-        return False
-    if not isinstance(document, dict):
-        return False
-    if "kind" in document:
-        return document["kind"] == SWEEP_KIND
-    return all(key in document for key in _SWEEP_KEYS)
+    return folder_of_kind(path, "sweep.json", SWEEP_KIND, legacy_keys=_SWEEP_KEYS)
 
 
 def _prepare_output(out_dir: str | os.PathLike, document: dict) -> Path:

@@ -11,10 +11,11 @@ from scipy.spatial.transform import Rotation
 from ifmi.camera import paracatadioptric_model
 from ifmi.fourier_mellin import FourierMellin
 from ifmi.flow import flow_from_placements
-from ifmi.relative_pose import rotation_from_rays
 from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
 from ifmi.tiling import TilingConfig
 from ifmi.unwarp import PanoramaConfig, panorama_pixels_from_rays, rays_from_panorama_pixels
+
+from tile_checks import kept_tiles_rotation_error
 
 pytest.importorskip("skimage")
 from ifmi.synthetic import environment_texture, omni_from_environment  # noqa: E402
@@ -107,13 +108,7 @@ def test_flow_points_include_the_curvature(environment):
 
 
 def _rotation_error(config, frames, rotation):
-    fe = IfmiFrontEnd(MODEL, config)
-    a, b = fe.prepare(frames[0]), fe.prepare(frames[1])
-    offsets_a, _, placed, _ = fe.register_predicted(a, b, prior_rotation=rotation)
-    ok = placed.valid
-    fitted = rotation_from_rays(rays_from_panorama_pixels(fe.mapping, offsets_a[ok]),
-                                rays_from_panorama_pixels(fe.mapping, placed.offsets[ok]))
-    return np.linalg.norm(Rotation.from_matrix(rotation.T @ fitted).as_rotvec())
+    return kept_tiles_rotation_error(MODEL, config, frames, rotation)
 
 
 def test_curved_tiles_remove_the_bias_of_an_affine_cut(environment):

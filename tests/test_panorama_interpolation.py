@@ -9,9 +9,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ifmi.camera import paracatadioptric_model, radius_from_pixels, rays_from_pixels
-from ifmi.relative_pose import rotation_from_rays
 from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
-from ifmi.unwarp import PanoramaConfig, rays_from_panorama_pixels
+from ifmi.unwarp import PanoramaConfig
+from tile_checks import kept_tiles_rotation_error
 
 SIZE = 1024
 MODEL = paracatadioptric_model((SIZE, SIZE), horizon_radius_px=SIZE * 0.3125)
@@ -45,17 +45,6 @@ def _scene(seed):
     return frame
 
 
-def _pair_error(config, frames, rotation):
-    """Rotation error (rad) of the kept tiles' centres, registered at the exact rotation as prediction."""
-    fe = IfmiFrontEnd(MODEL, config)
-    a, b = fe.prepare(frames[0]), fe.prepare(frames[1])
-    offsets_a, _, placed, _ = fe.register_predicted(a, b, prior_rotation=rotation)
-    ok = placed.valid
-    fitted = rotation_from_rays(rays_from_panorama_pixels(fe.mapping, offsets_a[ok]),
-                                rays_from_panorama_pixels(fe.mapping, placed.offsets[ok]))
-    return float(np.linalg.norm(Rotation.from_matrix(rotation.T @ fitted).as_rotvec()))
-
-
 def test_lanczos_panorama_lowers_the_pair_error_on_sharp_texture():
     # The prediction is exact, so what is left is the registration's own error, to which the
     # bilinear panorama adds a sub-pixel shift fixed in the omni image. Measured over six
@@ -69,7 +58,7 @@ def test_lanczos_panorama_lowers_the_pair_error_on_sharp_texture():
     errors = {}
     for kernel in ("linear", "lanczos4"):
         config = replace(base, wide_panorama_interpolation=kernel)
-        errors[kernel] = sum(_pair_error(config, [frames[0], frames[k + 1]], r) for k, r in enumerate(rotations))
+        errors[kernel] = sum(kept_tiles_rotation_error(MODEL, config, [frames[0], frames[k + 1]], r) for k, r in enumerate(rotations))
     assert errors["lanczos4"] < 0.8 * errors["linear"], errors
 
 

@@ -37,7 +37,8 @@ from typing import Callable, Collection, Mapping
 from ..errors import OutputError
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "atomic_write_files",
-           "writable_target", "probe_writable", "json_text", "check_output_folder", "write_folder"]
+           "writable_target", "probe_writable", "json_text", "check_output_folder", "write_folder",
+           "folder_of_kind"]
 
 # Tries at a free backup name (names are random; a clash is already unlikely).
 _BACKUP_ATTEMPTS = 16
@@ -343,6 +344,38 @@ def check_output_folder(path: str | os.PathLike, *, is_own: Callable[[Path], boo
                                 "path, an empty folder or an earlier output of this command); "
                                 "refusing to replace it")
     return out
+
+
+def folder_of_kind(path: str | os.PathLike, file_name: str, kind: str, *,
+                   legacy_keys: Collection[str] = ()) -> bool:
+    """True when ``path/file_name`` is a JSON object a command wrote: of ``kind``, or an older form.
+
+    Parameters
+    ----------
+    path : path
+        The folder.
+    file_name : str
+        Its JSON record (``evaluation.json``, ``report.json``, ``sweep.json``).
+    kind : str
+        The record's ``"kind"`` field.
+    legacy_keys : collection of str, keyword-only
+        Records written before the kind was stored count when they have no
+        kind and hold every one of these keys; empty: no such older form.
+
+    Returns
+    -------
+    bool
+        False for a missing, unreadable or foreign record.
+    """
+    try:
+        document = json.loads((Path(path) / file_name).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    if not isinstance(document, dict):
+        return False
+    if "kind" in document:
+        return document["kind"] == kind
+    return bool(legacy_keys) and all(key in document for key in legacy_keys)
 
 
 def _directory_mode(out: Path) -> int:

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, OutputError
-from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
+from .atomic import (folder_of_kind, atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
                      check_output_folder, json_text, probe_writable, write_folder)
 from .provenance import package_versions
 from .text_file import read_text_file
@@ -347,11 +347,7 @@ def is_own_evaluation_dir(path: str | os.PathLike) -> bool:
     That is a JSON object of kind :data:`EVALUATION_KIND`; an unreadable or
     foreign ``evaluation.json`` does not count.
     """
-    try:
-        document = json.loads((Path(path) / "evaluation.json").read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
-        return False
-    return isinstance(document, dict) and document.get("kind") == EVALUATION_KIND
+    return folder_of_kind(path, "evaluation.json", EVALUATION_KIND)
 
 
 def read_evaluation(path: str | os.PathLike) -> EvaluationRecord:
