@@ -13,7 +13,7 @@ import numpy as np
 
 from .camera import OcamModel, max_image_radius
 from .errors import InputError
-from .tiling import tile_size_px
+from .tiling import MIN_TILE_SIZE_PX, tile_size_px
 from .unwarp import off_axis_band, panorama_mapping, radius_band
 
 __all__ = ["check_config_for_model"]
@@ -33,11 +33,12 @@ def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
     empty), its width is at most ``4 x 2 pi r_outer`` and its height at most
     ``4 r_outer`` pixels (``r_outer`` the outer radius of the calibration's
     image band; half the image diagonal for camera models other than
-    OCamCalib, which take no band radii), for the ``"ifmi"`` method the
-    log-polar grids are at most four times the tile side (a tile larger
-    than the panorama is reported by the front end, naming the
-    calibration), and a feature front end's ``radius_band`` lies inside the
-    image. Explicit band radii in ``config`` (e.g. decided from the frames)
+    OCamCalib, which take no band radii), for the ``"ifmi"`` method a tile
+    given as a fraction of the panorama width has at least
+    :data:`~ifmi.tiling.MIN_TILE_SIZE_PX` pixels and the log-polar grids
+    are at most four times the tile side (a tile larger than the panorama
+    is reported by the front end, naming the calibration), and a feature
+    front end's ``radius_band`` lies inside the image. Explicit band radii in ``config`` (e.g. decided from the frames)
     are the band checked.
 
     Parameters
@@ -77,7 +78,9 @@ def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
                                                       f"({_MAX_OVERSAMPLING} x its image band's outer "
                                                       f"{kind}), got {value}")
     registration = config.ifmi.registration
-    if method == "ifmi" and (registration.log_polar_angles is not None or registration.log_polar_radii is not None):
+    fraction = config.ifmi.tiling.tile_size is not None and config.ifmi.tiling.tile_size < 1
+    log_polar = registration.log_polar_angles is not None or registration.log_polar_radii is not None
+    if method == "ifmi" and (fraction or log_polar):
         _check_tiles(config, panorama_mapping(model, config=pano))
 
 
@@ -123,8 +126,13 @@ def _check_feature_sizes(features, model: OcamModel) -> None:
 
 
 def _check_tiles(config, mapping) -> None:
+    size = config.ifmi.tiling.tile_size
+    if size is not None and size < 1 and size * mapping.width < MIN_TILE_SIZE_PX:
+        raise InputError("ifmi.tiling.tile_size", f"expected a tile of at least {MIN_TILE_SIZE_PX} px, got "
+                                                  f"{size:g} of the {mapping.width} px panorama width "
+                                                  f"({size * mapping.width:.3g} px)")
     # A tile larger than the panorama is the front end's to report (it names the calibration file).
-    tile = tile_size_px(config.ifmi.tiling.tile_size, mapping.width)
+    tile = tile_size_px(size, mapping.width)
     if tile > min(mapping.height, mapping.width):
         return
     for name in ("log_polar_angles", "log_polar_radii"):

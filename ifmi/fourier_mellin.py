@@ -90,6 +90,11 @@ class TileRejection(IntEnum):
         return self.name.lower()
 
 # OpenCV interpolation flag of each ``FourierMellinConfig.resample_interpolation`` name.
+# Most refinement passes: each one resamples and registers every tile again (about the cost of
+# the first registration) while the residual settles after one or two; more only cost time.
+_MAX_REFINE_PASSES = 10
+# Most phase-plane iterations: the fit converges within a few (default 3) even on noisy tiles.
+_MAX_PHASE_PLANE_ITERATIONS = 50
 _INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos4": cv2.INTER_LANCZOS4}
 
 
@@ -122,7 +127,8 @@ class FourierMellinConfig:
         residual with ``resample_interpolation`` and the phase-plane fit
         (as accurate on the rendered benchmark sequences: 20-frame drift
         219e-5 against 227e-5 rad summed over six runs; about 0.5 ms less
-        per frame for 32 tiles of 64 px).
+        per frame for 32 tiles of 64 px). At most 10: each pass costs about
+        one registration and the residual settles after one or two.
     estimate_rotation_scale : bool
         Estimate ``s`` and ``theta``; when false they are 1 and 0 and only the
         translation is measured (faster; for nearly rigid tile motion).
@@ -142,7 +148,7 @@ class FourierMellinConfig:
     phase_plane_iterations : int
         Iterations of the phase-plane fit. Frequencies dominated by noise
         shrink each step toward zero, so a few iterations are needed to
-        converge on noisy tiles.
+        converge on noisy tiles (at most 50).
     refine_predicted_rotation_scale : bool
         When tile b is cut at a predicted affine placement
         (:meth:`FourierMellin.register_placed`), let the refinement passes
@@ -183,6 +189,10 @@ class FourierMellinConfig:
     resample_interpolation: str = "lanczos4"
 
     def __post_init__(self) -> None:
+        for name in ("min_radius_fraction", "th_pr", "th_pnr", "min_std", "phase_plane_max_frequency",
+                     "phase_plane_weight_power", "residual_weight_power"):
+            if not np.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be a finite number, got {getattr(self, name)}")
         for name in ("log_polar_angles", "log_polar_radii"):
             value = getattr(self, name)
             if value is not None and value < 8:
@@ -200,9 +210,12 @@ class FourierMellinConfig:
         if self.phase_plane_weight_power < 0 or self.residual_weight_power < 0:
             raise ValueError("expected non-negative phase_plane_weight_power and residual_weight_power, got "
                              f"{self.phase_plane_weight_power}, {self.residual_weight_power}")
-        if self.refine_passes < 0 or self.workers < 1:
-            raise ValueError(f"expected refine_passes >= 0 and workers >= 1, got "
+        if not 0 <= self.refine_passes <= _MAX_REFINE_PASSES or self.workers < 1:
+            raise ValueError(f"expected 0 <= refine_passes <= {_MAX_REFINE_PASSES} and workers >= 1, got "
                              f"{self.refine_passes}, {self.workers}")
+        if self.phase_plane_iterations > _MAX_PHASE_PLANE_ITERATIONS:
+            raise ValueError(f"expected phase_plane_iterations <= {_MAX_PHASE_PLANE_ITERATIONS}, "
+                             f"got {self.phase_plane_iterations}")
 
 
 @dataclass(frozen=True)

@@ -73,6 +73,9 @@ _CHUNK_5PT = 8
 # A larger count only turns a hopeless pair into a hang, and a minimum of that order is solved
 # in one chunk (memory).
 _MAX_ITERATIONS = 100_000
+# Most Gauss-Newton (5-point refinement) and Cauchy re-weighting (rotation model) iterations: both
+# settle within a handful (defaults 3 and 5); more only turn every frame pair into a long wait.
+_MAX_REFINE_ITERATIONS = 100
 # Two-pair rotations come in closed form from frames of the pairs' bisector, half difference and
 # normal; a frame vector shorter than this (rays within 1e-6 rad of equal or opposite) is too
 # ill-conditioned and the rotation is solved by SVD instead.
@@ -119,11 +122,11 @@ class RelativePoseOptions:
     min_inliers : int
         Fewer inliers than this is a failure.
     seed : int
-        Seed of the sample generator; the same seed gives the same result.
+        Seed of the sample generator, ``>= 0``; the same seed gives the same result.
     refine : bool
         Refine the chosen model on its inliers.
     refine_iterations : int
-        Gauss-Newton iterations of the 5-point refinement.
+        Gauss-Newton iterations of the 5-point refinement (0 to 100).
     rotation_only : bool
         Force the rotation-only model.
     noise_sigma_rad : float or None
@@ -139,7 +142,7 @@ class RelativePoseOptions:
         With ``refine``: re-solve the rotation model on its inliers this many
         times with Cauchy weights of the residual angles (0: plain
         least squares on the inliers), so that loosely registered inliers
-        near the threshold count less.
+        near the threshold count less. At most 100.
     rotation_min_inlier_share : float
         Without ``noise_sigma_rad``, the rotation model is not chosen when
         its inlier rays are fewer than this share of the 5-point model's
@@ -178,10 +181,21 @@ class RelativePoseOptions:
     rotation_min_inlier_share: float = 0.7
 
     def __post_init__(self) -> None:
+        for name in ("ransac_threshold_rad", "ransac_threshold_px", "noise_sigma_rad", "rotation_threshold_factor",
+                     "robust_scale"):
+            value = getattr(self, name)
+            if value is not None and not math.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value}")
         if self.ransac_threshold_rad is not None and not self.ransac_threshold_rad > 0:
             raise ValueError(f"ransac_threshold_rad must be > 0 or None, got {self.ransac_threshold_rad}")
         if not self.ransac_threshold_px > 0:
             raise ValueError(f"ransac_threshold_px must be > 0, got {self.ransac_threshold_px}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
+        if not (0 <= self.refine_iterations <= _MAX_REFINE_ITERATIONS
+                and self.robust_iterations <= _MAX_REFINE_ITERATIONS):
+            raise ValueError(f"expected 0 <= refine_iterations <= {_MAX_REFINE_ITERATIONS} and robust_iterations "
+                             f"<= {_MAX_REFINE_ITERATIONS}, got {self.refine_iterations}, {self.robust_iterations}")
         if not 1 <= self.max_iterations <= _MAX_ITERATIONS or not 0 <= self.min_iterations <= _MAX_ITERATIONS:
             raise ValueError(
                 f"expected 1 <= max_iterations <= {_MAX_ITERATIONS} and 0 <= min_iterations <= {_MAX_ITERATIONS}, "

@@ -9,6 +9,7 @@ in the panorama's height.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -16,7 +17,11 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 __all__ = ["TilingConfig", "TileLayout", "tile_layout", "tiles_from_panorama", "tile_size_px",
-           "tile_corner_strengths", "strongest_tiles_per_column"]
+           "tile_corner_strengths", "strongest_tiles_per_column", "MIN_TILE_SIZE_PX"]
+
+# Smallest tile side in pixels: the Fourier-Mellin registration (ifmi.fourier_mellin.FourierMellin)
+# needs at least 8 samples along each axis of a tile and of its log-polar grid.
+MIN_TILE_SIZE_PX = 8
 
 
 @dataclass(frozen=True)
@@ -26,8 +31,11 @@ class TilingConfig:
     Attributes
     ----------
     tile_size : float or None
-        Tile side ``N``: pixels when >= 1 (rounded to an even number, which
-        suits the FFT), a fraction of the panorama width when < 1; ``None``
+        Tile side ``N``: pixels when >= 1 (at least :data:`MIN_TILE_SIZE_PX`;
+        rounded to an even number, which suits the FFT), a fraction of the
+        panorama width when < 1 (the tile it gives must have at least
+        :data:`MIN_TILE_SIZE_PX` pixels too, checked against the camera by
+        :func:`ifmi.config_limits.check_config_for_model`); ``None``
         is a 16th of the width, kept within 32..64 pixels (64 at the usual
         1024 px width: smaller tiles carry too little texture on noisy
         images, larger ones move less rigidly).
@@ -39,8 +47,10 @@ class TilingConfig:
     overlap: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.tile_size is not None and not self.tile_size > 0:
-            raise ValueError(f"tile_size must be > 0 (pixels, or a fraction < 1), got {self.tile_size}")
+        size = self.tile_size
+        if size is not None and not (math.isfinite(size) and (0 < size < 1 or size >= MIN_TILE_SIZE_PX)):
+            raise ValueError(f"tile_size must be a fraction in (0, 1) of the panorama width or at least "
+                             f"{MIN_TILE_SIZE_PX} px, got {size}")
         if not 0 <= self.overlap < 1:
             raise ValueError(f"overlap must be in [0, 1), got {self.overlap}")
 

@@ -106,8 +106,9 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
     Raises
     ------
     InputError
-        Unreadable source dataset or image, a negative seed, or an output
-        folder holding something else.
+        Unreadable source dataset or image, a negative seed, an output
+        folder that is the source dataset or lies inside it (through
+        symbolic links too), or one holding something else.
     OutputError
         A file cannot be written (the message names it and the OS reason).
     """
@@ -115,8 +116,12 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
     if seed < 0:
         raise InputError(dataset.root, f"seed: expected a non-negative integer, got {seed}")
     out_dir = Path(out_dir)
-    if out_dir.resolve() == dataset.root.resolve():
+    source = dataset.root.resolve()
+    if out_dir.resolve() == source:
         raise InputError(out_dir, "is the source dataset; choose another output folder")
+    if out_dir.resolve().is_relative_to(source):
+        raise InputError(out_dir, f"is inside the source dataset {dataset.root}; choose an output folder "
+                                  f"outside it")
     names = [path.name for path in dataset.image_paths]
     source_hashes = {path.name: sha256_file(path) for path in dataset.image_paths}
     identity = {

@@ -170,3 +170,84 @@ def test_read_estimate_config_errors_are_one_line(tmp_path, content, message):
 def test_read_json_object_of_a_folder(tmp_path):
     with pytest.raises(InputError, match="is a folder; expected a meta file"):
         read_json_object(tmp_path, what="meta file")
+
+
+# --- values derived from a camera, the run's method, huge numbers ---------------------------
+
+def _run_document(config, **more):
+    return {"method": "orb", "config": config.to_dict(), "dataset": "/x", **more}
+
+
+def test_run_file_values_derived_from_its_camera_are_cleared(tmp_path):
+    from ifmi.io.config import read_config_file
+
+    config = EstimateConfig.from_dict({"relative_pose": {"ransac_threshold_rad": 0.01, "seed": 3},
+                                       "ifmi": {"panorama": {"radius_min_px": 30.0, "radius_max_px": 90.0}}})
+    (tmp_path / "old.config.json").write_text(json.dumps(_run_document(config)))
+    (tmp_path / "new.config.json").write_text(json.dumps(_run_document(
+        config, derived=["ifmi.panorama.radius_max_px"])))
+    (tmp_path / "plain.json").write_text(json.dumps(config.to_dict()))
+    old = read_config_file(tmp_path / "old.config.json")
+    assert old.method == "orb" and old.config.relative_pose.seed == 3
+    assert old.config.relative_pose.ransac_threshold_rad is None
+    assert old.config.ifmi.panorama.radius_min_px is None and old.config.ifmi.panorama.radius_max_px is None
+    new = read_config_file(tmp_path / "new.config.json").config
+    assert new.relative_pose.ransac_threshold_rad == 0.01 and new.ifmi.panorama.radius_min_px == 30.0
+    assert new.ifmi.panorama.radius_max_px is None
+    plain = read_config_file(tmp_path / "plain.json")
+    assert plain.config == config and plain.method is None
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    ({"method": 3}, "invalid configuration: method: expected a method name (a string), got 3"),
+    ({"derived": ["relative_pose.seed"]}, "invalid configuration: derived: expected a list of "
+                                          "relative_pose.ransac_threshold_rad, "),
+    ({"derived": "all"}, "invalid configuration: derived: expected a list of "),
+])
+def test_bad_run_file_entries_are_one_line(tmp_path, extra, message):
+    path = tmp_path / "run.config.json"
+    path.write_text(json.dumps(_run_document(EstimateConfig(), **extra)))
+    with pytest.raises(InputError) as info:
+        read_estimate_config(path)
+    assert str(info.value).startswith(f"{path}: {message}")
+
+
+def test_an_integer_of_too_many_digits_is_one_line(tmp_path):
+    path = tmp_path / "c.json"
+    path.write_text('{"ifmi": {"panorama": {"width": ' + "1" * 5000 + "}}}")
+    with pytest.raises(InputError) as info:
+        read_estimate_config(path)
+    assert str(info.value) == f"{path}: invalid JSON: an integer of 5000 digits; expected at most 4300"
+
+
+@pytest.mark.parametrize(("data", "message"), [
+    ({"relative_pose": {"seed": -1}}, "relative_pose: seed must be a non-negative integer, got -1"),
+    ({"relative_pose": {"refine_iterations": 10 ** 6}}, "relative_pose: expected 0 <= refine_iterations <= 100"),
+    ({"relative_pose": {"robust_iterations": 101}}, "relative_pose: expected 0 <= refine_iterations <= 100 and "
+                                                    "robust_iterations <= 100, got 3, 101"),
+    ({"relative_pose": {"ransac_threshold_rad": float("inf")}},
+     "relative_pose: ransac_threshold_rad must be a finite number, got inf"),
+    ({"relative_pose": {"robust_scale": float("inf")}}, "relative_pose: robust_scale must be a finite number"),
+    ({"ifmi": {"registration": {"refine_passes": 11}}},
+     "ifmi.registration: expected 0 <= refine_passes <= 10 and workers >= 1, got 11, 1"),
+    ({"ifmi": {"registration": {"phase_plane_iterations": 51}}},
+     "ifmi.registration: expected phase_plane_iterations <= 50, got 51"),
+    ({"ifmi": {"registration": {"th_pnr": float("inf")}}}, "ifmi.registration: th_pnr must be a finite number"),
+    ({"ifmi": {"registration": {"th_pr": float("inf")}}}, "ifmi.registration: th_pr must be a finite number"),
+    ({"ifmi": {"registration": {"residual_weight_power": float("inf")}}},
+     "ifmi.registration: residual_weight_power must be a finite number"),
+    ({"ifmi": {"tiling": {"tile_size": float("inf")}}}, "ifmi.tiling: tile_size must be a fraction in (0, 1)"),
+    ({"ifmi": {"tiling": {"tile_size": 6}}}, "ifmi.tiling: tile_size must be a fraction in (0, 1) of the "
+                                             "panorama width or at least 8 px, got 6.0"),
+])
+def test_estimator_bounds(data, message):
+    with pytest.raises(OptionError) as info:
+        EstimateConfig.from_dict(data)
+    assert str(info.value).startswith(message)
+
+
+def test_estimator_bounds_keep_the_limits_themselves():
+    config = EstimateConfig.from_dict({"relative_pose": {"seed": 2 ** 70, "refine_iterations": 100},
+                                       "ifmi": {"registration": {"refine_passes": 10},
+                                                "tiling": {"tile_size": 8}}})
+    assert config.ifmi.tiling.tile_size == 8.0 and config.relative_pose.seed == 2 ** 70

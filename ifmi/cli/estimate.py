@@ -2,23 +2,67 @@
 
 Writes the TUM trajectory and, beside it, ``<stem>.frames.csv`` (per-frame
 success, reason, counts, time) and ``<stem>.config.json`` (method, full
-configuration, dataset, versions), as one set. Exit status: 0 done, 1 an
-output could not be written (or would replace a dataset file), 2 bad input,
-3 done but more than half of the frames failed.
+configuration, the key paths of the values derived from the camera and
+frames, dataset, versions), as one set. Exit status: 0 done, 1 an output
+could not be written (or would replace a dataset file or an input file:
+``--config``, ``--calib``, the video), 2 bad input, 3 done but more than
+half of the frames failed.
+
+Where a configuration value comes from: an option given on the command line
+wins over the ``--config`` file, which wins over the defaults; a run file's
+derived values are derived again (:mod:`ifmi.io.config`). A value the camera
+cannot take is reported against the option or the file that gave it.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
+import os
 import sys
 from dataclasses import replace
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import CalibrationFitError, InputError
 from ..methods import load_factory
 from ..pipeline import EstimateConfig, estimate_dataset, estimate_video
 
 # Exit status when the outputs were written but more than half of the frames failed.
 EXIT_MOSTLY_FAILED = 3
+# Method when neither --method nor a --config run file names one.
+DEFAULT_METHOD = "ifmi"
+
+# Options that set one configuration value: argparse destination -> key path. The option is
+# "--" + the destination with "-" for "_"; a number must be finite.
+_VALUE_OPTIONS = {
+    "width": "ifmi.panorama.width",
+    "height": "ifmi.panorama.height",
+    "radius_min": "ifmi.panorama.radius_min_px",
+    "radius_max": "ifmi.panorama.radius_max_px",
+    "tile_size": "ifmi.tiling.tile_size",
+    "overlap": "ifmi.tiling.overlap",
+    "th_pr": "ifmi.registration.th_pr",
+    "th_pnr": "ifmi.registration.th_pnr",
+    "refine_passes": "ifmi.registration.refine_passes",
+    "points_per_tile": "ifmi.points_per_tile",
+    "ransac_threshold": "relative_pose.ransac_threshold_rad",
+    "ransac_threshold_px": "relative_pose.ransac_threshold_px",
+    "seed": "relative_pose.seed",
+    "keyframe_min_inliers": "keyframe.min_inliers",
+    "keyframe_max_angle": "keyframe.max_angle_rad",
+    "max_failures": "keyframe.max_failures",
+}
+# Flags: argparse destination -> (key path, value when the flag is given).
+_FLAG_OPTIONS = {
+    "no_rotation_scale": ("ifmi.registration.estimate_rotation_scale", False),
+    "no_prior": ("ifmi.use_prior", False),
+    "rotation_only": ("relative_pose.rotation_only", True),
+    "keyframes": ("keyframe.enabled", True),
+}
+# Values that decide whether a tile fits its panorama (what a CalibrationFitError is about): the
+# sizes first, the band radii (which set the panorama's height) only when no size was set.
+_TILE_FIT_KEYS = (("ifmi.tiling.tile_size", "ifmi.panorama.width", "ifmi.panorama.height"),
+                  ("ifmi.panorama.radius_min_px", "ifmi.panorama.radius_max_px"))
 
 __all__ = ["add_parser", "run", "config_from_args"]
 
@@ -33,20 +77,36 @@ def add_parser(subparsers) -> None:
                     "the trajectory's timestamps are those indices. A frame that fails keeps the "
                     "previous orientation and is flagged.",
         epilog="exit status: 0 done; 1 an output could not be written or would replace a file of "
-               "the dataset; 2 bad input (dataset, calibration, options); 3 outputs written but more "
-               "than half of the frames failed.",
+               "the dataset or an input file (--config, --calib, the video); 2 bad input (dataset, "
+               "calibration, configuration, options); 3 outputs written but more than half of the "
+               "frames failed.",
     )
     p.add_argument("dataset", metavar="DATASET",
                    help="dataset folder, or a video file (.mp4, .avi, ...; needs --calib)")
     p.add_argument("--calib", metavar="CALIB",
-                   help="calib_results.txt of a video's camera (timestamps come from the video)")
-    p.add_argument("--method", default="ifmi", metavar="METHOD",
+                   help="calib_results.txt (or camera.yaml) of a video's camera (timestamps come "
+                        "from the video). A dataset folder is estimated with its own calibration: "
+                        "with a folder, --calib must name that file or is refused")
+    p.add_argument("--method", metavar="METHOD",
                    help="front end: a name that 'ifmi methods' lists, or package.module:factory "
-                        "(default ifmi)")
-    p.add_argument("--out", required=True, metavar="ESTIMATE", help="TUM file to write")
+                        "(default: the method of a --config run file, else ifmi)")
+    p.add_argument("--out", required=True, metavar="ESTIMATE",
+                   help="TUM file to write (never one of the inputs or the dataset's files)")
     p.add_argument("--config", metavar="JSON",
-                   help="start from this configuration (an estimate's NAME.config.json or a "
-                        "to_dict() JSON); the options below override it")
+                   help="start from this configuration: an estimate's NAME.config.json (which also "
+                        "gives the method unless --method is given) or a to_dict() JSON. Every "
+                        "option given here wins over the file. Values a run derived from its camera "
+                        "and frames (the RANSAC threshold in radians, the band radii; listed under "
+                        "\"derived\") are derived again for this dataset, so a run file repeats its "
+                        "run and carries no camera values to another camera; other values are used "
+                        "as given, and one this camera cannot give is refused naming the file")
+    _add_config_options(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _add_config_options(p) -> None:
+    """The options that override configuration values (see ``_VALUE_OPTIONS``, ``_FLAG_OPTIONS``)."""
     g = p.add_argument_group("panorama")
     g.add_argument("--width", type=int,
                    help="panorama width in pixels (default: the band's circumference, at most 2048)")
@@ -55,14 +115,14 @@ def add_parser(subparsers) -> None:
     g.add_argument("--radius-max", type=float, metavar="PX", help="outer sensor radius of the band")
     g = p.add_argument_group("tiles and iFMI")
     g.add_argument("--tile-size", type=float, metavar="N",
-                   help="tile side: pixels if >= 1, else a fraction of the panorama width "
-                        "(default: width / 16 within 32..64 px)")
+                   help="tile side: pixels if >= 1 (at least 8), else a fraction of the panorama "
+                        "width giving at least 8 px (default: width / 16 within 32..64 px)")
     g.add_argument("--overlap", type=float, help="tile overlap fraction in [0, 1)")
     g.add_argument("--th-pr", type=float, help="smallest accepted peak ratio")
     g.add_argument("--th-pnr", type=float, help="smallest accepted peak-to-noise ratio")
     g.add_argument("--points-per-tile", type=int, choices=(1, 5, 9), help="flow points per tile")
     g.add_argument("--refine-passes", type=int,
-                   help="iFMI refinement passes (default 1; 0 is about 20%% faster)")
+                   help="iFMI refinement passes, 0..10 (default 1; 0 is about 20%% faster)")
     g.add_argument("--no-rotation-scale", action="store_true",
                    help="measure tile translation only (no log-polar stage)")
     g.add_argument("--no-prior", action="store_true",
@@ -72,9 +132,10 @@ def add_parser(subparsers) -> None:
                    help="RANSAC threshold in radians (overrides --ransac-threshold-px)")
     g.add_argument("--ransac-threshold-px", type=float, metavar="PX",
                    help="RANSAC threshold in pixels, converted with the angle a pixel of the "
-                        "calibration's mirror band subtends (default 1)")
+                        "calibration's mirror band subtends (default 1; replaces a radian "
+                        "threshold of --config)")
     g.add_argument("--rotation-only", action="store_true", help="force the rotation-only model")
-    g.add_argument("--seed", type=int, help="RANSAC seed")
+    g.add_argument("--seed", type=int, help="RANSAC seed (>= 0)")
     g = p.add_argument_group("keyframes")
     g.add_argument("--keyframes", action="store_true", help="estimate against keyframes")
     g.add_argument("--keyframe-min-inliers", type=int, metavar="N",
@@ -84,65 +145,182 @@ def add_parser(subparsers) -> None:
     g.add_argument("--max-failures", type=int, metavar="N",
                    help="after N failed frames in a row, restart from the current frame "
                         "(default 2; 0 never)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=run)
 
 
-def _override(obj, **values):
-    values = {k: v for k, v in values.items() if v is not None}
-    return replace(obj, **values) if values else obj
+def _option(dest: str) -> str:
+    return "--" + dest.replace("_", "-")
+
+
+def _given_options(args) -> dict:
+    """Key path -> (option, value) of every configuration option on the command line.
+
+    Raises
+    ------
+    InputError
+        A number that is NaN or infinite, naming the option.
+    """
+    given = {}
+    for dest, key in _VALUE_OPTIONS.items():
+        value = getattr(args, dest, None)
+        if value is None:
+            continue
+        if isinstance(value, float) and not math.isfinite(value):
+            raise InputError(_option(dest), f"expected a finite number, got {value}")
+        given[key] = (_option(dest), value)
+    for dest, (key, value) in _FLAG_OPTIONS.items():
+        if getattr(args, dest, False):
+            given[key] = (_option(dest), value)
+    if "relative_pose.ransac_threshold_px" in given and "relative_pose.ransac_threshold_rad" not in given:
+        # A pixel threshold given here replaces a radian threshold of --config: converted again.
+        given["relative_pose.ransac_threshold_rad"] = ("--ransac-threshold-px", None)
+    return given
+
+
+def _with_values(obj, values: dict):
+    """The config dataclass ``obj`` with ``values`` (key path below ``obj`` -> (option, value)) set.
+
+    Raises
+    ------
+    InputError
+        A value the dataclass rejects, naming the options that set its fields.
+    """
+    fields, nested = {}, {}
+    for key, item in values.items():
+        head, _, rest = key.partition(".")
+        if rest:
+            nested.setdefault(head, {})[rest] = item
+        else:
+            fields[head] = item
+    changes = {name: _with_values(getattr(obj, name), sub) for name, sub in nested.items()}
+    changes.update({name: value for name, (_, value) in fields.items()})
+    try:
+        return replace(obj, **changes)
+    except ValueError as exc:
+        options = "/".join(dict.fromkeys(option for option, _ in fields.values()))
+        raise InputError(options or "command line", str(exc)) from None
+
+
+def _read_config_file(args):
+    from ..io.config import read_config_file
+
+    return read_config_file(args.config) if args.config else None
 
 
 def config_from_args(args) -> EstimateConfig:
-    """EstimateConfig from parsed arguments (``--config`` file, then explicit options)."""
-    from ..io.config import read_estimate_config
+    """EstimateConfig from parsed arguments (``--config`` file, then explicit options, which win)."""
+    config_file = _read_config_file(args)
+    config = EstimateConfig() if config_file is None else config_file.config
+    return _with_values(config, _given_options(args))
 
-    config = read_estimate_config(args.config) if args.config else EstimateConfig()
-    ifmi = config.ifmi
+
+_NOT_A_KEY = object()
+
+
+def _value_at(config, key: str):
+    """The value of ``config`` at the dotted ``key`` (None below a section that is None), or
+    ``_NOT_A_KEY`` when ``key`` names no field."""
+    value = config
+    for part in key.split("."):
+        if value is None:
+            return None
+        if not dataclasses.is_dataclass(value) or part not in {f.name for f in dataclasses.fields(value)}:
+            return _NOT_A_KEY
+        value = getattr(value, part)
+    return value
+
+
+def _set_in_file(config_file, key: str) -> bool:
+    """Whether the configuration file sets ``key`` (or a value below it) to other than the default."""
+    if config_file is None:
+        return False
+    value = _value_at(config_file.config, key)
+    return value is not _NOT_A_KEY and value != _value_at(EstimateConfig(), key)
+
+
+def _blamed(exc: InputError, given: dict, config_file) -> InputError:
+    """``exc`` reported against the option or configuration file that set the value it is about.
+
+    A configuration check names a key path (``ifmi.panorama.width``); a tile
+    that does not fit its panorama names the calibration. When the values
+    concerned came from the command line the option is named before the
+    key path (for a tile the calibration stays named: its message names the
+    options); when they came from the ``--config`` file, the file.
+    """
+    if isinstance(exc, CalibrationFitError):
+        if any(key in given for group in _TILE_FIT_KEYS for key in group):
+            return exc
+        for group in _TILE_FIT_KEYS:
+            keys = [key for key in group if _set_in_file(config_file, key)]
+            if keys:
+                return InputError(config_file.path, f"{', '.join(keys)}: {exc.problem}")
+        return exc
+    key = exc.path
+    if "." not in key or _value_at(EstimateConfig(), key) is _NOT_A_KEY:
+        return exc  # a file's error, not a configuration key's
+    options = [option for k, (option, _) in given.items() if k == key or k.startswith(key + ".")]
+    if options:
+        return InputError("/".join(dict.fromkeys(options)), f"{key}: {exc.problem}")
+    if _set_in_file(config_file, key):
+        return InputError(config_file.path, f"{key}: {exc.problem}")
+    return exc
+
+
+def _check_folder_calib(dataset: str, calib: str) -> None:
+    """Refuse a ``--calib`` other than the dataset folder's own calibration file."""
+    from ..io.camera_file import calibration_path
+
+    if not Path(dataset).is_dir():
+        return  # the dataset reader names what is wrong with it
     try:
-        ifmi = replace(
-            ifmi,
-            panorama=_override(ifmi.panorama, width=args.width, height=args.height,
-                               radius_min_px=args.radius_min, radius_max_px=args.radius_max),
-            tiling=_override(ifmi.tiling, tile_size=args.tile_size, overlap=args.overlap),
-            registration=_override(ifmi.registration, th_pr=args.th_pr, th_pnr=args.th_pnr,
-                                   refine_passes=args.refine_passes,
-                                   estimate_rotation_scale=False if args.no_rotation_scale else None),
-        )
-        ifmi = _override(ifmi, points_per_tile=args.points_per_tile,
-                         use_prior=False if args.no_prior else None)
-        pose = _override(config.relative_pose, ransac_threshold_rad=args.ransac_threshold,
-                         ransac_threshold_px=args.ransac_threshold_px,
-                         rotation_only=True if args.rotation_only else None, seed=args.seed)
-        keyframe = _override(config.keyframe, enabled=True if args.keyframes else None,
-                             min_inliers=args.keyframe_min_inliers,
-                             max_angle_rad=args.keyframe_max_angle,
-                             max_failures=args.max_failures)
-    except ValueError as exc:
-        raise InputError("command line", str(exc)) from None
-    return replace(config, ifmi=ifmi, relative_pose=pose, keyframe=keyframe)
+        own = calibration_path(dataset)
+    except InputError:
+        raise InputError(calib, f"--calib is for a video; the dataset folder {dataset} is estimated with "
+                                f"its own calibration (calib_results.txt or camera.yaml), which it lacks") from None
+    try:
+        same = os.path.samefile(own, calib)
+    except OSError:
+        same = False
+    if not same:
+        raise InputError(calib, f"is not the calibration of the dataset folder, {own}; a dataset folder is "
+                                f"estimated with its own calibration (--calib is for a video): drop --calib")
+
+
+def _derived_keys(config: EstimateConfig, used: EstimateConfig) -> list:
+    """Key paths the run derived from the camera and frames (None in ``config``, set in ``used``)."""
+    from ..io.config import DERIVED_KEYS
+
+    return [key for key in DERIVED_KEYS if _value_at(config, key) is None and _value_at(used, key) is not None]
 
 
 def run(args) -> int:
     from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
     from ..io.video import is_video_path
 
-    load_factory(args.method)  # an unknown or broken method fails before any work
-    config = config_from_args(args)
+    config_file = _read_config_file(args)
+    given = _given_options(args)
+    config = _with_values(EstimateConfig() if config_file is None else config_file.config, given)
+    method = args.method or (config_file.method if config_file else None) or DEFAULT_METHOD
+    load_factory(method)  # an unknown or broken method fails before any work
     out = Path(args.out)
     video = is_video_path(args.dataset)
     if video and not args.calib:
         raise InputError(args.dataset, "a video needs --calib CALIB (calib_results.txt)")
-    inputs = (args.dataset, args.calib) if video else ()
+    if args.calib and not video:
+        _check_folder_calib(args.dataset, args.calib)
+    inputs = ((args.dataset, args.calib) if video else ()) + ((args.config,) if args.config else ())
     dataset_dir = None if video else args.dataset
     check_estimate_outputs(out, dataset_dir=dataset_dir, input_files=inputs)
-    if video:
-        estimate = estimate_video(args.dataset, args.calib, method=args.method, config=config,
-                                  progress=not args.no_progress)
-    else:
-        estimate = estimate_dataset(args.dataset, method=args.method, config=config,
-                                    progress=not args.no_progress)
-    write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs)
+    try:
+        if video:
+            estimate = estimate_video(args.dataset, args.calib, method=method, config=config,
+                                      progress=not args.no_progress)
+        else:
+            estimate = estimate_dataset(args.dataset, method=method, config=config,
+                                        progress=not args.no_progress)
+    except InputError as exc:
+        raise _blamed(exc, given, config_file) from None
+    write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs,
+                       extra={"derived": _derived_keys(config, estimate.config)})
     failed = sum(not r.success for r in estimate.frames)
     print(f"{out}: {len(estimate.frames)} frames, {failed} failed")
     if 2 * failed > len(estimate.frames):
