@@ -53,6 +53,7 @@ import cv2
 import numpy as np
 import scipy.fft
 
+from .tiling import MIN_TILE_SIZE_PX
 from .phase_correlation import (Peaks, correlation_surface, find_peaks, hann_window,
                                 normalized_cross_power, refine_shift_phase_plane)
 
@@ -493,8 +494,8 @@ class FourierMellin:
 
     def __init__(self, tile_size: int, count: int, *, config: FourierMellinConfig = FourierMellinConfig()):
         n = int(tile_size)
-        if n < 8 or n % 2:
-            raise ValueError(f"tile size must be even and >= 8, got {tile_size}")
+        if n < MIN_TILE_SIZE_PX or n % 2:
+            raise ValueError(f"tile size must be even and >= {MIN_TILE_SIZE_PX}, got {tile_size}")
         if count < 1:
             raise ValueError(f"tile count must be >= 1, got {count}")
         self.tile_size = n

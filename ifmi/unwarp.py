@@ -67,6 +67,8 @@ _PROFILE_AZIMUTHS = 256
 _PROFILE_RADII = 256
 # Aperture (pixels) of the median filter applied before the band is detected.
 _NOISE_MEDIAN_PX = 5
+# Brightest level of the 8-bit images the band is judged on.
+_MAX_GRAY_LEVEL = 255
 # OpenCV kernels the panorama can be resampled with, by name.
 PANORAMA_INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos4": cv2.INTER_LANCZOS4}
 # Off-axis angles and azimuths probed to find the band a general camera model images fully.
@@ -140,6 +142,10 @@ class PanoramaConfig:
         if not 0 < self.rim_lit_fraction < 1 or not 0 <= self.min_band_fraction < 1:
             raise ValueError("expected 0 < rim_lit_fraction < 1 and 0 <= min_band_fraction < 1, got "
                              f"{self.rim_lit_fraction}, {self.min_band_fraction}")
+        if not 0 <= self.dark_level < _MAX_GRAY_LEVEL:
+            raise ValueError(f"dark_level must be a gray level in [0, {_MAX_GRAY_LEVEL}), got {self.dark_level}")
+        if not (0 <= self.margin_px and np.isfinite(self.margin_px)):
+            raise ValueError(f"margin_px must be finite and >= 0, got {self.margin_px}")
 
 
 @dataclass(frozen=True)

@@ -317,3 +317,20 @@ def test_motion_flow_sample_of_frames_outside_the_dataset_is_input_error(tmp_pat
     data = write_synthetic_dataset(tmp_path / "d", synthetic_sequence(example_omni_model(96), 2))
     with pytest.raises(InputError, match=r"frames 0, 5 outside 0..1"):
         motion_flow_sample(data, config=EstimateConfig(), frames=(0, 5))
+
+
+def test_a_reader_leaving_the_pipe_ends_quietly(tmp_path, monkeypatch, capsys):
+    # `ifmi evaluate --json | head -c 10`: the reader closes the pipe while the JSON is printed.
+    import io
+    import os
+    import sys
+
+    _write_run(tmp_path)
+    gt, est = tmp_path / "groundtruth.txt", tmp_path / "est.txt"
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    broken = io.TextIOWrapper(io.FileIO(write_end, "w"), write_through=True)
+    monkeypatch.setattr(sys, "stdout", broken)
+    assert main(["evaluate", "--gt", str(gt), "--est", str(est), "--json"]) == 1
+    broken.write("after the pipe closed\n")  # now bound to the null device: no error
+    assert capsys.readouterr().err == ""

@@ -246,7 +246,9 @@ def test_sweep_cli_bad_base_config_is_one_line_error(datasets, tmp_path, capsys)
     assert code == 2 and len(err.splitlines()) == 1 and "bad.json" in err and "bogus" in err
 
 
-def test_sweep_cli_rejects_bad_tile_size(tmp_path, capsys):
+@pytest.mark.parametrize("tile_size", ["0", "6", "inf", "nan"])
+def test_sweep_cli_rejects_bad_tile_size(tmp_path, capsys, tile_size):
+    # Fractions of the panorama in (0, 1), or at least 8 pixels: 6 px would fail inside every cell.
     with pytest.raises(SystemExit):
-        main(["sweep", str(tmp_path), "--tile-size", "0", "--overlap", "0", "--out", "x"])
-    assert "tile size must be > 0" in capsys.readouterr().err
+        main(["sweep", str(tmp_path), "--tile-size", tile_size, "--overlap", "0", "--out", "x"])
+    assert "tile size must be a fraction in (0, 1) or at least 8 pixels" in capsys.readouterr().err

@@ -145,3 +145,10 @@ def test_panorama_image_takes_the_mapping_first():
     image = np.zeros(MODEL.size, np.uint8)
     with pytest.raises(TypeError, match="expected a PanoramaMapping as the first argument, got ndarray"):
         panorama_image_from_omni_image(image, mapping)
+
+
+@pytest.mark.parametrize("field, value", [("dark_level", 300.0), ("dark_level", -1.0),
+                                          ("margin_px", float("inf")), ("margin_px", -2.0)])
+def test_band_options_out_of_range_are_rejected(field, value):
+    with pytest.raises(ValueError, match=field):
+        PanoramaConfig(**{field: value})

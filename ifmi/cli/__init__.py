@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from ..errors import InputError, OutputError
@@ -63,6 +64,11 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:
             print(f"ifmi {args.command}: interrupted", file=sys.stderr)
             return 130
+        except BrokenPipeError:
+            # The reader of stdout left (``ifmi evaluate | head``): nothing more to print, and
+            # Python's flush at exit must not fail on the closed pipe either.
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 1
 
 
 if __name__ == "__main__":

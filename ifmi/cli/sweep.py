@@ -3,19 +3,22 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 from ..errors import InputError
 from ..sweep import SweepOptions, run_sweep, sweep_cells
+from ..tiling import MIN_TILE_SIZE_PX
 
 __all__ = ["add_parser", "run"]
 
 
 def _tile_size(text: str) -> float:
     value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"tile size must be > 0 (pixels, or a fraction < 1), got {text}")
+    if not (0 < value < 1 or MIN_TILE_SIZE_PX <= value < math.inf):
+        raise argparse.ArgumentTypeError(f"tile size must be a fraction in (0, 1) or at least {MIN_TILE_SIZE_PX} "
+                                         f"pixels, got {text}")
     return value
 
 
