@@ -90,6 +90,9 @@ def dataset_label(dataset_dir: str | os.PathLike | None) -> tuple[str, str]:
 
 # Entries of a dataset's meta.json carried into evaluations (provenance shown in reports).
 DATASET_META_KEYS = ("scene_name", "frames", "resolution", "spp", "seed", "variant")
+# Below this, the printed tables and the verdict line show an error with significant digits, not
+# four decimals: a sharp 1024 px sequence's 1e-5 rad would read 0.0000.
+_FIXED_DECIMALS_MIN = 1e-3
 
 
 def dataset_provenance(dataset_dir: str | os.PathLike | None) -> dict:
@@ -272,7 +275,7 @@ def gate_verdict(summary: EvaluationSummary, *, max_rmse_rad: float,
     """
     rmse = summary.geodesic.rmse
     rmse_ok = bool(np.isfinite(rmse) and rmse <= max_rmse_rad)
-    parts = [f"geodesic RMSE {rmse:.4f} rad {'<=' if rmse_ok else '>'} {max_rmse_rad:.4f} rad"]
+    parts = [f"geodesic RMSE {_gate_angle(rmse)} rad {'<=' if rmse_ok else '>'} {_gate_angle(max_rmse_rad)} rad"]
     failed_ok = True
     if max_failed is not None:
         if summary.failures is None:
@@ -286,10 +289,18 @@ def gate_verdict(summary: EvaluationSummary, *, max_rmse_rad: float,
     return GateVerdict(passed, ("PASS: " if passed else "FAIL: ") + ", ".join(parts))
 
 
+def _gate_angle(value: float) -> str:
+    """An angle of the verdict line: four decimals, or four significant digits below 1e-3 rad."""
+    return f"{value:.4f}" if not abs(value) < _FIXED_DECIMALS_MIN else f"{value:.3e}"
+
+
 def _fmt(v, scale: float = 1.0, digits: int = 4) -> str:
     if v is None or not np.isfinite(v):
         return "n/a"
-    return f"{v * scale:.{digits}f}"
+    value = v * scale
+    if 0 < abs(value) < _FIXED_DECIMALS_MIN:
+        return f"{value:.2e}"  # fixed decimals would print 0.0000
+    return f"{value:.{digits}f}"
 
 
 def format_summary_table(meta: dict) -> str:

@@ -334,3 +334,13 @@ def test_a_reader_leaving_the_pipe_ends_quietly(tmp_path, monkeypatch, capsys):
     assert main(["evaluate", "--gt", str(gt), "--est", str(est), "--json"]) == 1
     broken.write("after the pipe closed\n")  # now bound to the null device: no error
     assert capsys.readouterr().err == ""
+
+
+
+def test_gate_line_shows_small_angles_with_significant_digits(tmp_path, capsys):
+    # A sharp 1024 px run is off by about 1e-5 rad: four decimals would print 0.0000 <= 0.0001.
+    _write_run(tmp_path, yaw_offset=1e-5, failed=())
+    code = main(["evaluate", "--gt", str(tmp_path / "groundtruth.txt"), "--est", str(tmp_path / "est.txt"),
+                 "--max-rmse", "1e-4"])
+    out = capsys.readouterr().out.strip()
+    assert code == 0 and out.startswith("PASS: geodesic RMSE 9.747e-06 rad <= 1.000e-04 rad"), out
