@@ -26,7 +26,7 @@ from .tiling import (TileLayout, TilingConfig, strongest_tiles_per_column, tile_
                      tile_size_px, tiles_from_panorama)
 from .unwarp import (PANORAMA_INTERPOLATIONS, PanoramaConfig, PanoramaMapping, gray_from_image,
                      panorama_image_from_omni_image, panorama_mapping, panorama_pixels_from_rays,
-                     rays_from_panorama_pixels, wrapped_panorama_maps)
+                     rays_from_panorama_pixels)
 
 __all__ = ["IfmiConfig", "IfmiFrameState", "IfmiFrontEnd"]
 
@@ -331,7 +331,7 @@ class IfmiFrontEnd:
         self.dense_layout: TileLayout | None = None
         self._dense_engine: FourierMellin | None = None  # built on the first dense retry
         self._points_b: np.ndarray | None = None
-        self._padded_maps: tuple = ()
+        self._wrapped_columns: np.ndarray | None = None
 
     @property
     def uses_prior_rotation(self) -> bool:
@@ -344,7 +344,8 @@ class IfmiFrontEnd:
         self.layout = tile_layout((self.mapping.height, self.mapping.width), config=self.config.tiling)
         self.engine = FourierMellin(self.layout.tile_size, self.layout.count,
                                     config=self.config.registration)
-        self._padded_maps = wrapped_panorama_maps(self.mapping, self._pad)
+        # Columns of the padded panorama: the panorama's, wrapped by ``_pad`` on either side.
+        self._wrapped_columns = np.arange(-self._pad, self.mapping.width + self._pad) % self.mapping.width
         if self.config.coarse_to_fine and self.config.use_prior:
             self.global_stage = GlobalMotionEstimator(self.mapping, config=self.config.global_motion)
         if self.config.dense_retry_fraction > 0 and self.config.use_prior:
@@ -387,12 +388,14 @@ class IfmiFrontEnd:
         # level (on sharp 1024 px images that noise doubled the frame-to-frame error).
         gray = gray_from_image(image).astype(np.float32)
         wide = self.mapping.width >= self.config.min_width_curved
-        padded = panorama_image_from_omni_image(
-            self.mapping, gray, maps=self._padded_maps,
-            interpolation=self.config.wide_panorama_interpolation if wide else "linear")
+        panorama = panorama_image_from_omni_image(
+            self.mapping, gray, interpolation=self.config.wide_panorama_interpolation if wide else "linear")
+        # The wrapped columns are copied, not resampled again: the same values, 2 x _pad fewer columns
+        # through the (Lanczos) remap.
+        padded = np.take(panorama, self._wrapped_columns, axis=1)
         coarse = None
         if self.global_stage is not None:
-            coarse = self.global_stage.coarse_panorama(padded[:, self._pad:self._pad + self.mapping.width])
+            coarse = self.global_stage.coarse_panorama(panorama)
         return IfmiFrameState(padded, self._pad, self.layout, self.engine, coarse)
 
     @property
