@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
@@ -13,6 +12,7 @@ from ifmi.io.tum import read_tum
 from ifmi.io.video import VideoFrames, is_video_path
 from ifmi.rotations import geodesic_angle
 from ifmi.synthetic import synthetic_sequence
+from video_files import write_gray_video
 
 SIZE = 160
 FPS = 12.5
@@ -20,12 +20,7 @@ MODEL = paracatadioptric_model((SIZE, SIZE), horizon_radius_px=50.0)
 
 
 def _write_video(path, images, *, fourcc="MJPG", fps=FPS):
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, (SIZE, SIZE), isColor=True)
-    if not writer.isOpened():
-        pytest.skip(f"this OpenCV cannot write {fourcc} video")
-    for image in images:
-        writer.write(cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
-    writer.release()
+    write_gray_video(path, images, fps=fps, fourcc=fourcc)
 
 
 @pytest.fixture(scope="module")

@@ -22,6 +22,7 @@ from ifmi.io.calib import write_calib
 from ifmi.io.tum import read_tum
 from ifmi.io.video import VideoFrames
 from ifmi.synthetic import synthetic_sequence
+from video_files import write_gray_video
 
 SIZE = 160
 FPS = 12.5
@@ -42,13 +43,7 @@ STRH_START = 36
 
 
 def _write(path, images, *, fourcc="MJPG"):
-    height, width = images[0].shape
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), FPS, (width, height), isColor=True)
-    if not writer.isOpened():
-        pytest.skip(f"this OpenCV cannot write {fourcc} video")
-    for image in images:
-        writer.write(cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
-    writer.release()
+    write_gray_video(path, images, fps=FPS, fourcc=fourcc)
     return path.read_bytes()
 
 
