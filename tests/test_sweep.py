@@ -252,3 +252,16 @@ def test_sweep_cli_rejects_bad_tile_size(tmp_path, capsys, tile_size):
     with pytest.raises(SystemExit):
         main(["sweep", str(tmp_path), "--tile-size", tile_size, "--overlap", "0", "--out", "x"])
     assert "tile size must be a fraction in (0, 1) or at least 8 pixels" in capsys.readouterr().err
+
+
+def test_sweep_repeats_the_method_of_a_run_file_unless_told(tmp_path):
+    import json
+
+    from ifmi.cli.sweep import _base_config
+    from ifmi.pipeline import EstimateConfig
+
+    run_file = tmp_path / "orb.config.json"
+    run_file.write_text(json.dumps({"method": "orb", "config": EstimateConfig().to_dict()}))
+    assert _base_config(str(run_file), None)[1] == "orb"
+    assert _base_config(str(run_file), "ifmi")[1] == "ifmi"
+    assert _base_config(None, None)[1] == "ifmi"

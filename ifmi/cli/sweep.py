@@ -10,6 +10,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..sweep import SweepOptions, run_sweep, sweep_cells
 from ..tiling import MIN_TILE_SIZE_PX
+from .estimate import DEFAULT_METHOD
 
 __all__ = ["add_parser", "run"]
 
@@ -56,12 +57,14 @@ def add_parser(subparsers) -> None:
                    help="tile sides: pixels (>= 1) or fractions of the panorama width (< 1)")
     p.add_argument("--overlap", nargs="+", type=_overlap, required=True, metavar="F",
                    help="tile overlaps, fractions in [0, 1)")
-    p.add_argument("--method", default="ifmi", metavar="METHOD",
+    p.add_argument("--method", metavar="METHOD",
                    help="estimation method: a name that 'ifmi methods' lists, or "
-                        "package.module:factory (default ifmi)")
+                        "package.module:factory (default: the method of a --config run file, "
+                        "else ifmi)")
     p.add_argument("--config", metavar="JSON",
                    help="base estimate configuration (EstimateConfig JSON, or an estimate's "
-                        ".config.json); the grid replaces its tiling")
+                        ".config.json, whose method is used unless --method is given); the grid "
+                        "replaces its tiling")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="address of a running Dask scheduler, or 'synchronous' to run in this "
                         "process (default: a local cluster)")
@@ -73,14 +76,17 @@ def add_parser(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _base_config(path: str | None, method: str) -> dict:
-    from ..io.config import read_estimate_config
+def _base_config(path: str | None, method: str | None) -> tuple[dict, str]:
+    """The base configuration as a dict, and the method: ``method``, a run file's, or ifmi."""
+    from ..io.config import read_config_file
     from ..methods import load_factory
     from ..pipeline import EstimateConfig
 
+    config_file = None if path is None else read_config_file(path)
+    method = method or (config_file.method if config_file else None) or DEFAULT_METHOD
     load_factory(method)  # an unknown or broken method fails before any cell runs
-    config = EstimateConfig() if path is None else read_estimate_config(path)
-    return config.to_dict()
+    config = EstimateConfig() if config_file is None else config_file.config
+    return config.to_dict(), method
 
 
 def run(args) -> int:
@@ -89,12 +95,12 @@ def run(args) -> int:
             raise InputError(d, "dataset folder not found")
         if not (Path(d) / "groundtruth.txt").is_file():
             raise InputError(Path(d) / "groundtruth.txt", "ground truth not found (a sweep needs it)")
-    cells = sweep_cells([str(Path(d).resolve()) for d in args.datasets], method=args.method,
+    base_config, method = _base_config(args.config, args.method)
+    cells = sweep_cells([str(Path(d).resolve()) for d in args.datasets], method=method,
                         tile_sizes=args.tile_size, overlaps=args.overlap)
     options = SweepOptions(scheduler=args.scheduler, n_workers=args.workers,
                            progress=not args.no_progress)
-    records = run_sweep(cells, out_dir=args.out, base_config=_base_config(args.config, args.method),
-                        options=options)
+    records = run_sweep(cells, out_dir=args.out, base_config=base_config, options=options)
     failed = [r for r in records if r.get("status") != "ok"]
     print(f"sweep: {len(records) - len(failed)} cells ok, {len(failed)} failed; "
           f"table {Path(args.out) / 'sweep.csv'}")
