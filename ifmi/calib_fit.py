@@ -25,12 +25,10 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .camera import (
-    INVERSE_CHECK_INNER_FRACTION,
     INVERSE_TOLERANCE_PX,
     OcamModel,
     check_affine,
     check_center_inside,
-    inverse_round_trip_error,
     model_from_direct_polynomial,
     valid_mask,
 )
@@ -42,7 +40,7 @@ from .camera_models import (
     UnifiedModel,
     check_usable_region,
 )
-from .unwarp import PanoramaConfig, radius_band
+from .unwarp import inverse_polynomial_error
 
 __all__ = ["TARGETS", "CalibrationFit", "fit_camera_model", "reprojection_errors", "rays_in_frame_of"]
 
@@ -165,8 +163,7 @@ def _check_fitted(model, target: str) -> None:
                 check(*args)
             except ValueError as exc:
                 raise ValueError(f"{name}: {exc}") from None
-        inner, outer = radius_band(model, config=PanoramaConfig(min_radius_fraction=INVERSE_CHECK_INNER_FRACTION))
-        error, radius = inverse_round_trip_error(model, inner, outer)
+        error, radius = inverse_polynomial_error(model)
         if not error <= INVERSE_TOLERANCE_PX:
             raise ValueError(f"its inverse polynomial does not invert the direct one: round-trip error "
                              f"{error:.3g} px at radius {radius:.1f} px, at most {INVERSE_TOLERANCE_PX} px accepted")

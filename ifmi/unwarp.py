@@ -38,13 +38,15 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from .camera import (OcamModel, angles_from_axis, angular_pixel_size, elevation_from_radius, pixel_offsets_from_sensor,
-                     pixels_from_rays, pixels_from_sensor, rays_from_pixels)
+from .camera import (INVERSE_CHECK_INNER_FRACTION, OcamModel, angles_from_axis, angular_pixel_size,
+                     elevation_from_radius, inverse_round_trip_error, pixel_offsets_from_sensor, pixels_from_rays,
+                     pixels_from_sensor, rays_from_pixels)
 
 __all__ = [
     "PanoramaConfig",
     "PanoramaMapping",
     "radius_band",
+    "inverse_polynomial_error",
     "panorama_config_with_band",
     "off_axis_band",
     "lit_off_axis_band",
@@ -297,6 +299,32 @@ def radius_band(model: OcamModel, image: np.ndarray | None = None, *,
     if config.radius_max_px is not None:
         outer = float(config.radius_max_px)
     return _checked_band(inner, outer)
+
+
+def inverse_polynomial_error(model: OcamModel) -> tuple[float, float]:
+    """Largest round-trip error of the inverse polynomial over the image band.
+
+    For sensor radii ``r`` across the band the direct polynomial gives the
+    ray elevation ``theta(r)``; the inverse polynomial should give back
+    ``invpol(theta(r)) = r``. The band runs from a tenth of the outer radius
+    to the largest circle inside the image within the range where
+    ``theta`` grows with ``r`` (where an inverse exists).
+
+    Returns
+    -------
+    error_px : float
+        ``max |invpol(theta(r)) - r|``, sensor pixels (image pixels up to
+        the affine part, which is close to the identity).
+    radius_px : float
+        The radius where it occurs.
+
+    Raises
+    ------
+    ValueError
+        The model images no band (``theta`` does not grow from the centre).
+    """
+    inner, outer = radius_band(model, config=PanoramaConfig(min_radius_fraction=INVERSE_CHECK_INNER_FRACTION))
+    return inverse_round_trip_error(model, inner, outer)
 
 
 def _checked_band(inner: float, outer: float) -> tuple[float, float]:

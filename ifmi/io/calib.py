@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import (INVERSE_CHECK_INNER_FRACTION, INVERSE_TOLERANCE_PX, OcamModel, check_affine,
-                      check_center_inside, check_image_size, inverse_round_trip_error)
+from ..camera import INVERSE_TOLERANCE_PX, OcamModel, check_affine, check_center_inside, check_image_size
 from ..errors import InputError
+from ..unwarp import inverse_polynomial_error
 from .atomic import atomic_write_text
 from .text_file import read_text_file
 
@@ -177,34 +177,6 @@ def _missing_blocks(data: list[str], comments: list[str]) -> str:
     if not candidates or len(candidates) > 2:
         return "cannot tell which from the values"
     return " or ".join(", ".join(_BLOCKS[i] for i in missing) for missing in candidates)
-
-
-def inverse_polynomial_error(model: OcamModel) -> tuple[float, float]:
-    """Largest round-trip error of the inverse polynomial over the image band.
-
-    For sensor radii ``r`` across the band the direct polynomial gives the
-    ray elevation ``theta(r)``; the inverse polynomial should give back
-    ``invpol(theta(r)) = r``. The band runs from a tenth of the outer radius
-    to the largest circle inside the image within the range where
-    ``theta`` grows with ``r`` (where an inverse exists).
-
-    Returns
-    -------
-    error_px : float
-        ``max |invpol(theta(r)) - r|``, sensor pixels (image pixels up to
-        the affine part, which is close to the identity).
-    radius_px : float
-        The radius where it occurs.
-
-    Raises
-    ------
-    ValueError
-        The model images no band (``theta`` does not grow from the centre).
-    """
-    from ..unwarp import PanoramaConfig, radius_band
-
-    inner, outer = radius_band(model, config=PanoramaConfig(min_radius_fraction=INVERSE_CHECK_INNER_FRACTION))
-    return inverse_round_trip_error(model, inner, outer)
 
 
 def _check_inverse(source, model: OcamModel) -> None:
