@@ -21,7 +21,7 @@ import types
 import typing
 from typing import Any, Mapping, TypeVar
 
-__all__ = ["OptionError", "options_from_dict"]
+__all__ = ["OptionError", "options_from_dict", "RejectedValues", "replaced_at_paths"]
 
 T = TypeVar("T")
 # Longest rendering of a wrong value in a message.
@@ -184,3 +184,48 @@ def options_from_dict(cls: type[T], data: Mapping[str, Any], *, what: str,
         raise
     except (TypeError, ValueError) as exc:
         raise OptionError(what, str(exc)) from None
+
+
+class RejectedValues(ValueError):
+    """The checks of an option dataclass rejected values :func:`replaced_at_paths` set on it.
+
+    Attributes
+    ----------
+    sources : tuple of str
+        Where the values set directly on that dataclass came from (in order, once each).
+    """
+
+    def __init__(self, sources: tuple, message: str) -> None:
+        self.sources = sources
+        super().__init__(message)
+
+
+def replaced_at_paths(obj, values: Mapping[str, tuple[str, Any]]):
+    """The frozen dataclass ``obj`` with values set at dotted key paths below it.
+
+    Parameters
+    ----------
+    obj : dataclass instance
+    values : mapping of str to (str, object)
+        Key path (``ifmi.tiling.overlap``) -> (where the value came from, e.g.
+        an option name, and the value). Each dataclass on a path is rebuilt
+        once, so its ``__post_init__`` checks all of its new values together.
+
+    Raises
+    ------
+    RejectedValues
+        A dataclass's checks reject its new values; names their sources.
+    """
+    fields, nested = {}, {}
+    for key, item in values.items():
+        head, _, rest = key.partition(".")
+        if rest:
+            nested.setdefault(head, {})[rest] = item
+        else:
+            fields[head] = item
+    changes = {name: replaced_at_paths(getattr(obj, name), sub) for name, sub in nested.items()}
+    changes.update({name: value for name, (_, value) in fields.items()})
+    try:
+        return dataclasses.replace(obj, **changes)
+    except ValueError as exc:
+        raise RejectedValues(tuple(dict.fromkeys(source for source, _ in fields.values())), str(exc)) from None

@@ -20,11 +20,11 @@ import dataclasses
 import math
 import os
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 from ..errors import CalibrationFitError, InputError
 from ..methods import load_factory
+from ..options import RejectedValues, replaced_at_paths
 from ..pipeline import EstimateConfig, estimate_dataset, estimate_video
 
 # Exit status when the outputs were written but more than half of the frames failed.
@@ -176,28 +176,18 @@ def _given_options(args) -> dict:
     return given
 
 
-def _with_values(obj, values: dict):
-    """The config dataclass ``obj`` with ``values`` (key path below ``obj`` -> (option, value)) set.
+def _with_values(config, values: dict):
+    """``config`` with ``values`` (key path -> (option, value)) set (:func:`ifmi.options.replaced_at_paths`).
 
     Raises
     ------
     InputError
-        A value the dataclass rejects, naming the options that set its fields.
+        A value the configuration rejects, naming the options that set its fields.
     """
-    fields, nested = {}, {}
-    for key, item in values.items():
-        head, _, rest = key.partition(".")
-        if rest:
-            nested.setdefault(head, {})[rest] = item
-        else:
-            fields[head] = item
-    changes = {name: _with_values(getattr(obj, name), sub) for name, sub in nested.items()}
-    changes.update({name: value for name, (_, value) in fields.items()})
     try:
-        return replace(obj, **changes)
-    except ValueError as exc:
-        options = "/".join(dict.fromkeys(option for option, _ in fields.values()))
-        raise InputError(options or "command line", str(exc)) from None
+        return replaced_at_paths(config, values)
+    except RejectedValues as exc:
+        raise InputError("/".join(exc.sources) or "command line", str(exc)) from None
 
 
 def _read_config_file(args):

@@ -22,11 +22,12 @@ from __future__ import annotations
 import json
 import os
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import InputError
+from ..options import replaced_at_paths
 
 if TYPE_CHECKING:
     from ..pipeline import EstimateConfig
@@ -172,16 +173,7 @@ def _run_derived(data: dict, source) -> tuple:
 
 def _without_derived(config, derived: tuple):
     """``config`` with the values of the ``derived`` key paths set to ``None``."""
-    for key in derived:
-        section, *middle, name = key.split(".")
-        owners = [getattr(config, section)]
-        for part in middle:
-            owners.append(getattr(owners[-1], part))
-        value = replace(owners[-1], **{name: None})
-        for owner, part in zip(reversed(owners[:-1]), reversed(middle)):
-            value = replace(owner, **{part: value})
-        config = replace(config, **{section: value})
-    return config
+    return replaced_at_paths(config, {key: ("derived", None) for key in derived})
 
 
 def read_config_file(path: str | os.PathLike) -> ConfigFile:
