@@ -64,7 +64,7 @@ _FLAG_OPTIONS = {
 _TILE_FIT_KEYS = (("ifmi.tiling.tile_size", "ifmi.panorama.width", "ifmi.panorama.height"),
                   ("ifmi.panorama.radius_min_px", "ifmi.panorama.radius_max_px"))
 
-__all__ = ["add_parser", "run", "config_from_args"]
+__all__ = ["add_parser", "run", "config_from_args", "chosen_method", "DEFAULT_METHOD"]
 
 
 def add_parser(subparsers) -> None:
@@ -190,17 +190,24 @@ def _with_values(config, values: dict):
         raise InputError("/".join(exc.sources) or "command line", str(exc)) from None
 
 
-def _read_config_file(args):
+def _configuration(args) -> tuple:
+    """``(--config file or None, options given, configuration)``: the file's, then the options, which win."""
     from ..io.config import read_config_file
 
-    return read_config_file(args.config) if args.config else None
+    config_file = read_config_file(args.config) if args.config else None
+    given = _given_options(args)
+    config = _with_values(EstimateConfig() if config_file is None else config_file.config, given)
+    return config_file, given, config
+
+
+def chosen_method(option: str | None, config_file) -> str:
+    """The method to run: ``--method``, else the ``--config`` run file's, else :data:`DEFAULT_METHOD`."""
+    return option or (config_file.method if config_file else None) or DEFAULT_METHOD
 
 
 def config_from_args(args) -> EstimateConfig:
     """EstimateConfig from parsed arguments (``--config`` file, then explicit options, which win)."""
-    config_file = _read_config_file(args)
-    config = EstimateConfig() if config_file is None else config_file.config
-    return _with_values(config, _given_options(args))
+    return _configuration(args)[2]
 
 
 _NOT_A_KEY = object()
@@ -286,10 +293,8 @@ def run(args) -> int:
     from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
     from ..io.video import is_video_path
 
-    config_file = _read_config_file(args)
-    given = _given_options(args)
-    config = _with_values(EstimateConfig() if config_file is None else config_file.config, given)
-    method = args.method or (config_file.method if config_file else None) or DEFAULT_METHOD
+    config_file, given, config = _configuration(args)
+    method = chosen_method(args.method, config_file)
     load_factory(method)  # an unknown or broken method fails before any work
     out = Path(args.out)
     video = is_video_path(args.dataset)

@@ -10,7 +10,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..sweep import SweepOptions, run_sweep, sweep_cells
 from ..tiling import MIN_TILE_SIZE_PX
-from .estimate import DEFAULT_METHOD
+from .estimate import chosen_method
 
 __all__ = ["add_parser", "run"]
 
@@ -83,7 +83,7 @@ def _base_config(path: str | None, method: str | None) -> tuple[dict, str]:
     from ..pipeline import EstimateConfig
 
     config_file = None if path is None else read_config_file(path)
-    method = method or (config_file.method if config_file else None) or DEFAULT_METHOD
+    method = chosen_method(method, config_file)
     load_factory(method)  # an unknown or broken method fails before any cell runs
     config = EstimateConfig() if config_file is None else config_file.config
     return config.to_dict(), method
