@@ -29,7 +29,7 @@ import numpy as np
 
 from .dataset_names import dataset_labels, resolved_folder
 from .errors import InputError
-from .io.atomic import folder_of_kind, atomic_write_json, atomic_write_text, check_output_folder, write_folder
+from .io.atomic import atomic_write_json, atomic_write_text, check_output_folder, folder_of_kind, write_folder
 from .io.provenance import package_versions as _package_versions
 from .io.results import (EvaluationRecord, is_evaluation_dir, jsonable, read_evaluation,
                          read_motion_flow, write_motion_flow)

@@ -48,8 +48,8 @@ from typing import Iterable, Sequence
 
 from .dataset_names import dataset_folder_id, dataset_labels, resolved_folder
 from .errors import InputError, OutputError
-from .io.atomic import (folder_of_kind, atomic_write_bytes, atomic_write_json, atomic_write_text,
-                        check_output_folder, probe_writable, write_folder)
+from .io.atomic import (atomic_write_bytes, atomic_write_json, atomic_write_text, check_output_folder,
+                        folder_of_kind, probe_writable, write_folder)
 
 __all__ = [
     "SweepCell",

@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, OutputError
-from .atomic import (folder_of_kind, atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
-                     check_output_folder, json_text, probe_writable, write_folder)
+from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
+                     check_output_folder, folder_of_kind, json_text, probe_writable, write_folder)
 from .provenance import package_versions
 from .text_file import read_text_file
 
