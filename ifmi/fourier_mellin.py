@@ -53,9 +53,10 @@ import cv2
 import numpy as np
 import scipy.fft
 
-from .tiling import MIN_TILE_SIZE_PX
+from .options import check_finite_fields
 from .phase_correlation import (Peaks, correlation_surface, find_peaks, hann_window,
                                 normalized_cross_power, refine_shift_phase_plane)
+from .tiling import MIN_TILE_SIZE_PX
 
 __all__ = [
     "FourierMellinConfig",
@@ -190,10 +191,8 @@ class FourierMellinConfig:
     resample_interpolation: str = "lanczos4"
 
     def __post_init__(self) -> None:
-        for name in ("min_radius_fraction", "th_pr", "th_pnr", "min_std", "phase_plane_max_frequency",
-                     "phase_plane_weight_power", "residual_weight_power"):
-            if not np.isfinite(getattr(self, name)):
-                raise ValueError(f"{name} must be a finite number, got {getattr(self, name)}")
+        check_finite_fields(self, ("min_radius_fraction", "th_pr", "th_pnr", "min_std", "phase_plane_max_frequency",
+                                   "phase_plane_weight_power", "residual_weight_power"))
         for name in ("log_polar_angles", "log_polar_radii"):
             value = getattr(self, name)
             if value is not None and value < 8:

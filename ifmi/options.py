@@ -21,7 +21,7 @@ import types
 import typing
 from typing import Any, Mapping, TypeVar
 
-__all__ = ["OptionError", "options_from_dict", "RejectedValues", "replaced_at_paths"]
+__all__ = ["OptionError", "options_from_dict", "RejectedValues", "replaced_at_paths", "check_finite_fields"]
 
 T = TypeVar("T")
 # Longest rendering of a wrong value in a message.
@@ -229,3 +229,14 @@ def replaced_at_paths(obj, values: Mapping[str, tuple[str, Any]]):
         return dataclasses.replace(obj, **changes)
     except ValueError as exc:
         raise RejectedValues(tuple(dict.fromkeys(source for source, _ in fields.values())), str(exc)) from None
+
+
+def check_finite_fields(options, names) -> None:
+    """Raise ``ValueError`` naming the first of the fields ``names`` of ``options`` that is NaN or infinite.
+
+    For ``__post_init__`` checks; a field that is ``None`` (an optional value left open) passes.
+    """
+    for name in names:
+        value = getattr(options, name)
+        if value is not None and not math.isfinite(value):
+            raise ValueError(f"{name} must be a finite number, got {value}")

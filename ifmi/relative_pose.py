@@ -50,6 +50,8 @@ import numpy as np
 import poselib
 from scipy.optimize import brentq
 
+from .options import check_finite_fields
+
 __all__ = [
     "RelativePoseOptions",
     "RelativePose",
@@ -181,11 +183,8 @@ class RelativePoseOptions:
     rotation_min_inlier_share: float = 0.7
 
     def __post_init__(self) -> None:
-        for name in ("ransac_threshold_rad", "ransac_threshold_px", "noise_sigma_rad", "rotation_threshold_factor",
-                     "robust_scale"):
-            value = getattr(self, name)
-            if value is not None and not math.isfinite(value):
-                raise ValueError(f"{name} must be a finite number, got {value}")
+        check_finite_fields(self, ("ransac_threshold_rad", "ransac_threshold_px", "noise_sigma_rad",
+                                   "rotation_threshold_factor", "robust_scale"))
         if self.ransac_threshold_rad is not None and not self.ransac_threshold_rad > 0:
             raise ValueError(f"ransac_threshold_rad must be > 0 or None, got {self.ransac_threshold_rad}")
         if not self.ransac_threshold_px > 0:
