@@ -251,7 +251,7 @@ def test_sweep_cli_rejects_bad_tile_size(tmp_path, capsys, tile_size):
     # Fractions of the panorama in (0, 1), or at least 8 pixels: 6 px would fail inside every cell.
     with pytest.raises(SystemExit):
         main(["sweep", str(tmp_path), "--tile-size", tile_size, "--overlap", "0", "--out", "x"])
-    assert "tile size must be a fraction in (0, 1) or at least 8 pixels" in capsys.readouterr().err
+    assert "tile_size must be a fraction in (0, 1) of the panorama width or at least 8 px" in capsys.readouterr().err
 
 
 def test_sweep_repeats_the_method_of_a_run_file_unless_told(tmp_path):

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
 from ..errors import InputError
 from ..sweep import SweepOptions, run_sweep, sweep_cells
-from ..tiling import MIN_TILE_SIZE_PX
+from ..tiling import TilingConfig
 from .estimate import chosen_method
 
 __all__ = ["add_parser", "run"]
@@ -17,9 +16,10 @@ __all__ = ["add_parser", "run"]
 
 def _tile_size(text: str) -> float:
     value = float(text)
-    if not (0 < value < 1 or MIN_TILE_SIZE_PX <= value < math.inf):
-        raise argparse.ArgumentTypeError(f"tile size must be a fraction in (0, 1) or at least {MIN_TILE_SIZE_PX} "
-                                         f"pixels, got {text}")
+    try:
+        TilingConfig(tile_size=value)  # the range every tile size is checked against
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     return value
 
 
