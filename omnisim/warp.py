@@ -173,7 +173,12 @@ def _wraps(model) -> bool:
     return bool(getattr(model, "wraps_columns", False))
 
 
-def _inside(model, pixels: np.ndarray, band: tuple[float, float]) -> np.ndarray:
+def _inside(model, pixels: np.ndarray, band: tuple[float, float], *, rays: np.ndarray | None = None) -> np.ndarray:
+    """Pixels ``(..., 2)`` inside the image (by the kernel's reach) and the source ``band``.
+
+    ``rays`` are the pixels' rays when the caller has them already (other
+    models than OCamCalib test their angle from the axis), saving a lift.
+    """
     rows, cols = pixels[..., 0], pixels[..., 1]
     with np.errstate(invalid="ignore"):
         inside = (rows >= _EDGE_PX) & (rows <= model.height - 1 - _EDGE_PX)
@@ -185,7 +190,9 @@ def _inside(model, pixels: np.ndarray, band: tuple[float, float]) -> np.ndarray:
         inside &= np.isfinite(pixels).all(axis=-1)
         inside[inside] &= model.valid_pixels(pixels[inside])
         axis = getattr(model, "panorama_axis", model.optical_axis)
-        angle = angles_from_axis(rays_from_pixels(model, np.where(inside[..., None], pixels, 0.0)), axis)
+        if rays is None:
+            rays = rays_from_pixels(model, np.where(inside[..., None], pixels, 0.0))
+        angle = angles_from_axis(rays, axis)
         return inside & (angle >= band[0]) & (angle <= band[1])
 
 
@@ -209,9 +216,9 @@ def warp_image(source: np.ndarray, model, rotation: np.ndarray, *,
     """
     h, w = model.size
     grid = np.stack(np.mgrid[0:h, 0:w], axis=-1).astype(np.float64)
-    rays = rays_from_pixels(model, grid) @ np.asarray(rotation, dtype=np.float64).T
-    where = pixels_from_rays(model, rays)
-    valid = _inside(model, grid, band) & _inside(model, where, band)
+    grid_rays = rays_from_pixels(model, grid)
+    where = pixels_from_rays(model, grid_rays @ np.asarray(rotation, dtype=np.float64).T)
+    valid = _inside(model, grid, band, rays=grid_rays) & _inside(model, where, band)
     where = np.where(valid[..., None], where, 0.0)
     channels = source[..., None] if source.ndim == 2 else source
     pad = 0
