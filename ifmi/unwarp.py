@@ -633,6 +633,32 @@ def _circle_pixels(model, rotation: np.ndarray, angles: np.ndarray, azimuths: np
     return model.pixels_from_rays(local @ rotation.T)
 
 
+def _probed_rings(model, margin_px: float, *, columns_wrap: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rings of rays about ``model``'s panorama axis at off-axis angles from 0 to pi, as pixels.
+
+    Returns
+    -------
+    angles : (A,) ndarray
+        Off-axis angle of each ring, radians.
+    pixels : (A, Z, 2) ndarray
+        ``(row, col)`` of each ring's rays (NaN where the model cannot image one).
+    ok : (A, Z) bool ndarray
+        The pixel is valid and at least ``margin_px`` inside the image (pixel
+        edges at -0.5 and size - 0.5); with ``columns_wrap`` the left and
+        right edges are no border.
+    """
+    angles = np.linspace(0.0, np.pi, _BAND_ANGLES)
+    azimuths = np.linspace(0.0, 2 * np.pi, _BAND_AZIMUTHS, endpoint=False)
+    pixels = _circle_pixels(model, panorama_axis_rotation(model), angles, azimuths)
+    m = margin_px
+    m_col = -0.5 if columns_wrap else m
+    with np.errstate(invalid="ignore"):
+        ok = ((pixels[..., 0] >= m - 0.5) & (pixels[..., 0] <= model.height - 0.5 - m)
+              & (pixels[..., 1] >= m_col - 0.5) & (pixels[..., 1] <= model.width - 0.5 - m_col))
+    ok[ok] = model.valid_pixels(pixels[ok])
+    return angles, pixels, ok
+
+
 def off_axis_band(model, *, config: PanoramaConfig = PanoramaConfig()) -> tuple[float, float]:
     """Off-axis angles ``(inner, outer)`` (radians) of the band a non-OCamCalib model images fully.
 
@@ -653,18 +679,9 @@ def off_axis_band(model, *, config: PanoramaConfig = PanoramaConfig()) -> tuple[
     """
     if config.radius_min_px is not None or config.radius_max_px is not None:
         raise ValueError("radius_min_px / radius_max_px apply to OCamCalib models only")
-    rotation = panorama_axis_rotation(model)
-    angles = np.linspace(0.0, np.pi, _BAND_ANGLES)
-    azimuths = np.linspace(0.0, 2 * np.pi, _BAND_AZIMUTHS, endpoint=False)
-    pixels = _circle_pixels(model, rotation, angles, azimuths)
-    m = config.margin_px
     # Columns of a 360-degree image wrap around, so its left and right edges are no border.
-    m_col = -0.5 if getattr(model, "wraps_columns", False) else m
-    with np.errstate(invalid="ignore"):
-        inside = ((pixels[..., 0] >= m - 0.5) & (pixels[..., 0] <= model.height - 0.5 - m)
-                  & (pixels[..., 1] >= m_col - 0.5) & (pixels[..., 1] <= model.width - 0.5 - m_col))
-    ok = inside.copy()
-    ok[inside] = model.valid_pixels(pixels[inside])
+    angles, _, ok = _probed_rings(model, config.margin_px,
+                                  columns_wrap=getattr(model, "wraps_columns", False))
     ring_ok = ok.all(axis=1)
     if not ring_ok.any():
         raise ValueError("the camera model images no full ring of rays about its axis")
@@ -716,13 +733,8 @@ def lit_off_axis_band(model, image: np.ndarray, *, margin_rad: float = 0.0,
     """
     if isinstance(model, OcamModel):
         raise ValueError("expected a non-OCamCalib camera model, got an OcamModel (use radius_band)")
-    angles = np.linspace(0.0, np.pi, _BAND_ANGLES)
-    azimuths = np.linspace(0.0, 2 * np.pi, _BAND_AZIMUTHS, endpoint=False)
-    pixels = _circle_pixels(model, panorama_axis_rotation(model), angles, azimuths)
-    with np.errstate(invalid="ignore"):
-        usable = ((pixels[..., 0] >= 0) & (pixels[..., 0] <= model.height - 1)
-                  & (pixels[..., 1] >= 0) & (pixels[..., 1] <= model.width - 1))
-    usable[usable] = model.valid_pixels(pixels[usable])
+    # Points between the outermost pixel centres (margin 0.5 px), where the remap reads the image.
+    angles, pixels, usable = _probed_rings(model, 0.5, columns_wrap=False)
     # Unusable points are sampled outside the image (black) and left out of the share.
     maps = np.where(usable[..., None], pixels, -1.0).astype(np.float32)
     lit = _ring_lit_fractions((np.ascontiguousarray(maps[..., 1]), np.ascontiguousarray(maps[..., 0])),
