@@ -17,6 +17,12 @@ has two methods:
     whose ``uses_prior_rotation`` attribute is true is called with the
     keyword ``prior_rotation`` (a predicted ``R_ab``, (3, 3)) as well.
 
+A front end may also have ``accept_pose(state, rotation)``: the odometry
+then passes it the pose ``R_0k`` ((3, 3)) it settled on for every
+successfully estimated frame, before that frame can serve as a reference
+(the iFMI front end ties its tracked tiles to it). Failed frames are never
+passed.
+
 This module imports nothing else of :mod:`ifmi`, so any front end can import
 it without import cycles.
 """

@@ -14,6 +14,8 @@ known, giving ``R_rk``; its pose is ``R_0k = R_0r @ R_rk``.
 Front ends that declare ``uses_prior_rotation`` receive a predicted
 ``R_rk`` (constant angular velocity from the last two successfully
 estimated poses) and may use it to look for the motion near the prediction.
+Front ends with ``accept_pose`` are told each successful frame's ``R_0k``
+(:mod:`ifmi.front_end`).
 
 A frame whose estimate fails keeps the last pose (flagged with a reason)
 and never becomes a reference: its held pose is not its true pose, and its
@@ -228,6 +230,12 @@ class Tracker:
                                       rays_per_measurement=corr.rays_per_measurement)
         return pose, info, corr
 
+    def _accept(self, state, rotation: np.ndarray) -> None:
+        """Tell a front end with ``accept_pose`` a successfully estimated frame's ``R_0k``."""
+        accept = getattr(self.front_end, "accept_pose", None)
+        if accept is not None:
+            accept(state, rotation)
+
     def _append(self, record: FrameRecord, rotation: np.ndarray, position: np.ndarray) -> FrameRecord:
         self.rotations.append(rotation)
         self.positions.append(position)
@@ -261,6 +269,7 @@ class Tracker:
             return self._append(record, self.rotations[-1], self.positions[-1])
         state = self.front_end.prepare(image)
         if self._reference is None:
+            self._accept(state, np.eye(3))
             self._reference = self._last_good = _Reference(0, state, np.eye(3), np.zeros(3))
             self._good = [(0, np.eye(3))]
             return self._append(FrameRecord(0, 0, True, "", 0, 0, time.perf_counter() - start),
@@ -283,6 +292,7 @@ class Tracker:
             position = reference.position + (k - reference.frame) * (reference.rotation @ pose.translation_direction)
             if reference.first_inliers < 0:
                 reference.first_inliers = info.n_inliers
+            self._accept(state, rotation)
             self._last_good = _Reference(k, state, rotation, position)
             if not keyframe.enabled:
                 self._reference = self._last_good

@@ -19,6 +19,7 @@ __all__ = [
     "geodesic_angle",
     "wrap_angle",
     "project_to_rotation",
+    "matrix_aligning_rays",
 ]
 
 
@@ -86,3 +87,30 @@ def project_to_rotation(M: np.ndarray) -> np.ndarray:
     D = np.ones(M.shape[:-1])
     D[..., -1] = np.sign(np.linalg.det(U @ Vt))
     return (U * D[..., None, :]) @ Vt
+
+
+
+def matrix_aligning_rays(from_rays: np.ndarray, to_rays: np.ndarray, *, fraction: float = 1.0) -> np.ndarray:
+    """Smallest rotations ``R`` with ``to_rays ~ R @ from_rays``, one per ray pair, or a fraction of each.
+
+    Parameters
+    ----------
+    from_rays, to_rays : (N, 3) ndarray
+        Unit rays; the two of a pair must not be opposite.
+    fraction : float, keyword-only
+        Part of the turn: the rotation about the same axis by ``fraction``
+        times the angle between the rays (1: onto ``to_rays``, 0: identity).
+
+    Returns
+    -------
+    (N, 3, 3) ndarray
+        Rotation about ``from x to`` (the identity for equal rays).
+    """
+    a = np.asarray(from_rays, dtype=np.float64).reshape(-1, 3)
+    b = np.asarray(to_rays, dtype=np.float64).reshape(-1, 3)
+    axis = np.cross(a, b)
+    sin = np.linalg.norm(axis, axis=1)
+    angle = np.arctan2(sin, np.einsum("ni,ni->n", a, b))
+    # angle / sin -> 1 as the rays meet: the rotation vector is axis * angle / sin.
+    scale = np.divide(angle, sin, out=np.ones_like(angle), where=sin > 1e-300)
+    return Rotation.from_rotvec(fraction * scale[:, None] * axis).as_matrix().reshape(-1, 3, 3)

@@ -22,6 +22,7 @@ from .fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, 
                             TileSpectra)
 from .errors import CalibrationFitError
 from .relative_pose import rotation_angles, rotation_from_rays
+from .rotations import matrix_aligning_rays
 from .tiling import (TileLayout, TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_layout,
                      tile_size_px, tiles_from_panorama)
 from .unwarp import (PANORAMA_INTERPOLATIONS, PanoramaConfig, PanoramaMapping, gray_from_image,
@@ -155,9 +156,37 @@ class IfmiConfig:
         template keeps its frame's shift for its whole track. See the
         README's sharp-image section for what the Lanczos kernel gains and costs.
     min_width_curved : int
-        Curved placements, refit passes and ``wide_panorama_interpolation``
-        apply from this panorama width (pixels) up; narrower panoramas keep
-        the affine cut and bilinear resampling.
+        Curved placements, refit passes, ``wide_panorama_interpolation`` and
+        ``landmark_rays`` apply from this panorama width (pixels) up;
+        narrower panoramas keep the affine cut, bilinear resampling and
+        measured rays.
+    landmark_rays : bool
+        Each tracked tile keeps a landmark: its centre's ray in frame 0's
+        coordinates, fixed when the tile is cut, from the pose the odometry
+        accepted for that frame (:meth:`IfmiFrontEnd.accept_pose`). When a
+        frame is the reference, a tracked tile's rays there are turned
+        towards where the accepted pose of that frame sees the landmark,
+        instead of resting on the tile's measured placement alone. Measured
+        placements telescope along a track only while the tile set stays
+        the same; each tile cut anew starts from a frame whose pose has
+        drifted, so frame-to-frame drift grows with every renewal. The
+        landmarks tie the reference's tiles to the poses they were first
+        seen from. Frames without an accepted pose (a reference reset
+        after failures) keep measured rays, and their tiles lose their
+        landmarks. Only on panoramas at least ``min_width_curved`` wide: on
+        the 256 px sets it lowered the drift of pure rotations but let
+        parallax into translated ones. See the README's sharp-image section.
+    landmark_gate_px : float
+        A tile is turned only when its measured centre lies within this
+        many panorama pixels of its landmark (parallax under translation,
+        or a tile that slipped, moves it farther).
+    landmark_weight : float
+        Part of the way from the measured ray to the landmark's that a
+        tile's rays are turned, in ``(0, 1]``: 1 ties them to the landmarks
+        (least drift), less keeps more of each pair's own measurement
+        (frame-to-frame error closer to the measured one). The trajectory's
+        error then decays by ``1 - landmark_weight`` per frame towards the
+        landmarks'.
     """
 
     panorama: PanoramaConfig = field(default_factory=PanoramaConfig)
@@ -183,6 +212,9 @@ class IfmiConfig:
     single_refinement_max_px: float = 0.5
     wide_panorama_interpolation: str = "lanczos4"
     min_width_curved: int = 1536
+    landmark_rays: bool = True
+    landmark_gate_px: float = 0.25
+    landmark_weight: float = 0.5
 
     def __post_init__(self) -> None:
         if self.points_per_tile not in (1, 5, 9):
@@ -195,6 +227,9 @@ class IfmiConfig:
                              f"{self.dense_retry_fraction}, {self.dense_overlap}")
         if self.dense_tiles_per_column is not None and self.dense_tiles_per_column < 1:
             raise ValueError(f"expected dense_tiles_per_column >= 1 or None, got {self.dense_tiles_per_column}")
+        if not self.landmark_gate_px > 0 or not 0 < self.landmark_weight <= 1:
+            raise ValueError(f"expected landmark_gate_px > 0 and 0 < landmark_weight <= 1, got "
+                             f"{self.landmark_gate_px}, {self.landmark_weight}")
         if self.refit_passes < 0 or not self.refit_max_residual_px > 0 or self.min_width_curved < 0:
             raise ValueError(f"expected refit_passes >= 0, refit_max_residual_px > 0 and min_width_curved >= 0, "
                              f"got {self.refit_passes}, {self.refit_max_residual_px}, {self.min_width_curved}")
@@ -269,6 +304,11 @@ class IfmiFrameState:
         self.tracked_valid: np.ndarray | None = None
         self.reference: tuple | None = None
         self.reference_curvature: np.ndarray | None = None
+        # Landmark rays (IfmiConfig.landmark_rays): this frame's accepted R_0k, the frame-0 rays
+        # of its tracked tiles and of its reference tiles (NaN rows: unknown).
+        self.rotation: np.ndarray | None = None
+        self.tracked_landmarks: np.ndarray | None = None
+        self.reference_landmarks: np.ndarray | None = None
 
     def layout_tiles(self, index: np.ndarray | None = None) -> np.ndarray:
         """Layout tiles ``(K, N, N)`` float32, all or ``index`` (bool mask or indices) of them."""
@@ -294,10 +334,12 @@ class _TileMatch:
     n_new: int
     tracked: PlacedTiles
     tracked_valid: np.ndarray
+    tracked_landmarks: np.ndarray | None
 
     def restore_tracking(self, state_b: IfmiFrameState) -> None:
         """Give frame b this registration's tracked tiles again (after another registration replaced them)."""
         state_b.tracked, state_b.tracked_valid = self.tracked, self.tracked_valid
+        state_b.tracked_landmarks = self.tracked_landmarks
 
 
 def _coarse_diagnostics(start: np.ndarray, coarse: GlobalMotion) -> dict:
@@ -387,9 +429,8 @@ class IfmiFrontEnd:
         # Remapped as float: an 8-bit result would round every panorama pixel to a whole gray
         # level (on sharp 1024 px images that noise doubled the frame-to-frame error).
         gray = gray_from_image(image).astype(np.float32)
-        wide = self.mapping.width >= self.config.min_width_curved
         panorama = panorama_image_from_omni_image(
-            self.mapping, gray, interpolation=self.config.wide_panorama_interpolation if wide else "linear")
+            self.mapping, gray, interpolation=self.config.wide_panorama_interpolation if self._wide else "linear")
         # The wrapped columns are copied, not resampled again: the same values, 2 x _pad fewer columns
         # through the (Lanczos) remap.
         padded = np.take(panorama, self._wrapped_columns, axis=1)
@@ -399,9 +440,14 @@ class IfmiFrontEnd:
         return IfmiFrameState(padded, self._pad, self.layout, self.engine, coarse)
 
     @property
+    def _wide(self) -> bool:
+        """A panorama of sharp high-resolution images (``IfmiConfig.min_width_curved``)."""
+        return self.mapping.width >= self.config.min_width_curved
+
+    @property
     def _curved(self) -> bool:
         """Curved placements (and refit passes) on this panorama (``IfmiConfig.min_width_curved``)."""
-        return self.config.curved_placement and self.mapping.width >= self.config.min_width_curved
+        return self.config.curved_placement and self._wide
 
     @property
     def _pad(self) -> int:
@@ -537,6 +583,7 @@ class IfmiFrontEnd:
         state.reference_curvature = None
         if not self.config.track_tiles or tracked is None:
             state.reference = (offsets, linear, state.spectra, self.layout.count)
+            state.reference_landmarks = self._landmarks(state, offsets, None, np.ones(self.layout.count, bool))
             return state.reference
         # A tracked reference is matched at predicted placements, where log-polar descriptors
         # serve only when the residual rotation and scale are measured.
@@ -569,7 +616,23 @@ class IfmiFrontEnd:
             # Tiles cut anew from the layout are axis-aligned in this frame: no curvature.
             state.reference_curvature = np.where(new[:, None, None, None], 0.0, tracked.curvature)
         state.reference = (offsets, linear, spectra, int(new.sum()))
+        state.reference_landmarks = self._landmarks(state, offsets, state.tracked_landmarks, new)
         return state.reference
+
+    def accept_pose(self, state: IfmiFrameState, rotation: np.ndarray) -> None:
+        """Record the odometry's estimate ``R_0k`` of a successfully estimated frame
+        (``IfmiConfig.landmark_rays``); a frame never accepted keeps measured rays."""
+        state.rotation = np.asarray(rotation, dtype=np.float64)
+
+    def _landmarks(self, state: IfmiFrameState, offsets: np.ndarray, tracked: np.ndarray | None,
+                   new: np.ndarray) -> np.ndarray | None:
+        """Frame-0 rays of a reference's tiles: carried along the track, or the accepted
+        rotation's image of a new tile's ray; None when the frame has no accepted pose."""
+        if not (self.config.landmark_rays and self._wide) or state.rotation is None:
+            return None
+        landmarks = np.full((len(offsets), 3), np.nan) if tracked is None else tracked.copy()
+        landmarks[new] = rays_from_panorama_pixels(self.mapping, offsets[new]) @ state.rotation.T
+        return landmarks
 
     def register(self, state_a: IfmiFrameState, state_b: IfmiFrameState):
         """Tile motions of frame b against frame a without a prediction (layout tiles in both).
@@ -652,6 +715,7 @@ class IfmiFrontEnd:
         else:
             state_b.tracked = last
         state_b.tracked_valid = placed.valid
+        state_b.tracked_landmarks = state_a.reference_landmarks
         state_b.reference = None
         return offsets_a, linear_a, placed, n_new
 
@@ -672,6 +736,22 @@ class IfmiFrontEnd:
         if moved.size and np.median(moved) <= self.config.single_refinement_max_px:
             return placed, False
         return engine.refine_placed(spectra_a, source, placed, linear_b, curvature_b=curvature_b), True
+
+    def _landmark_pairs(self, pairs, offsets_a: np.ndarray, landmarks: np.ndarray,
+                        rotation_a: np.ndarray) -> tuple:
+        """``pairs`` with each tile's rays in frame a turned so that its centre lies on its
+        landmark ray as the accepted ``R_0a`` sees it, where the two are within
+        ``config.landmark_gate_px``; and how many tiles were turned."""
+        measured = rays_from_panorama_pixels(self.mapping, offsets_a)
+        seen = landmarks @ rotation_a  # R_0a^T applied to each frame-0 ray
+        gate = self.config.landmark_gate_px * 2 * np.pi / self.mapping.width
+        close = np.isfinite(seen).all(axis=1) & (np.einsum("ti,ti->t", measured, np.nan_to_num(seen)) >= np.cos(gate))
+        if not close.any():
+            return pairs, 0
+        turns = np.broadcast_to(np.eye(3), (len(offsets_a), 3, 3)).copy()
+        turns[close] = matrix_aligning_rays(measured[close], seen[close], fraction=self.config.landmark_weight)
+        per_point = np.repeat(turns, len(self._points_b), axis=0)
+        return replace(pairs, rays_a=np.einsum("nij,nj->ni", per_point, pairs.rays_a)), int(close.sum())
 
     def _diagnostics(self, reason: np.ndarray, peak_ratio: np.ndarray, peak_to_noise: np.ndarray,
                      n_new: int) -> dict:
@@ -724,7 +804,8 @@ class IfmiFrontEnd:
     def _tiles_at(self, state_a: IfmiFrameState, state_b: IfmiFrameState, rotation: np.ndarray) -> _TileMatch:
         """:meth:`register_predicted` at ``rotation``, with the tracking it left in frame b."""
         offsets_a, linear_a, placed, n_new = self.register_predicted(state_a, state_b, prior_rotation=rotation)
-        return _TileMatch(offsets_a, linear_a, placed, rotation, n_new, state_b.tracked, state_b.tracked_valid)
+        return _TileMatch(offsets_a, linear_a, placed, rotation, n_new, state_b.tracked, state_b.tracked_valid,
+                          state_b.tracked_landmarks)
 
     def _checks_prediction(self, prediction: np.ndarray | None, rotation: np.ndarray, correction_rad: float) -> bool:
         """Whether the tiles are registered at a prediction the coarse stage moved to ``rotation``
@@ -850,13 +931,14 @@ class IfmiFrontEnd:
                     match, diagnostics = wide
             offsets_a, linear_a, placed, rotation = match.offsets_a, match.linear_a, match.placed, match.rotation
             curvature_a = state_a.reference_curvature
+            landmarks = state_a.reference_landmarks
             valid = placed.valid
             if self.dense_layout is not None and valid.sum() <= self.config.dense_retry_fraction * self.layout.count:
                 dense = self.register_dense(state_a, state_b, prior_rotation=rotation)
                 diagnostics = {**diagnostics, "n_tiles_kept_dense": int(dense[2].valid.sum())}
                 if dense[2].valid.sum() > valid.sum():
                     offsets_a, linear_a, placed = dense
-                    curvature_a = None
+                    curvature_a = landmarks = None
                     valid = placed.valid
         if valid.sum() < min_tiles:
             return Correspondences.failed(
@@ -869,6 +951,9 @@ class IfmiFrontEnd:
             pairs = flow_from_placements(offsets_a, linear_a, placed.offsets, placed.linear, valid,
                                          self.mapping, points=self._points_b, tile_size=self.layout.tile_size,
                                          curvature_a=curvature_a, curvature_b=placed.last.curvature)
+            if landmarks is not None:
+                pairs, diagnostics["n_tiles_landmark"] = self._landmark_pairs(pairs, offsets_a[valid],
+                                                                              landmarks[valid], state_a.rotation)
         return Correspondences(pixels_a=pairs.pixels_a, pixels_b=pairs.pixels_b,
                                rays_a=pairs.rays_a, rays_b=pairs.rays_b, diagnostics=diagnostics,
                                rays_per_measurement=len(self._points_b))

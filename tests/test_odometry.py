@@ -179,3 +179,18 @@ def test_tracker_steps_frame_by_frame_with_a_given_pose_solver():
     assert [r.frame for r in records] == list(range(6)) and all(r.success for r in records)
     assert len(calls) == 5
     assert np.max(geodesic_angle(truth, tracker.trajectory().rotations)) < 1e-9
+
+
+def test_front_end_is_told_the_pose_of_every_successful_frame_only():
+    class Accepting(CorruptFrontEnd):
+        def accept_pose(self, state, rotation):
+            self.accepted.append((state[0], rotation))
+
+    frames, truth = _frames(8, step=0.03)
+    fe = Accepting(corrupt={3})
+    fe.accepted = []
+    traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=KeyframeOptions(max_failures=3))
+    assert [k for k, _ in fe.accepted] == [k for k, r in enumerate(records) if r.success] == [0, 1, 2, 4, 5, 6, 7]
+    for k, rotation in fe.accepted:
+        assert np.array_equal(rotation, traj.rotations[k])
+        assert geodesic_angle(truth[k], rotation) < 1e-9

@@ -30,16 +30,19 @@ def _scene(seed):
     angular = (2 * np.pi * rng.uniform(*CYCLES_PER_RAD, WAVES)).astype(np.float32)
     phase = rng.uniform(0.0, 2 * np.pi, WAVES).astype(np.float32)
     grid = np.stack(np.mgrid[0:SIZE, 0:SIZE], axis=-1).astype(np.float64)
-    rays = rays_from_pixels(MODEL, grid).astype(np.float32)
     radius = radius_from_pixels(MODEL, grid)
-    outside = (radius < BAND[0]) | (radius > BAND[1])
+    inside = (radius >= BAND[0]) & (radius <= BAND[1])
+    rays = rays_from_pixels(MODEL, grid[inside]).astype(np.float32)
 
     def frame(rotation):
         # Frame turned by rotation (R_0k): its ray r sees the texture at R_0k r.
         seen = rays @ np.asarray(rotation, dtype=np.float32).T
-        texture = np.cos((seen @ directions.T.astype(np.float32)) * angular + phase).sum(axis=-1)
-        image = 128.0 + 40.0 * texture / np.sqrt(WAVES / 2)
-        image[outside] = 0.0
+        waves = seen @ directions.T.astype(np.float32)
+        np.multiply(waves, angular, out=waves)
+        np.add(waves, phase, out=waves)
+        texture = np.cos(waves, out=waves).sum(axis=-1)
+        image = np.zeros((SIZE, SIZE), np.float32)
+        image[inside] = 128.0 + 40.0 * texture / np.sqrt(WAVES / 2)
         return np.clip(np.round(image), 0, 255).astype(np.uint8)
 
     return frame

@@ -10,6 +10,7 @@ from ifmi.errors import InputError
 from ifmi.io.tum import Trajectory, read_tum, write_tum
 from ifmi.rotations import (
     geodesic_angle,
+    matrix_aligning_rays,
     matrix_from_quat_xyzw,
     matrix_from_rpy,
     project_to_rotation,
@@ -69,6 +70,25 @@ def test_project_to_rotation():
     np.testing.assert_allclose(P @ P.T, np.eye(3), atol=1e-12)
     assert np.linalg.det(P) == pytest.approx(1.0)
     assert geodesic_angle(R, P) < 1e-2
+
+
+def test_matrix_aligning_rays_is_the_smallest_turn_between_them():
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(2, 50, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    R = matrix_aligning_rays(a, b)
+    assert np.allclose(np.einsum("nij,nj->ni", R, a), b, atol=1e-12)
+    assert np.allclose(R @ np.swapaxes(R, 1, 2), np.eye(3), atol=1e-12) and np.allclose(np.linalg.det(R), 1.0)
+    # Smallest: its angle is the angle between the rays, about an axis normal to both.
+    between = np.arccos(np.clip(np.einsum("ni,ni->n", a, b), -1, 1))
+    rotvec = Rotation.from_matrix(R).as_rotvec()
+    assert np.allclose(np.linalg.norm(rotvec, axis=1), between, atol=1e-9)
+    assert np.allclose(np.einsum("ni,ni->n", rotvec, a), 0.0, atol=1e-9)
+    assert np.allclose(matrix_aligning_rays(a, a), np.eye(3), atol=1e-15)
+    # A fraction turns about the same axis by that part of the angle.
+    half = Rotation.from_matrix(matrix_aligning_rays(a, b, fraction=0.5)).as_rotvec()
+    assert np.allclose(half, rotvec / 2, atol=1e-12)
 
 
 def test_tum_round_trip(tmp_path):
