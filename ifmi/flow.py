@@ -8,16 +8,16 @@ pairs, which the panorama mapping turns into omni-image pixels and rays.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .fourier_mellin import TileMotion, transform_points
 from .tiling import TileLayout
 from .camera import pixels_from_rays
-from .unwarp import PanoramaMapping, rays_from_panorama_pixels
+from .unwarp import PanoramaMapping, panorama_pixels_from_rays, rays_from_panorama_pixels
 
-__all__ = ["FlowPairs", "flow_sample_points", "flow_from_tile_motion", "flow_from_placements"]
+__all__ = ["FlowPairs", "flow_sample_points", "flow_from_tile_motion", "flow_from_placements", "pairs_with_rays_a"]
 
 
 @dataclass(frozen=True)
@@ -116,6 +116,20 @@ def _flow_pairs(pano_a: np.ndarray, pano_b: np.ndarray, mapping: PanoramaMapping
     m = len(pano_a)
     return FlowPairs(panorama_a=pano_a, panorama_b=pano_b, pixels_a=pixels[:m], pixels_b=pixels[m:],
                      rays_a=rays[:m], rays_b=rays[m:], tile_index=tile_index)
+
+
+def pairs_with_rays_a(pairs: FlowPairs, rays_a: np.ndarray, mapping: PanoramaMapping) -> FlowPairs:
+    """``pairs`` with frame a's points moved onto ``rays_a``; their panorama and omni pixels follow.
+
+    Parameters
+    ----------
+    pairs : FlowPairs
+    rays_a : (M, 3) ndarray
+        Unit rays, one per pair.
+    mapping : PanoramaMapping
+    """
+    return replace(pairs, rays_a=rays_a, panorama_a=panorama_pixels_from_rays(mapping, rays_a),
+                   pixels_a=pixels_from_rays(mapping.model, rays_a))
 
 
 def flow_from_placements(offsets_a: np.ndarray, linear_a: np.ndarray, offsets_b: np.ndarray,

@@ -43,6 +43,10 @@ from .unwarp import PanoramaMapping, rays_from_panorama_pixels
 
 __all__ = ["GlobalMotionConfig", "GlobalMotion", "GlobalMotionEstimator", "rotation_from_ray_pairs"]
 
+# Fewest coarse-panorama columns of a sector: a Hann-windowed phase correlation over fewer
+# leaves no usable peak (the default 12 sectors of a 128-column panorama have 10).
+_MIN_SECTOR_COLUMNS = 8
+
 
 @dataclass(frozen=True)
 class GlobalMotionConfig:
@@ -55,7 +59,8 @@ class GlobalMotionConfig:
         panorama's aspect. Capped at the panorama's own width.
     sectors : int
         Azimuth sectors measured for the tilt (at least 3 are needed for
-        a rotation; more average parallax and texture gaps).
+        a rotation; more average parallax and texture gaps), each at least
+        8 columns of the coarse panorama wide.
     iterations : int
         Sector passes after the yaw search.
     min_peak_ratio : float
@@ -117,8 +122,9 @@ class GlobalMotionConfig:
     wide_mismatch_ratio: float = 0.5
 
     def __post_init__(self) -> None:
-        if self.width < 32 or self.sectors < 3 or self.iterations < 0:
-            raise ValueError(f"expected width >= 32, sectors >= 3, iterations >= 0; got "
+        if self.width < 32 or not 3 <= self.sectors <= self.width // _MIN_SECTOR_COLUMNS or self.iterations < 0:
+            raise ValueError(f"expected width >= 32, 3 <= sectors <= width // {_MIN_SECTOR_COLUMNS} "
+                             f"({self.width // _MIN_SECTOR_COLUMNS}), iterations >= 0; got "
                              f"{self.width}, {self.sectors}, {self.iterations}")
         if not 3 <= self.min_sectors <= self.sectors:
             raise ValueError(f"expected 3 <= min_sectors <= sectors, got {self.min_sectors}, {self.sectors}")

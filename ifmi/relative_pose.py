@@ -103,7 +103,7 @@ class RelativePoseOptions:
     Attributes
     ----------
     ransac_threshold_rad : float or None
-        Inlier threshold, radians: the angle between a ray and its epipolar
+        Inlier threshold, radians, in ``(0, pi)``: the angle between a ray and its epipolar
         plane (5-point model) or its rotated partner (rotation model).
         ``None`` (default): ``ransac_threshold_px`` pixels, converted with
         :meth:`resolved` once the pixel size is known;
@@ -185,8 +185,9 @@ class RelativePoseOptions:
     def __post_init__(self) -> None:
         check_finite_fields(self, ("ransac_threshold_rad", "ransac_threshold_px", "noise_sigma_rad",
                                    "rotation_threshold_factor", "robust_scale"))
-        if self.ransac_threshold_rad is not None and not self.ransac_threshold_rad > 0:
-            raise ValueError(f"ransac_threshold_rad must be > 0 or None, got {self.ransac_threshold_rad}")
+        # Rays are at most pi apart: a threshold of pi or more makes every match an inlier.
+        if self.ransac_threshold_rad is not None and not 0 < self.ransac_threshold_rad < np.pi:
+            raise ValueError(f"ransac_threshold_rad must be in (0, pi) or None, got {self.ransac_threshold_rad}")
         if not self.ransac_threshold_px > 0:
             raise ValueError(f"ransac_threshold_px must be > 0, got {self.ransac_threshold_px}")
         if self.seed < 0:

@@ -16,7 +16,7 @@ import numpy as np
 from .camera import OcamModel
 from .options import options_from_dict
 from .front_end import Correspondences
-from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points
+from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points, pairs_with_rays_a
 from .global_motion import GlobalMotion, GlobalMotionConfig, GlobalMotionEstimator
 from .fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, PlacedRegistration, PlacedTiles,
                             TileSpectra)
@@ -751,7 +751,8 @@ class IfmiFrontEnd:
         turns = np.broadcast_to(np.eye(3), (len(offsets_a), 3, 3)).copy()
         turns[close] = matrix_aligning_rays(measured[close], seen[close], fraction=self.config.landmark_weight)
         per_point = np.repeat(turns, len(self._points_b), axis=0)
-        return replace(pairs, rays_a=np.einsum("nij,nj->ni", per_point, pairs.rays_a)), int(close.sum())
+        rays_a = np.einsum("nij,nj->ni", per_point, pairs.rays_a)
+        return pairs_with_rays_a(pairs, rays_a, self.mapping), int(close.sum())
 
     def _diagnostics(self, reason: np.ndarray, peak_ratio: np.ndarray, peak_to_noise: np.ndarray,
                      n_new: int) -> dict:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ifmi.camera import paracatadioptric_model, rays_from_pixels
-from ifmi.flow import flow_from_tile_motion, flow_sample_points
+from ifmi.flow import flow_from_tile_motion, flow_sample_points, pairs_with_rays_a
 from ifmi.fourier_mellin import FourierMellin, FourierMellinConfig, TileMotion, transform_points
 from ifmi.tiling import TilingConfig, tile_layout
 from ifmi.unwarp import PanoramaConfig, panorama_mapping
@@ -59,6 +59,26 @@ def test_flow_pairs_of_a_column_shift_are_a_rotation_about_z():
     # Omni pixels lift to the same rays (inverse polynomial fitted to 1e-4 px).
     assert np.allclose(rays_from_pixels(MODEL, pairs.pixels_a), pairs.rays_a, atol=1e-5)
     assert np.all(pairs.panorama_a[:, 1] < mapping.width) and np.all(pairs.panorama_a[:, 1] >= 0)
+
+
+def test_moved_rays_carry_their_panorama_and_omni_pixels():
+    mapping = panorama_mapping(MODEL, config=PanoramaConfig(width=256, radius_min_px=25, radius_max_px=95))
+    layout = tile_layout((mapping.height, mapping.width), config=TilingConfig(tile_size=32))
+    t = layout.count
+    motion = TileMotion(scale=np.ones(t), angle_rad=np.zeros(t), translation=np.tile([0.5, 2.0], (t, 1)),
+                        peak_ratio=np.full(t, 5.0), peak_to_noise=np.full(t, 20.0),
+                        peak_value=np.ones(t), rotation_peak_ratio=np.full(t, 5.0),
+                        valid=np.ones(t, bool), reason=np.zeros(t, int))
+    pairs = flow_from_tile_motion(motion, layout, mapping, points_b=flow_sample_points(32))
+    # Frame a's points moved by half a panorama column of yaw: rays, panorama and omni pixels agree.
+    yaw = 0.5 * 2 * np.pi / mapping.width
+    rz = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    moved = pairs_with_rays_a(pairs, pairs.rays_a @ rz.T, mapping)
+    assert np.allclose(moved.rays_a, pairs.rays_a @ rz.T, atol=1e-15)
+    assert np.allclose(moved.panorama_a[:, 0], pairs.panorama_a[:, 0], atol=1e-9)
+    assert np.allclose(np.mod(moved.panorama_a[:, 1] - pairs.panorama_a[:, 1], mapping.width), 0.5, atol=1e-9)
+    assert np.allclose(rays_from_pixels(MODEL, moved.pixels_a), moved.rays_a, atol=1e-5)
+    assert moved.rays_b is pairs.rays_b and moved.pixels_b is pairs.pixels_b
 
 
 def test_bad_points_per_tile_is_rejected():

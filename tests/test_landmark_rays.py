@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from ifmi.camera import rays_from_pixels
 from ifmi.odometry import track_sequence
 from ifmi.relative_pose import RelativePoseOptions
 from ifmi.rotations import geodesic_angle
@@ -70,6 +71,8 @@ def test_tracked_tile_rays_follow_the_accepted_pose_within_the_gate(frame, off_p
         assert corr.diagnostics["n_tiles_landmark"] == (~old).sum()
         assert np.abs(corr.rays_a[old] - measured[old]).max() < 1e-12
     assert np.abs(corr.rays_a[~old] - measured[~old]).max() < 1e-12
+    # The omni pixels of frame a are those of its (turned) rays.
+    assert np.allclose(rays_from_pixels(MODEL, corr.pixels_a), corr.rays_a, atol=1e-6)
 
 
 def test_landmark_options_are_checked():
