@@ -75,6 +75,26 @@ def test_tracked_tile_rays_follow_the_accepted_pose_within_the_gate(frame, off_p
     assert np.allclose(rays_from_pixels(MODEL, corr.pixels_a), corr.rays_a, atol=1e-6)
 
 
+def test_a_reference_without_an_accepted_pose_keeps_measured_rays_and_drops_the_landmarks(frame):
+    # As after a reference reset: frame 1 serves as reference with no accepted pose. Its pair
+    # and the tiles carried on from it use measured placements; frame 2, accepted, gives
+    # landmarks only to tiles cut anew in it.
+    truth = _walk(4, 1.5, seed=6)
+    fe = IfmiFrontEnd(MODEL, IfmiConfig(points_per_tile=1))
+    states = [fe.prepare(frame(r)) for r in truth]
+    fe.accept_pose(states[0], np.eye(3))
+    fe.correspondences(states[0], states[1], prior_rotation=truth[1])
+    corr = fe.correspondences(states[1], states[2], prior_rotation=truth[1].T @ truth[2])
+    assert corr.success and "n_tiles_landmark" not in corr.diagnostics
+    assert states[2].tracked_landmarks is None
+    fe.accept_pose(states[2], truth[2])
+    corr = fe.correspondences(states[2], states[3], prior_rotation=truth[2].T @ truth[3])
+    new = fe._needs_new_tile(states[2].tracked, states[2].tracked_valid)
+    landmarks = states[2].reference_landmarks
+    assert np.isnan(landmarks[~new]).all() and np.isfinite(landmarks[new]).all() and 0 < new.sum() < len(new)
+    assert corr.diagnostics["n_tiles_landmark"] == new[states[3].tracked_valid].sum()
+
+
 def test_landmark_options_are_checked():
     with pytest.raises(ValueError, match="landmark_weight"):
         IfmiConfig(landmark_weight=0.0)
