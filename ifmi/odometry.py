@@ -25,7 +25,11 @@ the constant-velocity prediction spans the failed frames. Only after
 ``KeyframeOptions.max_failures`` failures in a row (default 2) does the
 current frame become the reference with the held pose (tracking resumes
 with an offset equal to the rotation missed meanwhile), so the reference
-does not stay on a frame the camera has moved away from.
+does not stay on a frame the camera has moved away from. The new reference
+may itself be the cause (a covered lens, a corrupt image): while frames
+keep failing after a reset, each is also matched against the last good
+frame before it, and a match with at least ``KeyframeOptions.min_inliers``
+inliers puts the track back on the true chain, without the offset.
 
 Positions chain the estimated translation directions as unit-length steps
 per frame: monocular translation is known only up to scale.
@@ -217,6 +221,9 @@ class Tracker:
         self._last_good: _Reference | None = None
         self._good: list = []
         self._failures_in_row = 0
+        # The last good frame before a reference reset and its prediction history (see _recover).
+        self._before_reset: _Reference | None = None
+        self._good_before_reset: list = []
 
     def _solve(self, reference: _Reference, state, predicted: np.ndarray):
         if getattr(self.front_end, "uses_prior_rotation", False):
@@ -235,6 +242,26 @@ class Tracker:
         accept = getattr(self.front_end, "accept_pose", None)
         if accept is not None:
             accept(state, rotation)
+
+    def _recover(self, state, k: int):
+        """``(reference, pose, info, corr)`` of frame ``k`` matched against the last good frame
+        before a reference reset (constant-velocity prediction across the gap), or None.
+
+        After a reset the chain continues from a held pose that is off by the rotation
+        missed meanwhile. While frames keep failing against the new reference (it may be
+        the frame that made tracking fail: a covered lens, a corrupt image), each is also
+        tried against the frame before the reset; a match with at least
+        ``KeyframeOptions.min_inliers`` inliers (a match good enough to keep a keyframe; the
+        frames may lie far apart) puts the track back on the true chain. The first success of
+        any kind ends the attempts.
+        """
+        reference = self._before_reset
+        pose, info, corr = self._solve(reference, state, _predict(self._good_before_reset, k))
+        if info is None or not info.success or info.n_inliers < self.keyframe.min_inliers:
+            return None
+        self._reference, self._good = reference, self._good_before_reset
+        corr = replace(corr, diagnostics={**corr.diagnostics, "recovered_after_reset": True})
+        return reference, pose, info, corr
 
     def _append(self, record: FrameRecord, rotation: np.ndarray, position: np.ndarray) -> FrameRecord:
         self.rotations.append(rotation)
@@ -287,7 +314,12 @@ class Tracker:
                      else info is None or not info.success)):
             reference = self._reference = self._last_good
             pose, info, corr = self._solve(reference, state, predicted)
+        if (info is None or not info.success) and self._before_reset is not None:
+            recovered = self._recover(state, k)
+            if recovered is not None:
+                reference, pose, info, corr = recovered
         if info is not None and info.success:
+            self._before_reset = None
             rotation = reference.rotation @ pose.rotation
             position = reference.position + (k - reference.frame) * (reference.rotation @ pose.translation_direction)
             if reference.first_inliers < 0:
@@ -305,7 +337,10 @@ class Tracker:
         reason = corr.reason if info is None else f"relative pose: {info.reason}"
         self._failures_in_row += 1
         if keyframe.max_failures and self._failures_in_row >= keyframe.max_failures:
-            # Give up on the last good frame: restart from this one with the held pose.
+            # Give up on the last good frame: restart from this one with the held pose, but keep
+            # the last frame of the true chain (the first such, over repeated resets) to recover on.
+            if self._before_reset is None:
+                self._before_reset, self._good_before_reset = self._last_good, self._good
             self._reference = self._last_good = _Reference(k, state, rotation, position)
             self._good = [(k, rotation)]
             self._failures_in_row = 0

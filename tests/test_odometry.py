@@ -134,15 +134,30 @@ def test_prediction_spans_failed_frames():
     assert geodesic_angle(truth[3].T @ truth[6], prior) < 1e-9
 
 
+class FarFrontEnd(CorruptFrontEnd):
+    """As CorruptFrontEnd, and frames more than ``reach`` apart share no view (the camera moved away)."""
+
+    def __init__(self, corrupt=(), reach=10 ** 9):
+        super().__init__(corrupt)
+        self.reach = reach
+
+    def correspondences(self, state_a, state_b):
+        if abs(state_b[0] - state_a[0]) > self.reach:
+            self.pairs.append((state_a[0], state_b[0]))
+            return Correspondences.failed("no overlap", {"n_tiles": 0})
+        return super().correspondences(state_a, state_b)
+
+
 def test_reference_resets_after_max_failures():
     frames, truth = _frames(10, step=0.03)
-    fe = CorruptFrontEnd(corrupt={3, 4})
+    fe = FarFrontEnd(corrupt={3, 4}, reach=2)
     # Frame 3's corruption does not stop frame 4 from being compared with frame 2, but
     # after two failures in a row frame 4 becomes the reference with the held pose.
     options = KeyframeOptions(max_failures=2)
     traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=options)
     assert "reference reset after 2 failures" in records[4].reason
-    assert records[5].reference_frame == 4 and not records[5].success
+    # Frame 5 fails against the corrupt frame 4, and frame 2 is out of its reach.
+    assert records[5].reference_frame == 4 and not records[5].success and (2, 5) in fe.pairs
     # Frames 5 and 6 fail against the corrupt frame 4; frame 6 becomes the reference.
     assert records[6].reference_frame == 4 and "reference reset" in records[6].reason
     assert all(r.success for r in records[7:]) and records[7].reference_frame == 6
@@ -152,6 +167,46 @@ def test_reference_resets_after_max_failures():
     assert KeyframeOptions().max_failures > 0
     with pytest.raises(ValueError, match="max_failures"):
         KeyframeOptions(max_failures=-1)
+
+
+@pytest.mark.parametrize("keyframes", [False, True])
+def test_a_frame_failing_after_a_reset_recovers_on_the_frame_before_it(keyframes):
+    # Frames 3-5 are corrupt (a covered lens): the reset at frame 4 makes a corrupt frame the
+    # reference. Frame 6 fails against it and is matched against frame 2, the last good frame
+    # before the reset: the track is back on the true chain, with no offset.
+    frames, truth = _frames(10, step=0.03)
+    fe = FarFrontEnd(corrupt={3, 4, 5})
+    options = KeyframeOptions(enabled=keyframes, min_inliers=10, max_angle_rad=0.5, max_failures=2)
+    traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=options)
+    assert [r.success for r in records] == [True] * 3 + [False] * 3 + [True] * 4
+    assert "reference reset" in records[4].reason and records[6].reference_frame == 2
+    assert records[6].diagnostics["recovered_after_reset"]
+    assert not any(r.diagnostics.get("recovered_after_reset") for r in records[7:])
+    good = [0, 1, 2, 6, 7, 8, 9]
+    assert np.max(geodesic_angle(truth[good], traj.rotations[good])) < 1e-9
+    # Frame 5 was tried against frame 2 as well. After the recovery frame 6 is the reference
+    # (frame mode) or frame 2 stays the keyframe.
+    assert (2, 5) in fe.pairs
+    assert [r.reference_frame for r in records[7:]] == ([2, 2, 2] if keyframes else [6, 7, 8])
+
+
+def test_a_weak_match_does_not_recover_the_track():
+    # As above, but the recovery pair (2, 6) keeps only 20 of its rays, fewer than
+    # min_inliers: frame 6 fails, and the reference resets again (frame 6 with the held pose).
+    class Weak(FarFrontEnd):
+        def correspondences(self, state_a, state_b):
+            corr = super().correspondences(state_a, state_b)
+            if (state_a[0], state_b[0]) == (2, 6):
+                return Correspondences(corr.pixels_a[:20], corr.pixels_b[:20], corr.rays_a[:20],
+                                       corr.rays_b[:20], corr.diagnostics)
+            return corr
+
+    frames, truth = _frames(10, step=0.03)
+    fe = Weak(corrupt={3, 4, 5})
+    options = KeyframeOptions(min_inliers=40, max_failures=2)
+    traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=options)
+    assert (2, 6) in fe.pairs and not records[6].success and "reference reset" in records[6].reason
+    assert not any(r.diagnostics.get("recovered_after_reset") for r in records)
 
 
 def test_each_finished_frame_is_reported_in_order():
