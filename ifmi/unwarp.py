@@ -55,7 +55,6 @@ __all__ = [
     "angular_pixel_size_in_band",
     "panorama_mapping",
     "panorama_image_from_omni_image",
-    "wrapped_panorama_maps",
     "rays_from_panorama_pixels",
     "omni_pixels_from_panorama_pixels",
     "panorama_pixels_from_omni_pixels",
@@ -445,34 +444,8 @@ def panorama_mapping(model: OcamModel, image: np.ndarray | None = None, *,
         map_cols=map_cols, fixed_maps=cv2.convertMaps(map_cols, map_rows, cv2.CV_16SC2))
 
 
-def wrapped_panorama_maps(mapping: PanoramaMapping, columns: int) -> tuple:
-    """Remap maps of the panorama with ``columns`` columns wrapped onto each side.
-
-    Parameters
-    ----------
-    mapping : PanoramaMapping
-    columns : int
-        Columns copied from the other end onto each side (``>= 0``; more
-        than ``width`` repeats the panorama).
-
-    Returns
-    -------
-    tuple of ndarray
-        OpenCV fixed-point maps of the ``(height, width + 2 columns)`` grid,
-        for :func:`panorama_image_from_omni_image`'s ``maps``.
-    """
-    if isinstance(columns, bool) or int(columns) != columns or columns < 0:
-        raise ValueError(f"expected an integer number of columns >= 0, got {columns!r}")
-    columns = int(columns)
-    index = np.arange(-columns, mapping.width + columns) % mapping.width
-    if mapping.fixed_maps:
-        # The fixed-point conversion is per element, so the converted maps are wrapped as well.
-        return tuple(np.ascontiguousarray(m[:, index]) for m in mapping.fixed_maps)
-    return cv2.convertMaps(mapping.map_cols[:, index], mapping.map_rows[:, index], cv2.CV_16SC2)
-
-
 def panorama_image_from_omni_image(mapping: PanoramaMapping, image: np.ndarray, *,
-                                   maps: tuple | None = None, interpolation: str = "linear") -> np.ndarray:
+                                   interpolation: str = "linear") -> np.ndarray:
     """Resample an omni image into the panorama (float32).
 
     The kernel matters on sharp images: bilinear interpolation at a
@@ -488,16 +461,12 @@ def panorama_image_from_omni_image(mapping: PanoramaMapping, image: np.ndarray, 
     image : (H, W) or (H, W, 3) ndarray
         Omni image of the size the mapping's calibration names; RGB is
         converted to gray.
-    maps : tuple of ndarray, optional, keyword-only
-        Remap maps of another grid on the same panorama, such as
-        :func:`wrapped_panorama_maps`; default the mapping's own.
     interpolation : {"linear", "cubic", "lanczos4"}, keyword-only
         OpenCV kernel (:data:`PANORAMA_INTERPOLATIONS`); default bilinear.
 
     Returns
     -------
     (height, width) float32 ndarray
-        Or the shape of ``maps``.
     """
     if not isinstance(mapping, PanoramaMapping):
         raise TypeError(f"expected a PanoramaMapping as the first argument, got {type(mapping).__name__}")
@@ -508,7 +477,7 @@ def panorama_image_from_omni_image(mapping: PanoramaMapping, image: np.ndarray, 
         raise ValueError(f"expected an image of size {mapping.model.size}, got {gray.shape}")
     if gray.dtype != np.uint8:
         gray = gray.astype(np.float32, copy=False)
-    map1, map2 = maps or mapping.fixed_maps or (mapping.map_cols, mapping.map_rows)
+    map1, map2 = mapping.fixed_maps or (mapping.map_cols, mapping.map_rows)
     if getattr(mapping.model, "wraps_columns", False):
         gray, map1 = _wrapped_seam(gray, map1)
     pano = cv2.remap(gray, map1, map2, PANORAMA_INTERPOLATIONS[interpolation], borderMode=cv2.BORDER_REPLICATE)

@@ -7,8 +7,7 @@ import pytest
 
 from ifmi.camera import paracatadioptric_model, radius_from_pixels
 from ifmi.unwarp import (PanoramaConfig, omni_pixels_from_panorama_pixels, panorama_image_from_omni_image,
-                         panorama_pixels_from_omni_pixels, panorama_mapping, radius_band, rays_from_panorama_pixels,
-                         wrapped_panorama_maps)
+                         panorama_pixels_from_omni_pixels, panorama_mapping, radius_band, rays_from_panorama_pixels)
 
 # An off-centre, non-identity-affine paracatadioptric camera.
 MODEL = paracatadioptric_model((240, 260), horizon_radius_px=70.0, center=(118.6, 133.2),
@@ -35,17 +34,23 @@ def test_panorama_omni_round_trip():
     assert np.max(col_err) * mapping.width / (2 * np.pi) < 1e-3
 
 
-def test_wrapped_panorama_repeats_the_columns_across_the_seam():
-    mapping = panorama_mapping(MODEL, config=PanoramaConfig(width=128, radius_min_px=30, radius_max_px=110))
+@pytest.mark.parametrize("tile_size", [10, 80])
+def test_prepared_panorama_repeats_the_columns_across_the_seam(tile_size):
+    # The front end pads the panorama by two tiles on each side with copies of the columns
+    # across the seam; 80 px tiles pad by more than the 128 columns, which repeat.
+    from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
+    from ifmi.tiling import TilingConfig
+
+    panorama = PanoramaConfig(width=128, height=96, radius_min_px=30, radius_max_px=110)
     image = _band_image(MODEL, 30, 110)
-    pano = panorama_image_from_omni_image(mapping, image)
-    padded = panorama_image_from_omni_image(mapping, image, maps=wrapped_panorama_maps(mapping, 20))
-    assert np.array_equal(padded, np.concatenate([pano[:, -20:], pano, pano[:, :20]], axis=1))
-    # More columns than the panorama has repeat it.
-    twice = panorama_image_from_omni_image(mapping, image, maps=wrapped_panorama_maps(mapping, 130))
-    assert np.array_equal(twice[:, 130:258], pano) and np.array_equal(twice[:, :2], pano[:, -2:])
-    with pytest.raises(ValueError, match="columns"):
-        wrapped_panorama_maps(mapping, -1)
+    # The front end resamples the image as float (no rounding to gray levels).
+    pano = panorama_image_from_omni_image(panorama_mapping(MODEL, config=panorama), image.astype(np.float32))
+    fe = IfmiFrontEnd(MODEL, IfmiConfig(panorama=panorama, tiling=TilingConfig(tile_size=tile_size)))
+    padded = fe.prepare(image).padded_panorama
+    pad = 2 * tile_size
+    assert padded.shape == (pano.shape[0], 128 + 2 * pad)
+    assert np.array_equal(padded[:, pad:pad + 128], pano)
+    assert np.array_equal(padded, pano[:, (np.arange(padded.shape[1]) - pad) % 128])
 
 
 def test_remap_maps_agree_with_pixel_mapping():
