@@ -223,6 +223,9 @@ def main(argv=None) -> int:
     parser.add_argument("--ransac-threshold-px", type=float, default=None, metavar="PX",
                         help="RANSAC threshold of every method in pixels (default: the back "
                              "end's default, converted per calibration)")
+    parser.add_argument("--rolling-shutter", type=float, default=None, metavar="READOUT",
+                        help="rolling-shutter read-out of every method, a fraction of the frame "
+                             "interval (default: a global shutter; see ifmi estimate --rolling-shutter)")
     parser.add_argument("--timing-frames", type=int, default=50)
     parser.add_argument("--timing-rounds", type=int, default=5)
     args = parser.parse_args(argv)
@@ -240,6 +243,8 @@ def run_benchmark(args: argparse.Namespace, argv) -> int:
     if args.ransac_threshold_px is not None:
         base = replace(base, relative_pose=replace(base.relative_pose,
                                                    ransac_threshold_px=args.ransac_threshold_px))
+    if args.rolling_shutter is not None:
+        base = replace(base, rolling_shutter=replace(base.rolling_shutter, readout=args.rolling_shutter))
     out = Path(args.out)
     rows = []
     labels = dataset_labels(args.datasets)

@@ -31,6 +31,13 @@ keep failing after a reset, each is also matched against the last good
 frame before it, and a match with at least ``KeyframeOptions.min_inliers``
 inliers puts the track back on the true chain, without the offset.
 
+With a rolling-shutter read-out time (:class:`~ifmi.rolling_shutter.RollingShutterOptions`)
+each relative pose is re-fitted with every ray moved to its image's middle
+row (:mod:`ifmi.rolling_shutter`). Frame b turns during its read-out as
+from the last successfully estimated frame to b (given the current fit);
+the reference as from it to the next successfully estimated frame (known
+for a keyframe), else as frame b.
+
 Positions chain the estimated translation directions as unit-length steps
 per frame: monocular translation is known only up to scale.
 """
@@ -47,6 +54,7 @@ from scipy.spatial.transform import Rotation
 from .errors import InputError
 from .frames import MissingFrame
 from .relative_pose import RelativePoseOptions, relative_pose_from_rays
+from .rolling_shutter import RollingShutterOptions, angular_velocity_from_rotation, relative_pose_rolling_shutter
 from .trajectory import Trajectory
 
 __all__ = ["KeyframeOptions", "FrameRecord", "Tracker", "track_sequence"]
@@ -145,6 +153,9 @@ class _Reference:
     rotation: np.ndarray
     position: np.ndarray
     first_inliers: int = -1
+    # Angular velocity (rad per frame interval, camera frame) from this frame to the next
+    # successfully estimated one, once that is known: the rolling-shutter model of its read-out.
+    velocity: np.ndarray | None = None
 
 
 def _angle(rotation: np.ndarray) -> float:
@@ -193,6 +204,11 @@ class Tracker:
         ``pose_solver(rays_a, rays_b, *, options, rays_per_measurement) -> (pose, info)``
         like :func:`ifmi.relative_pose.relative_pose_from_rays` (the default);
         another solver can be compared on the same front end.
+    rolling_shutter : RollingShutterOptions, keyword-only
+        With a read-out time, every pose is re-fitted with the rays moved
+        to their image's middle row (:mod:`ifmi.rolling_shutter`; the rows
+        are those of the correspondences' ``pixels_a`` and ``pixels_b``,
+        frames taken as equally spaced). Default: a global shutter.
 
     Raises
     ------
@@ -203,7 +219,8 @@ class Tracker:
 
     def __init__(self, front_end, *, pose_options: RelativePoseOptions,
                  keyframe: KeyframeOptions = KeyframeOptions(),
-                 pose_solver: PoseSolver = relative_pose_from_rays):
+                 pose_solver: PoseSolver = relative_pose_from_rays,
+                 rolling_shutter: RollingShutterOptions = RollingShutterOptions()):
         if pose_options.ransac_threshold_rad is None:
             raise ValueError("pose_options.ransac_threshold_rad is None; resolve it for the camera "
                              "first (RelativePoseOptions.resolved or ifmi.pipeline.resolved_config)")
@@ -211,6 +228,8 @@ class Tracker:
         self.pose_options = pose_options
         self.keyframe = keyframe
         self.pose_solver = pose_solver
+        self.rolling_shutter = rolling_shutter
+        self._height = 0  # rows of the images (the first frame's), for the rolling-shutter row times
         self.rotations: list = []
         self.positions: list = []
         self.records: list = []
@@ -225,7 +244,7 @@ class Tracker:
         self._before_reset: _Reference | None = None
         self._good_before_reset: list = []
 
-    def _solve(self, reference: _Reference, state, predicted: np.ndarray):
+    def _solve(self, reference: _Reference, state, predicted: np.ndarray, frame: int):
         if getattr(self.front_end, "uses_prior_rotation", False):
             corr = self.front_end.correspondences(reference.state, state,
                                                   prior_rotation=reference.rotation.T @ predicted)
@@ -233,9 +252,31 @@ class Tracker:
             corr = self.front_end.correspondences(reference.state, state)
         if not corr.success:
             return None, None, corr
-        pose, info = self.pose_solver(corr.rays_a, corr.rays_b, options=self.pose_options,
-                                      rays_per_measurement=corr.rays_per_measurement)
+
+        def solve(rays_a, rays_b):
+            return self.pose_solver(rays_a, rays_b, options=self.pose_options,
+                                    rays_per_measurement=corr.rays_per_measurement)
+
+        if self.rolling_shutter.readout == 0.0:
+            return *solve(corr.rays_a, corr.rays_b), corr
+        pose, info = relative_pose_rolling_shutter(
+            solve, corr.rays_a, corr.rays_b, corr.pixels_a[:, 0], corr.pixels_b[:, 0], height=self._height,
+            velocities=lambda rotation_ab: self._velocities(reference, rotation_ab, frame),
+            options=self.rolling_shutter)
         return pose, info, corr
+
+    def _velocities(self, reference: _Reference, rotation_ab: np.ndarray, frame: int) -> tuple:
+        """Angular velocities during the read-outs of ``reference`` and ``frame`` given ``R_ab``.
+
+        Frame b's: from the last successfully estimated frame to b (over one interval in
+        frame mode). The reference's: its velocity to the frame after it when that is known
+        (a keyframe), else frame b's.
+        """
+        last = self._last_good
+        rotation_lb = rotation_ab if last is reference else last.rotation.T @ reference.rotation @ rotation_ab
+        velocity_b = angular_velocity_from_rotation(rotation_lb, frame - last.frame)
+        velocity_a = velocity_b if reference.velocity is None else reference.velocity
+        return velocity_a, velocity_b
 
     def _accept(self, state, rotation: np.ndarray) -> None:
         """Tell a front end with ``accept_pose`` a successfully estimated frame's ``R_0k``."""
@@ -256,7 +297,7 @@ class Tracker:
         any kind ends the attempts.
         """
         reference = self._before_reset
-        pose, info, corr = self._solve(reference, state, _predict(self._good_before_reset, k))
+        pose, info, corr = self._solve(reference, state, _predict(self._good_before_reset, k), k)
         if info is None or not info.success or info.n_inliers < self.keyframe.min_inliers:
             return None
         self._reference, self._good = reference, self._good_before_reset
@@ -296,6 +337,8 @@ class Tracker:
             return self._append(record, self.rotations[-1], self.positions[-1])
         state = self.front_end.prepare(image)
         if self._reference is None:
+            if self.rolling_shutter.readout > 0.0:
+                self._height = int(np.shape(image)[0])
             self._accept(state, np.eye(3))
             self._reference = self._last_good = _Reference(0, state, np.eye(3), np.zeros(3))
             self._good = [(0, np.eye(3))]
@@ -308,12 +351,12 @@ class Tracker:
         keyframe = self.keyframe
         predicted = _predict(self._good, k)
         reference = self._reference
-        pose, info, corr = self._solve(reference, state, predicted)
+        pose, info, corr = self._solve(reference, state, predicted, k)
         if (self._last_good.frame != reference.frame
                 and (_poor(info, pose, reference, keyframe) if keyframe.enabled
                      else info is None or not info.success)):
             reference = self._reference = self._last_good
-            pose, info, corr = self._solve(reference, state, predicted)
+            pose, info, corr = self._solve(reference, state, predicted, k)
         if (info is None or not info.success) and self._before_reset is not None:
             recovered = self._recover(state, k)
             if recovered is not None:
@@ -325,6 +368,9 @@ class Tracker:
             if reference.first_inliers < 0:
                 reference.first_inliers = info.n_inliers
             self._accept(state, rotation)
+            if self._last_good.velocity is None:
+                self._last_good.velocity = angular_velocity_from_rotation(
+                    self._last_good.rotation.T @ rotation, k - self._last_good.frame)
             self._last_good = _Reference(k, state, rotation, position)
             if not keyframe.enabled:
                 self._reference = self._last_good
@@ -367,7 +413,9 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
                    keyframe: KeyframeOptions = KeyframeOptions(),
                    on_frame: Callable[[FrameRecord], None] | None = None,
                    timestamps: Sequence[float] | None = None,
-                   pose_solver: PoseSolver = relative_pose_from_rays) -> tuple[Trajectory, list[FrameRecord]]:
+                   pose_solver: PoseSolver = relative_pose_from_rays,
+                   rolling_shutter: RollingShutterOptions = RollingShutterOptions(),
+                   ) -> tuple[Trajectory, list[FrameRecord]]:
     """Estimate every frame's pose ``T_0k`` with ``front_end`` and the relative-pose back end.
 
     Parameters
@@ -385,6 +433,8 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
         Default: frame indices.
     pose_solver : callable, keyword-only
         See :class:`Tracker`.
+    rolling_shutter : RollingShutterOptions, keyword-only
+        See :class:`Tracker`.
 
     Returns
     -------
@@ -398,7 +448,8 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
     ValueError
         ``pose_options.ransac_threshold_rad`` is not set.
     """
-    tracker = Tracker(front_end, pose_options=pose_options, keyframe=keyframe, pose_solver=pose_solver)
+    tracker = Tracker(front_end, pose_options=pose_options, keyframe=keyframe, pose_solver=pose_solver,
+                      rolling_shutter=rolling_shutter)
     iterator = iter(images)
     while True:
         started = time.perf_counter()  # the frame's time includes producing it (e.g. reading)

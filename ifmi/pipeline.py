@@ -32,6 +32,7 @@ from .trajectory import Trajectory
 from .options import options_from_dict
 from .odometry import FrameRecord, KeyframeOptions, track_sequence
 from .relative_pose import RelativePoseOptions
+from .rolling_shutter import RollingShutterOptions
 from .spectral_front_end import IfmiConfig
 from .unwarp import angular_pixel_size_in_band
 
@@ -64,12 +65,15 @@ class EstimateConfig:
         ``None`` means :class:`FeatureConfig`'s defaults.
     relative_pose : RelativePoseOptions
     keyframe : KeyframeOptions
+    rolling_shutter : RollingShutterOptions
+        The camera's row read-out time; a global shutter by default.
     """
 
     ifmi: IfmiConfig = field(default_factory=IfmiConfig)
     features: FeatureConfig | None = None
     relative_pose: RelativePoseOptions = field(default_factory=RelativePoseOptions)
     keyframe: KeyframeOptions = field(default_factory=KeyframeOptions)
+    rolling_shutter: RollingShutterOptions = field(default_factory=RollingShutterOptions)
 
     def to_dict(self) -> dict:
         """JSON-serialisable nested dict (inverse of :meth:`from_dict`)."""
@@ -78,6 +82,7 @@ class EstimateConfig:
             "features": None if self.features is None else asdict(self.features),
             "relative_pose": asdict(self.relative_pose),
             "keyframe": asdict(self.keyframe),
+            "rolling_shutter": asdict(self.rolling_shutter),
         }
 
     @classmethod
@@ -174,6 +179,7 @@ def estimate_sequence(images: Iterable[np.ndarray], model: OcamModel, *, method:
     with tqdm(total=total, disable=not progress, file=sys.stderr, unit="frame", desc="estimate") as bar:
         trajectory, records = track_sequence(images, front_end, pose_options=config.relative_pose,
                                              keyframe=config.keyframe, timestamps=timestamps,
+                                             rolling_shutter=config.rolling_shutter,
                                              on_frame=lambda record: bar.update(1))
     return SequenceEstimate(trajectory=trajectory, frames=tuple(records), config=config,
                             method=method)

@@ -273,3 +273,20 @@ def test_degrade_next_to_the_source_still_works(dataset, tmp_path):
                          "--no-progress"]) == 0
     assert len(list((tmp_path / "noisy" / "images").glob("*.png"))) == len(read_dataset(dataset).image_paths)
     np.testing.assert_equal(read_dataset(tmp_path / "noisy").model.pol, read_dataset(dataset).model.pol)
+
+
+# --- rolling shutter ------------------------------------------------------------------
+
+def test_rolling_shutter_option_is_saved_with_the_run(dataset, tmp_path):
+    out = tmp_path / "rs.txt"
+    assert main(["estimate", str(dataset), "--rolling-shutter", "0.4", "--out", str(out), *QUIET]) == 0
+    assert _saved(out)["config"]["rolling_shutter"] == {"readout": 0.4, "iterations": 2}
+
+
+@pytest.mark.parametrize("value", ["1.5", "-0.2"])
+def test_rolling_shutter_outside_the_frame_interval_is_refused(dataset, tmp_path, capsys, value):
+    assert main(["estimate", str(dataset), "--rolling-shutter", value, "--out", str(tmp_path / "e.txt"),
+                 *QUIET]) == 2
+    assert _one_line_error(capsys) == (
+        f"ifmi estimate: error: --rolling-shutter: readout must be in [0, 1] (a fraction of the frame "
+        f"interval), got {float(value)}")

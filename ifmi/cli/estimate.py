@@ -51,6 +51,7 @@ _VALUE_OPTIONS = {
     "keyframe_min_inliers": "keyframe.min_inliers",
     "keyframe_max_angle": "keyframe.max_angle_rad",
     "max_failures": "keyframe.max_failures",
+    "rolling_shutter": "rolling_shutter.readout",
 }
 # Flags: argparse destination -> (key path, value when the flag is given).
 _FLAG_OPTIONS = {
@@ -145,6 +146,12 @@ def _add_config_options(p) -> None:
     g.add_argument("--max-failures", type=int, metavar="N",
                    help="after N failed frames in a row, restart from the current frame "
                         "(default 2; 0 never)")
+    g = p.add_argument_group("camera")
+    g.add_argument("--rolling-shutter", type=float, metavar="READOUT",
+                   help="rolling-shutter read-out: time from the first row to the last as a fraction "
+                        "of the frame interval, 0..1 (read-out seconds x frames per second; default 0, "
+                        "a global shutter); rays are moved to their image's middle row before each "
+                        "pose is re-fitted")
 
 
 def _option(dest: str) -> str:

@@ -1,0 +1,192 @@
+"""Rolling-shutter compensation of matched rays under constant angular velocity.
+
+A rolling-shutter sensor reads its rows one after another: row ``r`` of an
+``H``-row image is exposed ``readout * r / (H - 1)`` frame intervals after
+row 0 (``readout`` is the fraction of the frame interval the read-out of the
+whole image takes; 0 is a global shutter). While the camera turns, each row
+sees the scene from a different orientation, so the rays of one image do not
+share one rotation, and a relative pose fitted to them as if they did is off
+by a part of the rotation made during the read-out.
+
+Conventions (those of ``omnisim``'s capture model and of the ground truth
+it writes):
+
+* Times are in frame intervals. A frame's pose is that of its **middle
+  row** (row ``(H - 1) / 2``); row ``r`` is ``readout * (r - (H - 1) / 2) /
+  (H - 1)`` frame intervals later than it (negative above the middle).
+* The camera turns at a constant angular velocity ``w`` (rad per frame
+  interval, a rotation vector in the camera frame): its world-from-camera
+  orientation at time ``t`` after a frame's middle row is ``R_mid
+  expm([w]x t)``. Then ``R_ab = expm([w]x (b - a))`` for frames ``a`` and
+  ``b``, so ``w`` follows from a relative rotation
+  (:func:`angular_velocity_from_rotation`).
+* A ray measured in row ``r`` (time offset ``dt``) is, in the middle row's
+  camera frame, ``expm([w]x dt) @ ray`` (:func:`rays_at_middle_row`).
+
+Translation during the read-out is not modelled (its effect on the rays
+falls with the scene's distance, the rotation's does not).
+
+:func:`relative_pose_rolling_shutter` alternates the two: fit the pose, take
+``w`` from it, move every ray to its image's middle row, fit again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .options import check_finite_fields
+
+__all__ = ["RollingShutterOptions", "row_time_offsets", "angular_velocity_from_rotation",
+           "rays_at_middle_row", "relative_pose_rolling_shutter"]
+
+# Most re-fits with compensated rays (each costs one relative-pose solve).
+_MAX_ITERATIONS = 10
+
+
+@dataclass(frozen=True)
+class RollingShutterOptions:
+    """Rolling-shutter model of the camera (see the module docstring).
+
+    Attributes
+    ----------
+    readout : float
+        Time from the start of row 0 to the start of the last row, as a
+        fraction of the frame interval, in ``[0, 1]``. 0 (the default): a
+        global shutter, no compensation. A sensor that reads its rows in
+        ``T`` seconds at ``f`` frames per second has ``readout = T * f``.
+    iterations : int
+        Re-fits with compensated rays, ``1..10``; each takes the angular
+        velocity from the previous fit. Two reach the fixed point to well
+        below the noise of real matches (the correction is a small fraction
+        of the rotation).
+    """
+
+    readout: float = 0.0
+    iterations: int = 2
+
+    def __post_init__(self) -> None:
+        check_finite_fields(self, ("readout",))
+        if not 0.0 <= self.readout <= 1.0:
+            raise ValueError(f"readout must be in [0, 1] (a fraction of the frame interval), got {self.readout}")
+        if isinstance(self.iterations, bool) or not 1 <= self.iterations <= _MAX_ITERATIONS:
+            raise ValueError(f"iterations must be in 1..{_MAX_ITERATIONS}, got {self.iterations}")
+
+
+def row_time_offsets(rows: np.ndarray, *, height: int, readout: float) -> np.ndarray:
+    """Time of each image row relative to the middle row, in frame intervals.
+
+    Parameters
+    ----------
+    rows : (N,) array_like
+        Image row coordinates (pixels, 0-based; sub-pixel values allowed).
+    height : int, keyword-only
+        Image height ``H`` in pixels (at least 2).
+    readout : float, keyword-only
+        :attr:`RollingShutterOptions.readout`.
+
+    Returns
+    -------
+    (N,) ndarray
+        ``readout * (row - (H - 1) / 2) / (H - 1)``.
+    """
+    if height < 2:
+        raise ValueError(f"expected an image height of at least 2 rows, got {height}")
+    middle = 0.5 * (height - 1)
+    return readout * (np.asarray(rows, dtype=np.float64) - middle) / (height - 1)
+
+
+def angular_velocity_from_rotation(rotation_ab: np.ndarray, frames: float) -> np.ndarray:
+    """Constant angular velocity (rad per frame interval, camera frame) that turns frame a into b.
+
+    Parameters
+    ----------
+    rotation_ab : (3, 3) ndarray
+        ``R_ab``, frame b's orientation in frame a.
+    frames : float
+        Frame intervals from a to b (> 0).
+
+    Returns
+    -------
+    (3,) ndarray
+        ``w`` with ``expm([w]x frames) = R_ab``.
+    """
+    if not frames > 0:
+        raise ValueError(f"expected frames > 0, got {frames}")
+    return Rotation.from_matrix(rotation_ab).as_rotvec() / frames
+
+
+def rays_at_middle_row(rays: np.ndarray, time_offsets: np.ndarray, angular_velocity: np.ndarray) -> np.ndarray:
+    """Rays measured at their rows' times, expressed in the camera frame of the middle row.
+
+    Parameters
+    ----------
+    rays : (N, 3) ndarray
+        Unit rays in the camera frame of the row that saw them.
+    time_offsets : (N,) ndarray
+        Each ray's row time relative to the middle row (frame intervals,
+        :func:`row_time_offsets`).
+    angular_velocity : (3,) ndarray
+        ``w``, rad per frame interval in the camera frame.
+
+    Returns
+    -------
+    (N, 3) ndarray
+        ``expm([w]x dt_i) @ rays[i]``: unit rays.
+    """
+    turns = Rotation.from_rotvec(np.asarray(time_offsets, dtype=np.float64)[:, None]
+                                 * np.asarray(angular_velocity, dtype=np.float64)[None, :])
+    return turns.apply(np.asarray(rays, dtype=np.float64))
+
+
+def relative_pose_rolling_shutter(solve: Callable, rays_a: np.ndarray, rays_b: np.ndarray,
+                                  rows_a: np.ndarray, rows_b: np.ndarray, *, height: int,
+                                  velocities: Callable, options: RollingShutterOptions,
+                                  first: tuple | None = None) -> tuple:
+    """Relative pose of two rolling-shutter frames: fit, compensate the rays, fit again.
+
+    Parameters
+    ----------
+    solve : callable
+        ``solve(rays_a, rays_b) -> (pose, info)`` with ``pose.rotation``
+        (``R_ab``) and ``info.success``, e.g.
+        :func:`ifmi.relative_pose.relative_pose_from_rays` with its options
+        bound.
+    rays_a, rays_b : (N, 3) ndarray
+        Matched unit rays as measured (each in its own row's camera frame).
+    rows_a, rows_b : (N,) ndarray
+        Image rows (pixels, 0-based) the rays were measured at.
+    height : int, keyword-only
+        Image height in pixels.
+    velocities : callable, keyword-only
+        ``velocities(R_ab) -> (w_a, w_b)``: the angular velocities (rad per
+        frame interval, each in its own camera frame) during frame a's and
+        frame b's read-out, given the current fit; for two frames ``n``
+        intervals apart under one constant velocity,
+        ``lambda r: (angular_velocity_from_rotation(r, n),) * 2``.
+    options : RollingShutterOptions, keyword-only
+    first : (pose, info), optional, keyword-only
+        ``solve(rays_a, rays_b)``'s result when already computed.
+
+    Returns
+    -------
+    pose, info
+        Those of the last successful fit; the first fit's when it failed or
+        ``options.readout`` is 0. A re-fit that fails ends the iterations.
+    """
+    pose, info = solve(rays_a, rays_b) if first is None else first
+    if options.readout == 0.0 or not info.success:
+        return pose, info
+    offsets_a = row_time_offsets(rows_a, height=height, readout=options.readout)
+    offsets_b = row_time_offsets(rows_b, height=height, readout=options.readout)
+    for _ in range(options.iterations):
+        velocity_a, velocity_b = velocities(pose.rotation)
+        refit, refit_info = solve(rays_at_middle_row(rays_a, offsets_a, velocity_a),
+                                  rays_at_middle_row(rays_b, offsets_b, velocity_b))
+        if not refit_info.success:
+            break
+        pose, info = refit, refit_info
+    return pose, info
