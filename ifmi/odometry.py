@@ -33,10 +33,10 @@ inliers puts the track back on the true chain, without the offset.
 
 With a rolling-shutter read-out time (:class:`~ifmi.rolling_shutter.RollingShutterOptions`)
 each relative pose is re-fitted with every ray moved to its image's middle
-row (:mod:`ifmi.rolling_shutter`). Frame b turns during its read-out as
-from the last successfully estimated frame to b (given the current fit);
-the reference as from it to the next successfully estimated frame (known
-for a keyframe), else as frame b.
+row (:mod:`ifmi.rolling_shutter`). Each frame's angular velocity comes
+from the relative rotations of the successfully estimated frames around it,
+taken as linear in time: interpolated at the reference, extrapolated half
+an interval at the new frame (given the current fit).
 
 Positions chain the estimated translation directions as unit-length steps
 per frame: monocular translation is known only up to scale.
@@ -54,7 +54,8 @@ from scipy.spatial.transform import Rotation
 from .errors import InputError
 from .frames import MissingFrame
 from .relative_pose import RelativePoseOptions, relative_pose_from_rays
-from .rolling_shutter import RollingShutterOptions, angular_velocity_from_rotation, relative_pose_rolling_shutter
+from .rolling_shutter import (RollingShutterOptions, angular_velocity_from_rotation, relative_pose_rolling_shutter,
+                              velocity_after_intervals, velocity_at_frame)
 from .trajectory import Trajectory
 
 __all__ = ["KeyframeOptions", "FrameRecord", "Tracker", "track_sequence"]
@@ -153,9 +154,11 @@ class _Reference:
     rotation: np.ndarray
     position: np.ndarray
     first_inliers: int = -1
-    # Angular velocity (rad per frame interval, camera frame) from this frame to the next
-    # successfully estimated one, once that is known: the rolling-shutter model of its read-out.
-    velocity: np.ndarray | None = None
+    # Mean angular velocities (rad per frame interval, this frame's camera frame) and spans
+    # (frame intervals) of the intervals from the previous successfully estimated frame and to
+    # the next one, once known: the rolling-shutter model of its read-out.
+    velocity_before: tuple | None = None
+    velocity_after: tuple | None = None
 
 
 def _angle(rotation: np.ndarray) -> float:
@@ -266,17 +269,24 @@ class Tracker:
         return pose, info, corr
 
     def _velocities(self, reference: _Reference, rotation_ab: np.ndarray, frame: int) -> tuple:
-        """Angular velocities during the read-outs of ``reference`` and ``frame`` given ``R_ab``.
+        """Angular velocities at the read-outs of ``reference`` and ``frame`` given ``R_ab``.
 
-        Frame b's: from the last successfully estimated frame to b (over one interval in
-        frame mode). The reference's: its velocity to the frame after it when that is known
-        (a keyframe), else frame b's.
+        The interval from the last successfully estimated frame l to b follows from
+        ``R_ab``. Frame b's velocity extrapolates it and l's interval before it; the
+        reference's interpolates its intervals before and after it (after: to the next good
+        frame when known, as for a keyframe, else to b).
         """
         last = self._last_good
         rotation_lb = rotation_ab if last is reference else last.rotation.T @ reference.rotation @ rotation_ab
-        velocity_b = angular_velocity_from_rotation(rotation_lb, frame - last.frame)
-        velocity_a = velocity_b if reference.velocity is None else reference.velocity
-        return velocity_a, velocity_b
+        latest = (angular_velocity_from_rotation(rotation_lb, frame - last.frame), frame - last.frame)
+        # l's earlier interval, turned into b's camera frame (a rotation vector of R_lb is its own axis).
+        previous = None if last.velocity_before is None else (rotation_lb.T @ last.velocity_before[0],
+                                                              last.velocity_before[1])
+        after = reference.velocity_after
+        if after is None:
+            after = (angular_velocity_from_rotation(rotation_ab, frame - reference.frame), frame - reference.frame)
+        return (velocity_at_frame(reference.velocity_before, after),
+                velocity_after_intervals(previous, latest))
 
     def _accept(self, state, rotation: np.ndarray) -> None:
         """Tell a front end with ``accept_pose`` a successfully estimated frame's ``R_0k``."""
@@ -368,10 +378,12 @@ class Tracker:
             if reference.first_inliers < 0:
                 reference.first_inliers = info.n_inliers
             self._accept(state, rotation)
-            if self._last_good.velocity is None:
-                self._last_good.velocity = angular_velocity_from_rotation(
-                    self._last_good.rotation.T @ rotation, k - self._last_good.frame)
-            self._last_good = _Reference(k, state, rotation, position)
+            last = self._last_good
+            span = k - last.frame
+            interval = angular_velocity_from_rotation(last.rotation.T @ rotation, span)
+            if last.velocity_after is None:
+                last.velocity_after = (interval, span)
+            self._last_good = _Reference(k, state, rotation, position, velocity_before=(interval, span))
             if not keyframe.enabled:
                 self._reference = self._last_good
             self._good = [self._good[-1], (k, rotation)]

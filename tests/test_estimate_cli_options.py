@@ -280,7 +280,7 @@ def test_degrade_next_to_the_source_still_works(dataset, tmp_path):
 def test_rolling_shutter_option_is_saved_with_the_run(dataset, tmp_path):
     out = tmp_path / "rs.txt"
     assert main(["estimate", str(dataset), "--rolling-shutter", "0.4", "--out", str(out), *QUIET]) == 0
-    assert _saved(out)["config"]["rolling_shutter"] == {"readout": 0.4, "iterations": 2}
+    assert _saved(out)["config"]["rolling_shutter"] == {"readout": 0.4, "iterations": 3}
 
 
 @pytest.mark.parametrize("value", ["1.5", "-0.2"])
