@@ -73,6 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="largest rotation between frames, degrees (default 3)")
     warp.add_argument("--max-tilt-deg", type=float, default=10.0,
                       help="bound of roll and pitch, degrees (default 10)")
+    warp.add_argument("--rolling-shutter", type=float, default=0.0, metavar="READOUT",
+                      help="read the output rows one after another over READOUT frame intervals "
+                           "(0..1; default 0, a global shutter); the middle row holds the ground truth")
     warp.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("check-llvm", help="print the LLVM drjit will use, or how to install one")
     sub.add_parser("generators", help="list the [[objects]] generators of scene files and their parameters")
@@ -113,7 +116,7 @@ def _warp(args) -> int:
 
     try:
         settings = WarpSettings(frames=args.frames, seed=args.seed, max_step_deg=args.max_step_deg,
-                                max_tilt_deg=args.max_tilt_deg)
+                                max_tilt_deg=args.max_tilt_deg, rolling_shutter=args.rolling_shutter)
     except ValueError as exc:
         raise InputError(args.image, str(exc)) from None
     result = warp_dataset(args.image, args.calib, args.out, settings=settings, progress=not args.no_progress)

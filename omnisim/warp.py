@@ -26,6 +26,12 @@ optical axis of a fisheye, up for an equirectangular camera), so its yaw is
 the heading in both; the ground truth is written in the camera's own frame.
 An equirectangular image's columns wrap around.
 
+With a rolling shutter (``WarpSettings.rolling_shutter``), row ``r`` of
+frame ``k`` is warped through the walk's orientation at its own time ``k +
+rolling_shutter * (r - (H - 1) / 2) / (H - 1)``: the walk is smooth in time,
+and the middle row holds the ground-truth pose, as ``ifmi estimate
+--rolling-shutter`` assumes.
+
 Interpolation: cubic B-spline (``scipy.ndimage.map_coordinates`` with
 ``order=3`` and its prefilter), which interpolates the samples exactly and
 takes the sub-pixel position in floating point (OpenCV's ``remap``
@@ -50,11 +56,12 @@ from scipy.spatial.transform import Rotation
 from ifmi.camera import (OcamModel, angles_from_axis, angular_pixel_size, pixels_from_rays, radius_from_pixels,
                          rays_from_pixels)
 from ifmi.errors import InputError
-from ifmi.io.atomic import atomic_write_bytes, atomic_write_json
+from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
 from ifmi.io.camera_file import camera_file_name, read_camera
 from ifmi.io.dataset import read_image
 from ifmi.io.provenance import package_versions
-from ifmi.io.tum import write_tum
+from ifmi.io.tum import format_tum, write_tum
+from ifmi.rolling_shutter import row_time_offsets
 from ifmi.trajectory import Trajectory
 from ifmi.unwarp import PanoramaConfig, gray_from_image, lit_off_axis_band, panorama_axis_rotation, radius_band
 
@@ -84,12 +91,19 @@ class WarpSettings:
     max_tilt_deg : float
         Bound of roll and pitch, degrees (the mirror band covers a limited
         elevation range; a large tilt turns most of it out of view).
+    rolling_shutter : float
+        Read-out of the output frames as a fraction of the frame interval,
+        in ``[0, 1]``: row ``r`` of frame ``k`` sees the camera at time
+        ``k + rolling_shutter * (r - (H - 1) / 2) / (H - 1)`` of the
+        (continuous) walk, so the middle row holds the ground-truth pose
+        (:mod:`ifmi.rolling_shutter`'s convention). 0: a global shutter.
     """
 
     frames: int = 60
     seed: int = 0
     max_step_deg: float = 3.0
     max_tilt_deg: float = 10.0
+    rolling_shutter: float = 0.0
 
     def __post_init__(self) -> None:
         if self.frames < 1 or self.seed < 0:
@@ -97,6 +111,16 @@ class WarpSettings:
         if not 0 < self.max_step_deg <= 90 or not 0 <= self.max_tilt_deg <= 45:
             raise ValueError(f"expected 0 < max_step_deg <= 90 and 0 <= max_tilt_deg <= 45, got "
                              f"{self.max_step_deg}, {self.max_tilt_deg}")
+        if not 0 <= self.rolling_shutter <= 1:  # also refuses NaN
+            raise ValueError(f"expected 0 <= rolling_shutter <= 1 (a fraction of the frame interval), got "
+                             f"{self.rolling_shutter}")
+
+    def identity(self) -> dict:
+        """The settings that make an output folder: a global shutter is left out, as before it existed."""
+        values = asdict(self)
+        if values["rolling_shutter"] == 0:
+            del values["rolling_shutter"]
+        return values
 
 
 @dataclass(frozen=True)
@@ -108,21 +132,29 @@ class WarpResult:
     written: int
 
 
-def rotation_walk(settings: WarpSettings) -> np.ndarray:
+def rotation_walk(settings: WarpSettings, times: np.ndarray | None = None) -> np.ndarray:
     """Smooth random orientations ``R_0k`` (identity first), steps at most ``max_step_deg``.
 
     Yaw turns at a constant rate of 40 to 60 % of the largest step; roll and
     pitch each follow a sinusoid within ``+-max_tilt_deg`` whose rate is at
     most a quarter of the largest step, so a step never exceeds the bound.
+    The walk is a smooth function of time, so it can be read between frames.
+
+    Parameters
+    ----------
+    settings : WarpSettings
+    times : (N,) ndarray, optional
+        Times in frame intervals (default: the frames, ``0 .. frames - 1``).
 
     Returns
     -------
-    (frames, 3, 3) ndarray
+    (N, 3, 3) ndarray
+        The orientation at each time (``(frames, 3, 3)`` by default).
     """
     rng = np.random.default_rng(settings.seed)
     step = np.radians(settings.max_step_deg)
     tilt = np.radians(settings.max_tilt_deg)
-    t = np.arange(settings.frames, dtype=np.float64)
+    t = np.arange(settings.frames, dtype=np.float64) if times is None else np.asarray(times, dtype=np.float64)
     yaw = rng.uniform(0.4, 0.6) * step * rng.choice([-1.0, 1.0]) * t
     angles = [yaw]
     for _ in range(2):
@@ -205,8 +237,9 @@ def warp_image(source: np.ndarray, model, rotation: np.ndarray, *,
     source : (H, W) or (H, W, 3) uint8 ndarray
         Frame 0, of the calibration's size.
     model : OcamModel or CameraModel
-    rotation : (3, 3) ndarray
-        ``R_0k``: frame-k directions to frame-0 directions, camera frame.
+    rotation : (3, 3) or (H, 3, 3) ndarray
+        ``R_0k``: frame-k directions to frame-0 directions, camera frame; or
+        one per output row (a rolling shutter, row 0 first).
     band : (float, float), keyword-only
         Valid band of the source (:func:`valid_source_band`).
 
@@ -217,7 +250,13 @@ def warp_image(source: np.ndarray, model, rotation: np.ndarray, *,
     h, w = model.size
     grid = np.stack(np.mgrid[0:h, 0:w], axis=-1).astype(np.float64)
     grid_rays = rays_from_pixels(model, grid)
-    where = pixels_from_rays(model, grid_rays @ np.asarray(rotation, dtype=np.float64).T)
+    rotation = np.asarray(rotation, dtype=np.float64)
+    if rotation.shape == (h, 3, 3):
+        where = pixels_from_rays(model, np.einsum("rij,rcj->rci", rotation, grid_rays))
+    elif rotation.shape == (3, 3):
+        where = pixels_from_rays(model, grid_rays @ rotation.T)
+    else:
+        raise ValueError(f"expected a (3, 3) rotation or one per row, ({h}, 3, 3), got {rotation.shape}")
     valid = _inside(model, grid, band, rays=grid_rays) & _inside(model, where, band)
     where = np.where(valid[..., None], where, 0.0)
     channels = source[..., None] if source.ndim == 2 else source
@@ -273,6 +312,32 @@ def rotations_in_camera_frame(model, walk: np.ndarray) -> np.ndarray:
     return axis @ walk @ axis.T
 
 
+def _row_rotations(model, settings: WarpSettings) -> np.ndarray | None:
+    """``R_0r`` of every row of every frame, (frames, H, 3, 3), or None for a global shutter."""
+    if settings.rolling_shutter == 0:
+        return None
+    height = model.size[0]
+    offsets = row_time_offsets(np.arange(height), height=height, readout=settings.rolling_shutter)
+    times = (np.arange(settings.frames)[:, None] + offsets[None, :]).ravel()
+    walk = rotations_in_camera_frame(model, rotation_walk(settings, times))
+    return walk.reshape(settings.frames, height, 3, 3)
+
+
+def _write_row_poses(out_dir: Path, row_rotations: np.ndarray, settings: WarpSettings, source_name: str) -> dict:
+    """``rolling_shutter/NNNNNN.txt`` per frame (TUM, row r's ``T_0r`` at its time); {file name: sha256}."""
+    frames, height = row_rotations.shape[:2]
+    offsets = row_time_offsets(np.arange(height), height=height, readout=settings.rolling_shutter)
+    records = {}
+    for k in range(frames):
+        rows = Trajectory(timestamps=k + offsets, positions=np.zeros((height, 3)), rotations=row_rotations[k])
+        text = format_tum(rows, header=f"omnisim warp of {source_name}, frame {k}: line r = row r, T_0r in "
+                                       "camera 0 of groundtruth.txt; time in frames")
+        name = f"{k:06d}.txt"
+        atomic_write_text(out_dir / "rolling_shutter" / name, text)
+        records[name] = hashlib.sha256(text.encode("utf-8")).hexdigest()
+    return records
+
+
 def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = WarpSettings(),
                  progress: bool = True) -> WarpResult:
     """Write a DATASET folder: the source warped through ``settings.frames`` orientations.
@@ -281,8 +346,12 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
     or ``camera.yaml`` by its format), ``images/NNNNNN.png``
     (gray or RGB like the source), ``groundtruth.txt`` (TUM, ``T_0k``, no
     translation) and ``meta.json`` (inputs' SHA-256, settings, measured
-    round-trip error of the last frame, per-image SHA-256). An interrupted
-    run resumes; a folder holding anything else is refused.
+    round-trip error of the last frame, per-image SHA-256). With
+    ``settings.rolling_shutter``, each output row is warped through its own
+    time's orientation, ``rolling_shutter/NNNNNN.txt`` give every row's
+    ``T_0r`` (listed with SHA-256 under ``rolling_shutter`` in ``meta.json``),
+    and no round trip is measured. An interrupted run resumes; a folder
+    holding anything else is refused.
 
     Raises
     ------
@@ -298,7 +367,7 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
     identity = {
         "source_sha256": hashlib.sha256(image_path.read_bytes()).hexdigest(),
         "calib_sha256": hashlib.sha256(calib_path.read_bytes()).hexdigest(),
-        "settings": asdict(settings), "format": META_FORMAT, "warp": WARP_VERSION,
+        "settings": settings.identity(), "format": META_FORMAT, "warp": WARP_VERSION,
     }
     try:
         band = valid_source_band(model, source)
@@ -306,7 +375,7 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
         raise InputError(image_path, str(exc)) from None
     meta = open_output_folder(out_dir, identity)
     rotations = rotations_in_camera_frame(model, rotation_walk(settings))
-    meta.update({"source": str(image_path.resolve()), "settings": asdict(settings), "frames": settings.frames,
+    meta.update({"source": str(image_path.resolve()), "settings": settings.identity(), "frames": settings.frames,
                  ("valid_band_px" if isinstance(model, OcamModel) else "valid_band_rad"): list(band), "interpolation": "cubic B-spline (scipy map_coordinates, order 3)",
                  "versions": package_versions(("numpy", "scipy", "opencv-python-headless", "omnisim-ifmi"))})
     atomic_write_bytes(out_dir / camera_file_name(model), calib_path.read_bytes())
@@ -314,6 +383,9 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
               Trajectory(timestamps=np.arange(settings.frames, dtype=np.float64),
                          positions=np.zeros((settings.frames, 3)), rotations=rotations),
               header=f"omnisim warp of {image_path.name}: T_0k, pure rotation")
+    row_rotations = _row_rotations(model, settings)
+    if row_rotations is not None:
+        meta["rolling_shutter"] = _write_row_poses(out_dir, row_rotations, settings, image_path.name)
     names = [f"{k:06d}.png" for k in range(settings.frames)]
     todo = pending_images(out_dir, meta, names)
     from tqdm import tqdm
@@ -321,13 +393,14 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
     bar = tqdm(total=len(names), initial=len(names) - len(todo), disable=not progress, unit="frame",
                desc="warp")
     for k in todo:
-        data = encode_png(warp_image(source, model, rotations[k], band=band))
+        data = encode_png(warp_image(source, model, rotations[k] if row_rotations is None else row_rotations[k],
+                                     band=band))
         atomic_write_bytes(out_dir / "images" / names[k], data)
         meta["images"][names[k]] = hashlib.sha256(data).hexdigest()
         atomic_write_json(out_dir / "meta.json", meta)
         bar.update(1)
     bar.close()
-    if settings.frames > 1:
+    if settings.frames > 1 and row_rotations is None:  # a rolling-shutter frame has no single back-warp
         last = read_image(out_dir / "images" / names[-1], size=model.size, gray=False)
         rms, fraction = round_trip_error(source, last, model, rotations[-1], band=band)
         meta["round_trip_last_frame"] = {"rms_gray_levels": rms, "compared_fraction": fraction}

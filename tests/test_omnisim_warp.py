@@ -223,3 +223,80 @@ def test_black_image_through_a_kalibr_camera_is_a_one_line_error(tmp_path, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "black.png" in err[0] and "no lit ring" in err[0]
     assert not (tmp_path / "o").exists()
+
+
+# --- rolling shutter ------------------------------------------------------------------
+
+def test_walk_read_between_frames_is_continuous():
+    from omnisim.warp import WarpSettings, rotation_walk
+
+    settings = WarpSettings(frames=6, seed=3, max_step_deg=9.0, max_tilt_deg=4.0)
+    frames = rotation_walk(settings)
+    np.testing.assert_array_equal(rotation_walk(settings, np.arange(6.0)), frames)
+    fine = rotation_walk(settings, np.linspace(0.0, 5.0, 501))
+    np.testing.assert_allclose(fine[::100], frames, atol=1e-15)
+    # 1/100 of a frame turns at most 1/100 of the largest step (and then some rounding).
+    assert np.max(geodesic_angle(fine[:-1], fine[1:])) <= np.radians(9.0) / 100 + 1e-12
+
+
+def test_rolling_shutter_rows_are_warped_through_their_own_time(source_files):
+    from omnisim.warp import WarpSettings, rotation_walk, valid_source_band, warp_image
+
+    from ifmi.rolling_shutter import row_time_offsets
+
+    source = cv2.imread(str(source_files[0]), cv2.IMREAD_GRAYSCALE)
+    band = valid_source_band(MODEL, source)
+    settings = WarpSettings(frames=3, seed=1, max_step_deg=10.0, rolling_shutter=0.6)
+    times = 2 + row_time_offsets(np.arange(SIZE), height=SIZE, readout=0.6)
+    rows = rotation_walk(settings, times)
+    frame = warp_image(source, MODEL, rows, band=band)
+    for r in (0, 40, 64, 127):
+        assert np.array_equal(frame[r], warp_image(source, MODEL, rows[r], band=band)[r])
+    with pytest.raises(ValueError, match=r"one per row, \(128, 3, 3\), got \(5, 3, 3\)"):
+        warp_image(source, MODEL, rows[:5], band=band)
+
+
+def test_rolling_shutter_warp_writes_every_rows_pose(tmp_path, source_files):
+    import json
+
+    from omnisim.warp import WarpSettings, rotation_walk, warp_dataset
+
+    from ifmi.rolling_shutter import row_time_offsets
+
+    settings = WarpSettings(frames=3, seed=2, max_step_deg=8.0, rolling_shutter=0.4)
+    out = tmp_path / "rs"
+    warp_dataset(*source_files, out, settings=settings, progress=False)
+    gt = read_tum(out / "groundtruth.txt")
+    np.testing.assert_allclose(gt.rotations, rotation_walk(settings), atol=1e-9)  # the middle row's pose
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["settings"]["rolling_shutter"] == 0.4 and sorted(meta["rolling_shutter"]) == [
+        "000000.txt", "000001.txt", "000002.txt"]
+    rows = read_tum(out / "rolling_shutter" / "000002.txt")
+    times = 2 + row_time_offsets(np.arange(SIZE), height=SIZE, readout=0.4)
+    np.testing.assert_allclose(rows.timestamps, times, atol=1e-6)
+    np.testing.assert_allclose(rows.rotations, rotation_walk(settings, times), atol=1e-9)
+    assert "round_trip_last_frame" not in meta
+
+
+def test_global_shutter_warp_keeps_its_folder_identity(tmp_path, source_files):
+    """A folder written before the option existed resumes: a global shutter is not part of its settings."""
+    import json
+
+    from omnisim.warp import WarpSettings, warp_dataset
+
+    out = tmp_path / "gs"
+    warp_dataset(*source_files, out, settings=WarpSettings(frames=2), progress=False)
+    meta = json.loads((out / "meta.json").read_text())
+    assert "rolling_shutter" not in meta["settings"] and not (out / "rolling_shutter").exists()
+
+
+@pytest.mark.parametrize("value", ["-0.1", "1.5", "nan"])
+def test_rolling_shutter_out_of_range_is_a_one_line_error(tmp_path, source_files, capsys, value):
+    from omnisim.cli import main
+
+    code = main(["warp", str(source_files[0]), "--calib", str(source_files[1]), "--out", str(tmp_path / "w"),
+                 "--frames", "2", "--rolling-shutter", value, "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert err.endswith(f"expected 0 <= rolling_shutter <= 1 (a fraction of the frame interval), got "
+                        f"{float(value)}")

@@ -201,3 +201,52 @@ def test_the_readout_is_saved_with_the_configuration():
     config = EstimateConfig(rolling_shutter=RollingShutterOptions(readout=0.3))
     assert config.to_dict()["rolling_shutter"] == {"readout": 0.3, "iterations": 3}
     assert EstimateConfig.from_dict(config.to_dict()) == config
+
+
+@pytest.fixture(scope="module")
+def warped_pair(tmp_path_factory):
+    """The same walk (10 degrees per frame at most) warped from one omni image with a global shutter
+    and with read-out 0.5 (``omnisim warp``)."""
+    import cv2
+
+    from ifmi.camera import paracatadioptric_model
+    from ifmi.io.calib import write_calib
+    from ifmi.synthetic import environment_texture, omni_from_environment
+    from omnisim.warp import WarpSettings, warp_dataset
+
+    root = tmp_path_factory.mktemp("rs_warp")
+    camera = paracatadioptric_model((256, 256), horizon_radius_px=80.0)
+    image = omni_from_environment(environment_texture(height=512, seed=3), camera, np.eye(3), band_px=(24.0, 120.0))
+    cv2.imwrite(str(root / "source.png"), image)
+    write_calib(root / "calib_results.txt", camera)
+    folders = {}
+    for readout in (0.0, READOUT):
+        folders[readout] = root / f"readout_{readout}"
+        warp_dataset(root / "source.png", root / "calib_results.txt", folders[readout], progress=False,
+                     settings=WarpSettings(frames=6, seed=4, max_step_deg=10.0, max_tilt_deg=4.0,
+                                           rolling_shutter=readout))
+    return folders
+
+
+@pytest.mark.parametrize("keyframes", [False, True])
+def test_a_rolling_shutter_warp_is_estimated_as_well_as_a_global_shutter_one(warped_pair, keyframes):
+    """iFMI on the rolling-shutter warp: with the read-out as accurate as on the global-shutter warp
+    of the same walk (measured 1.3x and 1.1x its RMS), without it over three times worse (5.5x, 4.1x).
+    The rest is the walk's body rate changing within a read-out, which the compensation takes as
+    constant."""
+    from dataclasses import replace
+
+    from ifmi.io.tum import read_tum
+    from ifmi.pipeline import estimate_dataset
+
+    def rms(folder, readout):
+        config = EstimateConfig(rolling_shutter=RollingShutterOptions(readout=readout))
+        config = replace(config, keyframe=replace(config.keyframe, enabled=keyframes))
+        estimate = estimate_dataset(folder, method="ifmi", config=config)
+        assert all(r.success for r in estimate.frames)
+        truth = read_tum(folder / "groundtruth.txt").rotations
+        return np.sqrt(np.mean([geodesic_angle(e, t) ** 2 for e, t in zip(estimate.trajectory.rotations, truth)]))
+
+    global_shutter = rms(warped_pair[0.0], 0.0)
+    assert rms(warped_pair[READOUT], READOUT) < 1.5 * global_shutter
+    assert rms(warped_pair[READOUT], 0.0) > 3.0 * global_shutter
