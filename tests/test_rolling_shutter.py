@@ -231,9 +231,7 @@ def warped_pair(tmp_path_factory):
 @pytest.mark.parametrize("keyframes", [False, True])
 def test_a_rolling_shutter_warp_is_estimated_as_well_as_a_global_shutter_one(warped_pair, keyframes):
     """iFMI on the rolling-shutter warp: with the read-out as accurate as on the global-shutter warp
-    of the same walk (measured 1.3x and 1.1x its RMS), without it over three times worse (5.5x, 4.1x).
-    The rest is the walk's body rate changing within a read-out, which the compensation takes as
-    constant."""
+    of the same walk (measured 1.3x and 1.1x its RMS), without it over three times worse (5.5x, 4.1x)."""
     from dataclasses import replace
 
     from ifmi.io.tum import read_tum
