@@ -216,3 +216,26 @@ def test_panorama_smaller_than_a_tile_from_the_library(tmp_path):
     with pytest.raises(CalibrationFitError, match="^camera model: "):
         estimate_sequence(images, model, method="ifmi")
     assert len(estimate_sequence(images, model, method="orb").frames) == 3
+
+
+@pytest.mark.parametrize("calib_name", ["camera.yaml", "calib_results.txt"])
+def test_run_file_names_the_calibration_the_dataset_holds(tmp_path, calib_name):
+    """The run file records the dataset and the calibration file it was estimated with."""
+    import json
+
+    from camera_examples import EXAMPLES
+
+    from ifmi.io.camera_file import write_camera
+
+    root = tmp_path / "d"
+    (root / "images").mkdir(parents=True)
+    model = EXAMPLES["kb" if calib_name == "camera.yaml" else "ocamcalib"]
+    write_camera(root, model)
+    still = np.random.default_rng(5).integers(0, 256, model.size, dtype=np.uint8)
+    for k in range(3):  # a camera at rest
+        cv2.imwrite(str(root / "images" / f"{k:06d}.png"), still)
+    assert (root / calib_name).is_file()
+    out = tmp_path / "e.txt"
+    assert main(["estimate", str(root), "--method", "orb", "--out", str(out), "--no-progress"]) == 0
+    run = json.loads(out.with_name("e.config.json").read_text())
+    assert (run["dataset"], run["calib"]) == (str(root.resolve()), str((root / calib_name).resolve()))

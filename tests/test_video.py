@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -54,6 +56,10 @@ def test_estimate_cli_reads_a_video(video, tmp_path):
     assert code == 0
     estimate = read_tum(out)
     assert estimate.timestamps == pytest.approx(np.arange(6) / FPS, abs=1e-3)
+    # The run file names the video and the calibration it used, so the run can be repeated.
+    run = json.loads(out.with_name("est.config.json").read_text())
+    assert (run["video"], run["calib"], run["dataset"]) == (
+        str((root / "clip.avi").resolve()), str((root / "calib_results.txt").resolve()), None)
     # Steps of 3.4 degrees through MJPG compression at 160 px; measured at most 0.13 degree.
     assert np.max(geodesic_angle(sequence.rotations, estimate.rotations)) < np.radians(0.4)
 

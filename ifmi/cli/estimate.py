@@ -321,8 +321,10 @@ def run(args) -> int:
                                         progress=not args.no_progress)
     except InputError as exc:
         raise _blamed(exc, given, config_file) from None
-    write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs,
-                       extra={"derived": _derived_keys(config, estimate.config)})
+    extra = {"derived": _derived_keys(config, estimate.config)}
+    if video:
+        extra.update(video=str(Path(args.dataset).resolve()), calib=str(Path(args.calib).resolve()))
+    write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs, extra=extra)
     failed = sum(not r.success for r in estimate.frames)
     print(f"{out}: {len(estimate.frames)} frames, {failed} failed")
     if 2 * failed > len(estimate.frames):

@@ -34,6 +34,7 @@ import numpy as np
 from ..errors import InputError, OutputError
 from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
                      check_output_folder, folder_of_kind, json_text, probe_writable, write_folder)
+from .camera_file import calibration_path
 from .provenance import package_versions
 from .text_file import read_text_file
 
@@ -458,10 +459,12 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
         The TUM file to write.
     estimate : ifmi.pipeline.SequenceEstimate
     dataset_dir : path or None, keyword-only
-        Dataset the estimate came from (recorded in the config file; no
+        Dataset the estimate came from (recorded in the config file with
+        its calibration file, ``calib_results.txt`` or ``camera.yaml``; no
         output may replace one of its files).
     extra : dict, optional, keyword-only
-        More entries for the config file.
+        More entries for the config file (a video run records its
+        ``video`` and ``calib`` here).
     input_files : tuple of path, keyword-only
         Other inputs no output may replace (see :func:`check_estimate_outputs`).
 
@@ -484,7 +487,7 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
         "method": estimate.method,
         "config": estimate.config.to_dict(),
         "dataset": None if dataset_dir is None else str(Path(dataset_dir).resolve()),
-        "calib": None if dataset_dir is None else str((Path(dataset_dir) / "calib_results.txt").resolve()),
+        "calib": None if dataset_dir is None else str(calibration_path(dataset_dir).resolve()),
         "versions": _versions(),
     }
     config.update(extra or {})
