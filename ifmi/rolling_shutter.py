@@ -200,8 +200,7 @@ def rays_at_middle_row(rays: np.ndarray, time_offsets: np.ndarray, angular_veloc
 
 def relative_pose_rolling_shutter(solve: Callable, rays_a: np.ndarray, rays_b: np.ndarray,
                                   rows_a: np.ndarray, rows_b: np.ndarray, *, height: int,
-                                  velocities: Callable, options: RollingShutterOptions,
-                                  first: tuple | None = None) -> tuple:
+                                  velocities: Callable, options: RollingShutterOptions) -> tuple:
     """Relative pose of two rolling-shutter frames: fit, compensate the rays, fit again.
 
     Parameters
@@ -224,8 +223,6 @@ def relative_pose_rolling_shutter(solve: Callable, rays_a: np.ndarray, rays_b: n
         intervals apart under one constant velocity,
         ``lambda r: (angular_velocity_from_rotation(r, n),) * 2``.
     options : RollingShutterOptions, keyword-only
-    first : (pose, info), optional, keyword-only
-        ``solve(rays_a, rays_b)``'s result when already computed.
 
     Returns
     -------
@@ -233,7 +230,7 @@ def relative_pose_rolling_shutter(solve: Callable, rays_a: np.ndarray, rays_b: n
         Those of the last successful fit; the first fit's when it failed or
         ``options.readout`` is 0. A re-fit that fails ends the iterations.
     """
-    pose, info = solve(rays_a, rays_b) if first is None else first
+    pose, info = solve(rays_a, rays_b)
     if options.readout == 0.0 or not info.success:
         return pose, info
     offsets_a = row_time_offsets(rows_a, height=height, readout=options.readout)
