@@ -288,6 +288,18 @@ class Tracker:
         return (velocity_at_frame(reference.velocity_before, after),
                 velocity_after_intervals(previous, latest))
 
+    def _good_frame(self, k: int, state, rotation: np.ndarray, position: np.ndarray) -> _Reference:
+        """Frame ``k``'s reference record; with a read-out time, its interval velocity from the
+        last good frame is kept on both (the rolling-shutter model, :meth:`_velocities`)."""
+        if self.rolling_shutter.readout == 0.0:
+            return _Reference(k, state, rotation, position)
+        last = self._last_good
+        span = k - last.frame
+        interval = (angular_velocity_from_rotation(last.rotation.T @ rotation, span), span)
+        if last.velocity_after is None:
+            last.velocity_after = interval
+        return _Reference(k, state, rotation, position, velocity_before=interval)
+
     def _accept(self, state, rotation: np.ndarray) -> None:
         """Tell a front end with ``accept_pose`` a successfully estimated frame's ``R_0k``."""
         accept = getattr(self.front_end, "accept_pose", None)
@@ -378,12 +390,7 @@ class Tracker:
             if reference.first_inliers < 0:
                 reference.first_inliers = info.n_inliers
             self._accept(state, rotation)
-            last = self._last_good
-            span = k - last.frame
-            interval = angular_velocity_from_rotation(last.rotation.T @ rotation, span)
-            if last.velocity_after is None:
-                last.velocity_after = (interval, span)
-            self._last_good = _Reference(k, state, rotation, position, velocity_before=(interval, span))
+            self._last_good = self._good_frame(k, state, rotation, position)
             if not keyframe.enabled:
                 self._reference = self._last_good
             self._good = [self._good[-1], (k, rotation)]
