@@ -44,7 +44,7 @@ from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
 __all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
            "check_output_folder", "open_output_folder", "pending_images", "set_sensor_pose", "FramePlan",
            "FrameRenderer", "frame_file_names", "render_frame_files", "frame_plan", "frame_results",
-           "poses_in_model_frame"]
+           "poses_in_model_frame", "write_row_poses"]
 
 # Format version of meta.json; bumped when its meaning changes.
 META_FORMAT = 1
@@ -428,13 +428,33 @@ def _write_ground_truth(out_dir: Path, config: SceneConfig, trajectory: WorldPos
     if capture.rolling_shutter <= 0:
         return {}
     offsets = row_mid_times(config.camera.model.size[0], capture)
+    rows = (trajectory_in_camera(poses_at_times(trajectory, k + offsets), rotation=truth.rotations[0],
+                                 position=truth.positions[0], timestamps=k + offsets) for k in range(n))
+    return write_row_poses(out_dir, rows, header=lambda k: f"omnisim rolling shutter of {config.name}, frame {k}: "
+                                                        "line r = row r at its mid-exposure, T_0r in camera 0 "
+                                                        "of groundtruth.txt; time in frames")
+
+
+def write_row_poses(out_dir: Path, frames, *, header) -> dict:
+    """``rolling_shutter/NNNNNN.txt``: one TUM file per frame, a line per image row (row 0 first).
+
+    Parameters
+    ----------
+    out_dir : Path
+        The dataset folder.
+    frames : iterable of Trajectory
+        Frame k's rows: ``T_0r`` in camera 0 of ``groundtruth.txt``, the row times as timestamps.
+    header : callable, keyword-only
+        ``header(k) -> str``: frame k's comment line.
+
+    Returns
+    -------
+    dict
+        ``{file name: sha256 of its text}``, for ``meta.json``.
+    """
     records = {}
-    for k in range(n):
-        rows = poses_at_times(trajectory, k + offsets)
-        text = format_tum(trajectory_in_camera(rows, rotation=truth.rotations[0], position=truth.positions[0],
-                                               timestamps=k + offsets),
-                          header=f"omnisim rolling shutter of {config.name}, frame {k}: line r = row r at "
-                                 "its mid-exposure, T_0r in camera 0 of groundtruth.txt; time in frames")
+    for k, rows in enumerate(frames):
+        text = format_tum(rows, header=header(k))
         name = f"{k:06d}.txt"
         atomic_write_text(out_dir / "rolling_shutter" / name, text)
         records[name] = hashlib.sha256(text.encode("utf-8")).hexdigest()

@@ -56,16 +56,16 @@ from scipy.spatial.transform import Rotation
 from ifmi.camera import (OcamModel, angles_from_axis, angular_pixel_size, pixels_from_rays, radius_from_pixels,
                          rays_from_pixels)
 from ifmi.errors import InputError
-from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
+from ifmi.io.atomic import atomic_write_bytes, atomic_write_json
 from ifmi.io.camera_file import camera_file_name, read_camera
 from ifmi.io.dataset import read_image
 from ifmi.io.provenance import package_versions
-from ifmi.io.tum import format_tum, write_tum
+from ifmi.io.tum import write_tum
 from ifmi.rolling_shutter import row_time_offsets
 from ifmi.trajectory import Trajectory
 from ifmi.unwarp import PanoramaConfig, gray_from_image, lit_off_axis_band, panorama_axis_rotation, radius_band
 
-from .render import META_FORMAT, encode_png, open_output_folder, pending_images
+from .render import META_FORMAT, encode_png, open_output_folder, pending_images, write_row_poses
 
 __all__ = ["WarpSettings", "WarpResult", "rotation_walk", "valid_source_band", "warp_image",
            "round_trip_error", "rotations_in_camera_frame", "warp_dataset"]
@@ -312,30 +312,13 @@ def rotations_in_camera_frame(model, walk: np.ndarray) -> np.ndarray:
     return axis @ walk @ axis.T
 
 
-def _row_rotations(model, settings: WarpSettings) -> np.ndarray | None:
-    """``R_0r`` of every row of every frame, (frames, H, 3, 3), or None for a global shutter."""
+def _row_times(model, settings: WarpSettings) -> np.ndarray | None:
+    """Time of every row of every frame, (frames, H) frame intervals, or None for a global shutter."""
     if settings.rolling_shutter == 0:
         return None
     height = model.size[0]
     offsets = row_time_offsets(np.arange(height), height=height, readout=settings.rolling_shutter)
-    times = (np.arange(settings.frames)[:, None] + offsets[None, :]).ravel()
-    walk = rotations_in_camera_frame(model, rotation_walk(settings, times))
-    return walk.reshape(settings.frames, height, 3, 3)
-
-
-def _write_row_poses(out_dir: Path, row_rotations: np.ndarray, settings: WarpSettings, source_name: str) -> dict:
-    """``rolling_shutter/NNNNNN.txt`` per frame (TUM, row r's ``T_0r`` at its time); {file name: sha256}."""
-    frames, height = row_rotations.shape[:2]
-    offsets = row_time_offsets(np.arange(height), height=height, readout=settings.rolling_shutter)
-    records = {}
-    for k in range(frames):
-        rows = Trajectory(timestamps=k + offsets, positions=np.zeros((height, 3)), rotations=row_rotations[k])
-        text = format_tum(rows, header=f"omnisim warp of {source_name}, frame {k}: line r = row r, T_0r in "
-                                       "camera 0 of groundtruth.txt; time in frames")
-        name = f"{k:06d}.txt"
-        atomic_write_text(out_dir / "rolling_shutter" / name, text)
-        records[name] = hashlib.sha256(text.encode("utf-8")).hexdigest()
-    return records
+    return np.arange(settings.frames)[:, None] + offsets[None, :]
 
 
 def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = WarpSettings(),
@@ -383,9 +366,16 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
               Trajectory(timestamps=np.arange(settings.frames, dtype=np.float64),
                          positions=np.zeros((settings.frames, 3)), rotations=rotations),
               header=f"omnisim warp of {image_path.name}: T_0k, pure rotation")
-    row_rotations = _row_rotations(model, settings)
-    if row_rotations is not None:
-        meta["rolling_shutter"] = _write_row_poses(out_dir, row_rotations, settings, image_path.name)
+    row_times, row_rotations = _row_times(model, settings), None
+    if row_times is not None:
+        # R_0r of every row of every frame, (frames, H, 3, 3).
+        row_rotations = rotations_in_camera_frame(model, rotation_walk(settings, row_times.ravel())).reshape(
+            row_times.shape + (3, 3))
+        meta["rolling_shutter"] = write_row_poses(
+            out_dir, (Trajectory(timestamps=times, positions=np.zeros((len(times), 3)), rotations=rows)
+                      for times, rows in zip(row_times, row_rotations)),
+            header=lambda k: f"omnisim warp of {image_path.name}, frame {k}: line r = row r, T_0r in camera 0 "
+                             "of groundtruth.txt; time in frames")
     names = [f"{k:06d}.png" for k in range(settings.frames)]
     todo = pending_images(out_dir, meta, names)
     from tqdm import tqdm
