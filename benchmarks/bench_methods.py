@@ -104,6 +104,10 @@ def interleaved_timing(dataset: str, methods, configs, *, frames: int, rounds: i
     return walls
 
 
+def _or_nan(value) -> float:
+    return float("nan") if value is None else value
+
+
 def print_summary(rows: list, ratios: dict, key: str) -> None:
     """One line per mode and set: geodesic ATE, failures and times of each method, and the ratios."""
     methods = [m for m in METHODS if any(r["method"] == m for r in rows)]
@@ -116,8 +120,9 @@ def print_summary(rows: list, ratios: dict, key: str) -> None:
     print(f"{'mode':<9}{'dataset':<{width}}{head}{'ATE/best':>9}{'e2e/ORB':>9}{'mem/AKAZE':>10}")
     for mode, dataset in dict.fromkeys((r["mode"], r["dataset"]) for r in rows):
         by = {r["method"]: r for r in rows if r["dataset"] == dataset and r["mode"] == mode}
-        line = "".join(f"{by[m]['geodesic_rmse']:>11.5f}" if m in by else f"{'-':>11}" for m in methods)
-        line += "".join(f"{by[m]['relative_rmse']:>11.2e}" if m in by else f"{'-':>11}" for m in methods)
+        # A one-frame set has no frame-to-frame error (None).
+        line = "".join(f"{_or_nan(by[m]['geodesic_rmse']):>11.5f}" if m in by else f"{'-':>11}" for m in methods)
+        line += "".join(f"{_or_nan(by[m]['relative_rmse']):>11.2e}" if m in by else f"{'-':>11}" for m in methods)
         line += "".join(f"{str(by[m]['failures']) + '/' + str(by[m]['frames']):>11}" if m in by else f"{'-':>11}"
                         for m in methods)
         line += "".join(f"{by[m].get(key, float('nan')) * 1e3:>10.1f}" if m in by else f"{'-':>10}"

@@ -73,6 +73,16 @@ class FeatureConfig:
         descriptor patch in pixels, FAST threshold in gray levels).
     akaze_threshold : float
         ``cv2.AKAZE_create`` detector response threshold.
+    akaze_min_keypoints : int
+        When the sequence's first image gives fewer keypoints than this at
+        ``akaze_threshold`` (a dim or low-contrast scene: the response scales
+        with the squared image gradient), the threshold is lowered once, for
+        the whole sequence, to the response of the first image's
+        ``akaze_min_keypoints``-th strongest keypoint; 0 keeps
+        ``akaze_threshold`` whatever the images.
+    akaze_min_threshold : float
+        The threshold is never lowered below this (> 0): below it the
+        detector keeps the noise of a flat image.
     akaze_octaves, akaze_octave_layers : int
         AKAZE scale space size (at most 32 layers per octave).
     radius_band : (2,) tuple of float or None
@@ -98,6 +108,8 @@ class FeatureConfig:
     orb_patch_size: int = 31
     orb_fast_threshold: int = 20
     akaze_threshold: float = 1e-3
+    akaze_min_keypoints: int = 500
+    akaze_min_threshold: float = 1e-5
     akaze_octaves: int = 4
     akaze_octave_layers: int = 4
     mask_margin_px: float = 16.0
@@ -118,6 +130,11 @@ class FeatureConfig:
             raise ValueError(f"min_matches must be >= 5 (the 5-point solver), got {self.min_matches}")
         if self.mask_margin_px < 0:
             raise ValueError(f"mask_margin_px must be >= 0, got {self.mask_margin_px}")
+        if self.akaze_min_keypoints < 0:
+            raise ValueError(f"akaze_min_keypoints must be >= 0, got {self.akaze_min_keypoints}")
+        if not 0 < self.akaze_min_threshold <= self.akaze_threshold:
+            raise ValueError(f"expected 0 < akaze_min_threshold <= akaze_threshold, got "
+                             f"{self.akaze_min_threshold} and {self.akaze_threshold}")
         if self.akaze_octave_layers > _MAX_AKAZE_LAYERS:
             raise ValueError(f"akaze_octave_layers must be at most {_MAX_AKAZE_LAYERS} (scale steps of "
                              f"2^(1/{_MAX_AKAZE_LAYERS}) per sublevel), got {self.akaze_octave_layers}")
@@ -154,8 +171,11 @@ class FeatureFrame:
         return len(self.pixels)
 
 
-def create_detector(detector: str, config: FeatureConfig):
-    """OpenCV ORB or AKAZE detector configured from ``config``."""
+def create_detector(detector: str, config: FeatureConfig, *, akaze_threshold: float | None = None):
+    """OpenCV ORB or AKAZE detector configured from ``config``.
+
+    ``akaze_threshold``, when given, replaces ``config.akaze_threshold``.
+    """
     if detector == "orb":
         return cv2.ORB_create(nfeatures=config.n_features or ORB_DEFAULT_FEATURES,
                               scaleFactor=config.orb_scale_factor, nlevels=config.orb_levels,
@@ -163,7 +183,8 @@ def create_detector(detector: str, config: FeatureConfig):
                               patchSize=config.orb_patch_size,
                               fastThreshold=config.orb_fast_threshold)
     if detector == "akaze":
-        return cv2.AKAZE_create(threshold=config.akaze_threshold, nOctaves=config.akaze_octaves,
+        threshold = config.akaze_threshold if akaze_threshold is None else akaze_threshold
+        return cv2.AKAZE_create(threshold=threshold, nOctaves=config.akaze_octaves,
                                 nOctaveLayers=config.akaze_octave_layers)
     raise ValueError(f"unknown detector {detector!r}; expected one of {DETECTORS}")
 
@@ -214,6 +235,13 @@ class FeatureFrontEnd:
     panorama : ifmi.unwarp.PanoramaConfig, optional, keyword-only
         Band detection and panorama geometry, shared with the iFMI front end
         so that every method sees the same part of the image.
+
+    Attributes
+    ----------
+    detector_threshold : float or None
+        AKAZE: the response threshold in use, ``config.akaze_threshold``
+        until the first image settles it (``FeatureConfig.akaze_min_keypoints``);
+        reported with every pair's diagnostics. ORB: ``None``.
     """
 
     def __init__(self, model: OcamModel, detector: str, *,
@@ -227,6 +255,9 @@ class FeatureFrontEnd:
         self.config = config
         self.panorama_config = panorama if panorama is not None else PanoramaConfig()
         self._detector = create_detector(detector, config)
+        # AKAZE's threshold is settled on the first image (see FeatureConfig.akaze_min_keypoints).
+        self._threshold_settled = detector != "akaze" or config.akaze_min_keypoints == 0
+        self.detector_threshold = config.akaze_threshold if detector == "akaze" else None
         self._mask: np.ndarray | None = None
         self._band: tuple[float, float] | None = config.radius_band
         self._mapping = None
@@ -302,6 +333,8 @@ class FeatureFrontEnd:
                                   ratio=self.config.ratio, cross_check=self.config.cross_check)
         diagnostics = {"n_keypoints_a": len(state_a), "n_keypoints_b": len(state_b),
                        "n_matches": int(len(pairs))}
+        if self.detector_threshold is not None:
+            diagnostics["detector_threshold"] = self.detector_threshold
         if len(pairs) < self.config.min_matches:
             return Correspondences.failed(
                 f"too few matches ({len(pairs)} < {self.config.min_matches})", diagnostics)
@@ -311,7 +344,23 @@ class FeatureFrontEnd:
                                diagnostics=diagnostics, success=True, reason="")
 
     # -- detection ------------------------------------------------------------------------------
+    def _settle_threshold(self, gray: np.ndarray, mask: np.ndarray | None) -> None:
+        """Lower AKAZE's threshold for the sequence if the first image gives too few keypoints."""
+        self._threshold_settled = True
+        config = self.config
+        if len(self._detector.detect(gray, mask)) >= config.akaze_min_keypoints:
+            return
+        low = create_detector("akaze", config, akaze_threshold=config.akaze_min_threshold)
+        response = np.sort([kp.response for kp in low.detect(gray, mask)])[::-1]
+        threshold = config.akaze_min_threshold
+        if len(response) >= config.akaze_min_keypoints:
+            threshold = max(threshold, float(response[config.akaze_min_keypoints - 1]))
+        self.detector_threshold = threshold
+        self._detector = create_detector("akaze", config, akaze_threshold=threshold)
+
     def _detect(self, gray: np.ndarray, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        if not self._threshold_settled:
+            self._settle_threshold(gray, mask)
         keypoints, descriptors = self._detector.detectAndCompute(gray, mask)
         if descriptors is None or not keypoints:
             return np.zeros((0, 2)), np.zeros((0, 32), dtype=np.uint8)

@@ -98,6 +98,57 @@ def test_asymmetric_image_row_col_order():
     assert near.min() < 8
 
 
+def _dimmed(image, contrast):
+    """``image`` with its contrast about mid-gray scaled by ``contrast`` (AKAZE's response by its square)."""
+    return np.clip(128 + (image.astype(np.float64) - 128) * contrast, 0, 255).astype(np.uint8)
+
+
+def test_akaze_threshold_settles_on_a_dim_first_image(pair):
+    # At a fifth of the contrast the default threshold finds almost nothing; the
+    # threshold is lowered once, on the first image, to give the asked-for count,
+    # and the dim pair then gives the rotation as the bright one does.
+    model, image_a, image_b = pair
+    band = example_band_px(model)
+    dim_a, dim_b = _dimmed(image_a, 0.2), _dimmed(image_b, 0.2)
+    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=0))
+    assert len(fixed.prepare(dim_a)) < 10
+    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=300))
+    state_a = front.prepare(dim_a)
+    threshold = front.detector_threshold
+    assert 1e-5 < threshold < 1e-3 / 10
+    # Ties at the chosen response may drop a keypoint or two.
+    assert 290 <= len(state_a) <= 300
+    state_b = front.prepare(dim_b)
+    assert front.detector_threshold == threshold  # fixed for the sequence
+    corr = front.correspondences(state_a, state_b)
+    assert corr.success, corr.reason
+    assert corr.diagnostics["detector_threshold"] == threshold  # written to frames.csv
+    pose, info = relative_pose_from_rays(
+        corr.rays_a, corr.rays_b,
+        options=RelativePoseOptions(ransac_threshold_rad=np.deg2rad(1.0), seed=1, rotation_only=True))
+    assert info.success and np.rad2deg(geodesic_angle(pose.rotation, R_AB)) < 0.2
+
+
+def test_akaze_threshold_kept_when_the_first_image_has_enough_keypoints(pair):
+    model, image_a, _ = pair
+    band = example_band_px(model)
+    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=0))
+    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=300))
+    expected, got = fixed.prepare(image_a), front.prepare(image_a)
+    assert len(expected) > 300 and front.detector_threshold == 1e-3
+    np.testing.assert_array_equal(got.pixels, expected.pixels)
+    np.testing.assert_array_equal(got.descriptors, expected.descriptors)
+
+
+def test_akaze_threshold_stops_at_its_floor(pair):
+    # A flat image has no keypoints at any threshold: the floor is used, and nothing is invented.
+    model, image_a, _ = pair
+    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=example_band_px(model),
+                                                                 akaze_min_threshold=1e-4))
+    assert len(front.prepare(np.full_like(image_a, 90))) == 0
+    assert front.detector_threshold == 1e-4
+
+
 def test_ratio_test_and_cross_check():
     rng = np.random.default_rng(0)
     desc_a = rng.integers(0, 256, size=(50, 32), dtype=np.uint8)
@@ -132,6 +183,12 @@ def test_config_round_trip_and_validation():
     with pytest.raises(ValueError, match=r"akaze_octave_layers must be at most 32 \(scale steps of 2\^\(1/32\) "
                                          r"per sublevel\), got 1000000"):
         FeatureConfig(akaze_octave_layers=10 ** 6)
+    with pytest.raises(ValueError, match="akaze_min_keypoints must be >= 0, got -1"):
+        FeatureConfig(akaze_min_keypoints=-1)
+    with pytest.raises(ValueError, match=r"expected 0 < akaze_min_threshold <= akaze_threshold, got 0.01 and 0.001"):
+        FeatureConfig(akaze_min_threshold=1e-2)
+    with pytest.raises(ValueError, match=r"expected 0 < akaze_min_threshold <= akaze_threshold, got 0.0 and 0.001"):
+        FeatureConfig(akaze_min_threshold=0.0)
     with pytest.raises(ValueError, match="features: unknown key n_feature; expected n_features"):
         FeatureConfig.from_dict({"n_feature": 3})
 
