@@ -78,8 +78,11 @@ class FeatureConfig:
         ``akaze_threshold`` (a dim or low-contrast scene: the response scales
         with the squared image gradient), the threshold is lowered once, for
         the whole sequence, to the response of the first image's
-        ``akaze_min_keypoints``-th strongest keypoint; 0 keeps
-        ``akaze_threshold`` whatever the images.
+        ``akaze_min_keypoints``-th strongest keypoint. The default 0 keeps
+        ``akaze_threshold`` whatever the images: the weak keypoints a lower
+        threshold adds keep AKAZE from failing on fast low-contrast
+        sequences but are located worse, and made it less accurate on slow
+        ones (README, "The feature baselines").
     akaze_min_threshold : float
         The threshold is never lowered below this (> 0): below it the
         detector keeps the noise of a flat image.
@@ -108,7 +111,7 @@ class FeatureConfig:
     orb_patch_size: int = 31
     orb_fast_threshold: int = 20
     akaze_threshold: float = 1e-3
-    akaze_min_keypoints: int = 500
+    akaze_min_keypoints: int = 0
     akaze_min_threshold: float = 1e-5
     akaze_octaves: int = 4
     akaze_octave_layers: int = 4

@@ -110,8 +110,8 @@ def test_akaze_threshold_settles_on_a_dim_first_image(pair):
     model, image_a, image_b = pair
     band = example_band_px(model)
     dim_a, dim_b = _dimmed(image_a, 0.2), _dimmed(image_b, 0.2)
-    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=0))
-    assert len(fixed.prepare(dim_a)) < 10
+    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band))  # the default: fixed
+    assert len(fixed.prepare(dim_a)) < 10 and fixed.detector_threshold == 1e-3
     front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=300))
     state_a = front.prepare(dim_a)
     threshold = front.detector_threshold
@@ -144,6 +144,7 @@ def test_akaze_threshold_stops_at_its_floor(pair):
     # A flat image has no keypoints at any threshold: the floor is used, and nothing is invented.
     model, image_a, _ = pair
     front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=example_band_px(model),
+                                                                 akaze_min_keypoints=500,
                                                                  akaze_min_threshold=1e-4))
     assert len(front.prepare(np.full_like(image_a, 90))) == 0
     assert front.detector_threshold == 1e-4
