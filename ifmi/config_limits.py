@@ -112,6 +112,8 @@ def _check_feature_sizes(features, model: OcamModel) -> None:
     # A level (octave) past these has less than one pixel along the image's shorter side.
     limits = {
         "n_features": (features.n_features, model.size[0] * model.size[1], "the image's pixel count"),
+        "akaze_min_keypoints": (features.akaze_min_keypoints, model.size[0] * model.size[1],
+                                "the image's pixel count"),
         "orb_levels": (features.orb_levels,
                        1 + int(np.log(side) / np.log(features.orb_scale_factor))
                        if features.orb_scale_factor > 1 else 1,

@@ -276,6 +276,8 @@ def test_tiles_are_checked_against_the_band_the_first_frame_shows(dataset, tmp_p
     ({"n_features": 10 ** 9}, "features.n_features: expected at most 65536 (the image's pixel count), got 1000000000"),
     ({"orb_levels": 10 ** 5}, "features.orb_levels: expected at most 31 (levels down to one pixel"),
     ({"akaze_octaves": 40}, "features.akaze_octaves: expected at most 8 (octaves down to one pixel), got 40"),
+    ({"akaze_min_keypoints": 10 ** 11},
+     "features.akaze_min_keypoints: expected at most 65536 (the image's pixel count), got 100000000000"),
     ({"orb_patch_size": 10 ** 6}, "features.orb_patch_size: expected at most 256"),
     ({"radius_band": [10, 10 ** 6]}, "features.radius_band: expected a radius under 18"),
 ])
