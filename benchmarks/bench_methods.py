@@ -57,6 +57,7 @@ from ifmi.dataset_names import dataset_folder_id, dataset_labels, resolved_folde
 from ifmi.errors import InputError
 from ifmi.evaluation import evaluate_files
 from ifmi.io.camera_file import calibration_path, read_camera
+from ifmi.io.config import read_estimate_config
 from ifmi.io.dataset import read_dataset
 from ifmi.io.results import write_estimate_run
 from ifmi.pipeline import EstimateConfig, estimate_dataset, estimate_sequence, resolved_config
@@ -157,7 +158,9 @@ def run_method(dataset: str, method: str, mode: str, config: EstimateConfig, out
             "relative_rmse": s["relative_geodesic"]["rmse"],
             "roll": s["axes"]["roll"]["rmse"], "pitch": s["axes"]["pitch"]["rmse"],
             "yaw": s["axes"]["yaw"]["rmse"],
-            "median_s": float(np.median(seconds)), "mean_s": float(seconds.mean()),
+            # Frame 0 has no pair: a one-frame set has no times (nan).
+            "median_s": float(np.median(seconds)) if len(seconds) else float("nan"),
+            "mean_s": float(seconds.mean()) if len(seconds) else float("nan"),
             "wall_per_frame_s": wall / len(estimate.frames),
             "failures": s["failures"]["count"], "frames": len(estimate.frames),
             "rotation_model_frames": models.count("rotation"), "five_point_frames": models.count("5pt"),
@@ -231,6 +234,11 @@ def main(argv=None) -> int:
     parser.add_argument("--rolling-shutter", type=float, default=None, metavar="READOUT",
                         help="rolling-shutter read-out of every method, a fraction of the frame "
                              "interval (default: a global shutter; see ifmi estimate --rolling-shutter)")
+    parser.add_argument("--config", default=None, metavar="JSON",
+                        help="start every method from this configuration (as ifmi estimate --config: "
+                             "a to_dict() JSON or a run's NAME.config.json), e.g. "
+                             "'{\"features\": {\"akaze_min_keypoints\": 500}}' in a file; the options "
+                             "above win over it")
     parser.add_argument("--timing-frames", type=int, default=50)
     parser.add_argument("--timing-rounds", type=int, default=5)
     args = parser.parse_args(argv)
@@ -244,7 +252,7 @@ def main(argv=None) -> int:
 def run_benchmark(args: argparse.Namespace, argv) -> int:
     """Measure every dataset, mode and method of the parsed command line; write the JSON."""
     modes = ["keyframe"] if args.keyframes else list(dict.fromkeys(args.modes))
-    base = EstimateConfig()
+    base = EstimateConfig() if args.config is None else read_estimate_config(args.config)
     if args.ransac_threshold_px is not None:
         base = replace(base, relative_pose=replace(base.relative_pose,
                                                    ransac_threshold_px=args.ransac_threshold_px))

@@ -182,3 +182,39 @@ def test_options_benchmark_variant_sets_back_end_options_and_names_unknown_ones(
     assert changed.relative_pose.seed == base.relative_pose.seed
     with pytest.raises(ValueError, match="relative_pose"):
         options.estimate_variant(base, {"relative_pose.no_such_option": 1})
+
+
+def test_config_file_reaches_every_method_and_a_bad_one_is_a_one_line_error(tmp_path, capsys):
+    dataset = _write_dataset(tmp_path / "office", seed=5, max_step_rad=0.03)
+    config = tmp_path / "akaze300.json"
+    config.write_text(json.dumps({"features": {"akaze_min_keypoints": 300}}))
+    out = tmp_path / "bench"
+    bench = _benchmark_module()
+    assert bench.main([str(dataset), "--methods", "ifmi", "akaze", "--modes", "frame", "--timing-rounds", "0",
+                       "--config", str(config), "--out", str(out)]) == 0
+    (folder,) = (out / "frame").iterdir()
+    for method in ("ifmi", "akaze"):
+        saved = json.loads((folder / f"{method}.config.json").read_text())["config"]
+        assert saved["features"]["akaze_min_keypoints"] == 300
+    config.write_text(json.dumps({"features": {"akaze_min_keypoints": -1}}))
+    capsys.readouterr()
+    assert bench.main([str(dataset), "--methods", "akaze", "--timing-rounds", "0", "--config", str(config),
+                       "--out", str(tmp_path / "bench2")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(config) in err and "akaze_min_keypoints must be >= 0, got -1" in err
+
+
+def test_a_one_frame_set_is_summarised(tmp_path, capsys):
+    # A set of one frame has no frame-to-frame error: the summary prints nan instead of failing.
+    dataset = _write_dataset(tmp_path / "still", seed=5, max_step_rad=0.03)
+    for image in sorted((dataset / "images").iterdir())[1:]:
+        image.unlink()
+    lines = (dataset / "groundtruth.txt").read_text().splitlines()
+    (dataset / "groundtruth.txt").write_text("\n".join(l for l in lines if l.startswith("#") or
+                                                       l.split()[0] in ("0", "0.0", "0.000000")) + "\n")
+    out = tmp_path / "bench"
+    assert _benchmark_module().main([str(dataset), "--methods", "ifmi", "--modes", "frame", "--timing-rounds", "0",
+                                     "--out", str(out)]) == 0
+    (row,) = json.loads((out / "bench_methods.json").read_text())["rows"]
+    assert row["relative_rmse"] is None and row["frames"] == 1
+    assert any(line.startswith("frame") and "nan" in line for line in capsys.readouterr().out.splitlines())
