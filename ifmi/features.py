@@ -85,7 +85,8 @@ class FeatureConfig:
         ones (README, "The feature baselines").
     akaze_min_threshold : float
         The threshold is never lowered below this (> 0): below it the
-        detector keeps the noise of a flat image.
+        detector keeps the noise of a flat image. An ``akaze_threshold`` at
+        or below it is kept as given.
     akaze_octaves, akaze_octave_layers : int
         AKAZE scale space size (at most 32 layers per octave).
     radius_band : (2,) tuple of float or None
@@ -135,9 +136,8 @@ class FeatureConfig:
             raise ValueError(f"mask_margin_px must be >= 0, got {self.mask_margin_px}")
         if self.akaze_min_keypoints < 0:
             raise ValueError(f"akaze_min_keypoints must be >= 0, got {self.akaze_min_keypoints}")
-        if not 0 < self.akaze_min_threshold <= self.akaze_threshold:
-            raise ValueError(f"expected 0 < akaze_min_threshold <= akaze_threshold, got "
-                             f"{self.akaze_min_threshold} and {self.akaze_threshold}")
+        if not self.akaze_min_threshold > 0:
+            raise ValueError(f"akaze_min_threshold must be > 0, got {self.akaze_min_threshold}")
         if self.akaze_octave_layers > _MAX_AKAZE_LAYERS:
             raise ValueError(f"akaze_octave_layers must be at most {_MAX_AKAZE_LAYERS} (scale steps of "
                              f"2^(1/{_MAX_AKAZE_LAYERS}) per sublevel), got {self.akaze_octave_layers}")
@@ -351,7 +351,8 @@ class FeatureFrontEnd:
         """Lower AKAZE's threshold for the sequence if the first image gives too few keypoints."""
         self._threshold_settled = True
         config = self.config
-        if len(self._detector.detect(gray, mask)) >= config.akaze_min_keypoints:
+        if (config.akaze_threshold <= config.akaze_min_threshold
+                or len(self._detector.detect(gray, mask)) >= config.akaze_min_keypoints):
             return
         low = create_detector("akaze", config, akaze_threshold=config.akaze_min_threshold)
         response = np.sort([kp.response for kp in low.detect(gray, mask)])[::-1]
