@@ -347,13 +347,13 @@ class FeatureFrontEnd:
                                diagnostics=diagnostics, success=True, reason="")
 
     # -- detection ------------------------------------------------------------------------------
-    def _settle_threshold(self, gray: np.ndarray, mask: np.ndarray | None) -> None:
-        """Lower AKAZE's threshold for the sequence if the first image gives too few keypoints."""
+    def _settle_threshold(self, gray: np.ndarray, mask: np.ndarray | None, found: int) -> bool:
+        """Lower AKAZE's threshold for the sequence if the first image gave too few keypoints
+        (``found`` at the configured threshold); True when the detector changed."""
         self._threshold_settled = True
         config = self.config
-        if (config.akaze_threshold <= config.akaze_min_threshold
-                or len(self._detector.detect(gray, mask)) >= config.akaze_min_keypoints):
-            return
+        if config.akaze_threshold <= config.akaze_min_threshold or found >= config.akaze_min_keypoints:
+            return False
         low = create_detector("akaze", config, akaze_threshold=config.akaze_min_threshold)
         response = np.sort([kp.response for kp in low.detect(gray, mask)])[::-1]
         threshold = config.akaze_min_threshold
@@ -361,11 +361,12 @@ class FeatureFrontEnd:
             threshold = max(threshold, float(response[config.akaze_min_keypoints - 1]))
         self.detector_threshold = threshold
         self._detector = create_detector("akaze", config, akaze_threshold=threshold)
+        return True
 
     def _detect(self, gray: np.ndarray, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        if not self._threshold_settled:
-            self._settle_threshold(gray, mask)
         keypoints, descriptors = self._detector.detectAndCompute(gray, mask)
+        if not self._threshold_settled and self._settle_threshold(gray, mask, len(keypoints)):
+            keypoints, descriptors = self._detector.detectAndCompute(gray, mask)
         if descriptors is None or not keypoints:
             return np.zeros((0, 2)), np.zeros((0, 32), dtype=np.uint8)
         xy = np.array([kp.pt for kp in keypoints], dtype=np.float64)
