@@ -10,7 +10,7 @@ Two models compete inside a seeded RANSAC with an angular threshold:
   (``poselib.relpose_5pt``, which accepts rays of any sign of z), scored by
   the angle between a ray and the epipolar plane of its partner, then refined
   by Gauss-Newton (analytic Jacobian) on the inliers' symmetric epipolar
-  angles;
+  angles, again on the refined model's inliers until they settle;
 * ``"rotation"``: a rotation-only model (Kabsch on rays, two rays per
   sample), scored by the angle between ``rays_a`` and ``R_ab @ rays_b``,
   then refined by Kabsch on the inliers and re-solved a few times with
@@ -129,6 +129,15 @@ class RelativePoseOptions:
         Refine the chosen model on its inliers.
     refine_iterations : int
         Gauss-Newton iterations of the 5-point refinement (0 to 100).
+    polish_rounds : int
+        With ``refine``: after the 5-point model is refined on its inliers,
+        take the inliers of the refined model and refine again, up to this
+        many times (0 to 100) or until the inlier set stops changing (local
+        optimisation). A minimal sample's model is noisy, so its inlier set
+        can take in an outlier or leave out inliers that the refined model
+        sorts correctly; where the rays cover a narrow field (tiles that
+        passed on one side of a room), one such measurement can move the
+        rotation by tens of milliradians.
     rotation_only : bool
         Force the rotation-only model.
     noise_sigma_rad : float or None
@@ -175,6 +184,7 @@ class RelativePoseOptions:
     seed: int = 0
     refine: bool = True
     refine_iterations: int = 3
+    polish_rounds: int = 3
     rotation_only: bool = False
     noise_sigma_rad: float | None = None
     rotation_threshold_factor: float = 1.25
@@ -196,6 +206,8 @@ class RelativePoseOptions:
                 and self.robust_iterations <= _MAX_REFINE_ITERATIONS):
             raise ValueError(f"expected 0 <= refine_iterations <= {_MAX_REFINE_ITERATIONS} and robust_iterations "
                              f"<= {_MAX_REFINE_ITERATIONS}, got {self.refine_iterations}, {self.robust_iterations}")
+        if not 0 <= self.polish_rounds <= _MAX_REFINE_ITERATIONS:
+            raise ValueError(f"expected 0 <= polish_rounds <= {_MAX_REFINE_ITERATIONS}, got {self.polish_rounds}")
         if not 1 <= self.max_iterations <= _MAX_ITERATIONS or not 0 <= self.min_iterations <= _MAX_ITERATIONS:
             raise ValueError(
                 f"expected 1 <= max_iterations <= {_MAX_ITERATIONS} and 0 <= min_iterations <= {_MAX_ITERATIONS}, "
@@ -835,6 +847,25 @@ def _fit_rotation(rays_a, rays_b, products, rays, options: RelativePoseOptions, 
     return rotation, rot_errors, rot_mask, sigma
 
 
+def _refined_5pt(rays_a, rays_b, products, rotation, translation, options: RelativePoseOptions):
+    """The 5-point model refined on its inliers, then on the refined model's inliers
+    (``options.polish_rounds``), and the epipolar angles of every correspondence under it."""
+    threshold = options.ransac_threshold_rad
+    errors = _epipolar_angles_of_essentials(products, rays_b, (_skew(translation) @ rotation)[None])[0]
+    mask = errors < threshold
+    for _ in range(1 + options.polish_rounds if options.refine else 0):
+        if mask.sum() < _SAMPLE_5PT:
+            break
+        rotation, translation = _refine_5pt(rays_a[mask], rays_b[mask], rotation, translation,
+                                            options.refine_iterations)
+        errors = _epipolar_angles_of_essentials(products, rays_b, (_skew(translation) @ rotation)[None])[0]
+        refined_mask = errors < threshold
+        if np.array_equal(refined_mask, mask):
+            break
+        mask = refined_mask
+    return rotation, translation, errors
+
+
 def _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options: RelativePoseOptions,
                        rng, group: int):
     """The 5-point model ``(rotation, unit translation, inlier mask)`` when GRIC prefers it, else None.
@@ -853,14 +884,8 @@ def _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options: Re
     rotation_5pt, translation = _ransac_5pt(rays, products, threshold, options, rng)
     if rotation_5pt is None:
         return None
-    errors_5pt = _epipolar_angles_of_essentials(
-        products, rays_b, (_skew(translation) @ rotation_5pt)[None])[0]
-    mask = errors_5pt < threshold
-    if options.refine and mask.sum() >= _SAMPLE_5PT:
-        rotation_5pt, translation = _refine_5pt(rays_a[mask], rays_b[mask], rotation_5pt,
-                                                translation, options.refine_iterations)
-        errors_5pt = _epipolar_angles_of_essentials(
-            products, rays_b, (_skew(translation) @ rotation_5pt)[None])[0]
+    rotation_5pt, translation, errors_5pt = _refined_5pt(rays_a, rays_b, products, rotation_5pt, translation,
+                                                         options)
     either = rot_mask | (errors_5pt < threshold)
     noise, from_5pt = options.noise_sigma_rad, False
     if noise is None:

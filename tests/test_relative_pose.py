@@ -409,3 +409,42 @@ def test_ransac_sample_counts_out_of_range_are_refused(options):
     # A count past 100 000 only turns a hopeless pair into a hang (or, as a minimum, one huge chunk).
     with pytest.raises(ValueError, match=r"expected 1 <= max_iterations <= 100000 and 0 <= min_iterations"):
         RelativePoseOptions(**options)
+
+
+def _narrow_translated_scene(seed, n=80, half_angle_rad=0.3, noise_rad=5e-4, near_outliers=6):
+    """Rays of points 2-4 m away in a cone of +-0.3 rad (tiles that passed on one side of a
+    room), a sideways step of 0.3 m, noise, and a few rays pushed a few thresholds off."""
+    rng = np.random.default_rng(seed)
+    directions = np.column_stack([np.ones(n), rng.uniform(-half_angle_rad, half_angle_rad, (n, 2))])
+    points_b = directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(2.0, 4.0, (n, 1))
+    rotation = Rotation.from_rotvec([0.02, -0.05, 0.4]).as_matrix()
+    points_a = points_b @ rotation.T + np.array([0.0, 0.3, 0.05])
+    rays_a = points_a / np.linalg.norm(points_a, axis=1, keepdims=True)
+    rays_b = points_b / np.linalg.norm(points_b, axis=1, keepdims=True)
+    rays_a += rng.normal(0.0, noise_rad, rays_a.shape)
+    rays_a[rng.choice(n, near_outliers, replace=False)] += rng.normal(0.0, 4e-3, (near_outliers, 3))
+    return rays_a / np.linalg.norm(rays_a, axis=1, keepdims=True), rays_b, rotation
+
+
+def test_polishing_the_inlier_set_lowers_the_narrow_field_error():
+    # A minimal sample's model sorts rays near the threshold wrongly; over a narrow field one
+    # such ray moves the rotation a lot. Measured over these 60 scenes: RMS rotation error
+    # 2.81 -> 2.24 mrad and worst 9.0 -> 4.4 mrad with three polishing rounds.
+    errors = {}
+    for rounds in (0, 3):
+        errors[rounds] = []
+        for seed in range(60):
+            rays_a, rays_b, rotation = _narrow_translated_scene(seed)
+            options = _options(polish_rounds=rounds, seed=seed)
+            pose, info = relative_pose_from_rays(rays_a, rays_b, options=options)
+            assert info.success and info.model == "5pt"
+            errors[rounds].append(geodesic_angle(rotation, pose.rotation))
+    plain, polished = np.asarray(errors[0]), np.asarray(errors[3])
+    assert np.sqrt(np.mean(polished ** 2)) < 0.9 * np.sqrt(np.mean(plain ** 2))
+    assert polished.max() < 0.6 * plain.max()
+
+
+@pytest.mark.parametrize("rounds", [-1, 101])
+def test_polish_rounds_out_of_range_are_refused(rounds):
+    with pytest.raises(ValueError, match=r"expected 0 <= polish_rounds <= 100, got"):
+        RelativePoseOptions(polish_rounds=rounds)
