@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,8 @@ def _benchmark_module(name="bench_methods", monkeypatch=None):
         monkeypatch.syspath_prepend(str(BENCHMARK.parent))
     spec = importlib.util.spec_from_file_location(name, BENCHMARK.parent / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    if monkeypatch is not None:  # dataclasses look their module up in sys.modules
+        monkeypatch.setitem(sys.modules, name, module)
     spec.loader.exec_module(module)
     return module
 
@@ -218,3 +221,47 @@ def test_a_one_frame_set_is_summarised(tmp_path, capsys):
     (row,) = json.loads((out / "bench_methods.json").read_text())["rows"]
     assert row["relative_rmse"] is None and row["frames"] == 1
     assert any(line.startswith("frame") and "nan" in line for line in capsys.readouterr().out.splitlines())
+
+
+def test_bench_seeds_runs_each_seed_and_summarises_over_them(tmp_path, capsys, monkeypatch):
+    dataset = _write_dataset(tmp_path / "office", seed=5, max_step_rad=0.03)
+    out = tmp_path / "seeds"
+    bench = _benchmark_module("bench_seeds", monkeypatch)
+    assert bench.main([str(dataset), "--seeds", "0", "3", "--methods", "ifmi", "orb", "--modes", "frame",
+                       "--out", str(out)]) == 0
+    result = json.loads((out / "bench_seeds.json").read_text())
+    rows = result["rows"]
+    assert [(r["seed"], r["method"]) for r in rows] == [(0, "ifmi"), (0, "orb"), (3, "ifmi"), (3, "orb")]
+    # Each seed's runs reached the back end with that seed.
+    for seed in (0, 3):
+        saved = json.loads((out / f"seed{seed}" / "frame" / rows[0]["dataset_id"] / "ifmi.config.json").read_text())
+        assert saved["config"]["relative_pose"]["seed"] == seed
+    for entry in result["summary"]:
+        ates = [r["geodesic_rmse"] for r in rows if r["method"] == entry["method"]]
+        assert entry["ates"] == ates and entry["seeds"] == [0, 3]
+        assert entry["median"] == pytest.approx(np.median(ates))
+        assert entry["spread"] == pytest.approx(max(ates) / min(ates))
+    assert "1 sets with seed 3" in capsys.readouterr().out
+
+
+def test_bench_seeds_counts_misses_per_seed_and_on_medians(monkeypatch):
+    bench = _benchmark_module("bench_seeds", monkeypatch)
+    spread = bench.SeedSpread
+    spreads = [spread("frame", "lawn", "ifmi", (0, 1), (1.0, 3.0), (0, 0)),
+               spread("frame", "lawn", "orb", (0, 1), (2.0, 2.0), (0, 0)),
+               spread("frame", "lawn", "akaze", (0, 1), (4.0, 1.0), (0, 0)),
+               # A failed frame is a miss whatever the ATE.
+               spread("frame", "urban", "ifmi", (0, 1), (1.0, 1.0), (1, 0)),
+               spread("frame", "urban", "orb", (0, 1), (5.0, 5.0), (0, 0))]
+    per_seed, on_medians, compared = bench.ifmi_misses(spreads, "frame")
+    # lawn: seed 0 1 <= 2, seed 1 3 > 1; medians 2 <= min(2, 2.5). urban: seed 0 failed a frame.
+    assert (per_seed, on_medians, compared) == ([1, 1], 0, 2)
+
+
+@pytest.mark.parametrize("seeds", [["-1"], ["2", "2"]])
+def test_bench_seeds_refuses_negative_or_repeated_seeds(tmp_path, capsys, monkeypatch, seeds):
+    bench = _benchmark_module("bench_seeds", monkeypatch)
+    with pytest.raises(SystemExit) as exit_info:
+        bench.main([str(tmp_path), "--seeds", *seeds, "--out", str(tmp_path / "out")])
+    assert exit_info.value.code == 2
+    assert "--seeds: expected distinct integers >= 0" in capsys.readouterr().err
