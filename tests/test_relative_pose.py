@@ -448,3 +448,18 @@ def test_polishing_the_inlier_set_lowers_the_narrow_field_error():
 def test_polish_rounds_out_of_range_are_refused(rounds):
     with pytest.raises(ValueError, match=r"expected 0 <= polish_rounds <= 100, got"):
         RelativePoseOptions(polish_rounds=rounds)
+
+
+def test_rotation_noise_reaching_its_threshold_hands_the_selection_to_the_five_point_noise():
+    from ifmi.relative_pose import _selection_noise
+    threshold, rotation_threshold = 0.01, 0.0125
+    # The 5-point noise at 0.3 thresholds: above the quarter where it is always used, within a third.
+    # A rotation-model estimate of 1.2 of its own threshold has no noise peak inside it: the 5-point noise.
+    assert _selection_noise(0.003, 1.2 * rotation_threshold, threshold, rotation_threshold) == (0.003, True)
+    # A rotation model whose noise peaks inside its threshold keeps its own estimate.
+    assert _selection_noise(0.003, 0.5 * rotation_threshold, threshold, rotation_threshold) == (
+        0.5 * rotation_threshold, False)
+    # A 5-point noise above a third of the threshold is not used; the rotation model's is capped at the threshold.
+    assert _selection_noise(0.0034, 3 * rotation_threshold, threshold, rotation_threshold) == (threshold, False)
+    # Below a quarter of the threshold the 5-point noise is used whatever the rotation model's.
+    assert _selection_noise(0.002, 0.1 * rotation_threshold, threshold, rotation_threshold) == (0.002, True)
