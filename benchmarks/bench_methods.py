@@ -105,6 +105,13 @@ def interleaved_timing(dataset: str, methods, configs, *, frames: int, rounds: i
     return walls
 
 
+def labelled_datasets(paths) -> list[tuple[str, str]]:
+    """``(dataset, label)`` once per folder, in the order given: a folder given twice (under two
+    spellings too) is measured once; labels tell apart sets of one name (:func:`dataset_labels`)."""
+    labels = dataset_labels(paths)
+    return [(d, labels[folder]) for folder, d in {resolved_folder(d): d for d in paths}.items()]
+
+
 def _or_nan(value) -> float:
     return float("nan") if value is None else value
 
@@ -260,16 +267,12 @@ def run_benchmark(args: argparse.Namespace, argv) -> int:
         base = replace(base, rolling_shutter=replace(base.rolling_shutter, readout=args.rolling_shutter))
     out = Path(args.out)
     rows = []
-    labels = dataset_labels(args.datasets)
-    # One entry per folder: a folder given twice (under two spellings too) is measured once.
-    datasets = list({resolved_folder(d): d for d in args.datasets}.values())
-    for dataset in datasets:
+    for dataset, label in labelled_datasets(args.datasets):
         model = read_camera(calibration_path(dataset))
         for mode in modes:
             # One configuration for every method of this mode and dataset.
             config = resolved_config(mode_config(base, mode), model)
-            these = [run_method(dataset, method, mode, config, out, label=labels[resolved_folder(dataset)])
-                     for method in args.methods]
+            these = [run_method(dataset, method, mode, config, out, label=label) for method in args.methods]
             if args.timing_rounds > 0:
                 walls = interleaved_timing(dataset, args.methods, {m: config for m in args.methods},
                                            frames=args.timing_frames, rounds=args.timing_rounds)

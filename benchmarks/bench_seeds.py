@@ -37,8 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench_methods import METHODS, MODES, mode_config, run_method
-from ifmi.dataset_names import dataset_labels, resolved_folder
+from bench_methods import METHODS, MODES, labelled_datasets, mode_config, run_method
 from ifmi.errors import InputError
 from ifmi.io.camera_file import calibration_path, read_camera
 from ifmi.io.config import read_estimate_config
@@ -123,12 +122,9 @@ def run_seeds(args: argparse.Namespace, argv) -> int:
     """Every dataset, mode, seed and method of the parsed command line; print and write the JSON."""
     base = EstimateConfig() if args.config is None else read_estimate_config(args.config)
     out = Path(args.out)
-    labels = dataset_labels(args.datasets)
-    datasets = list({resolved_folder(d): d for d in args.datasets}.values())
     rows = []
-    for dataset in datasets:
+    for dataset, label in labelled_datasets(args.datasets):
         model = read_camera(calibration_path(dataset))
-        label = labels[resolved_folder(dataset)]
         for mode in dict.fromkeys(args.modes):
             for seed in args.seeds:
                 seeded = replace(base, relative_pose=replace(base.relative_pose, seed=seed))
