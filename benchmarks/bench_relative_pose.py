@@ -75,14 +75,15 @@ ROUNDING_PERTURBATION = 1e-15
 
 
 def load_baseline(revision: str):
-    """``ifmi/relative_pose.py`` at ``revision`` as a module named ``relative_pose_baseline``."""
+    """``ifmi/relative_pose.py`` at ``revision`` as a module ``ifmi.relative_pose_baseline`` (inside the
+    package, so that its relative imports resolve to the current ``ifmi``)."""
     root = Path(__file__).resolve().parents[1]
     source = subprocess.run(["git", "-C", str(root), "show", f"{revision}:ifmi/relative_pose.py"],
                             check=True, capture_output=True, text=True).stdout
     with tempfile.TemporaryDirectory(prefix="bench_relative_pose_") as folder:
         path = Path(folder) / "relative_pose_baseline.py"
         path.write_text(source)
-        spec = importlib.util.spec_from_file_location("relative_pose_baseline", path)
+        spec = importlib.util.spec_from_file_location("ifmi.relative_pose_baseline", path)
         module = importlib.util.module_from_spec(spec)
         sys.modules[spec.name] = module
         spec.loader.exec_module(module)
