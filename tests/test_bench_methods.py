@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
 import json
 import sys
@@ -265,3 +266,25 @@ def test_bench_seeds_refuses_negative_or_repeated_seeds(tmp_path, capsys, monkey
         bench.main([str(tmp_path), "--seeds", *seeds, "--out", str(tmp_path / "out")])
     assert exit_info.value.code == 2
     assert "--seeds: expected distinct integers >= 0" in capsys.readouterr().err
+
+
+def test_bench_relative_pose_loads_a_revisions_back_end_that_solves(monkeypatch):
+    # The baseline is ifmi/relative_pose.py from git; its relative imports must resolve in the package.
+    root = BENCHMARK.parents[1]
+    if not (root / ".git").exists():
+        pytest.skip("not a git checkout")
+    module = _benchmark_module("bench_relative_pose", monkeypatch)
+    monkeypatch.delitem(sys.modules, "ifmi.relative_pose_baseline", raising=False)
+    baseline = module.load_baseline("HEAD")
+    rng = np.random.default_rng(3)
+    rays_b = rng.normal(size=(60, 3))
+    rays_b /= np.linalg.norm(rays_b, axis=1, keepdims=True)
+    rotation = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 degrees of yaw
+    rays_a = rays_b @ rotation.T
+    rays_a += rng.normal(0.0, 1e-4, rays_a.shape)
+    for module_ in (baseline, importlib.import_module("ifmi.relative_pose")):
+        options = module_.RelativePoseOptions(ransac_threshold_rad=1e-3)
+        pose, info = module_.relative_pose_from_rays(rays_a, rays_b, options=options)
+        assert info.success
+        np.testing.assert_allclose(pose.rotation, rotation, atol=1e-3)
+    assert baseline.__name__ == "ifmi.relative_pose_baseline"
