@@ -36,12 +36,13 @@ largest angle between the two estimates.
 Usage::
 
     python benchmarks/bench_relative_pose.py [DATASET ...] [--method ifmi] [--pairs 30]
-        [--synthetic 10] [--repeats 5] [--baseline REV] [--odometry N]
+        [--synthetic 10] [--repeats 5] [--baseline REV] [--odometry N] [--options JSON]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import importlib.util
 import subprocess
 import sys
@@ -126,15 +127,20 @@ def synthetic_case(n: int, translation, seed: int) -> tuple:
     return rays_a, rays_b, rotation, SYNTHETIC_THRESHOLD_RAD
 
 
-def compare(cases, baseline, repeats: int) -> dict:
-    """Fastest time, estimate and diagnostics of each case under both implementations."""
+def compare(cases, baseline, repeats: int, options: dict | None = None) -> dict:
+    """Fastest time, estimate and diagnostics of each case under both implementations.
+
+    ``options``: :class:`RelativePoseOptions` fields for the new implementation (the threshold is
+    the case's), e.g. ``{"refine_hypotheses": 3}``; the baseline runs with its defaults.
+    """
+    options = dict(options or {})
     times = {"old": np.full(len(cases), np.inf), "new": np.full(len(cases), np.inf)}
     results = {"old": [None] * len(cases), "new": [None] * len(cases)}
     solvers = {
         "old": lambda a, b, thr: baseline.relative_pose_from_rays(
             a, b, options=baseline.RelativePoseOptions(ransac_threshold_rad=thr)),
         "new": lambda a, b, thr: relative_pose_from_rays(
-            a, b, options=RelativePoseOptions(ransac_threshold_rad=thr)),
+            a, b, options=RelativePoseOptions(**{**options, "ransac_threshold_rad": thr})),
     }
     for repeat in range(repeats):
         for i, (rays_a, rays_b, _, threshold) in enumerate(cases):
@@ -214,7 +220,16 @@ def main(argv=None) -> int:
     parser.add_argument("--odometry", type=int, default=None, metavar="N",
                         help="also estimate each dataset end to end with both back ends, and N "
                              "times with the baseline on rays perturbed at rounding level")
+    parser.add_argument("--options", default="{}", metavar="JSON",
+                        help='RelativePoseOptions fields for the new back end, e.g. \'{"refine_hypotheses": 3}\'')
     args = parser.parse_args(argv)
+    try:
+        options = json.loads(args.options)
+        if not isinstance(options, dict):
+            raise ValueError(f"expected a JSON object, got {type(options).__name__}")
+        RelativePoseOptions(**{**options, "ransac_threshold_rad": 1e-3})
+    except (ValueError, TypeError) as exc:
+        parser.error(f"--options: {exc}")
     baseline = load_baseline(args.baseline)
 
     groups = []
@@ -226,7 +241,7 @@ def main(argv=None) -> int:
         groups.append((f"synthetic translate {n}",
                        [synthetic_case(n, SYNTHETIC_TRANSLATION, seed) for seed in range(args.synthetic)]))
 
-    print(f"baseline: ifmi/relative_pose.py at {args.baseline[:12]}; fastest of {args.repeats} "
+    print(f"baseline: ifmi/relative_pose.py at {args.baseline[:12]}; new: options {options}; fastest of {args.repeats} "
           "interleaved runs per call; rotation errors in radians; models rotation/5pt/fail")
     print(f"{'group':<22} {'pairs':>5} {'rays':>5} {'old ms':>8} {'new ms':>8} {'ratio':>6} "
           f"{'rmse old':>10} {'rmse new':>10}  {'old r/5/f':<9} {'new r/5/f':<9} {'differ':>6} {'max apart':>9}")
@@ -235,7 +250,7 @@ def main(argv=None) -> int:
         if not cases:
             print(f"{label:<22} no usable pairs")
             continue
-        old, new = summary(label, cases, compare(cases, baseline, args.repeats))
+        old, new = summary(label, cases, compare(cases, baseline, args.repeats, options))
         kind = "datasets" if not label.startswith("synthetic") else "synthetic"
         totals.setdefault(kind, [0.0, 0.0])
         totals[kind][0] += old

@@ -51,6 +51,7 @@ import poselib
 from scipy.optimize import brentq
 
 from .options import check_finite_fields
+from .rotations import geodesic_angle
 
 __all__ = [
     "RelativePoseOptions",
@@ -138,6 +139,18 @@ class RelativePoseOptions:
         sorts correctly; where the rays cover a narrow field (tiles that
         passed on one side of a room), one such measurement can move the
         rotation by tens of milliradians.
+    refine_hypotheses : int
+        With ``refine``: how many of the best distinct 5-point RANSAC
+        hypotheses (1 to 100) are looked at. The best is refined and
+        polished as before; each other one is refined once on its own
+        inliers, and the one with the lowest truncated epipolar cost (MSAC)
+        is polished and replaces the best one's result when its cost ends
+        lower. Refinement stays in the basin it starts in: on a fast
+        translated pair seen over a narrow field the best sample can sit in
+        a second minimum of the epipolar cost (its translation near 90
+        degrees from the true one and its rotation tens of milliradians
+        off) while another sample starts in the true basin. 1: only the
+        best hypothesis.
     rotation_only : bool
         Force the rotation-only model.
     noise_sigma_rad : float or None
@@ -185,6 +198,7 @@ class RelativePoseOptions:
     refine: bool = True
     refine_iterations: int = 3
     polish_rounds: int = 3
+    refine_hypotheses: int = 5
     rotation_only: bool = False
     noise_sigma_rad: float | None = None
     rotation_threshold_factor: float = 1.25
@@ -208,6 +222,9 @@ class RelativePoseOptions:
                              f"<= {_MAX_REFINE_ITERATIONS}, got {self.refine_iterations}, {self.robust_iterations}")
         if not 0 <= self.polish_rounds <= _MAX_REFINE_ITERATIONS:
             raise ValueError(f"expected 0 <= polish_rounds <= {_MAX_REFINE_ITERATIONS}, got {self.polish_rounds}")
+        if not 1 <= self.refine_hypotheses <= _MAX_REFINE_ITERATIONS:
+            raise ValueError(f"expected 1 <= refine_hypotheses <= {_MAX_REFINE_ITERATIONS}, "
+                             f"got {self.refine_hypotheses}")
         if not 1 <= self.max_iterations <= _MAX_ITERATIONS or not 0 <= self.min_iterations <= _MAX_ITERATIONS:
             raise ValueError(
                 f"expected 1 <= max_iterations <= {_MAX_ITERATIONS} and 0 <= min_iterations <= {_MAX_ITERATIONS}, "
@@ -482,19 +499,20 @@ def _score(errors: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray
 
 
 def _ransac_5pt(rays, products, threshold, options, rng):
-    """Best essential-matrix hypothesis ``(R_ab, t_ab)`` (``None`` twice when no sample gave one).
+    """The best essential-matrix hypotheses ``[(R_ab, t_ab), ...]``, best first (empty when no sample gave one).
 
     ``rays`` holds ``rays_a`` and ``rays_b``, (2, N, 3); ``products`` their
     :func:`_ray_products`. Samples are drawn and solved a chunk at a time and all their hypotheses
     scored in one go; the chunk's results are then taken in the order drawn
     with the adaptive stop applied after each sample, so the outcome is that
     of scoring one sample at a time (hypotheses drawn past the stop are
-    discarded).
+    discarded). Each sample's best hypothesis (most inliers, then lowest
+    cost, then first solved) is a candidate; the ``options.refine_hypotheses``
+    best distinct candidates come back (see :func:`_distinct_best`).
     """
     n = rays.shape[1]
-    best_rotation, best_translation, best_count, best_cost = None, None, -1, np.inf
-    limit = options.max_iterations
-    drawn = 0
+    candidates = []  # (inlier count, truncated cost, R_ab, t_ab) of each sample taken
+    best_count, limit, drawn = -1, options.max_iterations, 0
     while drawn < limit:
         chunk = min(limit - drawn, max(options.min_iterations - drawn, _CHUNK_5PT))
         rotations, translations, owners = [], [], []
@@ -508,7 +526,6 @@ def _ransac_5pt(rays, products, threshold, options, rng):
             rotations, translations = np.stack(rotations), np.stack(translations)
             count, cost = _score(_epipolar_angles_of_essentials(
                 products, rays[1], _skew(translations) @ rotations), threshold)
-            # Best hypothesis of each sample (most inliers, then lowest cost, then first solved).
             sample_of = np.asarray(owners)
             order = np.lexsort((cost, -count, sample_of))
             first = np.ones(len(order), dtype=bool)
@@ -517,12 +534,34 @@ def _ransac_5pt(rays, products, threshold, options, rng):
             for k in order[first].tolist():
                 if drawn + owners[k] >= limit:
                     break
-                if count[k] > best_count or (count[k] == best_count and cost[k] < best_cost):
-                    best_rotation, best_translation = rotations[k], translations[k]
-                    best_count, best_cost = count[k], cost[k]
+                candidates.append((count[k], cost[k], rotations[k], translations[k]))
+                if count[k] > best_count:
+                    best_count = count[k]
                     limit = _iteration_limit(best_count, n, _SAMPLE_5PT, options)
         drawn += chunk
-    return best_rotation, best_translation
+    return _distinct_best(candidates, threshold, options.refine_hypotheses)
+
+
+def _distinct_best(candidates, threshold, keep):
+    """Up to ``keep`` hypotheses ``(R_ab, t_ab)`` of ``candidates``, best first (most inliers, then
+    lowest truncated cost, then drawn first), leaving out any within ``threshold`` radians of a kept
+    one in both rotation and translation direction (the same model found by another sample)."""
+    if not candidates:
+        return []
+    order = sorted(range(len(candidates)), key=lambda i: (-candidates[i][0], candidates[i][1], i))
+    rotations = np.stack([candidates[i][2] for i in order])
+    translations = np.stack([candidates[i][3] for i in order])
+    translations = translations / np.linalg.norm(translations, axis=1, keepdims=True)
+    open_ = np.ones(len(order), dtype=bool)
+    kept = []
+    while open_.any() and len(kept) < keep:
+        i = int(np.argmax(open_))
+        kept.append((rotations[i], translations[i]))
+        same = ((geodesic_angle(rotations[i], rotations) < threshold)
+                & (_angles_from_cosines(translations @ translations[i]) < threshold))
+        open_ &= ~same
+        open_[i] = False
+    return kept
 
 
 def _ransac_rotation(rays, products, threshold, options, rng):
@@ -872,6 +911,34 @@ def _refined_5pt(rays_a, rays_b, products, rotation, translation, options: Relat
     return rotation, translation, errors
 
 
+def _lowest_cost_refined_5pt(rays_a, rays_b, products, hypotheses, options: RelativePoseOptions):
+    """:func:`_refined_5pt` of the best hypothesis, or of another one when that ends at a lower
+    truncated epipolar cost (MSAC).
+
+    The other hypotheses (``hypotheses[1:options.refine_hypotheses]``) are screened with one
+    refinement each on their own inliers; only the lowest-cost one is polished, and it replaces
+    the best hypothesis's result only if its polished cost is lower. Without ``options.refine``
+    the best hypothesis alone, unrefined.
+    """
+    threshold = options.ransac_threshold_rad
+    chosen = _refined_5pt(rays_a, rays_b, products, *hypotheses[0], options)
+    if not options.refine:
+        return chosen
+    chosen_cost = _score(chosen[2], threshold)[1]
+    screen = replace(options, polish_rounds=0)
+    challenger, challenger_cost = None, chosen_cost
+    for rotation, translation in hypotheses[1:options.refine_hypotheses]:
+        screened = _refined_5pt(rays_a, rays_b, products, rotation, translation, screen)
+        cost = _score(screened[2], threshold)[1]
+        if cost < challenger_cost:
+            challenger, challenger_cost = screened, cost
+    if challenger is not None:
+        polished = _refined_5pt(rays_a, rays_b, products, challenger[0], challenger[1], options)
+        if _score(polished[2], threshold)[1] < chosen_cost:
+            chosen = polished
+    return chosen
+
+
 def _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options: RelativePoseOptions,
                        rng, group: int):
     """The 5-point model ``(rotation, unit translation, inlier mask)`` when GRIC prefers it, else None.
@@ -887,11 +954,11 @@ def _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options: Re
     """
     threshold = options.ransac_threshold_rad
     _, rot_errors, rot_mask, sigma = rotation_fit
-    rotation_5pt, translation = _ransac_5pt(rays, products, threshold, options, rng)
-    if rotation_5pt is None:
+    hypotheses = _ransac_5pt(rays, products, threshold, options, rng)
+    if not hypotheses:
         return None
-    rotation_5pt, translation, errors_5pt = _refined_5pt(rays_a, rays_b, products, rotation_5pt, translation,
-                                                         options)
+    rotation_5pt, translation, errors_5pt = _lowest_cost_refined_5pt(rays_a, rays_b, products, hypotheses,
+                                                                     options)
     either = rot_mask | (errors_5pt < threshold)
     noise, from_5pt = options.noise_sigma_rad, False
     if noise is None:

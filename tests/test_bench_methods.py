@@ -288,3 +288,16 @@ def test_bench_relative_pose_loads_a_revisions_back_end_that_solves(monkeypatch)
         assert info.success
         np.testing.assert_allclose(pose.rotation, rotation, atol=1e-3)
     assert baseline.__name__ == "ifmi.relative_pose_baseline"
+
+
+@pytest.mark.parametrize("options, message", [('{"refine_hypotheses": 0}', "expected 1 <= refine_hypotheses"),
+                                              ("[1]", "expected a JSON object"),
+                                              ('{"nope": 1}', "unexpected keyword argument 'nope'")])
+def test_bench_relative_pose_refuses_bad_options_in_one_line(options, message, monkeypatch, capsys):
+    module = _benchmark_module("bench_relative_pose", monkeypatch)
+    with pytest.raises(SystemExit) as exit_info:
+        module.main(["--options", options, "--synthetic", "0"])
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "error: --options:" in error
+    assert message in error

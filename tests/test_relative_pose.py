@@ -411,14 +411,15 @@ def test_ransac_sample_counts_out_of_range_are_refused(options):
         RelativePoseOptions(**options)
 
 
-def _narrow_translated_scene(seed, n=80, half_angle_rad=0.3, noise_rad=5e-4, near_outliers=6):
-    """Rays of points 2-4 m away in a cone of +-0.3 rad (tiles that passed on one side of a
-    room), a sideways step of 0.3 m, noise, and a few rays pushed a few thresholds off."""
+def _narrow_translated_scene(seed, n=80, half_angle_rad=0.3, noise_rad=5e-4, near_outliers=6,
+                             step=(0.0, 0.3, 0.05)):
+    """Rays of points 2-4 m away in a cone of +-0.3 rad about +x (tiles that passed on one side of a
+    room), a step (default mostly sideways, 0.3 m), noise, and a few rays pushed a few thresholds off."""
     rng = np.random.default_rng(seed)
     directions = np.column_stack([np.ones(n), rng.uniform(-half_angle_rad, half_angle_rad, (n, 2))])
     points_b = directions / np.linalg.norm(directions, axis=1, keepdims=True) * rng.uniform(2.0, 4.0, (n, 1))
     rotation = Rotation.from_rotvec([0.02, -0.05, 0.4]).as_matrix()
-    points_a = points_b @ rotation.T + np.array([0.0, 0.3, 0.05])
+    points_a = points_b @ rotation.T + np.asarray(step, dtype=float)
     rays_a = points_a / np.linalg.norm(points_a, axis=1, keepdims=True)
     rays_b = points_b / np.linalg.norm(points_b, axis=1, keepdims=True)
     rays_a += rng.normal(0.0, noise_rad, rays_a.shape)
@@ -463,3 +464,65 @@ def test_rotation_noise_reaching_its_threshold_hands_the_selection_to_the_five_p
     assert _selection_noise(0.0034, 3 * rotation_threshold, threshold, rotation_threshold) == (threshold, False)
     # Below a quarter of the threshold the 5-point noise is used whatever the rotation model's.
     assert _selection_noise(0.002, 0.1 * rotation_threshold, threshold, rotation_threshold) == (0.002, True)
+
+
+def test_refining_several_hypotheses_leaves_the_second_minimum():
+    # A small sideways step seen over a narrow field: the epipolar cost has a second minimum (the
+    # translation near the viewing direction, the rotation off), and refinement stays in the basin
+    # its hypothesis starts in. Measured over these 60 scenes with one hypothesis refined and five:
+    # RMS rotation error 5.6 -> 2.2 mrad, worst 28.3 -> 4.3 mrad (6 scenes better by over 1 mrad, 1 worse).
+    errors = {}
+    for keep in (1, 5):
+        errors[keep] = []
+        for seed in range(60):
+            rays_a, rays_b, rotation = _narrow_translated_scene(seed, step=(0.0, 0.1, 0.02))
+            pose, info = relative_pose_from_rays(rays_a, rays_b,
+                                                 options=_options(refine_hypotheses=keep, seed=seed))
+            assert info.success and info.model == "5pt"
+            errors[keep].append(geodesic_angle(rotation, pose.rotation))
+    one, several = np.asarray(errors[1]), np.asarray(errors[5])
+    assert np.sqrt(np.mean(several ** 2)) < 0.6 * np.sqrt(np.mean(one ** 2))
+    assert several.max() < 0.5 * one.max()
+
+
+def test_refined_hypotheses_never_raise_the_truncated_cost():
+    # The best RANSAC hypothesis is always among those refined, so keeping the lowest truncated cost
+    # can only lower it: the chosen model's cost with five hypotheses is at most that with one.
+    from ifmi.relative_pose import epipolar_angles
+    threshold = 2e-3
+    for seed in range(20):
+        rays_a, rays_b, _ = _narrow_translated_scene(seed, step=(0.0, 0.1, 0.02))
+        costs = []
+        for keep in (1, 5):
+            pose, _ = relative_pose_from_rays(rays_a, rays_b, options=_options(refine_hypotheses=keep, seed=seed))
+            angles = epipolar_angles(rays_a, rays_b, pose.rotation[None], pose.translation_direction[None])[0]
+            costs.append(np.minimum(angles, threshold).sum())
+        assert costs[1] <= costs[0] + 1e-12
+
+
+@pytest.mark.parametrize("keep", [0, 101])
+def test_refine_hypotheses_out_of_range_are_refused(keep):
+    with pytest.raises(ValueError, match=r"expected 1 <= refine_hypotheses <= 100, got"):
+        RelativePoseOptions(refine_hypotheses=keep)
+
+
+def test_distinct_best_orders_by_inliers_then_cost_and_drops_the_same_model():
+    from ifmi.relative_pose import _distinct_best
+    threshold = 1e-3
+
+    def turned(angle):
+        return Rotation.from_rotvec([0.0, 0.0, angle]).as_matrix()
+
+    t, t_side = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    candidates = [(9, 0.5, turned(0.3), t),            # fewer inliers: after the 10s
+                  (10, 2.0, turned(0.5 * threshold), t),  # within the threshold of the next in both: dropped
+                  (10, 1.0, turned(0.0), t),           # the best: most inliers, lowest cost
+                  (8, 0.1, turned(0.0), t_side)]       # same rotation, translation 90 degrees off: kept
+    kept = _distinct_best(candidates, threshold, 3)
+    assert len(kept) == 3
+    np.testing.assert_array_equal(kept[0][0], turned(0.0))
+    np.testing.assert_array_equal(kept[1][0], turned(0.3))
+    np.testing.assert_array_equal(kept[2][1], t_side)
+    assert len(_distinct_best(candidates, threshold, 1)) == 1
+    assert len(_distinct_best(candidates, threshold, 10)) == 3
+    assert _distinct_best([], threshold, 5) == []
