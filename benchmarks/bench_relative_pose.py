@@ -42,8 +42,8 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import importlib.util
+import json
 import subprocess
 import sys
 import tempfile

@@ -147,9 +147,9 @@ class RelativePoseOptions:
         is polished and replaces the best one's result when its cost ends
         lower. Refinement stays in the basin it starts in: on a fast
         translated pair seen over a narrow field the best sample can sit in
-        a second minimum of the epipolar cost (its translation near 90
-        degrees from the true one and its rotation tens of milliradians
-        off) while another sample starts in the true basin. 1: only the
+        a second minimum of the epipolar cost (its translation 55-90
+        degrees from the true one and its rotation several to tens of
+        milliradians off) while another sample starts in the true basin. 1: only the
         best hypothesis.
     rotation_only : bool
         Force the rotation-only model.
