@@ -551,22 +551,19 @@ def _ransac_5pt(rays, products, threshold, options, rng):
 def _distinct_best(candidates, threshold, keep):
     """Up to ``keep`` hypotheses ``(R_ab, t_ab)`` of ``candidates``, best first (most inliers, then
     lowest truncated cost, then drawn first), leaving out any within ``threshold`` radians of a kept
-    one in both rotation and translation direction (the same model found by another sample)."""
-    if not candidates:
-        return []
-    order = sorted(range(len(candidates)), key=lambda i: (-candidates[i][0], candidates[i][1], i))
-    rotations = np.stack([candidates[i][2] for i in order])
-    translations = np.stack([candidates[i][3] for i in order])
-    translations = translations / np.linalg.norm(translations, axis=1, keepdims=True)
-    open_ = np.ones(len(order), dtype=bool)
-    kept = []
-    while open_.any() and len(kept) < keep:
-        i = int(np.argmax(open_))
-        kept.append((rotations[i], translations[i]))
-        same = ((geodesic_angle(rotations[i], rotations) < threshold)
-                & (_angles_from_cosines(translations @ translations[i]) < threshold))
-        open_ &= ~same
-        open_[i] = False
+    one in both rotation and translation direction (the same model found by another sample).
+    Candidates are compared only until ``keep`` are found."""
+    kept, directions = [], []
+    for i in sorted(range(len(candidates)), key=lambda i: (-candidates[i][0], candidates[i][1], i)):
+        if len(kept) == keep:
+            break
+        rotation, translation = candidates[i][2], candidates[i][3]
+        direction = translation / np.linalg.norm(translation)
+        if kept and np.any((geodesic_angle(rotation, np.stack([r for r, _ in kept])) < threshold)
+                           & (_angles_from_cosines(np.stack(directions) @ direction) < threshold)):
+            continue
+        kept.append((rotation, translation))
+        directions.append(direction)
     return kept
 
 
@@ -921,19 +918,19 @@ def _lowest_cost_refined_5pt(rays_a, rays_b, products, hypotheses, options: Rela
     """:func:`_refined_5pt` of the best hypothesis, or of another one when that ends at a lower
     truncated epipolar cost (MSAC).
 
-    The other hypotheses (``hypotheses[1:options.refine_hypotheses]``) are screened with one
-    refinement each on their own inliers; only the lowest-cost one is polished, and it replaces
-    the best hypothesis's result only if its polished cost is lower. Without ``options.refine``
+    The other hypotheses (``hypotheses[1:]``, at most ``options.refine_hypotheses - 1``) are
+    screened with one refinement each on their own inliers; only the lowest-cost one is polished,
+    and it replaces the best hypothesis's result only if its polished cost is lower. Without ``options.refine``
     the best hypothesis alone, unrefined.
     """
     threshold = options.ransac_threshold_rad
     chosen = _refined_5pt(rays_a, rays_b, products, *hypotheses[0], options)
-    if not options.refine:
+    if not options.refine or len(hypotheses) == 1:
         return chosen
     chosen_cost = _score(chosen[2], threshold)[1]
     screen = replace(options, polish_rounds=0)
     challenger, challenger_cost = None, chosen_cost
-    for rotation, translation in hypotheses[1:options.refine_hypotheses]:
+    for rotation, translation in hypotheses[1:]:
         screened = _refined_5pt(rays_a, rays_b, products, rotation, translation, screen)
         cost = _score(screened[2], threshold)[1]
         if cost < challenger_cost:
