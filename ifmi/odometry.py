@@ -8,8 +8,12 @@ known, giving ``R_rk``; its pose is ``R_0k = R_0r @ R_rk``.
 * Keyframe mode: the reference stays the same keyframe while the match
   stays good (enough inliers, rotation from the keyframe below a bound);
   otherwise the last successfully estimated frame becomes the keyframe and
-  the frame is estimated again against it. Error then grows with the
-  number of keyframes, not of frames.
+  the frame is estimated again against it. When both the last good frame
+  and the constant-velocity prediction of the new one lie beyond the
+  rotation bound from the keyframe (motion of more than the bound per
+  frame), the keyframe is not tried: the last good frame becomes the
+  keyframe at once. Error then grows with the number of keyframes, not of
+  frames.
 
 Front ends that declare ``uses_prior_rotation`` receive a predicted
 ``R_rk`` (constant angular velocity from the last two successfully
@@ -76,6 +80,8 @@ class KeyframeOptions:
         the current keyframe had against its first partner frame.
     max_angle_rad : float
         ... or when the rotation from the keyframe exceeds this angle (radians).
+        When the last good frame's and the predicted rotation from the
+        keyframe both exceed it, the keyframe is not matched at all.
     max_failures : int
         In both modes: after this many failed frames in a row the current
         frame becomes the reference with the held pose; 0 never gives up on
@@ -373,6 +379,12 @@ class Tracker:
         keyframe = self.keyframe
         predicted = _predict(self._good, k)
         reference = self._reference
+        if (keyframe.enabled and self._last_good.frame != reference.frame
+                and min(_angle(reference.rotation.T @ self._last_good.rotation),
+                        _angle(reference.rotation.T @ predicted)) > keyframe.max_angle_rad):
+            # Both the last good frame and the prediction lie beyond the bound: the keyframe
+            # match would be poor by its angle alone, so it is not made.
+            reference = self._reference = self._last_good
         pose, info, corr = self._solve(reference, state, predicted, k)
         if (self._last_good.frame != reference.frame
                 and (_poor(info, pose, reference, keyframe) if keyframe.enabled

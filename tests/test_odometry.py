@@ -65,6 +65,19 @@ def test_keyframes_switch_only_when_rotation_grows():
     assert all(r.rotation_rad <= 0.2 + 1e-9 for r in records)
 
 
+def test_a_keyframe_left_behind_by_fast_motion_is_not_matched():
+    # 0.3 rad per frame against a 0.2 rad bound: from frame 2 on, the last good frame and the
+    # prediction both lie beyond the bound from the keyframe, so each frame is matched once,
+    # against the frame before it.
+    frames, truth = _frames(10, step=0.2)
+    fe = ExactFrontEnd()
+    options = KeyframeOptions(enabled=True, min_inliers=10, max_angle_rad=0.2)
+    traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=options)
+    assert np.max(geodesic_angle(truth, traj.rotations)) < 1e-9
+    assert fe.pairs == [(k - 1, k) for k in range(1, 10)]
+    assert [r.reference_frame for r in records] == [0] + list(range(9))
+
+
 def test_failed_frame_holds_the_previous_pose_and_tracking_continues():
     frames, truth = _frames(8)
     traj, records = track_sequence(frames, ExactFrontEnd(fail={4}), pose_options=POSE)
