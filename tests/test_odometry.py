@@ -52,12 +52,18 @@ def test_frame_to_frame_chaining_is_exact():
     assert [r.reference_frame for r in records] == [0] + list(range(11))
 
 
-def test_keyframes_switch_only_when_rotation_grows():
-    frames, truth = _frames(12, step=0.05)
+def _exact_keyframe_run(n, step):
+    """``(front end, records)`` of keyframe mode (0.2 rad bound) on ``n`` exact frames, checked exact."""
+    frames, truth = _frames(n, step=step)
     fe = ExactFrontEnd()
     options = KeyframeOptions(enabled=True, min_inliers=10, max_angle_rad=0.2)
     traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=options)
     assert np.max(geodesic_angle(truth, traj.rotations)) < 1e-9
+    return fe, records
+
+
+def test_keyframes_switch_only_when_rotation_grows():
+    _, records = _exact_keyframe_run(12, 0.05)
     refs = [r.reference_frame for r in records]
     # Per-frame rotation is 0.075 rad: frames 1 and 2 use keyframe 0, frame 3 is too far (0.225).
     assert refs[:4] == [0, 0, 0, 2]
@@ -69,11 +75,7 @@ def test_a_keyframe_left_behind_by_fast_motion_is_not_matched():
     # 0.3 rad per frame against a 0.2 rad bound: from frame 2 on, the last good frame and the
     # prediction both lie beyond the bound from the keyframe, so each frame is matched once,
     # against the frame before it.
-    frames, truth = _frames(10, step=0.2)
-    fe = ExactFrontEnd()
-    options = KeyframeOptions(enabled=True, min_inliers=10, max_angle_rad=0.2)
-    traj, records = track_sequence(frames, fe, pose_options=POSE, keyframe=options)
-    assert np.max(geodesic_angle(truth, traj.rotations)) < 1e-9
+    fe, records = _exact_keyframe_run(10, 0.2)
     assert fe.pairs == [(k - 1, k) for k in range(1, 10)]
     assert [r.reference_frame for r in records] == [0] + list(range(9))
 
