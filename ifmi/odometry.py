@@ -196,6 +196,15 @@ def _poor(info, pose, reference: _Reference, options: KeyframeOptions) -> bool:
     return reference.first_inliers > 0 and info.n_inliers < options.min_inlier_fraction * reference.first_inliers
 
 
+def _left_behind(keyframe: _Reference, last_good: _Reference, predicted: np.ndarray,
+                 options: KeyframeOptions) -> bool:
+    """Whether a match against ``keyframe`` would be poor by its angle alone (:func:`_poor`):
+    the last good frame and the predicted pose ``R_0k`` both lie beyond ``options.max_angle_rad``
+    from it."""
+    return min(_angle(keyframe.rotation.T @ last_good.rotation),
+               _angle(keyframe.rotation.T @ predicted)) > options.max_angle_rad
+
+
 PoseSolver = Callable[..., tuple]
 
 
@@ -380,10 +389,7 @@ class Tracker:
         predicted = _predict(self._good, k)
         reference = self._reference
         if (keyframe.enabled and self._last_good.frame != reference.frame
-                and min(_angle(reference.rotation.T @ self._last_good.rotation),
-                        _angle(reference.rotation.T @ predicted)) > keyframe.max_angle_rad):
-            # Both the last good frame and the prediction lie beyond the bound: the keyframe
-            # match would be poor by its angle alone, so it is not made.
+                and _left_behind(reference, self._last_good, predicted, keyframe)):
             reference = self._reference = self._last_good
         pose, info, corr = self._solve(reference, state, predicted, k)
         if (self._last_good.frame != reference.frame
