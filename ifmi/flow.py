@@ -17,7 +17,8 @@ from .tiling import TileLayout
 from .camera import pixels_from_rays
 from .unwarp import PanoramaMapping, panorama_pixels_from_rays, rays_from_panorama_pixels
 
-__all__ = ["FlowPairs", "flow_sample_points", "flow_from_tile_motion", "flow_from_placements", "pairs_with_rays_a"]
+__all__ = ["FlowPairs", "flow_sample_points", "points_per_tile", "flow_from_tile_motion", "flow_from_placements",
+           "pairs_with_rays_a"]
 
 
 @dataclass(frozen=True)
@@ -84,8 +85,9 @@ def flow_from_tile_motion(motion: TileMotion, layout: TileLayout, mapping: Panor
         Registration of frame b's tiles against frame a's.
     layout : TileLayout
     mapping : PanoramaMapping
-    points_b : (K, 2) ndarray, keyword-only
-        Tile-b points (tile ``(row, col)``) of :func:`flow_sample_points`.
+    points_b : (K, 2) or (T, K, 2) ndarray, keyword-only
+        Tile-b points (tile ``(row, col)``) of :func:`flow_sample_points`,
+        the same for every tile or one set per tile (:func:`points_per_tile`).
     origins_b : (T, 2) ndarray, optional, keyword-only
         Panorama ``(row, col)`` of tile b's first pixel when tile b was cut
         elsewhere than tile a (motion prediction); default the layout's.
@@ -95,7 +97,8 @@ def flow_from_tile_motion(motion: TileMotion, layout: TileLayout, mapping: Panor
     FlowPairs
     """
     keep = np.flatnonzero(motion.valid)
-    k = len(points_b)
+    points_b = _kept_points(points_b, keep)
+    k = points_b.shape[-2]
     origins = layout.origins[keep].astype(np.float64)
     origins_b = origins if origins_b is None else np.asarray(origins_b, dtype=np.float64)[keep]
     in_a = transform_points(points_b, motion.scale[keep], motion.angle_rad[keep],
@@ -103,6 +106,30 @@ def flow_from_tile_motion(motion: TileMotion, layout: TileLayout, mapping: Panor
     pano_a = (in_a + origins[:, None, :]).reshape(-1, 2)
     pano_b = (np.broadcast_to(points_b, in_a.shape) + origins_b[:, None, :]).reshape(-1, 2)
     return _flow_pairs(pano_a, pano_b, mapping, np.repeat(keep, k))
+
+
+def points_per_tile(points: np.ndarray, centroids: np.ndarray) -> np.ndarray:
+    """Sample points of each tile moved onto its energy centroid.
+
+    Parameters
+    ----------
+    points : (K, 2) ndarray
+        Tile ``(row, col)`` points of :func:`flow_sample_points` (around the tile centre).
+    centroids : (T, 2) ndarray
+        ``(row, col)`` of each tile's centroid, pixels from its centre
+        (:attr:`ifmi.fourier_mellin.TileSpectra.centroid`).
+
+    Returns
+    -------
+    (T, K, 2) ndarray
+    """
+    return np.asarray(points, dtype=np.float64)[None] + np.asarray(centroids, dtype=np.float64)[:, None, :]
+
+
+def _kept_points(points: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Points ``(K, 2)`` shared by all tiles, or the kept tiles' rows of per-tile points ``(T, K, 2)``."""
+    points = np.asarray(points, dtype=np.float64)
+    return points[keep] if points.ndim == 3 else points
 
 
 def _flow_pairs(pano_a: np.ndarray, pano_b: np.ndarray, mapping: PanoramaMapping,
@@ -152,8 +179,9 @@ def flow_from_placements(offsets_a: np.ndarray, linear_a: np.ndarray, offsets_b:
     valid : (T,) bool ndarray
         Tiles to use.
     mapping : PanoramaMapping
-    points : (K, 2) ndarray, keyword-only
-        Tile ``(row, col)`` points of :func:`flow_sample_points`.
+    points : (K, 2) or (T, K, 2) ndarray, keyword-only
+        Tile ``(row, col)`` points of :func:`flow_sample_points`, the same
+        for every tile or one set per tile (:func:`points_per_tile`).
     tile_size : int, keyword-only
     curvature_a, curvature_b : (T, 2, 2, 2) ndarray, optional, keyword-only
         Second-order terms ``Q`` of the placements: tile point ``u`` (from the
@@ -164,15 +192,16 @@ def flow_from_placements(offsets_a: np.ndarray, linear_a: np.ndarray, offsets_b:
     FlowPairs
     """
     keep = np.flatnonzero(valid)
-    u = np.asarray(points, dtype=np.float64) - (tile_size - 1) / 2.0
+    u = _kept_points(points, keep) - (tile_size - 1) / 2.0
+    u = np.broadcast_to(u, (len(keep),) + u.shape[-2:])
 
     def panorama(offsets, linear, curvature):
         offsets = np.asarray(offsets, dtype=np.float64)[keep]
         linear = np.asarray(linear, dtype=np.float64)[keep]
-        placed = offsets[:, None, :] + np.einsum("tij,kj->tki", linear, u)
+        placed = offsets[:, None, :] + np.einsum("tij,tkj->tki", linear, u)
         if curvature is not None:
-            placed += np.einsum("ki,toij,kj->tko", u, np.asarray(curvature, dtype=np.float64)[keep], u)
+            placed += np.einsum("tki,toij,tkj->tko", u, np.asarray(curvature, dtype=np.float64)[keep], u)
         return placed.reshape(-1, 2)
 
     return _flow_pairs(panorama(offsets_a, linear_a, curvature_a), panorama(offsets_b, linear_b, curvature_b),
-                       mapping, np.repeat(keep, len(u)))
+                       mapping, np.repeat(keep, u.shape[1]))

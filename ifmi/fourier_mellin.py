@@ -230,17 +230,57 @@ class TileSpectra:
         ``rfft2`` of the log-polar magnitude (None without rotation/scale).
     std : (T,) ndarray
         Gray-level standard deviation of each tile.
+    centroid : (T, 2) ndarray
+        ``(row, col)`` of each tile's energy centroid, pixels from the tile
+        centre: the mean position weighted by the squared windowed,
+        mean-free gray level, the weight each pixel has in the
+        correlation. Where the motion varies across a tile (parallax), the
+        measured translation is the motion of this point rather than of
+        the centre (:func:`energy_centroids`).
     """
 
     spectrum: np.ndarray
     descriptor: np.ndarray | None
     std: np.ndarray
+    centroid: np.ndarray
 
     def rows(self, index: np.ndarray) -> "TileSpectra":
         """The spectra of some tiles (``index``: bool mask or indices)."""
         return TileSpectra(spectrum=self.spectrum[index],
                            descriptor=None if self.descriptor is None else self.descriptor[index],
-                           std=self.std[index])
+                           std=self.std[index], centroid=self.centroid[index])
+
+
+def energy_centroids(windowed: np.ndarray) -> np.ndarray:
+    """Energy centroids of windowed, mean-free tiles.
+
+    A correlation of two tiles sums the products of their pixels, so each
+    pixel weighs in proportion to its energy (its squared windowed gray
+    level). When the motion is not uniform across the tile, as with the
+    parallax of a near surface, the correlation peak is, to first order,
+    the motion at the energy-weighted mean position, which can lie a few
+    pixels from the tile centre on unevenly textured tiles.
+
+    Parameters
+    ----------
+    windowed : (T, N, N) float ndarray
+        Mean-free tiles multiplied by their window.
+
+    Returns
+    -------
+    (T, 2) ndarray
+        ``(row, col)`` of each centroid in pixels from the tile centre
+        ``((N - 1) / 2, (N - 1) / 2)``; ``(0, 0)`` for a tile without energy.
+    """
+    energy = np.square(windowed)
+    n = windowed.shape[-1]
+    ones = np.ones(n, dtype=energy.dtype)
+    # Row and column sums as products with ones (a fraction of the time of axis reductions).
+    rows, cols = (energy @ ones).astype(np.float64), (ones @ energy).astype(np.float64)
+    g = np.arange(n) - (n - 1) / 2.0
+    total = rows.sum(axis=1)
+    safe = np.where(total > 0, total, 1.0)
+    return np.stack([rows @ g, cols @ g], axis=1) / safe[:, None]
 
 
 @dataclass(frozen=True)
@@ -405,6 +445,10 @@ class PlacedRegistration:
         The tiles of b the final residual was measured on, with their
         placement: cut at the same place, they make the reference tiles of
         the next pair (tile tracking).
+    template_centroid : (T, 2) ndarray
+        Energy centroid of each tile of a (:attr:`TileSpectra.centroid`),
+        tile ``(row, col)`` pixels from its centre: the point whose motion
+        the registration measures.
     """
 
     offsets: np.ndarray
@@ -415,6 +459,7 @@ class PlacedRegistration:
     valid: np.ndarray
     reason: np.ndarray
     last: PlacedTiles
+    template_centroid: np.ndarray
 
 
 def _replace_rows(placed: PlacedTiles, rows: np.ndarray, update: PlacedTiles, *,
@@ -442,13 +487,14 @@ def _replace_rows(placed: PlacedTiles, rows: np.ndarray, update: PlacedTiles, *,
     arrays = {name: merged(getattr(placed, name), getattr(update, name)) for name in ("tiles", "offsets", "linear")}
     spectrum = merged(placed.spectra.spectrum, update.spectra.spectrum)
     std = merged(placed.spectra.std, update.spectra.std)
+    centroid = merged(placed.spectra.centroid, update.spectra.centroid)
     descriptor = None
     if update.spectra.descriptor is not None:
         descriptor = np.zeros((len(placed.offsets),) + update.spectra.descriptor.shape[1:],
                               dtype=update.spectra.descriptor.dtype)
         descriptor[rows] = update.spectra.descriptor
     return replace(placed, **arrays, spectra=replace(placed.spectra, spectrum=spectrum, std=std,
-                                                     descriptor=descriptor))
+                                                     centroid=centroid, descriptor=descriptor))
 
 
 def _placement_maps(n: int, offsets: np.ndarray, linear: np.ndarray,
@@ -534,7 +580,8 @@ class FourierMellin:
         self.lp_map1, self.lp_map2 = cv2.convertMaps(lp_cols, lp_rows, cv2.CV_16SC2)
 
     # -- per frame ---------------------------------------------------------------------------
-    def _windowed_fft(self, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _windowed_fft(self, tiles: np.ndarray) -> TileSpectra:
+        """Spectra, gray-level spread and energy centroids of tiles (no descriptor)."""
         tiles = tiles.astype(np.float32, copy=False)
         k = len(tiles)
         pixels = tiles[0].size
@@ -542,8 +589,10 @@ class FourierMellin:
         flat = centred.reshape(k, -1)
         std = np.sqrt(np.einsum("ki,ki->k", flat, flat) / pixels)
         centred *= self.window
+        centroid = energy_centroids(centred)
         spectrum = scipy.fft.rfft2(centred, workers=self.config.workers, overwrite_x=True)
-        return spectrum.astype(np.complex64, copy=False), std
+        return TileSpectra(spectrum=spectrum.astype(np.complex64, copy=False), descriptor=None, std=std,
+                           centroid=centroid)
 
     def spectra(self, tiles: np.ndarray, *, with_descriptor: bool = True) -> TileSpectra:
         """Spectra of one frame's tiles.
@@ -564,7 +613,8 @@ class FourierMellin:
             raise ValueError(f"expected tiles of shape (K, {n}, {n}) with 1 <= K <= {self.count}, "
                              f"got {tiles.shape}")
         k = len(tiles)
-        spectrum, std = self._windowed_fft(tiles)
+        windowed = self._windowed_fft(tiles)
+        spectrum = windowed.spectrum
         descriptor = None
         if self.config.estimate_rotation_scale and with_descriptor:
             magnitude = np.abs(np.fft.fftshift(spectrum, axes=1)) * self.highpass
@@ -579,7 +629,7 @@ class FourierMellin:
                     borderMode=cv2.BORDER_REPLICATE).reshape(len(chunk), self.n_angles, self.n_radii)
             log_polar -= log_polar.mean(axis=(1, 2), keepdims=True)
             descriptor = scipy.fft.rfft2(log_polar, workers=self.config.workers).astype(np.complex64)
-        return TileSpectra(spectrum=spectrum, descriptor=descriptor, std=std)
+        return replace(windowed, descriptor=descriptor)
 
     # -- per pair ----------------------------------------------------------------------------
     def _refine(self, spectra_a, spectra_b, shift, shape, *, weight_power=None):
@@ -742,7 +792,8 @@ class FourierMellin:
         shape = (self.tile_size, self.tile_size)
         tiles = self.resample_placed(source_b, offsets_b, linear_b, interpolation=self._search_interpolation,
                                      curvature=curvature_b)
-        fb, std_b = self._windowed_fft(tiles)
+        spectra_b = self._windowed_fft(tiles)
+        fb, std_b = spectra_b.spectrum, spectra_b.std
         fa = spectra_a.spectrum
         peaks = find_peaks(correlation_surface(normalized_cross_power(fa, fb), shape,
                                                workers=self.config.workers))
@@ -757,7 +808,7 @@ class FourierMellin:
         # Only the tiles the filters kept are refined; the others keep the search placement.
         keep = np.flatnonzero(reason == TileRejection.KEPT)
         last = PlacedTiles(tiles=tiles, offsets=offsets_b.copy(), linear=linear_b.copy(),
-                           spectra=TileSpectra(spectrum=fb, descriptor=None, std=std_b.copy()),
+                           spectra=replace(spectra_b, std=std_b.copy()),
                            curvature=curvature_b)
         if refine and self.config.refine_passes and keep.size:
             with_rotation = self.config.estimate_rotation_scale and self.config.refine_predicted_rotation_scale
@@ -768,7 +819,8 @@ class FourierMellin:
             last = _replace_rows(last, keep, kept_last)
         return PlacedRegistration(offsets=offsets, linear=linear, peak_ratio=peaks.peak_ratio,
                                   peak_to_noise=peaks.peak_to_noise, peak_value=peaks.value,
-                                  valid=reason == TileRejection.KEPT, reason=reason, last=last)
+                                  valid=reason == TileRejection.KEPT, reason=reason, last=last,
+                                  template_centroid=spectra_a.centroid)
 
     def refine_placed(self, spectra_a: TileSpectra, source_b: np.ndarray, placed: "PlacedRegistration",
                       linear_b: np.ndarray, *, curvature_b: np.ndarray | None = None) -> "PlacedRegistration":
@@ -807,7 +859,7 @@ class FourierMellin:
                            last=_replace_rows(last, keep, kept_last, in_place=False))
         last = replace(last, tiles=last.tiles.copy(), offsets=last.offsets.copy(), linear=last.linear.copy(),
                        spectra=replace(last.spectra, spectrum=last.spectra.spectrum.copy(),
-                                       std=last.spectra.std.copy()))
+                                       std=last.spectra.std.copy(), centroid=last.spectra.centroid.copy()))
         return replace(placed, offsets=offsets, linear=linear, last=last)
 
     def _search_rotation_scale(self, spectra_a: TileSpectra, spectra_b: TileSpectra, source_b: np.ndarray,
@@ -831,8 +883,8 @@ class FourierMellin:
         # Both candidates of the 180-degree ambiguity: tile b re-rotated by theta, and the same
         # tile turned by another 180 degrees about its centre, which is its point reflection
         # (the window is symmetric), whose spectrum is conj(B) times a phase ramp.
-        fb1, _ = self._windowed_fft(self.resample(source_b, origins_b, scale, angle, np.zeros((t, 2)),
-                                                  interpolation=self._search_interpolation))
+        fb1 = self._windowed_fft(self.resample(source_b, origins_b, scale, angle, np.zeros((t, 2)),
+                                               interpolation=self._search_interpolation)).spectrum
         fb2 = np.concatenate([fb1, np.conj(fb1) * self.flip_ramp])
         fa2 = np.concatenate([spectra_a.spectrum, spectra_a.spectrum])
         peaks2 = find_peaks(correlation_surface(normalized_cross_power(fa2, fb2), shape, workers=workers))

@@ -16,7 +16,8 @@ import numpy as np
 from .camera import OcamModel
 from .options import options_from_dict
 from .front_end import Correspondences
-from .flow import flow_from_placements, flow_from_tile_motion, flow_sample_points, pairs_with_rays_a
+from .flow import (flow_from_placements, flow_from_tile_motion, flow_sample_points, pairs_with_rays_a,
+                   points_per_tile)
 from .global_motion import GlobalMotion, GlobalMotionConfig, GlobalMotionEstimator
 from .fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, PlacedRegistration, PlacedTiles,
                             TileSpectra)
@@ -53,6 +54,14 @@ class IfmiConfig:
         Flow points per kept tile: 1, 5 or 9.
     point_spread : float
         Offset of the outer flow points from the tile centre, fraction of the tile size.
+    flow_at_energy_centroid : bool
+        Centre each tile's flow points on the energy centroid of its
+        reference tile (:func:`ifmi.fourier_mellin.energy_centroids`)
+        instead of the tile centre. Under translation the motion varies
+        across a tile with the depth of what it sees; the registration
+        measures the motion where the tile's texture energy lies, which on
+        unevenly textured tiles (grass thinning out towards the horizon, an
+        edge near one side) is pixels from the centre.
     min_tiles : int
         Fewer kept tiles than this fails the frame pair.
     use_prior : bool
@@ -194,6 +203,7 @@ class IfmiConfig:
     registration: FourierMellinConfig = field(default_factory=FourierMellinConfig)
     points_per_tile: int = 5
     point_spread: float = 0.1
+    flow_at_energy_centroid: bool = True
     min_tiles: int = 3
     use_prior: bool = True
     track_tiles: bool = True
@@ -607,7 +617,8 @@ class IfmiFrontEnd:
 
             spectra = TileSpectra(spectrum=merged(spectra.spectrum, fresh.spectrum),
                                   descriptor=merged(spectra.descriptor, fresh.descriptor),
-                                  std=merged(spectra.std, fresh.std))
+                                  std=merged(spectra.std, fresh.std),
+                                  centroid=merged(spectra.centroid, fresh.centroid))
             offsets = np.where(new[:, None], offsets, tracked.offsets)
             linear = np.where(new[:, None, None], linear, tracked.linear)
         else:
@@ -886,6 +897,12 @@ class IfmiFrontEnd:
         offsets[:, 1] = np.mod(offsets[:, 1], self.mapping.width)
         return offsets_a, linear_a, replace(placed, offsets=offsets)
 
+    def _tile_points(self, centroids: np.ndarray) -> np.ndarray:
+        """Flow points of every tile ``(T, K, 2)`` on its energy centroid, or the shared ``(K, 2)``."""
+        if not self.config.flow_at_energy_centroid:
+            return self._points_b
+        return points_per_tile(self._points_b, centroids)
+
     def correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
                         prior_rotation: np.ndarray | None = None):
         """Ray pairs of frame a (reference) and frame b from the kept tiles.
@@ -946,11 +963,12 @@ class IfmiFrontEnd:
                 f"only {int(valid.sum())} of {self.layout.count} tiles passed the noise filters "
                 f"(need {min_tiles})", diagnostics)
         if prior_rotation is None:
-            pairs = flow_from_tile_motion(motion, self.layout, self.mapping, points_b=self._points_b,
-                                          origins_b=origins_b)
+            pairs = flow_from_tile_motion(motion, self.layout, self.mapping, origins_b=origins_b,
+                                          points_b=self._tile_points(state_b.spectra.centroid))
         else:
-            pairs = flow_from_placements(offsets_a, linear_a, placed.offsets, placed.linear, valid,
-                                         self.mapping, points=self._points_b, tile_size=self.layout.tile_size,
+            pairs = flow_from_placements(offsets_a, linear_a, placed.offsets, placed.linear, valid, self.mapping,
+                                         points=self._tile_points(placed.template_centroid),
+                                         tile_size=self.layout.tile_size,
                                          curvature_a=curvature_a, curvature_b=placed.last.curvature)
             if landmarks is not None:
                 pairs, diagnostics["n_tiles_landmark"] = self._landmark_pairs(pairs, offsets_a[valid],

@@ -47,7 +47,8 @@ def test_tracked_tile_rays_follow_the_accepted_pose_within_the_gate(frame, off_p
     # ray as the accepted pose sees it, when that lies within the gate (0.25 px); beyond it,
     # the measured placement stays. Tiles cut anew in frame 1 lie on their landmarks already.
     truth = _walk(3, 1.0, seed=5)
-    fe = IfmiFrontEnd(MODEL, IfmiConfig(points_per_tile=1, landmark_weight=weight))
+    # Flow points on the tile centres (not their energy centroids): the rays the landmarks turn.
+    fe = IfmiFrontEnd(MODEL, IfmiConfig(points_per_tile=1, landmark_weight=weight, flow_at_energy_centroid=False))
     states = [fe.prepare(frame(r)) for r in truth]
     fe.accept_pose(states[0], np.eye(3))
     fe.correspondences(states[0], states[1], prior_rotation=truth[1])
