@@ -17,8 +17,8 @@ from .tiling import TileLayout
 from .camera import pixels_from_rays
 from .unwarp import PanoramaMapping, panorama_pixels_from_rays, rays_from_panorama_pixels
 
-__all__ = ["FlowPairs", "flow_sample_points", "points_per_tile", "flow_from_tile_motion", "flow_from_placements",
-           "pairs_with_rays_a"]
+__all__ = ["FlowPairs", "flow_sample_points", "points_on_centroids", "flow_from_tile_motion",
+           "flow_from_placements", "pairs_with_rays_a"]
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,7 @@ def flow_from_tile_motion(motion: TileMotion, layout: TileLayout, mapping: Panor
     mapping : PanoramaMapping
     points_b : (K, 2) or (T, K, 2) ndarray, keyword-only
         Tile-b points (tile ``(row, col)``) of :func:`flow_sample_points`,
-        the same for every tile or one set per tile (:func:`points_per_tile`).
+        the same for every tile or one set per tile (:func:`points_on_centroids`).
     origins_b : (T, 2) ndarray, optional, keyword-only
         Panorama ``(row, col)`` of tile b's first pixel when tile b was cut
         elsewhere than tile a (motion prediction); default the layout's.
@@ -108,7 +108,7 @@ def flow_from_tile_motion(motion: TileMotion, layout: TileLayout, mapping: Panor
     return _flow_pairs(pano_a, pano_b, mapping, np.repeat(keep, k))
 
 
-def points_per_tile(points: np.ndarray, centroids: np.ndarray) -> np.ndarray:
+def points_on_centroids(points: np.ndarray, centroids: np.ndarray) -> np.ndarray:
     """Sample points of each tile moved onto its energy centroid.
 
     Parameters
@@ -181,7 +181,7 @@ def flow_from_placements(offsets_a: np.ndarray, linear_a: np.ndarray, offsets_b:
     mapping : PanoramaMapping
     points : (K, 2) or (T, K, 2) ndarray, keyword-only
         Tile ``(row, col)`` points of :func:`flow_sample_points`, the same
-        for every tile or one set per tile (:func:`points_per_tile`).
+        for every tile or one set per tile (:func:`points_on_centroids`).
     tile_size : int, keyword-only
     curvature_a, curvature_b : (T, 2, 2, 2) ndarray, optional, keyword-only
         Second-order terms ``Q`` of the placements: tile point ``u`` (from the

@@ -17,7 +17,7 @@ from .camera import OcamModel
 from .options import options_from_dict
 from .front_end import Correspondences
 from .flow import (flow_from_placements, flow_from_tile_motion, flow_sample_points, pairs_with_rays_a,
-                   points_per_tile)
+                   points_on_centroids)
 from .global_motion import GlobalMotion, GlobalMotionConfig, GlobalMotionEstimator
 from .fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, PlacedRegistration, PlacedTiles,
                             TileSpectra)
@@ -901,7 +901,7 @@ class IfmiFrontEnd:
         """Flow points of every tile ``(T, K, 2)`` on its energy centroid, or the shared ``(K, 2)``."""
         if not self.config.flow_at_energy_centroid:
             return self._points_b
-        return points_per_tile(self._points_b, centroids)
+        return points_on_centroids(self._points_b, centroids)
 
     def correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
                         prior_rotation: np.ndarray | None = None):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ifmi.flow import flow_from_placements, flow_sample_points, points_per_tile
+from ifmi.flow import flow_from_placements, flow_sample_points, points_on_centroids
 from ifmi.fourier_mellin import FourierMellin, energy_centroids
 from ifmi.phase_correlation import hann_window
 from ifmi.camera import paracatadioptric_model
@@ -93,7 +93,7 @@ def test_flow_points_on_centroids_are_the_shared_points_moved_by_the_placement()
                                  offsets_b + np.einsum("tij,tj->ti", linear_b, centroids), linear_b, valid,
                                  mapping, points=points, tile_size=32)
     per_tile = flow_from_placements(offsets_a, linear_a, offsets_b, linear_b, valid, mapping,
-                                    points=points_per_tile(points, centroids), tile_size=32)
+                                    points=points_on_centroids(points, centroids), tile_size=32)
     assert np.allclose(per_tile.panorama_a, moved.panorama_a, atol=1e-9)
     assert np.allclose(per_tile.panorama_b, moved.panorama_b, atol=1e-9)
     assert np.array_equal(per_tile.tile_index, np.repeat(np.flatnonzero(valid), len(points)))
