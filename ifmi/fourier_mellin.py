@@ -230,13 +230,15 @@ class TileSpectra:
         ``rfft2`` of the log-polar magnitude (None without rotation/scale).
     std : (T,) ndarray
         Gray-level standard deviation of each tile.
-    centroid : (T, 2) ndarray
+    centroid : (T, 2) ndarray or None
         ``(row, col)`` of each tile's energy centroid, pixels from the tile
         centre: the mean position weighted by the squared windowed,
         mean-free gray level, the weight each pixel has in the
         correlation. Where the motion varies across a tile (parallax), the
         measured translation is the motion of this point rather than of
-        the centre (:func:`energy_centroids`).
+        the centre (:func:`energy_centroids`). None on the tiles of b that a
+        registration resamples (:attr:`PlacedRegistration.last`): they are
+        matched against templates, and only a template's centroid is used.
     """
 
     spectrum: np.ndarray
@@ -248,7 +250,7 @@ class TileSpectra:
         """The spectra of some tiles (``index``: bool mask or indices)."""
         return TileSpectra(spectrum=self.spectrum[index],
                            descriptor=None if self.descriptor is None else self.descriptor[index],
-                           std=self.std[index], centroid=self.centroid[index])
+                           std=self.std[index], centroid=None if self.centroid is None else self.centroid[index])
 
 
 def energy_centroids(windowed: np.ndarray) -> np.ndarray:
@@ -487,14 +489,13 @@ def _replace_rows(placed: PlacedTiles, rows: np.ndarray, update: PlacedTiles, *,
     arrays = {name: merged(getattr(placed, name), getattr(update, name)) for name in ("tiles", "offsets", "linear")}
     spectrum = merged(placed.spectra.spectrum, update.spectra.spectrum)
     std = merged(placed.spectra.std, update.spectra.std)
-    centroid = merged(placed.spectra.centroid, update.spectra.centroid)
     descriptor = None
     if update.spectra.descriptor is not None:
         descriptor = np.zeros((len(placed.offsets),) + update.spectra.descriptor.shape[1:],
                               dtype=update.spectra.descriptor.dtype)
         descriptor[rows] = update.spectra.descriptor
     return replace(placed, **arrays, spectra=replace(placed.spectra, spectrum=spectrum, std=std,
-                                                     centroid=centroid, descriptor=descriptor))
+                                                     descriptor=descriptor))
 
 
 def _placement_maps(n: int, offsets: np.ndarray, linear: np.ndarray,
@@ -580,8 +581,8 @@ class FourierMellin:
         self.lp_map1, self.lp_map2 = cv2.convertMaps(lp_cols, lp_rows, cv2.CV_16SC2)
 
     # -- per frame ---------------------------------------------------------------------------
-    def _windowed_fft(self, tiles: np.ndarray) -> TileSpectra:
-        """Spectra, gray-level spread and energy centroids of tiles (no descriptor)."""
+    def _windowed_fft(self, tiles: np.ndarray, *, with_centroid: bool = False) -> TileSpectra:
+        """Spectra and gray-level spread of tiles, and their energy centroids if asked (no descriptor)."""
         tiles = tiles.astype(np.float32, copy=False)
         k = len(tiles)
         pixels = tiles[0].size
@@ -589,12 +590,12 @@ class FourierMellin:
         flat = centred.reshape(k, -1)
         std = np.sqrt(np.einsum("ki,ki->k", flat, flat) / pixels)
         centred *= self.window
-        centroid = energy_centroids(centred)
+        centroid = energy_centroids(centred) if with_centroid else None
         spectrum = scipy.fft.rfft2(centred, workers=self.config.workers, overwrite_x=True)
         return TileSpectra(spectrum=spectrum.astype(np.complex64, copy=False), descriptor=None, std=std,
                            centroid=centroid)
 
-    def spectra(self, tiles: np.ndarray, *, with_descriptor: bool = True) -> TileSpectra:
+    def spectra(self, tiles: np.ndarray, *, with_descriptor: bool = True, with_centroid: bool = True) -> TileSpectra:
         """Spectra of one frame's tiles.
 
         Parameters
@@ -603,6 +604,10 @@ class FourierMellin:
             ``1 <= K <= T`` tiles (all of a frame's, or some of them).
         with_descriptor : bool, keyword-only
             Compute the log-polar descriptor (when rotation and scale are estimated).
+        with_centroid : bool, keyword-only
+            Compute the energy centroids (:attr:`TileSpectra.centroid`): tiles
+            that serve as templates need them, tiles only matched against
+            templates do not.
 
         Returns
         -------
@@ -613,7 +618,7 @@ class FourierMellin:
             raise ValueError(f"expected tiles of shape (K, {n}, {n}) with 1 <= K <= {self.count}, "
                              f"got {tiles.shape}")
         k = len(tiles)
-        windowed = self._windowed_fft(tiles)
+        windowed = self._windowed_fft(tiles, with_centroid=with_centroid)
         spectrum = windowed.spectrum
         descriptor = None
         if self.config.estimate_rotation_scale and with_descriptor:
@@ -718,7 +723,7 @@ class FourierMellin:
         count = len(tiles)
         zeros2 = np.zeros((count, 2))
         shape = (self.tile_size, self.tile_size)
-        spectra = self.spectra(tiles, with_descriptor=with_rotation)
+        spectra = self.spectra(tiles, with_descriptor=with_rotation, with_centroid=False)
         d_shift = -self._refine(spectra_a.spectrum, spectra.spectrum, zeros2, shape,
                                 weight_power=self.config.residual_weight_power)
         if not with_rotation:
@@ -859,7 +864,7 @@ class FourierMellin:
                            last=_replace_rows(last, keep, kept_last, in_place=False))
         last = replace(last, tiles=last.tiles.copy(), offsets=last.offsets.copy(), linear=last.linear.copy(),
                        spectra=replace(last.spectra, spectrum=last.spectra.spectrum.copy(),
-                                       std=last.spectra.std.copy(), centroid=last.spectra.centroid.copy()))
+                                       std=last.spectra.std.copy()))
         return replace(placed, offsets=offsets, linear=linear, last=last)
 
     def _search_rotation_scale(self, spectra_a: TileSpectra, spectra_b: TileSpectra, source_b: np.ndarray,

@@ -596,11 +596,12 @@ class IfmiFrontEnd:
             state.reference_landmarks = self._landmarks(state, offsets, None, np.ones(self.layout.count, bool))
             return state.reference
         # A tracked reference is matched at predicted placements, where log-polar descriptors
-        # serve only when the residual rotation and scale are measured.
+        # serve only when the residual rotation and scale are measured. Tiles the registration
+        # resampled (not anchored templates) come without energy centroids.
         registration = self.config.registration
         with_descriptor = registration.estimate_rotation_scale and registration.refine_predicted_rotation_scale
         spectra = tracked.spectra
-        if spectra is None or (with_descriptor and spectra.descriptor is None):
+        if spectra is None or spectra.centroid is None or (with_descriptor and spectra.descriptor is None):
             spectra = self.engine.spectra(tracked.tiles)
         if not with_descriptor:
             spectra = replace(spectra, descriptor=None)
