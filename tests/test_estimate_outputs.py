@@ -36,8 +36,11 @@ def _snapshot(folder) -> dict:
 
 
 def _old_set(folder) -> dict:
+    """An earlier estimate's three files (which a new run may replace)."""
     folder.mkdir(parents=True, exist_ok=True)
-    files = {"e.txt": b"old tum\n", "e.frames.csv": b"old frames\n", "e.config.json": b"{}\n"}
+    files = {"e.txt": b"# ifmi estimate, method ifmi\n0 0 0 0 0 0 0 1\n",
+             "e.frames.csv": b"frame,reference_frame,success,reason\n0,0,true,\n",
+             "e.config.json": b'{"method": "ifmi", "config": {}, "versions": {}}\n'}
     for name, data in files.items():
         (folder / name).write_bytes(data)
     return _snapshot(folder)
@@ -151,7 +154,7 @@ def test_estimate_to_a_device_or_below_a_file(dataset, tmp_path, capsys):
 def test_estimate_through_a_symlink_keeps_the_link(dataset, tmp_path):
     (tmp_path / "target.txt").write_text("old\n")
     (tmp_path / "link.txt").symlink_to("target.txt")
-    assert main(["estimate", str(dataset), "--out", str(tmp_path / "link.txt"), *FAST]) == 0
+    assert main(["estimate", str(dataset), "--out", str(tmp_path / "link.txt"), "--force", *FAST]) == 0
     assert (tmp_path / "link.txt").is_symlink()
     assert (tmp_path / "target.txt").read_text().startswith("# ifmi estimate")
 
@@ -379,3 +382,36 @@ def test_limits_for_a_camera_model_other_than_ocamcalib():
         with pytest.raises(InputError) as info:
             check_config_for_model(EstimateConfig.from_dict(data), model)
         assert str(info.value).startswith(message)
+
+
+@pytest.mark.parametrize("name", ["e.txt", "e.frames.csv", "e.config.json"])
+def test_estimate_refuses_to_replace_a_file_no_estimate_wrote(dataset, tmp_path, capsys, name):
+    """The user's own trajectory or notes at one of the three paths stay; --force replaces them."""
+    (tmp_path / name).write_text("my own notes\n")
+    out = str(tmp_path / "e.txt")
+    assert main(["estimate", str(dataset), "--out", out, *FAST]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"ifmi estimate: error: cannot write {tmp_path / name}: an existing file that no estimate "
+                   f"wrote; choose another output path or pass --force to replace it"]
+    assert sorted(os.listdir(tmp_path)) == [name] and (tmp_path / name).read_text() == "my own notes\n"
+    assert main(["estimate", str(dataset), "--out", out, "--force", *FAST]) == 0
+    assert (tmp_path / "e.txt").read_text().startswith("# ifmi estimate, method ifmi\n")
+
+
+def test_estimate_replaces_an_earlier_estimate_and_empty_files(dataset, tmp_path):
+    out = str(tmp_path / "e.txt")
+    (tmp_path / "e.frames.csv").write_bytes(b"")  # an empty file holds nothing to lose
+    assert main(["estimate", str(dataset), "--out", out, *FAST]) == 0
+    first = _snapshot(tmp_path)
+    assert main(["estimate", str(dataset), "--out", out, "--seed", "1", *FAST]) == 0
+    assert sorted(_snapshot(tmp_path)) == sorted(first) == ["e.config.json", "e.frames.csv", "e.txt"]
+    assert json.loads((tmp_path / "e.config.json").read_text())["config"]["relative_pose"]["seed"] == 1
+
+
+def test_estimate_to_a_folder_path_is_refused(dataset, tmp_path, capsys):
+    out = str(tmp_path / "runs" / "sub") + "/"
+    assert main(["estimate", str(dataset), "--out", out, *FAST]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"ifmi estimate: error: cannot write {out}: expected the estimate's file path (DIR/NAME.txt), "
+                   f"got a folder path ending in a separator"]
+    assert not (tmp_path / "runs").exists()

@@ -92,7 +92,10 @@ def add_parser(subparsers) -> None:
                    help="front end: a name that 'ifmi methods' lists, or package.module:factory "
                         "(default: the method of a --config run file, else ifmi)")
     p.add_argument("--out", required=True, metavar="ESTIMATE",
-                   help="TUM file to write (never one of the inputs or the dataset's files)")
+                   help="TUM file to write, with NAME.frames.csv and NAME.config.json beside it (never one "
+                        "of the inputs or the dataset's files; an earlier estimate's files are replaced)")
+    p.add_argument("--force", action="store_true",
+                   help="also replace existing files at those paths that no estimate wrote")
     p.add_argument("--config", metavar="JSON",
                    help="start from this configuration: an estimate's NAME.config.json (which also "
                         "gives the method unless --method is given) or a to_dict() JSON. Every "
@@ -311,7 +314,7 @@ def run(args) -> int:
         _check_folder_calib(args.dataset, args.calib)
     inputs = ((args.dataset, args.calib) if video else ()) + ((args.config,) if args.config else ())
     dataset_dir = None if video else args.dataset
-    check_estimate_outputs(out, dataset_dir=dataset_dir, input_files=inputs)
+    check_estimate_outputs(args.out, dataset_dir=dataset_dir, input_files=inputs, overwrite=args.force)
     try:
         if video:
             estimate = estimate_video(args.dataset, args.calib, method=method, config=config,
@@ -324,7 +327,8 @@ def run(args) -> int:
     extra = {"derived": _derived_keys(config, estimate.config)}
     if video:
         extra.update(video=str(Path(args.dataset).resolve()), calib=str(Path(args.calib).resolve()))
-    write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs, extra=extra)
+    write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs, extra=extra,
+                       overwrite=args.force)
     failed = sum(not r.success for r in estimate.frames)
     print(f"{out}: {len(estimate.frames)} frames, {failed} failed")
     if 2 * failed > len(estimate.frames):

@@ -61,6 +61,8 @@ __all__ = [
 
 # Marker stored in evaluation.json so that folders can be recognised.
 EVALUATION_KIND = "ifmi-evaluation"
+# First comment of an estimate's TUM file; an existing file that starts so may be replaced by a new run.
+ESTIMATE_HEADER = "ifmi estimate"
 # Entries of an evaluation folder that a new evaluation replaces (anything else in it is
 # kept). A report's copy of an evaluation also holds the motion-flow sample computed for
 # it, which belongs to the estimate evaluated before.
@@ -397,17 +399,24 @@ def frames_csv_text(rows: list[dict]) -> str:
 
 
 def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.PathLike | None = None,
-                           input_files: tuple = ()) -> tuple[Path, Path, Path]:
+                           input_files: tuple = (), overwrite: bool = False) -> tuple[Path, Path, Path]:
     """The three files an estimate writes, checked before anything is computed.
+
+    An earlier run's files are replaced (a run repeated into the same
+    place); any other non-empty file at one of the three paths is not,
+    unless ``overwrite``: it may be the user's own trajectory or notes.
 
     Parameters
     ----------
     path : path
-        The TUM file (``DIR/NAME.txt``).
+        The TUM file (``DIR/NAME.txt``); a path ending in a separator names
+        a folder, not a file, and is refused.
     dataset_dir : path, optional, keyword-only
         The input dataset; no output may replace one of its files.
     input_files : tuple of path, keyword-only
         Other inputs (a video and its calibration) no output may replace.
+    overwrite : bool, keyword-only
+        Replace existing files that no earlier estimate wrote.
 
     Returns
     -------
@@ -418,15 +427,20 @@ def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.Pat
     ------
     OutputError
         An output would replace a file of the input dataset (compared by
-        resolved path and by inode, so links count), is a folder, a device
+        resolved path and by inode, so links count), or without ``overwrite``
+        a non-empty file no estimate wrote; ``path`` ends in a separator; an
+        output is a folder, a device
         node, a FIFO or a socket, a regular file stands where a folder of
         its path should be, or its folder cannot be written
         (:func:`~ifmi.io.atomic.probe_writable`).
     """
     from .dataset import dataset_conflict
 
+    if str(path).endswith(("/", os.sep)):
+        raise OutputError(path, "expected the estimate's file path (DIR/NAME.txt), got a folder path "
+                                "ending in a separator")
     outputs = (Path(path), *side_file_paths(path))
-    for output in outputs:
+    for output, kind in zip(outputs, ("trajectory", "frames", "config")):
         target = probe_writable(output)
         conflict = None if dataset_dir is None else dataset_conflict(dataset_dir, target)
         for source in input_files:
@@ -434,7 +448,33 @@ def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.Pat
                 conflict = f"would replace the input file {source}"
         if conflict is not None:
             raise OutputError(output, f"{conflict}; choose another output path")
+        if not overwrite and not _earlier_estimate_output(target, kind):
+            raise OutputError(output, "an existing file that no estimate wrote; choose another output path "
+                                      "or pass --force to replace it")
     return outputs
+
+
+# How much of an existing output is read to tell whether an earlier estimate wrote it.
+_SNIFF_BYTES = 4096
+
+
+def _earlier_estimate_output(path: Path, kind: str) -> bool:
+    """Whether ``path`` may be replaced: absent, empty, or one of an earlier estimate's three files
+    (``kind``: "trajectory" with the TUM header :func:`write_estimate_run` writes, "frames" with
+    the per-frame CSV's first columns, "config" with the config file's keys)."""
+    try:
+        if not path.is_file() or path.stat().st_size == 0:
+            return True
+        if kind == "config":
+            data = json.loads(path.read_text(encoding="utf-8"))
+            return isinstance(data, dict) and {"method", "config", "versions"} <= data.keys()
+        with open(path, "rb") as f:
+            first = f.read(_SNIFF_BYTES).split(b"\n", 1)[0].decode("utf-8", errors="replace")
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    if kind == "trajectory":
+        return first.startswith(f"# {ESTIMATE_HEADER}")
+    return first.startswith("frame,reference_frame,success,")
 
 
 def _same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
@@ -446,7 +486,7 @@ def _same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
 
 
 def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | os.PathLike | None,
-                       extra: dict | None = None, input_files: tuple = ()) -> Path:
+                       extra: dict | None = None, input_files: tuple = (), overwrite: bool = False) -> Path:
     """Write an estimate as ``NAME.txt`` (TUM) with ``NAME.frames.csv`` and ``NAME.config.json``.
 
     The three files are written as one set (:func:`~ifmi.io.atomic.atomic_write_files`):
@@ -467,6 +507,8 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
         ``video`` and ``calib`` here).
     input_files : tuple of path, keyword-only
         Other inputs no output may replace (see :func:`check_estimate_outputs`).
+    overwrite : bool, keyword-only
+        Replace files no earlier estimate wrote (see :func:`check_estimate_outputs`).
 
     Returns
     -------
@@ -482,7 +524,7 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
     from .tum import format_tum
 
     path, frames_path, config_path = check_estimate_outputs(path, dataset_dir=dataset_dir,
-                                                            input_files=input_files)
+                                                            input_files=input_files, overwrite=overwrite)
     config = {
         "method": estimate.method,
         "config": estimate.config.to_dict(),
@@ -491,7 +533,7 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
         "versions": _versions(),
     }
     config.update(extra or {})
-    tum = format_tum(estimate.trajectory, header=f"ifmi estimate, method {estimate.method}")
+    tum = format_tum(estimate.trajectory, header=f"{ESTIMATE_HEADER}, method {estimate.method}")
     atomic_write_files({
         config_path: json_text(jsonable(config)).encode("utf-8"),
         frames_path: frames_csv_text([r.to_row() for r in estimate.frames]).encode("utf-8"),
