@@ -92,6 +92,19 @@ def test_bad_images_inside_the_sequence_are_flagged(dataset, tmp_path):
     assert geodesic_angle(est.rotations[good], seq.rotations[good]).max() < 0.01
 
 
+def test_a_broken_link_inside_the_sequence_is_a_flagged_frame(dataset, tmp_path):
+    """A frame whose link points nowhere keeps its place in the sequence and fails with the reason."""
+    root, _ = dataset
+    copy = tmp_path / "links"
+    shutil.copytree(root, copy)
+    (copy / "images" / "000003.png").unlink()
+    (copy / "images" / "000003.png").symlink_to(tmp_path / "gone.png")
+    assert main(["estimate", str(copy), "--out", str(tmp_path / "l.txt"), "--no-progress"]) == 0
+    rows = _frames_csv(tmp_path / "l.frames.csv")
+    assert [r["frame"] for r in rows] == ["0", "1", "2", "3", "4", "5"]
+    assert rows[3]["success"] == "false" and "image file not found" in rows[3]["reason"]
+
+
 def test_unreadable_first_image_names_the_file(dataset, tmp_path, capsys):
     root, _ = dataset
     copy = tmp_path / "junk"

@@ -97,7 +97,8 @@ def frame_files(image_dir: str | os.PathLike) -> FrameFiles:
     by_index: dict[int, Path] = {}
     skipped = []
     for path in entries:
-        index = frame_index(path) if path.is_file() else None
+        # A link whose target is gone is still a frame of the sequence: flagged when it is read.
+        index = frame_index(path) if path.is_file() or path.is_symlink() else None
         if index is None:
             skipped.append(path.name)
         elif index in by_index:
