@@ -21,9 +21,9 @@ from .io.tum import read_tum
 from .metrics import AXES, EvaluationSummary, summary_from_errors, trajectory_errors
 from .trajectory import Trajectory
 
-__all__ = ["EvaluateOptions", "GateVerdict", "default_evaluation_dir", "evaluate_files",
-           "format_summary_table", "dataset_label", "dataset_provenance", "gate_verdict",
-           "summary_of"]
+__all__ = ["EvaluateOptions", "GateVerdict", "MIN_ASSOCIATED", "default_evaluation_dir",
+           "evaluate_files", "format_summary_table", "dataset_label", "dataset_provenance",
+           "gate_verdict", "summary_of"]
 
 
 @dataclass(frozen=True)
@@ -37,8 +37,10 @@ class EvaluateOptions:
         for two poses to be associated.
     min_matched : float
         Smallest fraction of the ground-truth poses that must be associated
-        with an estimate pose; fewer is an error, not a summary of a few
-        frames. In [0, 1].
+        with an estimate pose, and of the estimate poses that must be
+        associated with a ground-truth pose; fewer is an error, not a
+        summary of a few frames. In [0, 1]. Whatever it is, at least
+        :data:`MIN_ASSOCIATED` poses must be associated.
     """
 
     max_time_difference: float = 1e-3
@@ -90,6 +92,9 @@ def dataset_label(dataset_dir: str | os.PathLike | None) -> tuple[str, str]:
 
 # Entries of a dataset's meta.json carried into evaluations (provenance shown in reports).
 DATASET_META_KEYS = ("scene_name", "frames", "resolution", "spp", "seed", "variant")
+# Fewest associated poses an evaluation accepts: one pose is a single sample, and when it is
+# frame 0 (the identity in both trajectories) its errors are zero whatever the estimate.
+MIN_ASSOCIATED = 2
 # Below this, the printed tables and the verdict line show an error with significant digits, not
 # four decimals: a sharp 1024 px sequence's 1e-5 rad would read 0.0000.
 _FIXED_DECIMALS_MIN = 1e-3
@@ -117,11 +122,19 @@ def _check_unique_timestamps(path: Path, trajectory: Trajectory) -> None:
 
 
 def _check_side_files(est_path: Path, est: Trajectory, side: EstimateSideFiles) -> None:
-    """The side files must belong to this trajectory: one frames.csv row per pose."""
-    if side.frames is not None and len(side.frames) != len(est):
+    """The side files must belong to this trajectory: one frames.csv row per pose and frame."""
+    if side.frames is None:
+        return
+    if len(side.frames) != len(est):
         raise InputError(side.frames_path, f"{len(side.frames)} frames, but {est_path.name} has "
                                            f"{len(est)} poses; the estimate and its side files "
                                            "come from different runs")
+    values, counts = np.unique(side.frames.frame, return_counts=True)
+    if np.any(counts > 1):
+        first = int(np.argmax(counts > 1))
+        raise InputError(side.frames_path, f"frame {values[first]} on {counts[first]} rows; "
+                                           "expected one row per frame (reference frames are "
+                                           "found by frame number)")
 
 
 def _reference_timestamps(est: Trajectory, side: EstimateSideFiles) -> np.ndarray | None:
@@ -142,12 +155,23 @@ def _reference_timestamps(est: Trajectory, side: EstimateSideFiles) -> np.ndarra
     return reference_t
 
 
-def _check_matched(est_path: Path, n_matched: int, n_gt: int, options: EvaluateOptions) -> None:
+def _check_matched(gt_path: Path, est_path: Path, n_matched: int, n_gt: int, n_est: int,
+                   options: EvaluateOptions) -> None:
+    """Enough associated poses: ``min_matched`` of each file's, and :data:`MIN_ASSOCIATED`."""
+    within = f"within {options.max_time_difference:g}"
+    bar = f"(expected at least {options.min_matched:.0%}; --min-matched lowers the bar)"
     if n_matched < options.min_matched * n_gt:
         raise InputError(est_path, f"only {n_matched} of {n_gt} ground-truth poses have an "
-                                   f"estimate pose within {options.max_time_difference:g} "
-                                   f"(expected at least {options.min_matched:.0%}; "
-                                   "--min-matched lowers the bar)")
+                                   f"estimate pose {within} {bar}")
+    if n_matched < options.min_matched * n_est:
+        raise InputError(gt_path, f"only {n_matched} of {n_est} poses of {est_path.name} have a "
+                                  f"ground-truth pose {within} {bar}")
+    if n_matched < MIN_ASSOCIATED:
+        # Name the file with fewer poses: that is the one that falls short.
+        path, other = (gt_path, est_path) if n_gt < n_est else (est_path, gt_path)
+        raise InputError(path, f"only {n_matched} pose associated with {other.name} ({within}); "
+                               f"expected at least {MIN_ASSOCIATED} (an error over one pose "
+                               "measures nothing)")
 
 
 def _run_meta(gt_path: Path, est_path: Path, side: EstimateSideFiles, summary: EvaluationSummary,
@@ -195,8 +219,9 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     ------
     InputError
         Missing or malformed input files, duplicate timestamps, side files
-        that do not belong to the estimate, or fewer associated poses than
-        ``options.min_matched`` of the ground truth.
+        that do not belong to the estimate, fewer associated poses than
+        ``options.min_matched`` of the ground truth's or of the estimate's,
+        or fewer than :data:`MIN_ASSOCIATED`.
     OutputError
         The evaluation folder cannot be written.
     """
@@ -212,7 +237,7 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
                                    reference_timestamps=_reference_timestamps(est, side))
     except ValueError as exc:
         raise InputError(est_path, str(exc)) from None
-    _check_matched(est_path, len(errors), len(gt), options)
+    _check_matched(gt_path, est_path, len(errors), len(gt), len(est), options)
     frames = side.frames
     summary = summary_from_errors(errors, n_gt=len(gt), n_est=len(est),
                                   frame_success=None if frames is None else frames.success,
@@ -324,7 +349,17 @@ def format_summary_table(meta: dict) -> str:
     row("translation direction", s.translation_direction)
     if s.failures is not None:
         lines.append(f"failed frames: {s.failures} of {s.failure_frames}")
-    if s.time is not None:
-        lines.append(f"time per frame: {s.time.mean_s * 1e3:.2f} ms mean, "
-                     f"{s.time.median_s * 1e3:.2f} ms median")
+    lines += _time_lines(s)
     return "\n".join(lines)
+
+
+def _time_lines(s: EvaluationSummary) -> list[str]:
+    """The time-per-frame line of the table: the statistics, or unknown when frames.csv has none."""
+    if s.time is None:
+        return [] if s.failures is None else ["time per frame: unknown (the run's frames.csv "
+                                              "records no time)"]
+    line = (f"time per frame: {_fmt(s.time.mean_s, 1e3, 2)} ms mean, "
+            f"{_fmt(s.time.median_s, 1e3, 2)} ms median")
+    if s.failure_frames is not None and s.time.frames < s.failure_frames:
+        line += f" (over the {s.time.frames} of {s.failure_frames} frames with a recorded time)"
+    return [line]

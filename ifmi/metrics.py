@@ -308,11 +308,16 @@ def trajectory_errors(gt: Trajectory, est: Trajectory, *, max_time_difference: f
 class TimeStats:
     """Wall time per frame of an estimate run (seconds).
 
+    Only the frames whose time was recorded count: a run that records no
+    time has no ``TimeStats`` (None, "unknown"), and one that records it for
+    some frames has the statistics of those (``frames`` of them).
+
     Attributes
     ----------
     mean_s, median_s, total_s : float
+        Over the frames with a recorded time.
     frames : int
-        Frames with a finite time.
+        Frames with a recorded (finite) time, at least 1.
     """
 
     mean_s: float
@@ -325,11 +330,14 @@ class TimeStats:
                 "frames": self.frames}
 
 
+def _float_or_nan(value) -> float:
+    """A number of a summary dict; JSON null (a NaN written out) reads as NaN."""
+    return float("nan") if value is None else float(value)
+
+
 def _stats_from_dict(data: dict) -> ErrorStats:
-    nan = float("nan")
-    return ErrorStats(*(nan if data.get(k) is None else float(data[k])
-                        for k in ("rmse", "mean", "std", "median", "max")),
-                      count=int(data.get("count") or 0))
+    numbers = (_float_or_nan(data.get(k)) for k in ("rmse", "mean", "std", "median", "max"))
+    return ErrorStats(*numbers, count=int(data.get("count") or 0))
 
 
 @dataclass(frozen=True)
@@ -352,6 +360,8 @@ class EvaluationSummary:
     failure_frames : int or None
         Frames of the run's ``frames.csv``.
     time : TimeStats or None
+        Time per frame; None (unknown) without a ``frames.csv`` or when it
+        records no time.
     """
 
     roll: ErrorStats
@@ -395,7 +405,11 @@ class EvaluationSummary:
 
     @classmethod
     def from_dict(cls, data: dict) -> "EvaluationSummary":
-        """Inverse of :meth:`to_dict` (JSON nulls read as NaN)."""
+        """Inverse of :meth:`to_dict` (JSON nulls read as NaN).
+
+        A ``time`` without a mean (an unknown time stored as NaN before
+        unknown times were stored as null) reads as None, unknown.
+        """
         failures, time = data.get("failures"), data.get("time")
         frames = data["frames"]
         return cls(
@@ -407,8 +421,9 @@ class EvaluationSummary:
             frames_associated=int(frames["associated"]),
             failures=None if failures is None else int(failures["count"]),
             failure_frames=None if failures is None else int(failures["frames"]),
-            time=None if time is None else TimeStats(**{k: time[k] for k in
-                                                       ("mean_s", "median_s", "total_s", "frames")}),
+            time=None if time is None or time.get("mean_s") is None else TimeStats(
+                *(_float_or_nan(time.get(k)) for k in ("mean_s", "median_s", "total_s")),
+                frames=int(time["frames"])),
         )
 
     def flat(self) -> dict:
@@ -456,7 +471,9 @@ def summary_from_errors(errors: TrajectoryErrors, *, n_gt: int, n_est: int,
     frame_success : (F,) array_like of bool, optional, keyword-only
         Per-frame success flags of the estimate run.
     frame_seconds : (F,) array_like, optional, keyword-only
-        Per-frame wall time of the estimate run (seconds).
+        Per-frame wall time of the estimate run (seconds); NaN where it was
+        not recorded. The time statistics are over the recorded frames, and
+        ``time`` is None (unknown) when no frame has one.
 
     Returns
     -------
@@ -466,9 +483,9 @@ def summary_from_errors(errors: TrajectoryErrors, *, n_gt: int, n_est: int,
     if frame_success is not None:
         ok = np.asarray(frame_success, dtype=bool)
         failures, failure_frames = int((~ok).sum()), int(ok.size)
-    if frame_seconds is not None and len(frame_seconds) > 0:
-        s = np.asarray(frame_seconds, dtype=np.float64)
-        s = s[np.isfinite(s)]
+    seconds = np.asarray([] if frame_seconds is None else frame_seconds, dtype=np.float64)
+    s = seconds[np.isfinite(seconds)]
+    if s.size > 0:
         time = TimeStats(mean_s=float(s.mean()), median_s=float(np.median(s)),
                          total_s=float(s.sum()), frames=int(s.size))
     return EvaluationSummary(

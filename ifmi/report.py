@@ -380,7 +380,8 @@ def _rpy_blocks(records: Sequence[EvaluationRecord], figures: Path) -> tuple[lis
     for scene, recs in sorted(by_scene.items()):
         recs = sorted(recs, key=lambda r: method_sort_key(r.method))
         series = {r.method: r.arrays for r in recs}
-        rmse = {r.method: [r.summary["axes"][a]["rmse"] for a in AXES] for r in recs}
+        rmse = {r.method: [EvaluationSummary.from_dict(r.summary).axis(a).rmse for a in AXES]
+                for r in recs}
         name = f"rpy_{scene}.png"
         rpy_over_frames(series, title=f"{scene}: roll, pitch, yaw against ground truth",
                         path=figures / name, rmse=rmse)
@@ -563,11 +564,11 @@ class ReportOptions:
     motion_flow: bool = True
 
 
-def _write_report(inputs: ReportInputs, out: Path, options: ReportOptions) -> None:
-    """Write every file of the report into the (new, empty) folder ``out``."""
+def _write_report(inputs: ReportInputs, records: list[EvaluationRecord], out: Path,
+                  options: ReportOptions) -> None:
+    """Write every file of the report of ``records`` (read from ``inputs``) into the new ``out``."""
     figures = out / "figures"
     figures.mkdir(parents=True)
-    records = records_with_distinct_scenes([read_evaluation(p) for p in inputs.evaluations])
     data = out / "data" if options.copy_data else None
     if data is not None:
         _copy_data(inputs, records, data)
@@ -648,7 +649,9 @@ def build_report(paths: Sequence[str | os.PathLike], *, out_dir: str | os.PathLi
     Raises
     ------
     InputError
-        A results path that is missing or holds no results, or a malformed one.
+        A results path that is missing or holds no results, or a malformed
+        one (:func:`~ifmi.io.results.read_evaluation`); every evaluation is
+        read before anything is written.
     OutputError
         ``out_dir`` is a file or an existing folder that is neither empty
         nor a report folder (checked before any work), or the report cannot
@@ -658,5 +661,7 @@ def build_report(paths: Sequence[str | os.PathLike], *, out_dir: str | os.PathLi
     # A symlinked report folder is written through, not replaced.
     out = check_output_folder(out_dir, is_own=is_report_dir,
                               what="a report folder written by ifmi report")
-    write_folder(out, lambda folder: _write_report(inputs, folder, options), replaces=REPORT_ENTRIES)
+    records = records_with_distinct_scenes([read_evaluation(p) for p in inputs.evaluations])
+    write_folder(out, lambda folder: _write_report(inputs, records, folder, options),
+                 replaces=REPORT_ENTRIES)
     return Path(out_dir) / "README.md"

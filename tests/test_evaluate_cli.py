@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -344,3 +345,121 @@ def test_gate_line_shows_small_angles_with_significant_digits(tmp_path, capsys):
                  "--max-rmse", "1e-4"])
     out = capsys.readouterr().out.strip()
     assert code == 0 and out.startswith("PASS: geodesic RMSE 9.747e-06 rad <= 1.000e-04 rad"), out
+
+
+def _edit_frames(tmp_path, column, value, rows=None):
+    """Set ``column`` of est.frames.csv to ``value`` on ``rows`` (0: frame 0; default all)."""
+    lines = (tmp_path / "est.frames.csv").read_text().splitlines()
+    j = lines[0].split(",").index(column)
+    for k in range(1, len(lines)):
+        if rows is None or k - 1 in rows:
+            fields = lines[k].split(",")
+            fields[j] = value
+            lines[k] = ",".join(fields)
+    (tmp_path / "est.frames.csv").write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("missing", ["", "nan"])
+def test_frames_csv_without_times_gives_an_unknown_time(tmp_path, capsys, missing):
+    # An estimator that records no time: the time per frame is unknown, and said so.
+    _write_run(tmp_path)
+    _edit_frames(tmp_path, "seconds", missing)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "Mean of empty slice"
+        assert main(_gate(tmp_path, "--out", str(tmp_path / "eval"))) == 0
+    out = capsys.readouterr().out
+    assert "time per frame: unknown (the run's frames.csv records no time)" in out
+    doc = json.loads((tmp_path / "eval" / "evaluation.json").read_text())
+    assert doc["summary"]["time"] is None and doc["summary"]["failures"]["count"] == 2
+
+
+def test_frames_csv_with_some_times_missing_times_the_others(tmp_path, capsys):
+    _write_run(tmp_path)  # 0.01 s on even frames, 0.02 s on odd ones
+    _edit_frames(tmp_path, "seconds", "", rows=range(1, 20, 2))
+    assert main(_gate(tmp_path, "--json")) == 0
+    time = json.loads(capsys.readouterr().out)["summary"]["time"]
+    assert time == {"mean_s": pytest.approx(0.01), "median_s": pytest.approx(0.01),
+                    "total_s": pytest.approx(0.1), "frames": 10}
+    assert main(_gate(tmp_path)) == 0
+    assert ("time per frame: 10.00 ms mean, 10.00 ms median (over the 10 of 20 frames with a "
+            "recorded time)") in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("column, value, expected", [
+    ("seconds", "-1", "column seconds: expected a time in seconds >= 0 (empty when not recorded), "
+                      "got '-1'"),
+    ("seconds", "inf", "column seconds: expected a time in seconds >= 0"),
+    ("frame", "", "column frame: expected a frame number (a whole number >= 0), got ''"),
+    ("frame", "-3", "column frame: expected a frame number (a whole number >= 0), got '-3'"),
+    ("frame", "2.5", "column frame: expected a frame number (a whole number >= 0), got '2.5'"),
+    ("reference_frame", "1.5", "column reference_frame: expected a frame number (a whole number; "
+                               "empty for none), got '1.5'"),
+])
+def test_bad_frames_csv_value_is_one_line_error_naming_the_line(tmp_path, capsys, column, value,
+                                                                expected):
+    _write_run(tmp_path)
+    _edit_frames(tmp_path, column, value, rows=[4])
+    # A comment line before the header: the line named is the file's (frame 4 is on line 7).
+    text = (tmp_path / "est.frames.csv").read_text()
+    (tmp_path / "est.frames.csv").write_text("# run of today\n" + text)
+    code, err = _run_error(_gate(tmp_path, "--out", str(tmp_path / "eval")), capsys)
+    assert code == 2 and len(err.splitlines()) == 1
+    assert f"est.frames.csv: line 7: {expected}" in err
+    assert not (tmp_path / "eval").exists()
+
+
+def test_repeated_frame_in_frames_csv_is_one_line_error(tmp_path, capsys):
+    _write_run(tmp_path)
+    _edit_frames(tmp_path, "frame", "3", rows=[5])
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and len(err.splitlines()) == 1
+    assert ("est.frames.csv: frame 3 on 2 rows; expected one row per frame (reference frames are "
+            "found by frame number)") in err
+
+
+def test_ground_truth_of_one_pose_is_refused(tmp_path, capsys):
+    # One ground-truth pose, frame 0: RMSE 0 over it whatever the estimate.
+    gt, _ = _write_run(tmp_path, yaw_offset=0.5)
+    write_tum(tmp_path / "groundtruth.txt", Trajectory(gt.timestamps[:1], gt.positions[:1],
+                                                       gt.rotations[:1]))
+    code, err = _run_error(_gate(tmp_path, "--max-rmse", "0.0001"), capsys)
+    assert code == 2 and len(err.splitlines()) == 1 and "PASS" not in capsys.readouterr().out
+    assert ("groundtruth.txt: only 1 of 20 poses of est.txt have a ground-truth pose within 0.001 "
+            "(expected at least 50%; --min-matched lowers the bar)") in err
+
+
+def test_ground_truth_covering_under_half_of_the_estimate_is_refused(tmp_path, capsys):
+    gt, _ = _write_run(tmp_path)
+    (tmp_path / "est.frames.csv").unlink()
+    write_tum(tmp_path / "groundtruth.txt", Trajectory(gt.timestamps[:9], gt.positions[:9],
+                                                       gt.rotations[:9]))
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "groundtruth.txt: only 9 of 20 poses of est.txt have a ground-truth pose" in err
+    assert main(_gate(tmp_path, "--min-matched", "0.4")) == 0
+
+
+def test_one_associated_pose_is_refused_whatever_the_bar(tmp_path, capsys):
+    gt, est = _write_run(tmp_path, yaw_offset=0.5)
+    (tmp_path / "est.frames.csv").unlink()
+    write_tum(tmp_path / "groundtruth.txt", Trajectory(gt.timestamps[:1], gt.positions[:1],
+                                                       gt.rotations[:1]))
+    code, err = _run_error(_gate(tmp_path, "--min-matched", "0", "--max-rmse", "0.0001"), capsys)
+    assert code == 2 and len(err.splitlines()) == 1
+    assert ("groundtruth.txt: only 1 pose associated with est.txt (within 0.001); expected at "
+            "least 2 (an error over one pose measures nothing)") in err
+
+
+@pytest.mark.parametrize("config, expected", [
+    ({"method": "orb", "dataset": 5}, "field dataset: expected a string or null, got a number 5"),
+    ({"method": ["orb"]}, 'field method: expected a name (a string without / or \\) or null, got '
+                          'an array ["orb"]'),
+    ({"method": "../orb"}, 'field method: expected a name (a string without / or \\) or null, got '
+                           'a string "../orb"'),
+])
+def test_config_json_field_of_the_wrong_kind_is_one_line_error(tmp_path, capsys, config, expected):
+    _write_run(tmp_path)
+    (tmp_path / "est.config.json").write_text(json.dumps(config))
+    code, err = _run_error(_gate(tmp_path, "--out", str(tmp_path / "eval")), capsys)
+    assert code == 2 and len(err.splitlines()) == 1
+    assert f"est.config.json: {expected}" in err and not (tmp_path / "eval").exists()

@@ -294,3 +294,104 @@ def test_one_scene_from_two_dataset_folders_gets_two_rows_figures_and_folders(tm
     again = json.loads((rebuilt / "report.json").read_text())
     assert sorted(again["scenes"]) == sorted(doc["scenes"])
     assert again["scenes"][names["site_b"]]["ifmi"]["rmse_yaw_rad"] == yaw["site_b"]
+
+
+def _report_error(tmp_path, capsys, root):
+    out = tmp_path / "r"
+    code = main(["report", str(root / "eval"), "--out", str(out), "--no-motion-flow"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert not out.exists() and not list(tmp_path.glob(".r.new-*"))
+    return err
+
+
+def test_truncated_per_frame_arrays_are_one_line_error(tmp_path, capsys):
+    root = _make_results(tmp_path, scenes=("office",))
+    npz = root / "eval" / "office" / "orb" / "per_frame.npz"
+    npz.write_bytes(npz.read_bytes()[:100])
+    err = _report_error(tmp_path, capsys, root)
+    assert err == (f"ifmi report: error: {npz}: cannot read per-frame arrays (truncated or corrupt "
+                   "file; expected a NumPy .npz archive)")
+
+
+@pytest.mark.parametrize("edit, expected", [
+    (lambda a: {"timestamp": a["timestamp"]},
+     "missing array(s) roll_gt, roll_est, pitch_gt, pitch_est, yaw_gt, yaw_est; got timestamp"),
+    (lambda a: {**a, "timestamp": a["timestamp"][:-1]},
+     "array timestamp: 14 frames, but evaluation.json has 15 associated frames; expected one row "
+     "per associated frame"),
+    (lambda a: {**a, "timestamp": np.zeros((15, 2))},
+     "array timestamp: expected one number per frame, got float64 of shape (15, 2)"),
+])
+def test_per_frame_arrays_that_do_not_fit_the_summary_are_one_line_error(tmp_path, capsys, edit,
+                                                                         expected):
+    root = _make_results(tmp_path, scenes=("office",))
+    npz = root / "eval" / "office" / "orb" / "per_frame.npz"
+    with np.load(npz) as data:
+        arrays = {k: data[k] for k in data.files}
+    np.savez(npz, **edit(arrays))
+    assert _report_error(tmp_path, capsys, root) == f"ifmi report: error: {npz}: {expected}"
+
+
+@pytest.mark.parametrize("edit, expected", [
+    (lambda d: d.update(dataset_meta="oops"),
+     'field dataset_meta: expected an object {...} or null, got a string "oops"'),
+    (lambda d: d.update(scene="../../elsewhere"),
+     'field scene: expected a name (a string without / or \\) or null, got a string '
+     '"../../elsewhere"'),
+    (lambda d: d.update(method=["orb"]),
+     'field method: expected a name (a string without / or \\) or null, got an array ["orb"]'),
+    (lambda d: d.update(groundtruth_path=3),
+     "field groundtruth_path: expected a string or null, got a number 3"),
+    (lambda d: d.pop("summary"), "field summary: missing; expected an object {...}"),
+    (lambda d: d["summary"]["frames"].update(associated="15"),
+     'field summary.frames.associated: expected a whole number >= 0, got a string "15"'),
+    (lambda d: d["summary"]["axes"].pop("yaw"), "field summary.axes.yaw: missing; expected an "
+                                                "object {...}"),
+    (lambda d: d["summary"]["axes"]["roll"].update(rmse="small"),
+     'field summary.axes.roll.rmse: expected a number or null, got a string "small"'),
+    (lambda d: d["summary"].update(failures=2),
+     "field summary.failures: expected an object {...} or null, got a number 2"),
+    (lambda d: d["summary"]["time"].update(mean_s=[0.1]),
+     "field summary.time.mean_s: expected a number or null, got an array [0.1]"),
+])
+def test_evaluation_json_field_of_the_wrong_kind_is_one_line_error(tmp_path, capsys, edit,
+                                                                   expected):
+    root = _make_results(tmp_path, scenes=("office",))
+    doc_path = root / "eval" / "office" / "orb" / "evaluation.json"
+    doc = json.loads(doc_path.read_text())
+    edit(doc)
+    doc_path.write_text(json.dumps(doc))
+    assert _report_error(tmp_path, capsys, root) == f"ifmi report: error: {doc_path}: {expected}"
+
+
+def test_evaluation_with_a_time_stored_as_null_reads_as_unknown(tmp_path):
+    # Written before an unknown time was stored as null: a time object of nulls.
+    root = _make_results(tmp_path, scenes=("office",))
+    doc_path = root / "eval" / "office" / "orb" / "evaluation.json"
+    doc = json.loads(doc_path.read_text())
+    doc["summary"]["time"] = {"mean_s": None, "median_s": None, "total_s": 0.0, "frames": 0}
+    doc_path.write_text(json.dumps(doc))
+    assert main(["report", str(root / "eval"), "--out", str(tmp_path / "r"),
+                 "--no-motion-flow"]) == 0
+    report = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert report["scenes"]["office"]["orb"]["time_per_frame_s"] is None
+    assert report["scenes"]["office"]["ifmi"]["time_per_frame_s"] == pytest.approx(0.01)
+
+
+@pytest.mark.parametrize("damage, expected", [
+    (lambda p: p.write_bytes(p.read_bytes()[:200]),
+     "cannot read motion-flow file (truncated or corrupt file; expected a NumPy .npz archive)"),
+    (lambda p: np.savez(p, **{**dict(np.load(p)), "tile_size": np.array([20, 20])}),
+     "array tile_size: expected numbers of shape (), got int64 of shape (2,)"),
+    (lambda p: np.savez(p, **{**dict(np.load(p)), "points_b": np.zeros((4, 2))}),
+     "points_a is (10, 2), points_b (4, 2); expected the same shape"),
+])
+def test_bad_motion_flow_sample_is_one_line_error(tmp_path, capsys, damage, expected):
+    root = _make_results(tmp_path, scenes=("office",))
+    sample = root / "eval" / "office" / "ifmi" / "motion_flow.npz"
+    damage(sample)
+    code = main(["report", str(root / "eval"), "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == f"ifmi report: error: {sample}: {expected}"
+    assert not (tmp_path / "r").exists() and not list(tmp_path.glob(".r.new-*"))

@@ -51,8 +51,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--max-time-difference", type=_non_negative(float), default=1e-3, metavar="T",
                    help="largest timestamp difference for associating poses (default 1e-3)")
     p.add_argument("--min-matched", type=_fraction, default=0.5, metavar="FRACTION",
-                   help="smallest fraction of ground-truth poses that must be associated "
-                        "(default 0.5)")
+                   help="smallest fraction of the ground-truth poses, and of the estimate "
+                        "poses, that must be associated (default 0.5); at least 2 poses always")
     g = p.add_argument_group("pass/fail gate")
     g.add_argument("--max-rmse", type=_non_negative(float), metavar="RAD",
                    help="fail (exit 1) when the geodesic RMSE exceeds RAD radians")

@@ -26,6 +26,8 @@ import csv
 import io
 import json
 import os
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,6 +37,8 @@ from ..errors import InputError, OutputError
 from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
                      check_output_folder, folder_of_kind, json_text, probe_writable, write_folder)
 from .camera_file import calibration_path
+from .evaluation_file import (check_evaluation_document, check_per_frame_arrays,
+                              check_run_config)
 from .provenance import package_versions
 from .text_file import read_text_file
 
@@ -172,41 +176,87 @@ def _parse_bool(path, line: int, text: str) -> bool:
 def read_frames_csv(path: str | os.PathLike) -> FrameTable:
     """Read an estimate run's ``frames.csv``.
 
+    An empty (or ``nan``) ``seconds`` field is a frame whose time was not
+    recorded (NaN in :attr:`FrameTable.seconds`); an empty
+    ``reference_frame`` is a frame without a reference.
+
     Raises
     ------
     InputError
         Missing or unreadable file, missing required column, a row of the
-        wrong length or a non-numeric frame/seconds value.
+        wrong length, a ``frame`` that is not a whole number >= 0, a
+        ``reference_frame`` that is not a whole number, or a
+        ``seconds`` value that is not a time >= 0 (each naming the line).
     """
     path = Path(path)
     text = read_text_file(path, what="frames file")
-    rows = list(csv.reader(line for line in io.StringIO(text) if not line.startswith("#")))
-    rows = [r for r in rows if r]
-    if not rows:
+    # Comment lines are read as empty lines so that the reader's line numbers are the file's.
+    reader = csv.reader("\n" if line.startswith("#") else line for line in io.StringIO(text))
+    numbered = [(reader.line_num, row) for row in reader if row]
+    if not numbered:
         raise InputError(path, "empty frames file (expected a header line)")
-    header = [h.strip() for h in rows[0]]
+    header = [h.strip() for h in numbered[0][1]]
     missing = [c for c in REQUIRED_FRAME_COLUMNS if c not in header]
     if missing:
         raise InputError(path, f"missing column(s) {', '.join(missing)}; got {', '.join(header)}")
-    body = rows[1:]
-    for number, row in enumerate(body, start=2):
+    lines, body = [n for n, _ in numbered[1:]], [row for _, row in numbered[1:]]
+    for number, row in zip(lines, body):
         if len(row) != len(header):
             raise InputError(path, f"line {number}: expected {len(header)} fields, got {len(row)}")
     columns: dict[str, np.ndarray] = {}
     for j, name in enumerate(header):
         values = [row[j] for row in body]
         if name == "success":
-            columns[name] = np.array([_parse_bool(path, i + 2, v) for i, v in enumerate(values)],
+            columns[name] = np.array([_parse_bool(path, n, v) for n, v in zip(lines, values)],
                                      dtype=bool)
-            continue
-        try:
-            columns[name] = np.array([float(v) if v.strip() != "" else np.nan for v in values],
-                                     dtype=np.float64)
-        except ValueError:
-            if name in ("frame", "seconds", "reference_frame"):
-                raise InputError(path, f"column {name}: non-numeric value") from None
-            columns[name] = np.array(values, dtype=object)
+        elif name in _CHECKED_FRAME_COLUMNS:
+            columns[name] = _checked_column(path, name, lines, values)
+        else:
+            columns[name] = _optional_numeric_column(values)
     return FrameTable(columns=columns)
+
+
+def _parse_number(text: str) -> float:
+    """The number of a CSV field; an empty field is NaN (raises ValueError when not a number)."""
+    return float(text) if text.strip() != "" else np.nan
+
+
+def _optional_numeric_column(values: list[str]) -> np.ndarray:
+    """A float array when every field is a number or empty, otherwise the strings."""
+    try:
+        return np.array([_parse_number(v) for v in values], dtype=np.float64)
+    except ValueError:
+        return np.array(values, dtype=object)
+
+
+def _whole_number(value: float) -> bool:
+    return bool(np.isfinite(value) and value == np.floor(value))
+
+
+# Columns of frames.csv that evaluations read, with the values each accepts: (test, what is
+# expected, whether an empty or NaN field is accepted).
+_CHECKED_FRAME_COLUMNS = {
+    "frame": (lambda v: _whole_number(v) and v >= 0, "a frame number (a whole number >= 0)", False),
+    "reference_frame": (_whole_number, "a frame number (a whole number; empty for none)", True),
+    "seconds": (lambda v: np.isfinite(v) and v >= 0,
+                "a time in seconds >= 0 (empty when not recorded)", True),
+}
+
+
+def _checked_column(path: Path, name: str, lines: list[int], values: list[str]) -> np.ndarray:
+    """A numeric column of :data:`_CHECKED_FRAME_COLUMNS`, every value checked."""
+    accepts, expected, may_be_missing = _CHECKED_FRAME_COLUMNS[name]
+    out = np.empty(len(values))
+    for k, (number, text) in enumerate(zip(lines, values)):
+        try:
+            value = _parse_number(text)
+        except ValueError:
+            value = None
+        if value is None or not (accepts(value) or (may_be_missing and np.isnan(value))):
+            raise InputError(path, f"line {number}: column {name}: expected {expected}, "
+                                   f"got {text!r}")
+        out[k] = value
+    return out
 
 
 def read_run_config(path: str | os.PathLike) -> dict:
@@ -232,10 +282,20 @@ def read_run_config(path: str | os.PathLike) -> dict:
 
 
 def read_estimate_side_files(estimate_path: str | os.PathLike) -> EstimateSideFiles:
-    """Read the side files of an estimate where they exist (absent ones are None)."""
+    """Read the side files of an estimate where they exist (absent ones are None).
+
+    Raises
+    ------
+    InputError
+        A malformed side file (:func:`read_frames_csv`, :func:`read_run_config`),
+        or a config whose ``method`` or ``dataset`` is of the wrong kind
+        (:func:`~ifmi.io.evaluation_file.check_run_config`).
+    """
     frames_path, config_path = side_file_paths(estimate_path)
     frames = read_frames_csv(frames_path) if frames_path.exists() else None
     config = read_run_config(config_path) if config_path.exists() else None
+    if config is not None:
+        check_run_config(config_path, config)
     return EstimateSideFiles(frames=frames, config=config, frames_path=frames_path,
                              config_path=config_path)
 
@@ -359,16 +419,23 @@ def read_evaluation(path: str | os.PathLike) -> EvaluationRecord:
     Raises
     ------
     InputError
-        Not an evaluation folder, or one of its files is missing or malformed.
+        Not an evaluation folder, or one of its files is missing or malformed:
+        an ``evaluation.json`` entry that a report reads of the wrong kind
+        (:func:`~ifmi.io.evaluation_file.check_evaluation_document`), a
+        truncated ``per_frame.npz`` or one whose arrays do not fit the
+        summary (:func:`~ifmi.io.evaluation_file.check_per_frame_arrays`).
     """
     folder = Path(path)
     doc_path = folder / "evaluation.json"
     meta = read_run_config(doc_path) if doc_path.exists() else None
     if meta is None:
         raise InputError(folder, "not an evaluation folder (no evaluation.json)")
-    if meta.get("kind") != EVALUATION_KIND or "summary" not in meta:
+    if meta.get("kind") != EVALUATION_KIND:
         raise InputError(doc_path, f"not an evaluation file (kind {meta.get('kind')!r})")
+    check_evaluation_document(doc_path, meta)
     arrays = _read_npz(folder / "per_frame.npz", what="per-frame arrays")
+    check_per_frame_arrays(folder / "per_frame.npz", arrays,
+                           associated=int(meta["summary"]["frames"]["associated"]))
     config = read_run_config(folder / "config.json") if (folder / "config.json").exists() else None
     frames = read_frames_csv(folder / "frames.csv") if (folder / "frames.csv").exists() else None
     return EvaluationRecord(path=folder, meta=meta, arrays=arrays, config=config, frames=frames)
@@ -557,23 +624,61 @@ def read_motion_flow(path: str | os.PathLike) -> dict:
     Raises
     ------
     InputError
-        Missing or unreadable file, or a missing array.
+        Missing, unreadable, truncated or corrupt file, a missing array, or
+        an array of another shape than :data:`MOTION_FLOW_SHAPES` gives.
     """
     path = Path(path)
     sample = _read_npz(path, what="motion-flow file")
-    needed = ("panorama_a", "panorama_b", "points_a", "points_b", "tile_centers", "tile_size")
-    missing = [k for k in needed if k not in sample]
+    missing = [k for k in MOTION_FLOW_SHAPES if k not in sample and k != "frames"]
     if missing:
         raise InputError(path, f"missing array(s) {', '.join(missing)}")
+    for name, shape in MOTION_FLOW_SHAPES.items():
+        array = sample.get(name)
+        if array is not None and not _fits(array, shape):
+            wanted = "(" + ", ".join(str(n) if n else "N" for n in shape) + ")"
+            raise InputError(path, f"array {name}: expected numbers of shape {wanted}, got "
+                                   f"{array.dtype} of shape {array.shape}")
+    for first, second in (("panorama_a", "panorama_b"), ("points_a", "points_b")):
+        if sample[first].shape != sample[second].shape:
+            raise InputError(path, f"{first} is {sample[first].shape}, {second} "
+                                   f"{sample[second].shape}; expected the same shape")
     return sample
 
 
+# Arrays of a motion-flow sample and their shapes (0: any length); ``frames`` may be absent.
+MOTION_FLOW_SHAPES = {"panorama_a": (0, 0), "panorama_b": (0, 0), "points_a": (0, 2),
+                      "points_b": (0, 2), "tile_centers": (0, 2), "tile_size": (), "frames": (2,)}
+
+
+def _fits(array: np.ndarray, shape: tuple) -> bool:
+    """Whether ``array`` holds numbers in ``shape`` (0 matching any length)."""
+    return (array.dtype.kind in "biuf" and array.ndim == len(shape)
+            and all(n == 0 or n == m for n, m in zip(shape, array.shape)))
+
+
+# What np.load and zipfile raise on a truncated or corrupt .npz: OSError, ValueError (a bad
+# header, pickled data), EOFError and BadZipFile (truncated), zlib.error (corrupt compressed
+# data), NotImplementedError (an unknown zip version or compression), RuntimeError (encryption).
+_NPZ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError,
+               RuntimeError)
+_CORRUPT_ZIP = (zipfile.BadZipFile, EOFError, zlib.error)
+
+
 def _read_npz(path: Path, *, what: str) -> dict[str, np.ndarray]:
-    """All arrays of an ``.npz`` file; a missing or unreadable file is an :class:`InputError`."""
+    """All arrays of an ``.npz`` file; a missing or corrupt file is an :class:`InputError`."""
     try:
-        with np.load(path, allow_pickle=False) as data:
+        loaded = np.load(path, allow_pickle=False)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):
+            raise InputError(path, f"cannot read {what} (a single array; expected a NumPy .npz "
+                                   "archive of named arrays)")
+        with loaded as data:
             return {k: data[k] for k in data.files}
+    except InputError:  # a ValueError, but already the message
+        raise
     except FileNotFoundError:
         raise InputError(path, f"{what} not found") from None
-    except (OSError, ValueError) as exc:
+    except _CORRUPT_ZIP:
+        raise InputError(path, f"cannot read {what} (truncated or corrupt file; expected a NumPy "
+                               ".npz archive)") from None
+    except _NPZ_ERRORS as exc:
         raise InputError(path, f"cannot read {what} ({exc.__class__.__name__})") from None
