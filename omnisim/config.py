@@ -296,13 +296,16 @@ def _relative_file(path: Path, name: str, where: str) -> str:
     return str(resolved)
 
 
-def _camera(path: Path, table, resolution) -> CameraSettings:
-    """The ``[camera]`` table as a calibration scaled to the render ``resolution`` (height, width)."""
+def _camera(path: Path, table, resolution, *, key: str = "[render] resolution") -> CameraSettings:
+    """The ``[camera]`` table as a calibration scaled to the render ``resolution`` (height, width).
+
+    ``key`` names the resolution in errors (the table's key or the command-line option).
+    """
     from ifmi.io.calib import read_calib
 
     spec = settings_from_table(CameraTable, table, path=path, section="[camera]")
     if spec.kalibr:
-        return _kalibr_camera(path, spec.kalibr, resolution)
+        return _kalibr_camera(path, spec.kalibr, resolution, key=key)
     if spec.calib:
         model = read_calib(_relative_file(path, spec.calib, "[camera] calib"))
     else:
@@ -315,7 +318,7 @@ def _camera(path: Path, table, resolution) -> CameraSettings:
     height, width = resolution
     factor_h, factor_w = height / model.height, width / model.width
     if abs(factor_h - factor_w) > 1e-9:
-        raise InputError(path, f"[render] resolution: expected the calibration's aspect "
+        raise InputError(path, f"{key}: expected the calibration's aspect "
                                f"{model.height}x{model.width} (height x width), got {height}x{width}")
     if abs(factor_h - 1.0) > 1e-12:
         model = model.scaled(factor_h)
@@ -346,8 +349,8 @@ def _check_band(path: Path, model: OcamModel, radius_min: float) -> None:
                                f"got {radius_min:g}")
 
 
-def _kalibr_camera(path: Path, name: str, resolution) -> CameraSettings:
-    """``[camera] kalibr = "camera.yaml"``: a Kalibr camchain scaled to the render ``resolution``."""
+def _kalibr_camera(path: Path, name: str, resolution, *, key: str) -> CameraSettings:
+    """``[camera] kalibr = "camera.yaml"``: a Kalibr camchain scaled to the render ``resolution`` (named ``key``)."""
     from ifmi.io.kalibr import read_kalibr
 
     # Not checked for existence here: read_kalibr names the YAML file in its own errors.
@@ -356,7 +359,7 @@ def _kalibr_camera(path: Path, name: str, resolution) -> CameraSettings:
     # The width sets the scale; the height must be the calibration's, scaled and rounded.
     factor = width / model.width
     if int(round(model.height * factor)) != height:
-        raise InputError(path, f"[render] resolution: expected the calibration's aspect "
+        raise InputError(path, f"{key}: expected the calibration's aspect "
                                f"{model.height}x{model.width} (height x width), got {height}x{width}")
     if abs(factor - 1.0) > 1e-12:
         model = model.scaled(factor)
@@ -460,7 +463,11 @@ def load_scene_config(path, *, spp: int | None = None, resolution=None, frames: 
     InputError
         Missing or unparsable file, an unknown section or key, a bad value, an
         unknown texture, material, generator or photograph, or a missing file
-        (the message names the section and the key).
+        (the message names the section and the key). Every table is checked in
+        full, also the values the overrides replace; the calibration's aspect
+        is checked against the resolution rendered, the override's if given
+        (a scene file may leave the rescaling to ``--resolution``, as
+        :func:`write_scene_with_kalibr_camera` does).
     """
     path = Path(path)
     raw, data = _read_toml(path)
@@ -483,7 +490,8 @@ def load_scene_config(path, *, spp: int | None = None, resolution=None, frames: 
         layout_seed=scene.seed, render=render, trajectory=trajectory,
         effects=settings_from_table(EffectsSettings, data.get("effects", {}), path=path, section="[effects]"),
         capture=settings_from_table(CaptureSettings, data.get("capture", {}), path=path, section="[capture]"),
-        camera=_camera(path, data.get("camera", {}), render.resolution),
+        camera=_camera(path, data.get("camera", {}), render.resolution,
+                       key="[render] resolution" if resolution is None else "--resolution"),
         textures=textures, materials=materials, lights=lights, objects=objects,
         mitsuba_xml=mitsuba_xml, assets=assets,
     )

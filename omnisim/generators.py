@@ -5,9 +5,12 @@ through a :class:`GeneratorContext`. It is registered with
 :func:`register_generator`, which declares every parameter it reads
 (:class:`Param`: name, type, default, doc), so a scene file's ``[[objects]]``
 table is checked before anything is rendered: unknown keys, values of the
-wrong type, negative counts, unknown materials, photographs and missing files
-are one-line errors naming the object and the key. ``omnisim generators``
-prints the registry (:func:`describe_generators`).
+wrong type or out of the declared bounds (sizes, counts up to
+:data:`MAX_COUNT`, ``[low, high]`` ranges, non-empty lists of choices),
+bounds one parameter has from others (:class:`Relation`), unknown materials,
+photographs and missing files are one-line errors naming the object and the
+key. ``omnisim generators`` prints the registry with the bounds
+(:func:`describe_generators`).
 
 Parameter types: ``int``, ``float``, ``bool``, ``str``, ``float[N]`` /
 ``int[N]`` (N numbers), ``str[]`` (a list of strings), ``material`` and
@@ -29,11 +32,20 @@ from ifmi.errors import InputError
 
 from .geometry import MeshGroup
 from .materials import Appearance
-from .settings import SettingError, check_value
+from .settings import SettingError, check_bounds, check_value
 from .textures import BUNDLED_PHOTOS
 
-__all__ = ["Param", "Generator", "GeneratorContext", "ObjectSpec", "register_generator",
-           "registered_generators", "object_from_table", "describe_generators"]
+__all__ = ["Param", "Relation", "Generator", "GeneratorContext", "ObjectSpec", "MAX_COUNT",
+           "register_generator", "registered_generators", "object_from_table", "not_below",
+           "describe_generators"]
+
+# Largest number of objects one [[objects]] entry may make (a count, the lights of a grid, the
+# poles of a row...). Book shelves, the heaviest objects, are about 1,300 triangles each (a box
+# is 12, a tree 360), so this many make about 13 million triangles: at about 330 bytes a triangle
+# while the meshes are built here, plus about 200 in Mitsuba (float32 vertices, indices, BVH),
+# some 7 GiB -- what a 24 GiB machine holds beside the film, the textures and a second such
+# entry. Building them takes minutes, where a mistyped count of 10^8 would never finish.
+MAX_COUNT = 10_000
 
 _SCALAR_TYPES = {"int": int, "float": float, "bool": bool, "str": str, "material": str, "file": str}
 _LIST_TYPES = {"str[]": str, "material[]": str, "photo[]": str}
@@ -46,8 +58,11 @@ class Param:
     name : key in the ``[[objects]]`` table; kind : type name (see the module
     doc); default : value when the key is absent (``None``: absent means
     "not given", the generator decides); doc : one line with the unit;
-    minimum : inclusive lower bound of a number or of each number of a list;
-    required : the key must be given.
+    minimum, maximum : inclusive bounds of a number or of each number of a
+    list; required : the key must be given; above : exclusive lower bound
+    (sizes: ``above=0.0``); ordered : a ``float[2]`` / ``int[2]`` is a
+    ``[low, high]`` range, ``low <= high``; nonempty : a list must name at
+    least one item (a list of choices).
     """
 
     name: str
@@ -56,12 +71,21 @@ class Param:
     doc: str
     minimum: float | None = None
     required: bool = False
+    above: float | None = None
+    maximum: float | None = None
+    ordered: bool = False
+    nonempty: bool = False
 
     def __post_init__(self):
-        if self.kind not in _SCALAR_TYPES and self.kind not in _LIST_TYPES and not _vector_kind(self.kind):
+        vector = _vector_kind(self.kind)
+        if self.kind not in _SCALAR_TYPES and self.kind not in _LIST_TYPES and not vector:
             raise ValueError(f"parameter {self.name}: unknown type {self.kind!r}")
         if self.required and self.default is not None:
             raise ValueError(f"parameter {self.name}: a required parameter has no default")
+        if self.ordered and (vector is None or vector[1] != 2):
+            raise ValueError(f"parameter {self.name}: only a pair (float[2], int[2]) is an ordered range")
+        if self.nonempty and self.kind not in _LIST_TYPES:
+            raise ValueError(f"parameter {self.name}: only a list ({', '.join(_LIST_TYPES)}) can be non-empty")
         self.check(self.default)  # a declaration whose default does not fit is a bug of the generator
 
     def check(self, value):
@@ -76,12 +100,22 @@ class Param:
             value = check_value(tuple[str, ...], value, self.name)
         else:
             value = check_value(_SCALAR_TYPES[self.kind], value, self.name)
-        if self.minimum is not None:
-            for v in (value if isinstance(value, tuple) else (value,)):
-                if v < self.minimum:
-                    raise SettingError(self.name, f"expected >= {self.minimum}, got "
-                                                  f"{list(value) if isinstance(value, tuple) else value!r}")
+        check_bounds(value, self.name, minimum=self.minimum, maximum=self.maximum, above=self.above)
+        if self.ordered and value[0] > value[1]:
+            raise SettingError(self.name, f"expected [low, high] with low <= high, got {list(value)}")
+        if self.nonempty and not value:
+            raise SettingError(self.name, "expected at least one name, got []")
         return value
+
+    def bounds(self) -> list[str]:
+        """The declared bounds in words, as ``omnisim generators`` lists them (e.g. ``["> 0.0"]``)."""
+        words = [f"{sign} {_show(bound)}" for sign, bound in
+                 ((">=", self.minimum), (">", self.above), ("<=", self.maximum)) if bound is not None]
+        if self.ordered:
+            words.append("low <= high")
+        if self.nonempty:
+            words.append("at least one")
+        return words
 
 
 def _vector_kind(kind: str):
@@ -92,13 +126,54 @@ def _vector_kind(kind: str):
 
 
 @dataclass(frozen=True)
+class Relation:
+    """A bound of one parameter that depends on other parameters of the same object.
+
+    key : the parameter the bound is on (named in the error); doc : the bound
+    in words, listed by ``omnisim generators`` (e.g. ``"<= half the diagonal
+    of region"``); expected : function of the object's checked parameters (a
+    mapping) returning None when they fit, else what was expected, with this
+    object's numbers (e.g. ``"<= 2.5 (half the diagonal of region [4.0, 3.0])"``).
+    """
+
+    key: str
+    doc: str
+    expected: Callable[[Mapping], str | None]
+
+
+def not_below(key: str, other: str) -> Relation:
+    """The :class:`Relation` "each number of ``key`` >= the same number of ``other``".
+
+    Parameters
+    ----------
+    key : str
+        The upper end of a range given as two parameters (e.g. ``size_max``), named in the error.
+    other : str
+        Its lower end (e.g. ``size_min``), a parameter of as many numbers.
+
+    Returns
+    -------
+    Relation
+    """
+
+    def expected(params: Mapping) -> str | None:
+        high, low = params[key], params[other]
+        if all(h >= lo for h, lo in zip(high, low)):
+            return None
+        return f">= {other} = {list(low)} element by element"
+
+    return Relation(key, f">= {other} element by element", expected)
+
+
+@dataclass(frozen=True)
 class Generator:
-    """A registered generator: its name, function, one-paragraph doc and declared parameters."""
+    """A registered generator: its name, function, one-paragraph doc, declared parameters and relations."""
 
     name: str
     function: Callable
     doc: str
     params: tuple
+    relations: tuple = ()
 
     def param(self, name: str) -> Param:
         return next(p for p in self.params if p.name == name)
@@ -109,7 +184,7 @@ class Generator:
 _REGISTRY: dict[str, Generator] = {}
 
 
-def register_generator(name: str, *params: Param):
+def register_generator(name: str, *params: Param, relations=()):
     """Decorator registering ``f(ctx)`` as the ``[[objects]]`` generator ``name``.
 
     Parameters
@@ -118,6 +193,8 @@ def register_generator(name: str, *params: Param):
         The value of ``generator = ...`` in a scene file.
     *params : Param
         Every key the generator reads; any other key in a table is an error.
+    relations : sequence of Relation, keyword-only
+        Bounds between parameters, checked (in this order) once every parameter is.
 
     Returns
     -------
@@ -127,12 +204,16 @@ def register_generator(name: str, *params: Param):
     names = [p.name for p in params]
     if len(set(names)) != len(names) or "generator" in names:
         raise ValueError(f"generator {name}: duplicate or reserved parameter names {names}")
+    unknown = [r.key for r in relations if r.key not in names]
+    if unknown:
+        raise ValueError(f"generator {name}: relations on undeclared parameters {unknown}")
 
     def decorate(function):
         if name in _REGISTRY:
             raise ValueError(f"generator {name!r} is already registered")
         doc = textwrap.dedent(function.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
-        _REGISTRY[name] = Generator(name=name, function=function, doc=doc, params=tuple(params))
+        _REGISTRY[name] = Generator(name=name, function=function, doc=doc, params=tuple(params),
+                                    relations=tuple(relations))
         return function
 
     return decorate
@@ -172,8 +253,9 @@ def object_from_table(table: Mapping, *, index: int, path, materials) -> ObjectS
     Raises
     ------
     InputError
-        Unknown generator or key, a value of the wrong type or range, an
-        unknown material or photograph, or a missing file.
+        Unknown generator or key, a value of the wrong type or range (its own
+        or one set by other parameters), an unknown material or photograph, or
+        a missing file.
     """
     path = Path(path)
     where = f"[[objects]] #{index + 1}"
@@ -199,6 +281,12 @@ def object_from_table(table: Mapping, *, index: int, path, materials) -> ObjectS
         except SettingError as exc:
             raise InputError(path, f"{where} {exc.key}: {exc.problem}") from None
         params[p.name] = _resolve(p, value, path=path, where=where, materials=materials)
+    for relation in gen.relations:
+        expected = relation.expected(params)
+        if expected is not None:
+            value = params[relation.key]
+            raise InputError(path, f"{where} {relation.key}: expected {expected}, "
+                                   f"got {list(value) if isinstance(value, tuple) else value!r}")
     return ObjectSpec(index=index, generator=name, params=params)
 
 
@@ -264,14 +352,15 @@ class GeneratorContext:
 
 
 def describe_generators() -> str:
-    """Text listing every registered generator with its doc and parameters (type, default, doc)."""
+    """Text listing every registered generator with its doc and parameters (type, default, bounds, doc)."""
     lines = []
     for name in sorted(_REGISTRY):
         gen = _REGISTRY[name]
         lines.append(f"{name}: {gen.doc}")
         for p in gen.params:
             default = "required" if p.required else f"default {_show(p.default)}"
-            lines.append(f"    {p.name} ({p.kind}, {default}): {p.doc}")
+            bounds = p.bounds() + [r.doc for r in gen.relations if r.key == p.name]
+            lines.append(f"    {p.name} ({', '.join([p.kind, default] + bounds)}): {p.doc}")
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"
 

@@ -3,7 +3,9 @@
 Each draws its random layout from the seeded generator of its context
 (scene layout seed and the object's index), so the same scene file always
 gives the same meshes. World frame: metres, z up. ``omnisim generators``
-lists them with their parameters.
+lists them with their parameters and bounds; parameters that could only give
+an impossible layout (a shelf wider than the walls, a clear radius no place of
+the region reaches) are refused with the scene file, before anything is built.
 """
 
 from __future__ import annotations
@@ -12,17 +14,42 @@ import math
 
 import numpy as np
 
-from .generators import GeneratorContext, Param, register_generator
+from .generators import MAX_COUNT, GeneratorContext, Param, Relation, not_below, register_generator
 from .geometry import box_mesh, cylinder_mesh, heightfield_mesh, quad_mesh, rotation_z, sphere_mesh
 from .materials import Appearance, MaterialSettings
 from .textures import noise_texture
 
 __all__: list[str] = []
 
+# Length kept free at either end of a wall by the shelves and posters along it, metres.
+WALL_END_GAP = 0.1
+# Height of the lowest board's centre above a shelf's foot, and of the highest under its top, metres.
+SHELF_BOARD_INSET = 0.05
+# Width of a poster, metres, and its height as a fraction of its width (uniform in these ranges).
+POSTER_WIDTH = (0.6, 1.0)
+POSTER_ASPECT = (0.7, 1.3)
+# Height of a poster's centre above the floor, metres (lower in a room too low for the range).
+POSTER_CENTRE_HEIGHT = (1.2, 2.2)
+# Height kept free between a poster's top and the ceiling, metres.
+CEILING_GAP = 0.1
+# Smallest room extent x, y, z that holds the largest poster: its width and WALL_END_GAP at either
+# end of a wall; the lowest centre, half the tallest height and CEILING_GAP. fsum rounds exactly,
+# so a room of just these extents is not refused by a rounding error.
+_POSTER_WALL = math.fsum([POSTER_WIDTH[1], 2 * WALL_END_GAP])
+POSTER_ROOM_MIN = (_POSTER_WALL, _POSTER_WALL,
+                   math.fsum([POSTER_CENTRE_HEIGHT[0], POSTER_WIDTH[1] * POSTER_ASPECT[1] / 2, CEILING_GAP]))
+# Width of one building of the facades, metres (uniform in this range).
+FACADE_WIDTH = (6.0, 14.0)
+# Period of the dashed lane markings along the street, metres.
+MARKING_PERIOD = 6.0
+# Most cells along a side of the ground grid: 2 * 2048^2 = 8.4 million triangles, within the
+# budget of about 13 million that MAX_COUNT sets for the objects of one entry.
+MAX_GROUND_CELLS = 2048
+
 
 @register_generator(
     "room",
-    Param("size", "float[3]", (6.0, 5.0, 3.0), "extent along x, y, z, metres; floor at z = 0, centred", minimum=0.0),
+    Param("size", "float[3]", (6.0, 5.0, 3.0), "extent along x, y, z, metres; floor at z = 0, centred", above=0.0),
     Param("tile", "float", 1.0, "texture repeat length, metres", minimum=1e-6),
     Param("floor", "material", "floor", "material of the floor"),
     Param("walls", "material", "walls", "material of the four walls"),
@@ -60,8 +87,12 @@ def _wall_slot(ctx, room, wall, offset, depth):
 
 
 def _random_wall_slot(ctx, room, wall, width, depth):
-    """:func:`_wall_slot` at a random offset along the wall, ``width`` kept 0.1 m from either end."""
-    span = (room[1] if wall < 2 else room[0]) / 2 - width / 2 - 0.1
+    """:func:`_wall_slot` at a random offset along the wall, ``width`` kept WALL_END_GAP from either end.
+
+    The parameters are checked to leave room for ``width`` (:func:`_shelf_fits_room`,
+    :func:`_posters_fit_room`); a span a rounding error below zero is taken as zero.
+    """
+    span = max((room[1] if wall < 2 else room[0]) / 2 - width / 2 - WALL_END_GAP, 0.0)
     return _wall_slot(ctx, room, wall, ctx.rng.uniform(-span, span), depth)
 
 
@@ -71,14 +102,31 @@ def _ring_point(ctx, distance, z):
     return np.array([r * math.cos(a), r * math.sin(a), z])
 
 
+def _shelf_fits_room(params) -> str | None:
+    """None when a shelf of ``size`` fits along every wall of ``room`` and under its ceiling, else the bound."""
+    width, _, height = params["size"]
+    room = params["room"]
+    # fsum: the bounds exactly rounded, so a shelf that just fits is not refused by a rounding error.
+    widest = math.fsum([min(room[0], room[1]), -2 * WALL_END_GAP])
+    if width > widest:
+        return (f"width <= {widest:g} (the shorter wall of room {list(room)} less {WALL_END_GAP:g} m "
+                f"at either end)")
+    if not 2 * SHELF_BOARD_INSET < height <= room[2]:
+        return (f"height > {2 * SHELF_BOARD_INSET:g} (the boards' insets) and <= {room[2]:g} "
+                f"(the height of room)")
+    return None
+
+
 @register_generator(
     "shelves",
-    Param("room", "float[3]", (6.0, 5.0, 3.0), "room extent x, y, z, metres (shelves stand at its walls)", minimum=0.0),
-    Param("count", "int", 3, "number of shelves", minimum=0),
-    Param("size", "float[3]", (1.2, 0.35, 2.0), "width, depth, height of a shelf, metres", minimum=0.0),
-    Param("boards", "int", 5, "boards per shelf", minimum=1),
+    Param("room", "float[3]", (6.0, 5.0, 3.0), "room extent x, y, z, metres (shelves stand at its walls)", above=0.0),
+    Param("count", "int", 3, "number of shelves", minimum=0, maximum=MAX_COUNT),
+    Param("size", "float[3]", (1.2, 0.35, 2.0), "width, depth, height of a shelf, metres", above=0.0),
+    Param("boards", "int", 5, "boards per shelf", minimum=1, maximum=MAX_COUNT),
     Param("material", "material", "wood", "material of the boards"),
     Param("books", "material", "books", "material of the books (vertex_color gives each its colour)"),
+    relations=(Relation("size", f"width <= the shorter wall of room less {2 * WALL_END_GAP:g}, "
+                                f"{2 * SHELF_BOARD_INSET:g} < height <= the height of room", _shelf_fits_room),),
 )
 def _shelves(ctx: GeneratorContext):
     """Book shelves standing against the room walls, filled with books of random size and colour."""
@@ -97,12 +145,12 @@ def _shelves(ctx: GeneratorContext):
         for side in (-1, 1):
             ctx.add(wood, box_mesh(local([side * (width / 2 - 0.01), 0, height / 2]), [0.02, depth, height], yaw=yaw))
         for b in range(boards):
-            z = 0.05 + b * (height - 0.1) / max(boards - 1, 1)
+            z = SHELF_BOARD_INSET + b * (height - 2 * SHELF_BOARD_INSET) / max(boards - 1, 1)
             ctx.add(wood, box_mesh(local([0, 0, z]), [width, depth, 0.025], yaw=yaw))
             if b == boards - 1:
                 continue
             x = -width / 2 + 0.03
-            gap = (height - 0.1) / max(boards - 1, 1)
+            gap = (height - 2 * SHELF_BOARD_INSET) / max(boards - 1, 1)
             while True:
                 bw = ctx.rng.uniform(0.02, 0.06)
                 if x + bw > width / 2 - 0.03:
@@ -117,13 +165,27 @@ def _shelves(ctx: GeneratorContext):
                 x += bw
 
 
+def _clear_radius_in_region(params) -> str | None:
+    """None when some place of ``region`` is ``clear_radius`` or more from the z axis, else the bound."""
+    region = params["region"]
+    reach = math.hypot(region[0], region[1]) / 2
+    if params["clear_radius"] <= reach:
+        return None
+    return f"<= {reach:.4g} (half the diagonal of region {list(region)}: no place in it is farther from the z axis)"
+
+
+# The objects of the region generators must have places in the region outside the clear radius.
+CLEAR_RADIUS_IN_REGION = Relation("clear_radius", "<= half the diagonal of region", _clear_radius_in_region)
+
+
 @register_generator(
     "tables",
-    Param("count", "int", 2, "number of tables (each with a chair)", minimum=0),
-    Param("region", "float[2]", (4.0, 3.0), "x, y extent of the area they stand in, metres, centred", minimum=0.0),
+    Param("count", "int", 2, "number of tables (each with a chair)", minimum=0, maximum=MAX_COUNT),
+    Param("region", "float[2]", (4.0, 3.0), "x, y extent of the area they stand in, metres, centred", above=0.0),
     Param("clear_radius", "float", 1.0, "no table centre closer than this to the z axis, metres", minimum=0.0),
     Param("material", "material", "wood", "material of the table tops"),
     Param("legs", "material", None, "material of the legs and chairs (default: material)"),
+    relations=(CLEAR_RADIUS_IN_REGION,),
 )
 def _tables(ctx: GeneratorContext):
     """Tables on four legs, each with a chair, at random places and angles."""
@@ -153,14 +215,15 @@ def _tables(ctx: GeneratorContext):
 
 @register_generator(
     "boxes",
-    Param("count", "int", 5, "number of boxes", minimum=0),
-    Param("region", "float[2]", (4.0, 3.0), "x, y extent of the area they stand in, metres, centred", minimum=0.0),
+    Param("count", "int", 5, "number of boxes", minimum=0, maximum=MAX_COUNT),
+    Param("region", "float[2]", (4.0, 3.0), "x, y extent of the area they stand in, metres, centred", above=0.0),
     Param("clear_radius", "float", 1.0, "no box centre closer than this to the z axis, metres", minimum=0.0),
-    Param("size_min", "float[3]", (0.3, 0.3, 0.3), "smallest extent x, y, z, metres", minimum=0.0),
-    Param("size_max", "float[3]", (1.0, 0.6, 1.2), "largest extent x, y, z, metres", minimum=0.0),
+    Param("size_min", "float[3]", (0.3, 0.3, 0.3), "smallest extent x, y, z, metres", above=0.0),
+    Param("size_max", "float[3]", (1.0, 0.6, 1.2), "largest extent x, y, z, metres", above=0.0),
     Param("z", "float", 0.0, "height of the box bottoms, metres"),
     Param("tile", "float", 1.0, "texture repeat length, metres", minimum=1e-6),
     Param("material", "material", "painted", "material (vertex_color gives each box its colour)"),
+    relations=(CLEAR_RADIUS_IN_REGION, not_below("size_max", "size_min")),
 )
 def _boxes(ctx: GeneratorContext):
     """Boxes of random size, place and yaw standing on the floor (flat ones make rugs)."""
@@ -181,11 +244,23 @@ def _boxes(ctx: GeneratorContext):
         ctx.add(mat, box_mesh(c, size, yaw=ctx.rng.uniform(0, math.pi), tile=ctx["tile"]), color=ctx.color())
 
 
+_POSTERS_ROOM_DOC = f">= [{', '.join(f'{v:g}' for v in POSTER_ROOM_MIN)}] element by element"
+
+
+def _posters_fit_room(params) -> str | None:
+    """None when the largest poster fits on every wall of ``room`` and under its ceiling, else the bound."""
+    if all(extent >= least for extent, least in zip(params["room"], POSTER_ROOM_MIN)):
+        return None
+    return (f"{_POSTERS_ROOM_DOC} (the largest poster, {WALL_END_GAP:g} m from the wall ends "
+            f"and {CEILING_GAP:g} m under the ceiling)")
+
+
 @register_generator(
     "posters",
-    Param("room", "float[3]", (6.0, 5.0, 3.0), "room extent x, y, z, metres (posters hang on its walls)", minimum=0.0),
+    Param("room", "float[3]", (6.0, 5.0, 3.0), "room extent x, y, z, metres (posters hang on its walls)", above=0.0),
     Param("photos", "photo[]", ("astronaut", "coffee", "chelsea", "rocket"),
           "bundled photographs, one poster each, walls in turn"),
+    relations=(Relation("room", _POSTERS_ROOM_DOC, _posters_fit_room),),
 )
 def _posters(ctx: GeneratorContext):
     """Framed photographs on the room walls (textured quads)."""
@@ -193,9 +268,9 @@ def _posters(ctx: GeneratorContext):
     photos = ctx["photos"]
     for k, photo in enumerate(photos):
         wall = k % 4
-        w = ctx.rng.uniform(0.6, 1.0)
-        h = w * ctx.rng.uniform(0.7, 1.3)
-        z = ctx.rng.uniform(1.2, min(2.2, room[2] - h / 2 - 0.1))
+        w = ctx.rng.uniform(*POSTER_WIDTH)
+        h = w * ctx.rng.uniform(*POSTER_ASPECT)
+        z = ctx.rng.uniform(POSTER_CENTRE_HEIGHT[0], min(POSTER_CENTRE_HEIGHT[1], room[2] - h / 2 - CEILING_GAP))
         base, yaw = _random_wall_slot(ctx, room, wall, w, 0.02)
         rot = rotation_z(yaw)
         corners = np.array([[-w / 2, 0, -h / 2], [w / 2, 0, -h / 2], [w / 2, 0, h / 2], [-w / 2, 0, h / 2]])
@@ -206,13 +281,20 @@ def _posters(ctx: GeneratorContext):
         ctx.add(name, (p, f, np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float)))
 
 
+def _grid_count(params) -> str | None:
+    """None when the light grid holds at most MAX_COUNT lights, else the bound."""
+    rows, cols = params["grid"]
+    return None if rows * cols <= MAX_COUNT else f"rows x cols <= {MAX_COUNT} lights"
+
+
 @register_generator(
     "ceiling_lights",
     Param("room", "float[3]", (6.0, 5.0, 3.0), "room extent x, y, z, metres (lights hang under its ceiling)",
-          minimum=0.0),
-    Param("grid", "int[2]", (2, 2), "rows (along x) and columns (along y) of lights", minimum=0),
-    Param("size", "float[2]", (1.2, 0.3), "x, y extent of one light, metres", minimum=0.0),
+          above=0.0),
+    Param("grid", "int[2]", (2, 2), "rows (along x) and columns (along y) of lights", minimum=1),
+    Param("size", "float[2]", (1.2, 0.3), "x, y extent of one light, metres", above=0.0),
     Param("radiance", "float[3]", (6.0, 6.0, 5.5), "emitted linear RGB radiance", minimum=0.0),
+    relations=(Relation("grid", f"rows x cols <= {MAX_COUNT}", _grid_count),),
 )
 def _ceiling_lights(ctx: GeneratorContext):
     """A grid of rectangular area lights under the ceiling, facing down.
@@ -242,8 +324,8 @@ def _ceiling_lights(ctx: GeneratorContext):
 
 @register_generator(
     "ground",
-    Param("size", "float[2]", (60.0, 60.0), "x, y extent, metres, centred", minimum=0.0),
-    Param("cells", "int", 64, "grid cells along each side", minimum=1),
+    Param("size", "float[2]", (60.0, 60.0), "x, y extent, metres, centred", above=0.0),
+    Param("cells", "int", 64, "grid cells along each side", minimum=1, maximum=MAX_GROUND_CELLS),
     Param("amplitude", "float", 0.0, "relief height, metres (flat under the camera)", minimum=0.0),
     Param("tile", "float", 1.0, "texture repeat length, metres", minimum=1e-6),
     Param("material", "material", "ground", "material of the ground"),
@@ -268,8 +350,9 @@ def _ground(ctx: GeneratorContext):
 
 @register_generator(
     "trees",
-    Param("count", "int", 4, "number of trees", minimum=0),
-    Param("distance", "float[2]", (6.0, 20.0), "smallest and largest distance from the z axis, metres", minimum=0.0),
+    Param("count", "int", 4, "number of trees", minimum=0, maximum=MAX_COUNT),
+    Param("distance", "float[2]", (6.0, 20.0), "smallest and largest distance from the z axis, metres",
+          minimum=0.0, ordered=True),
     Param("trunk", "material", "bark", "material of the trunks"),
     Param("canopy", "material", "leaves", "material of the crowns"),
 )
@@ -289,8 +372,9 @@ def _trees(ctx: GeneratorContext):
 
 @register_generator(
     "rocks",
-    Param("count", "int", 3, "number of rocks", minimum=0),
-    Param("distance", "float[2]", (3.0, 12.0), "smallest and largest distance from the z axis, metres", minimum=0.0),
+    Param("count", "int", 3, "number of rocks", minimum=0, maximum=MAX_COUNT),
+    Param("distance", "float[2]", (3.0, 12.0), "smallest and largest distance from the z axis, metres",
+          minimum=0.0, ordered=True),
     Param("material", "material", "stone", "material of the rocks"),
 )
 def _rocks(ctx: GeneratorContext):
@@ -306,9 +390,10 @@ def _rocks(ctx: GeneratorContext):
 
 @register_generator(
     "street",
-    Param("length", "float", 120.0, "length along x, metres", minimum=0.0),
-    Param("road_width", "float", 8.0, "road width, metres", minimum=0.0),
-    Param("sidewalk_width", "float", 3.0, "width of each sidewalk, metres", minimum=0.0),
+    # At most MAX_COUNT lane markings.
+    Param("length", "float", 120.0, "length along x, metres", above=0.0, maximum=MAX_COUNT * MARKING_PERIOD),
+    Param("road_width", "float", 8.0, "road width, metres", above=0.0),
+    Param("sidewalk_width", "float", 3.0, "width of each sidewalk, metres", above=0.0),
     Param("tile", "float", 2.0, "road texture repeat length, metres", minimum=1e-6),
     Param("road", "material", "asphalt", "material of the road"),
     Param("sidewalk", "material", "pavement", "material of the sidewalks"),
@@ -326,16 +411,18 @@ def _street(ctx: GeneratorContext):
         y = side * (road_w / 2 + walk_w / 2)
         ctx.add(ctx["sidewalk"], box_mesh([0, y, 0.075], [length, walk_w, 0.15], tile=1.5))
     # Lane markings.
-    for x in np.arange(-length / 2, length / 2, 6.0):
+    for x in np.arange(-length / 2, length / 2, MARKING_PERIOD):
         mark = np.array([[x, -0.08, 0.005], [x + 3, -0.08, 0.005], [x + 3, 0.08, 0.005], [x, 0.08, 0.005]])
         ctx.add(ctx["marking"], quad_mesh(mark))
 
 
 @register_generator(
     "facades",
-    Param("length", "float", 120.0, "length of the rows of buildings along x, metres", minimum=0.0),
+    # About MAX_COUNT buildings at most in the two rows (one more a row).
+    Param("length", "float", 120.0, "length of the rows of buildings along x, metres", minimum=0.0,
+          maximum=MAX_COUNT * FACADE_WIDTH[0] / 2),
     Param("offset", "float", 7.0, "distance of the facades from the street axis, metres", minimum=0.0),
-    Param("materials", "material[]", ("brick", "plaster"), "materials the buildings are drawn from"),
+    Param("materials", "material[]", ("brick", "plaster"), "materials the buildings are drawn from", nonempty=True),
     Param("tile", "float", 2.0, "texture repeat length, metres", minimum=1e-6),
     Param("window", "material", "glass", "material of the windows"),
 )
@@ -348,7 +435,7 @@ def _facades(ctx: GeneratorContext):
     for side in (-1, 1):
         x = -length / 2
         while x < length / 2:
-            w = ctx.rng.uniform(6.0, 14.0)
+            w = ctx.rng.uniform(*FACADE_WIDTH)
             h = ctx.rng.uniform(8.0, 22.0)
             d = 10.0
             mat = mats[int(ctx.rng.integers(0, len(mats)))]
@@ -371,15 +458,24 @@ def _facades(ctx: GeneratorContext):
             x += w
 
 
+def _clear_distance_on_stretch(params) -> str | None:
+    """None when some place of the stretch is ``clear_distance`` or more from x = 0, else the bound."""
+    reach = params["length"] / 2
+    if params["clear_distance"] <= reach:
+        return None
+    return f"<= {reach:g} (half of length {params['length']:g}: no place on the stretch is farther from x = 0)"
+
+
 @register_generator(
     "cars",
-    Param("count", "int", 6, "number of cars", minimum=0),
+    Param("count", "int", 6, "number of cars", minimum=0, maximum=MAX_COUNT),
     Param("length", "float", 60.0, "length of the stretch they park along x, metres", minimum=0.0),
     Param("lane_offset", "float", 2.6, "distance of the lanes from the street axis, metres", minimum=0.0),
     Param("clear_distance", "float", 4.0, "no car closer than this to x = 0, metres", minimum=0.0),
     Param("material", "material", "car_paint", "material of the bodies (vertex_color gives each its colour)"),
     Param("wheels", "material", "rubber", "material of the wheels"),
     Param("window", "material", "glass", "material of the windows"),
+    relations=(Relation("clear_distance", "<= half of length", _clear_distance_on_stretch),),
 )
 def _cars(ctx: GeneratorContext):
     """Parked cars (body, cabin, windows, wheels) in the two lanes."""
@@ -405,12 +501,21 @@ def _cars(ctx: GeneratorContext):
                 ctx.add(tyre, box_mesh([x + sx * L * 0.33, y + sy * W * 0.45, 0.32], [0.64, 0.22, 0.64], yaw=yaw))
 
 
+def _pole_count(params) -> str | None:
+    """None when the two rows hold about MAX_COUNT poles at most (one more a row), else the bound of ``spacing``."""
+    least = 2 * params["length"] / MAX_COUNT
+    if params["spacing"] >= least:
+        return None
+    return f">= {least:g} (2 x length / {MAX_COUNT}: about {MAX_COUNT} poles at most in the two rows)"
+
+
 @register_generator(
     "poles",
     Param("spacing", "float", 15.0, "distance between poles, metres", minimum=1e-6),
     Param("length", "float", 120.0, "length of the rows along x, metres", minimum=0.0),
     Param("offset", "float", 5.0, "distance of the rows from the street axis, metres", minimum=0.0),
     Param("material", "material", "metal", "material of the poles"),
+    relations=(Relation("spacing", f">= 2 x length / {MAX_COUNT}", _pole_count),),
 )
 def _poles(ctx: GeneratorContext):
     """Street-light poles in two rows along the street."""

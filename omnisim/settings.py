@@ -23,7 +23,7 @@ from typing import Any, Mapping
 
 from ifmi.errors import InputError
 
-__all__ = ["SettingError", "setting", "check_fields", "check_value", "settings_from_table",
+__all__ = ["SettingError", "setting", "check_fields", "check_value", "check_bounds", "settings_from_table",
            "type_name", "field_docs"]
 
 
@@ -118,18 +118,37 @@ def check_value(hint, value, key: str):
     return _scalar(hint, value, key)
 
 
-def _check_bounds(meta: Mapping, value, key: str) -> None:
+def check_bounds(value, key: str, *, minimum=None, maximum=None, above=None, choices=None) -> None:
+    """Check a checked ``value`` (a number, or each number of a tuple) against declared bounds.
+
+    Parameters
+    ----------
+    value : object
+        The value, already of its declared type (non-numbers are skipped by the number bounds).
+    key : str
+        The key named in the error.
+    minimum, maximum : float, optional, keyword-only
+        Inclusive bounds.
+    above : float, optional, keyword-only
+        Exclusive lower bound.
+    choices : sequence, optional, keyword-only
+        The allowed values.
+
+    Raises
+    ------
+    SettingError
+        A value out of bounds ("expected >= 0.0, got [-1.0, 2.0]").
+    """
     values = value if isinstance(value, tuple) else (value,)
     for v in values:
         if not isinstance(v, (int, float)) or isinstance(v, bool):
             continue
-        if meta.get("minimum") is not None and v < meta["minimum"]:
-            raise SettingError(key, f"expected >= {meta['minimum']}, got {_show(value)}")
-        if meta.get("maximum") is not None and v > meta["maximum"]:
-            raise SettingError(key, f"expected <= {meta['maximum']}, got {_show(value)}")
-        if meta.get("above") is not None and v <= meta["above"]:
-            raise SettingError(key, f"expected > {meta['above']}, got {_show(value)}")
-    choices = meta.get("choices")
+        if minimum is not None and v < minimum:
+            raise SettingError(key, f"expected >= {minimum}, got {_show(value)}")
+        if maximum is not None and v > maximum:
+            raise SettingError(key, f"expected <= {maximum}, got {_show(value)}")
+        if above is not None and v <= above:
+            raise SettingError(key, f"expected > {above}, got {_show(value)}")
     if choices is not None:
         for v in values:
             if v not in choices:
@@ -160,7 +179,8 @@ def check_fields(obj) -> None:
             continue
         value = check_value(hints[f.name], getattr(obj, f.name), f.name)
         if value is not None:
-            _check_bounds(f.metadata, value, f.name)
+            check_bounds(value, f.name, minimum=f.metadata.get("minimum"), maximum=f.metadata.get("maximum"),
+                         above=f.metadata.get("above"), choices=f.metadata.get("choices"))
         object.__setattr__(obj, f.name, value)
 
 
@@ -193,13 +213,16 @@ def settings_from_table(cls, table: Mapping, *, path, section: str, ignore=(), *
         Keys of ``table`` read elsewhere (e.g. a type selector).
     **extra
         Values that replace the table's (command-line overrides; None means not given).
-        Errors in them name the option (``--key``).
+        Errors in them name the option (``--key``). The table is checked as
+        written first, so a bad value in the file is an error even where an
+        override replaces it.
 
     Raises
     ------
     InputError
-        A key that is not a field (the message lists the accepted keys), or a
-        value that does not fit (the message names the key).
+        A key that is not a field (the message lists the accepted keys), a
+        missing required key, or a value of the table or of an override that
+        does not fit (the message names the key or the option).
     """
     if not isinstance(table, Mapping):
         raise InputError(path, f"{section}: expected a table, got {type(table).__name__}")
@@ -209,12 +232,24 @@ def settings_from_table(cls, table: Mapping, *, path, section: str, ignore=(), *
             raise InputError(path, f"{section} {key}: unknown key; accepted keys: "
                                    f"{', '.join(list(ignore) + accepted)}")
     values = {k: v for k, v in table.items() if k not in ignore}
-    overrides = {k: v for k, v in extra.items() if v is not None}
-    values.update(overrides)
     missing = [f.name for f in fields(cls) if f.init and f.default is MISSING
                and f.default_factory is MISSING and f.name not in values]
     if missing:
         raise InputError(path, f"{section} {missing[0]}: missing (required)")
+    # The table as written is checked in full, the values an option replaces included:
+    # a scene file must stay valid without the command line it was rendered with.
+    settings = _build(cls, values, path=path, section=section, overrides={})
+    overrides = {k: v for k, v in extra.items() if v is not None}
+    if not overrides:
+        return settings
+    return _build(cls, {**values, **overrides}, path=path, section=section, overrides=overrides)
+
+
+def _build(cls, values: dict, *, path, section: str, overrides: Mapping):
+    """``cls(**values)``, a :class:`SettingError` turned into the file's one-line :class:`InputError`.
+
+    The error names the option (``--key``) when the bad key is one of ``overrides``.
+    """
     try:
         return cls(**values)
     except SettingError as exc:

@@ -116,6 +116,39 @@ def test_command_line_override_is_named_as_the_option(tmp_path):
         load_scene_config(write_scene(tmp_path, BASE), variant="bogus")
 
 
+@pytest.mark.parametrize("edit, override, message", [
+    (("spp = 2", 'spp = "sixteen"'), {"spp": 1}, r"\[render\] spp: expected an integer, got 'sixteen'"),
+    (("resolution = [64, 64]", "resolution = [512]"), {"resolution": 64},
+     r"\[render\] resolution: expected 2 values \[int, int\], got \[512\]"),
+    (("frames = 2", "frames = 0"), {"frames": 1}, r"\[trajectory\] frames: expected >= 1, got 0"),
+    (("spp = 2", "spp = 2\nvariant = 'bogus'"), {"variant": "llvm_ad_rgb"},
+     r"\[render\] variant: expected one of '', 'llvm_ad_rgb', 'cuda_ad_rgb', got 'bogus'"),
+])
+def test_bad_file_value_is_refused_even_where_an_option_overrides_it(tmp_path, edit, override, message):
+    with pytest.raises(InputError) as info:
+        load_scene_config(write_scene(tmp_path, BASE.replace(*edit, 1)), **override)
+    assert re.search(message, str(info.value)), str(info.value)
+    assert str(info.value).startswith(str(tmp_path / "scene.toml") + ": ")
+
+
+def test_resolution_of_another_aspect_is_named_as_the_option(tmp_path):
+    with pytest.raises(InputError, match=r"scene.toml: --resolution: expected the calibration's aspect 128x128 "
+                                         r"\(height x width\), got 64x32"):
+        load_scene_config(write_scene(tmp_path, BASE), resolution=(64, 32))
+
+
+def test_cli_bad_file_value_under_overriding_options_is_one_line_exit_2(tmp_path, capsys):
+    from omnisim.cli import main
+
+    scene = write_scene(tmp_path, BASE.replace("spp = 2", 'spp = "sixteen"'))
+    code = main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress", "--frames", "1",
+                 "--spp", "1", "--resolution", "64"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert err.endswith("scene.toml: [render] spp: expected an integer, got 'sixteen'")
+    assert not (tmp_path / "out").exists()
+
+
 def test_asset_files_are_part_of_the_identity(tmp_path):
     (tmp_path / "m.ply").write_bytes(b"not read here")
     text = BASE + '[[objects]]\ngenerator = "mesh"\nfile = "m.ply"\n'

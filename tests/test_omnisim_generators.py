@@ -1,0 +1,146 @@
+"""[[objects]] generator parameters: declared bounds, [low, high] ranges, relations and counts (no rendering)."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from ifmi.errors import InputError
+from scene_files import camera_128_section, write_scene
+
+pytest.importorskip("skimage")
+
+from omnisim.config import load_scene_config  # noqa: E402
+from omnisim.generators import MAX_COUNT, Param, Relation, describe_generators  # noqa: E402
+from omnisim.scene import scene_meshes  # noqa: E402
+
+BASE = """
+[render]
+resolution = [64, 64]
+spp = 1
+
+""" + camera_128_section(skewed=False) + """
+[trajectory]
+frames = 1
+
+[materials.painted]
+vertex_color = true
+"""
+
+
+def _object(generator: str, **keys) -> str:
+    """An ``[[objects]]`` table of ``generator`` with ``keys`` (TOML values written as Python literals)."""
+    lines = ["[[objects]]", f'generator = "{generator}"']
+    for key, value in keys.items():
+        text = f'"{value}"' if isinstance(value, str) else str(value).replace("'", '"')
+        lines.append(f"{key} = {text}")
+    return "\n".join(lines) + "\n"
+
+
+PAINTED = {"material": "painted"}
+STREET = {"road": "painted", "sidewalk": "painted", "marking": "painted"}
+
+
+@pytest.mark.parametrize("table, message", [
+    # [low, high] ranges and pairs of bounds.
+    (_object("boxes", size_min=[2.4, 0.3, 0.5], size_max=[0.9, 0.5, 1.3], **PAINTED),
+     r"\(boxes\) size_max: expected >= size_min = \[2.4, 0.3, 0.5\] element by element, got \[0.9, 0.5, 1.3\]"),
+    (_object("rocks", distance=[12.0, 3.0], **PAINTED),
+     r"\(rocks\) distance: expected \[low, high\] with low <= high, got \[12.0, 3.0\]"),
+    (_object("trees", distance=[20.0, 6.0], trunk="painted", canopy="painted"),
+     r"\(trees\) distance: expected \[low, high\] with low <= high, got \[20.0, 6.0\]"),
+    # Lists of choices.
+    (_object("facades", materials=[], window="painted"),
+     r"\(facades\) materials: expected at least one name, got \[\]"),
+    # Sizes.
+    (_object("room", size=[0.0, 6.0, 3.0], floor="painted", walls="painted", ceiling="painted"),
+     r"\(room\) size: expected > 0.0, got \[0.0, 6.0, 3.0\]"),
+    (_object("boxes", region=[0.0, 0.0], clear_radius=0.0, **PAINTED),
+     r"\(boxes\) region: expected > 0.0, got \[0.0, 0.0\]"),
+    (_object("ceiling_lights", size=[0.0, 1.0]), r"\(ceiling_lights\) size: expected > 0.0, got \[0.0, 1.0\]"),
+    (_object("street", road_width=0.0, **STREET), r"\(street\) road_width: expected > 0.0, got 0.0"),
+    (_object("ceiling_lights", grid=[0, 0]), r"\(ceiling_lights\) grid: expected >= 1, got \[0, 0\]"),
+    # Places the objects could never have.
+    (_object("boxes", region=[2.0, 2.0], clear_radius=5.0, **PAINTED),
+     r"\(boxes\) clear_radius: expected <= 1.414 \(half the diagonal of region \[2.0, 2.0\]: no place in it is "
+     r"farther from the z axis\), got 5.0"),
+    (_object("tables", region=[2.0, 2.0], clear_radius=5.0, **PAINTED),
+     r"\(tables\) clear_radius: expected <= 1.414 \(half the diagonal of region \[2.0, 2.0\]"),
+    (_object("cars", length=10.0, clear_distance=50.0, material="painted", wheels="painted", window="painted"),
+     r"\(cars\) clear_distance: expected <= 5 \(half of length 10: no place on the stretch is farther from x = 0\), "
+     r"got 50.0"),
+    (_object("shelves", room=[2.0, 6.0, 3.0], size=[2.5, 0.3, 2.0], books="painted", **PAINTED),
+     r"\(shelves\) size: expected width <= 1.8 \(the shorter wall of room \[2.0, 6.0, 3.0\] less 0.1 m at either "
+     r"end\), got \[2.5, 0.3, 2.0\]"),
+    (_object("shelves", room=[6.0, 6.0, 3.0], size=[1.2, 0.3, 3.5], books="painted", **PAINTED),
+     r"\(shelves\) size: expected height > 0.1 \(the boards' insets\) and <= 3 \(the height of room\), "
+     r"got \[1.2, 0.3, 3.5\]"),
+    (_object("posters", room=[7.0, 6.0, 1.5]),
+     r"\(posters\) room: expected >= \[1.2, 1.2, 1.95\] element by element \(the largest poster, 0.1 m from the "
+     r"wall ends and 0.1 m under the ceiling\), got \[7.0, 6.0, 1.5\]"),
+    # Counts, given and implied.
+    (_object("shelves", count=100000000, books="painted", **PAINTED),
+     rf"\(shelves\) count: expected <= {MAX_COUNT}, got 100000000"),
+    (_object("ceiling_lights", grid=[1000, 1000]),
+     rf"\(ceiling_lights\) grid: expected rows x cols <= {MAX_COUNT} lights, got \[1000, 1000\]"),
+    (_object("poles", spacing=0.001, **PAINTED),
+     rf"\(poles\) spacing: expected >= 0.024 \(2 x length / {MAX_COUNT}: about {MAX_COUNT} poles at most in the "
+     r"two rows\), got 0.001"),
+    (_object("facades", length=1e9, materials=["painted"], window="painted"),
+     r"\(facades\) length: expected <= 30000.0, got 1000000000.0"),
+    (_object("street", length=1e9, **STREET), r"\(street\) length: expected <= 60000.0, got 1000000000.0"),
+    (_object("ground", cells=100000, **PAINTED), r"\(ground\) cells: expected <= 2048, got 100000"),
+])
+def test_impossible_generator_parameters_are_one_line_errors(tmp_path, table, message):
+    with pytest.raises(InputError) as info:
+        load_scene_config(write_scene(tmp_path, BASE + table))
+    assert re.search(r"\[\[objects\]\] #1 " + message, str(info.value)), str(info.value)
+    assert str(info.value).startswith(str(tmp_path / "scene.toml") + ": ")
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("table", [
+    _object("shelves", room=[1.4, 1.4, 3.0], size=[1.2, 0.3, 2.0], count=20, books="painted", **PAINTED),
+    _object("posters", room=[1.2, 1.2, 1.95], photos=["astronaut", "coffee", "chelsea", "rocket"]),
+    _object("boxes", region=[2.0, 2.0], clear_radius=2.0 ** 0.5, size_min=[0.5, 0.5, 0.5],
+            size_max=[0.5, 0.5, 0.5], **PAINTED),
+    _object("rocks", distance=[4.0, 4.0], **PAINTED),
+])
+def test_objects_that_just_fit_are_built(tmp_path, table):
+    """At the bounds (a rounding error from them) the generators still build their objects."""
+    groups, _ = scene_meshes(load_scene_config(write_scene(tmp_path, BASE + table)))
+    assert sum(len(group.arrays()[1]) for group in groups.values()) > 0
+
+
+def test_generator_listing_states_the_bounds_that_are_checked():
+    text = describe_generators()
+    assert f"    count (int, default 5, >= 0, <= {MAX_COUNT}): number of boxes" in text
+    assert "    distance (float[2], default [3.0, 12.0], >= 0.0, low <= high): " in text
+    assert "    clear_radius (float, default 1.0, >= 0.0, <= half the diagonal of region): " in text
+    assert "    size_max (float[3], default [1.0, 0.6, 1.2], > 0.0, >= size_min element by element): " in text
+    assert "    materials (material[], default ['brick', 'plaster'], at least one): " in text
+
+
+def test_relation_of_a_registered_generator_is_checked_and_listed(tmp_path, monkeypatch):
+    from omnisim import generators
+    from omnisim.generators import register_generator
+
+    monkeypatch.setattr(generators, "_REGISTRY", dict(generators._REGISTRY))
+
+    def fits(params):
+        return None if params["height"] <= params["base"] else f"<= base = {params['base']}"
+
+    @register_generator("pyramid", Param("base", "float", 2.0, "side of the base, metres", above=0.0),
+                        Param("height", "float", 1.0, "apex height, metres", above=0.0),
+                        relations=(Relation("height", "<= base", fits),))
+    def _pyramid(ctx):
+        """A test pyramid."""
+
+    with pytest.raises(InputError, match=r"#1 \(pyramid\) height: expected <= base = 2.0, got 3.0$"):
+        load_scene_config(write_scene(tmp_path, BASE + _object("pyramid", height=3.0)))
+    assert "    height (float, default 1.0, > 0.0, <= base): apex height, metres" in describe_generators()
+    with pytest.raises(ValueError, match=r"relations on undeclared parameters \['width'\]"):
+        register_generator("wedge", Param("height", "float", 1.0, "metres"), relations=(Relation("width", "", fits),))
+    with pytest.raises(ValueError, match="only a pair"):
+        Param("distance", "float[3]", (1.0, 2.0, 3.0), "metres", ordered=True)
