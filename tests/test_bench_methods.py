@@ -208,8 +208,9 @@ def test_config_file_reaches_every_method_and_a_bad_one_is_a_one_line_error(tmp_
     assert err.count("\n") == 1 and str(config) in err and "akaze_min_keypoints must be >= 0, got -1" in err
 
 
-def test_a_one_frame_set_is_summarised(tmp_path, capsys):
-    # A set of one frame has no frame-to-frame error: the summary prints nan instead of failing.
+def test_a_one_frame_set_is_refused_in_one_line(tmp_path, capsys):
+    # A set of one frame has one associated pose, which measures nothing: the evaluation refuses it
+    # (as `ifmi evaluate` does) instead of summarising an error of zero.
     dataset = _write_dataset(tmp_path / "still", seed=5, max_step_rad=0.03)
     for image in sorted((dataset / "images").iterdir())[1:]:
         image.unlink()
@@ -218,10 +219,10 @@ def test_a_one_frame_set_is_summarised(tmp_path, capsys):
                                                        l.split()[0] in ("0", "0.0", "0.000000")) + "\n")
     out = tmp_path / "bench"
     assert _benchmark_module().main([str(dataset), "--methods", "ifmi", "--modes", "frame", "--timing-rounds", "0",
-                                     "--out", str(out)]) == 0
-    (row,) = json.loads((out / "bench_methods.json").read_text())["rows"]
-    assert row["relative_rmse"] is None and row["frames"] == 1
-    assert any(line.startswith("frame") and "nan" in line for line in capsys.readouterr().out.splitlines())
+                                     "--out", str(out)]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(err) == 1 and err[0].endswith("ifmi.txt: only 1 pose associated with groundtruth.txt (within 0.001); "
+                                             "expected at least 2 (an error over one pose measures nothing)")
 
 
 def test_bench_seeds_runs_each_seed_and_summarises_over_them(tmp_path, capsys, monkeypatch):
