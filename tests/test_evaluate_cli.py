@@ -202,6 +202,9 @@ def test_gate_max_failed_without_frames_file_is_one_line_error(tmp_path, capsys)
     (tmp_path / "est.frames.csv").unlink()
     code, err = _run_error(_gate(tmp_path, "--max-rmse", "0.1", "--max-failed", "0"), capsys)
     assert code == 2 and "failed-frame count is unknown" in err and len(err.splitlines()) == 1
+    assert "est.frames.csv" in err
+    # Refused before anything is written: no evaluation folder beside the estimate.
+    assert not (tmp_path / "est.eval").exists()
 
 
 def test_gate_max_failed_needs_max_rmse(tmp_path, capsys):

@@ -112,6 +112,9 @@ def test_tum_round_trip(tmp_path):
         ("# c\n0 0 0 0 0 0 0 x\n", "line 2: non-numeric value"),
         ("0 0 0 0 0 0 0 0\n", "line 1: zero quaternion"),
         ("0 0 0 nan 0 0 0 1\n", "line 1: non-finite value"),
+        # Positions and quaternion swapped (t qx qy qz qw tx ty tz): the norm gives it away.
+        ("0 0 0 0 1 0.5 1.5 -2\n", "line 1: quaternion .* of norm 2.739, expected 1 within 0.01"),
+        ("0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1.0101\n", "line 2: quaternion .* of norm 1.01"),
         ("# only a comment\n", "no poses"),
     ],
 )

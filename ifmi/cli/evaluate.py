@@ -7,6 +7,7 @@ import json
 
 from ..errors import InputError
 from ..evaluation import EvaluateOptions, evaluate_files, format_summary_table, gate_verdict, summary_of
+from ..io.results import side_file_paths
 
 __all__ = ["add_parser", "run"]
 
@@ -64,6 +65,12 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     if args.max_failed is not None and args.max_rmse is None:
         raise InputError("command line", "--max-failed needs --max-rmse")
+    if args.max_failed is not None:
+        frames_path = side_file_paths(args.est)[0]
+        if not frames_path.is_file():
+            # Refused before anything is written: no evaluation folder for a gate that cannot run.
+            raise InputError(frames_path, "not found: the failed-frame count is unknown; "
+                                          "expected the estimate's frames.csv for --max-failed")
     meta = evaluate_files(args.gt, args.est, out_dir=args.out,
                           options=EvaluateOptions(max_time_difference=args.max_time_difference,
                                                   min_matched=args.min_matched))

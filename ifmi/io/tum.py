@@ -17,7 +17,12 @@ from ..trajectory import Trajectory
 from .atomic import atomic_write_text
 from .text_file import read_text_file
 
-__all__ = ["Trajectory", "read_tum", "write_tum", "format_tum"]
+__all__ = ["Trajectory", "read_tum", "write_tum", "format_tum", "QUATERNION_NORM_TOLERANCE"]
+
+#: Largest accepted ``| |q| - 1 |`` of a line's quaternion. Rounding to four
+#: decimals moves the norm by under 4e-4; a norm off by more than 1 % is not
+#: rounding but columns in another order (positions read as a quaternion).
+QUATERNION_NORM_TOLERANCE = 1e-2
 
 
 def read_tum(path: str | os.PathLike) -> Trajectory:
@@ -26,7 +31,8 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
     Raises
     ------
     InputError
-        Missing file, a line without 8 numbers, a zero quaternion, or no poses.
+        Missing file, a line without 8 numbers, a quaternion that is not of
+        unit norm (within :data:`QUATERNION_NORM_TOLERANCE`), or no poses.
     """
     path = Path(path)
     lines = read_text_file(path, what="trajectory file").splitlines()
@@ -44,8 +50,13 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
             raise InputError(path, f"line {number}: non-numeric value") from None
         if not np.all(np.isfinite(values)):
             raise InputError(path, f"line {number}: non-finite value")
-        if np.linalg.norm(values[4:]) < 1e-9:
+        norm = float(np.linalg.norm(values[4:]))
+        if norm < 1e-9:
             raise InputError(path, f"line {number}: zero quaternion")
+        if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+            raise InputError(path, f"line {number}: quaternion (qx qy qz qw) of norm {norm:.4g}, "
+                                   f"expected 1 within {QUATERNION_NORM_TOLERANCE:g} "
+                                   "(columns: t tx ty tz qx qy qz qw)")
         rows.append(values)
     if not rows:
         raise InputError(path, "no poses in trajectory file")
