@@ -18,7 +18,7 @@ import numpy as np
 from .errors import InputError, OutputError
 from .io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
 from .io.tum import read_tum
-from .metrics import AXES, EvaluationSummary, summary_from_errors, trajectory_errors
+from .metrics import AXES, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors, trajectory_errors
 from .trajectory import Trajectory
 
 __all__ = ["EvaluateOptions", "GateVerdict", "MIN_ASSOCIATED", "default_evaluation_dir",
@@ -92,9 +92,6 @@ def dataset_label(dataset_dir: str | os.PathLike | None) -> tuple[str, str]:
 
 # Entries of a dataset's meta.json carried into evaluations (provenance shown in reports).
 DATASET_META_KEYS = ("scene_name", "frames", "resolution", "spp", "seed", "variant")
-# Fewest associated poses an evaluation accepts: one pose is a single sample, and when it is
-# frame 0 (the identity in both trajectories) its errors are zero whatever the estimate.
-MIN_ASSOCIATED = 2
 # Below this, the printed tables and the verdict line show an error with significant digits, not
 # four decimals: a sharp 1024 px sequence's 1e-5 rad would read 0.0000.
 _FIXED_DECIMALS_MIN = 1e-3

@@ -25,6 +25,7 @@ from .rotations import geodesic_angle, rpy_from_matrix, wrap_angle
 
 __all__ = [
     "AXES",
+    "MIN_ASSOCIATED",
     "ErrorStats",
     "TrajectoryErrors",
     "associate_timestamps",
@@ -38,6 +39,9 @@ __all__ = [
 
 # Names of the per-axis angles, in the order rpy_from_matrix returns them.
 AXES = ("roll", "pitch", "yaw")
+# Fewest associated poses an evaluation accepts: one pose is a single sample, and when it is
+# frame 0 (the identity in both trajectories) its errors are zero whatever the estimate.
+MIN_ASSOCIATED = 2
 
 # Translation lengths below this (in the ground truth's units) count as "no
 # translation": the direction of such a motion is undefined.

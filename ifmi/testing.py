@@ -19,7 +19,7 @@ import os
 
 import numpy as np
 
-from .metrics import EvaluationSummary, summary_from_errors, trajectory_errors
+from .metrics import MIN_ASSOCIATED, EvaluationSummary, summary_from_errors, trajectory_errors
 from .rotations import geodesic_angle
 from .trajectory import Trajectory
 
@@ -95,8 +95,10 @@ def assert_trajectory_close(gt, est, *, rmse_rad: float, max_rad: float | None =
     max_rad : float, optional, keyword-only
         Largest accepted geodesic error of any one pose, radians.
     min_matched : float, keyword-only
-        Smallest fraction of ground-truth poses that must have an estimate
-        (default all of them).
+        Smallest fraction of the ground-truth poses that must have an
+        estimate pose, and of the estimate poses that must have a
+        ground-truth pose (default all of them); at least
+        :data:`~ifmi.metrics.MIN_ASSOCIATED` poses always.
     max_time_difference : float, keyword-only
         Largest timestamp difference of associated poses.
 
@@ -108,7 +110,7 @@ def assert_trajectory_close(gt, est, *, rmse_rad: float, max_rad: float | None =
     Raises
     ------
     AssertionError
-        Too few associated poses, or an error over its bound; the message
+        Too few associated poses (of either trajectory), or an error over its bound; the message
         gives the measured value, the bound, and the worst pose's timestamp.
     """
     gt_t, est_t = _trajectory(gt, "gt"), _trajectory(est, "est")
@@ -119,6 +121,12 @@ def assert_trajectory_close(gt, est, *, rmse_rad: float, max_rad: float | None =
     if len(errors) < min_matched * len(gt_t):
         raise AssertionError(f"only {len(errors)} of {len(gt_t)} ground-truth poses have an "
                              f"estimate pose (expected at least {min_matched:.0%})")
+    if len(errors) < min_matched * len(est_t):
+        raise AssertionError(f"only {len(errors)} of {len(est_t)} estimate poses have a "
+                             f"ground-truth pose (expected at least {min_matched:.0%})")
+    if len(errors) < MIN_ASSOCIATED:
+        raise AssertionError(f"only {len(errors)} pose associated; expected at least {MIN_ASSOCIATED} "
+                             "(an error over one pose measures nothing)")
     summary = summary_from_errors(errors, n_gt=len(gt_t), n_est=len(est_t))
     rmse, geodesic = summary.geodesic.rmse, errors.geodesic
     worst = int(np.nanargmax(geodesic)) if np.isfinite(geodesic).any() else 0

@@ -77,6 +77,14 @@ def test_trajectory_close_fails_on_missing_poses(rng):
     with pytest.raises(AssertionError, match=r"only 15 of 20 ground-truth poses have an estimate"):
         assert_trajectory_close(gt, short, rmse_rad=0.01)
     assert_trajectory_close(gt, short, rmse_rad=0.01, min_matched=0.75)
+    # An estimate with poses the ground truth does not have fails the same way.
+    with pytest.raises(AssertionError, match=r"only 15 of 20 estimate poses have a ground-truth pose"):
+        assert_trajectory_close(Trajectory(gt.timestamps[:15], gt.positions[:15], gt.rotations[:15]), est,
+                                rmse_rad=0.01)
+    one = Trajectory(gt.timestamps[:1], gt.positions[:1], gt.rotations[:1])
+    with pytest.raises(AssertionError, match=r"only 1 pose associated; expected at least 2"):
+        assert_trajectory_close(one, Trajectory(est.timestamps[:1], est.positions[:1], est.rotations[:1]),
+                                rmse_rad=0.01)
     shifted = Trajectory(est.timestamps + 100, est.positions, est.rotations)
     with pytest.raises(AssertionError, match="trajectories do not overlap"):
         assert_trajectory_close(gt, shifted, rmse_rad=0.01)
