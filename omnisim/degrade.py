@@ -114,7 +114,7 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
     """
     dataset = read_dataset(dataset_dir)
     if seed < 0:
-        raise InputError(dataset.root, f"seed: expected a non-negative integer, got {seed}")
+        raise InputError(dataset.root, f"--seed: expected a non-negative integer, got {seed}")
     out_dir = Path(out_dir)
     source = dataset.root.resolve()
     if out_dir.resolve() == source:

@@ -501,7 +501,7 @@ def frame_plan(scene_path, *, frames: int | None = None, seed: int | None = None
     config = load_scene_config(scene_path, spp=spp, resolution=resolution, frames=frames, variant=variant)
     seed = config.layout_seed if seed is None else int(seed)
     if seed < 0:
-        raise InputError(scene_path, f"seed: expected a non-negative integer, got {seed}")
+        raise InputError(scene_path, f"--seed: expected a non-negative integer, got {seed}")
     try:
         aovs = aov_names_from_text(aovs)
     except ValueError as exc:

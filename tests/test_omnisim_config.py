@@ -149,6 +149,16 @@ def test_cli_bad_file_value_under_overriding_options_is_one_line_exit_2(tmp_path
     assert not (tmp_path / "out").exists()
 
 
+def test_cli_negative_seed_is_named_as_the_option(tmp_path, capsys):
+    from omnisim.cli import main
+
+    code = main(["render", str(write_scene(tmp_path, BASE)), "--out", str(tmp_path / "out"), "--no-progress",
+                 "--seed", "-3"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.endswith("scene.toml: --seed: expected a non-negative integer, got -3")
+    assert not (tmp_path / "out").exists()
+
+
 def test_asset_files_are_part_of_the_identity(tmp_path):
     (tmp_path / "m.ply").write_bytes(b"not read here")
     text = BASE + '[[objects]]\ngenerator = "mesh"\nfile = "m.ply"\n'

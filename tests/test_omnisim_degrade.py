@@ -115,7 +115,7 @@ def test_each_out_of_range_setting_is_named(field, value):
 
 
 def test_negative_seed_is_refused(source, tmp_path):
-    with pytest.raises(InputError, match="seed"):
+    with pytest.raises(InputError, match="--seed: expected a non-negative integer, got -1"):
         degrade_dataset(source, tmp_path / "x", effects=EffectsSettings(), seed=-1, progress=False)
 
 
