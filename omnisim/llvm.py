@@ -26,6 +26,7 @@ __all__ = [
     "find_llvm",
     "llvm_major_version",
     "ensure_llvm",
+    "loaded_llvm",
     "cuda_available",
     "import_mitsuba",
     "main",
@@ -154,6 +155,37 @@ def ensure_llvm(*, environ=None, prefix: str | None = None) -> Path:
     return path
 
 
+def loaded_llvm(maps_text: str | None = None) -> Path | None:
+    """The LLVM library already mapped into this process (drjit loads one when it is imported), or None.
+
+    Parameters
+    ----------
+    maps_text : str, optional
+        Text of ``/proc/self/maps`` (read when not given; None where there is no such file).
+    """
+    if maps_text is None:
+        try:
+            maps_text = Path("/proc/self/maps").read_text()
+        except OSError:
+            return None
+    for line in maps_text.splitlines():
+        fields = line.split()
+        if len(fields) >= 6 and re.search(r"/libLLVM[-.]", fields[-1]):
+            return Path(fields[-1])
+    return None
+
+
+def _refuse_loaded_old_llvm(maps_text: str | None = None) -> None:
+    """Raise when drjit already loaded an LLVM older than 16: choosing another one is too late then."""
+    path = loaded_llvm(maps_text)
+    major = None if path is None else _major_from_name(path) or _major_from_name(Path(os.path.realpath(path)))
+    if major is not None and major < MINIMUM_LLVM_MAJOR:
+        raise LlvmNotFoundError(
+            f"drjit was imported before omnisim chose its LLVM and loaded {path} (LLVM {major}), which "
+            f"aborts the process on its first kernel; call omnisim.llvm.import_mitsuba() (or "
+            f"ensure_llvm()) before importing drjit or mitsuba, or set {ENV_VAR} before starting Python")
+
+
 def cuda_available() -> bool:
     """True when an NVIDIA driver library is present (checked without importing drjit)."""
     import ctypes.util
@@ -221,7 +253,8 @@ def _import_mitsuba(variant: str | None = None):
         ``variant`` is not one of the two.
     BackendError
         ``cuda_ad_rgb`` without a working CUDA device, or (as
-        :class:`LlvmNotFoundError`) no LLVM >= 16 for ``llvm_ad_rgb``.
+        :class:`LlvmNotFoundError`) no LLVM >= 16 for ``llvm_ad_rgb``, or
+        drjit imported earlier with an older LLVM already loaded.
     """
     if variant not in (None, "llvm_ad_rgb", "cuda_ad_rgb"):
         raise ValueError(f"expected the Mitsuba variant llvm_ad_rgb or cuda_ad_rgb, got {variant!r}")
@@ -238,6 +271,8 @@ def _import_mitsuba(variant: str | None = None):
             raise BackendError(f"variant cuda_ad_rgb needs a working CUDA GPU ({reason}); "
                                "use --variant llvm_ad_rgb")
         return mi
+    if "drjit" in sys.modules:
+        _refuse_loaded_old_llvm()
     ensure_llvm()
     mi = importlib.import_module("mitsuba")
     if mi.variant() != variant:

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import importlib.util
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -115,6 +118,45 @@ def test_llvm_found_in_prefix_and_explicit(tmp_path):
     explicit.write_bytes(b"")
     assert find_llvm(environ={"DRJIT_LIBLLVM_PATH": str(explicit)}, prefix=str(tmp_path / "venv"),
                      system_globs=()) == explicit
+
+
+MAPS_LINE = "7f1c2a000000-7f1c2b000000 r-xp 00000000 08:01 1234 {}\n"
+
+
+def test_loaded_llvm_is_read_from_the_process_maps():
+    from omnisim.llvm import _refuse_loaded_old_llvm, loaded_llvm
+
+    old = MAPS_LINE.format("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1")
+    new = MAPS_LINE.format("/venv/lib/libLLVM.so.23.1")
+    other = MAPS_LINE.format("/usr/lib/x86_64-linux-gnu/libc.so.6") + "7f00-7f01 rw-p 00000000 00:00 0\n"
+    assert loaded_llvm(other + old) == Path("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1")
+    assert loaded_llvm(other) is None
+    with pytest.raises(LlvmNotFoundError) as info:
+        _refuse_loaded_old_llvm(other + old)
+    message = str(info.value)
+    assert "\n" not in message and "libLLVM-15.so.1 (LLVM 15)" in message and "import_mitsuba()" in message
+    _refuse_loaded_old_llvm(other + new)  # LLVM 23 loaded: nothing to refuse
+    _refuse_loaded_old_llvm(other)  # none loaded yet
+
+
+def test_drjit_imported_first_with_an_old_llvm_is_refused_not_aborted():
+    # A child process: on a host whose default LLVM is older than 16, drjit imported first
+    # loads it, and the first kernel would abort the process.
+    script = ("import drjit\n"
+              "from omnisim.llvm import LlvmNotFoundError, import_mitsuba, loaded_llvm\n"
+              "print(loaded_llvm())\n"
+              "try:\n"
+              "    import_mitsuba('llvm_ad_rgb')\n"
+              "except LlvmNotFoundError as exc:\n"
+              "    print('refused:', exc)\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    loaded, _, verdict = out.stdout.partition("\n")
+    major = re.search(r"libLLVM[-.](?:so\.)?(\d+)", loaded)
+    if major is None or int(major.group(1)) >= 16:
+        assert "refused" not in verdict  # drjit's own choice works: nothing to refuse
+    else:
+        assert verdict.startswith("refused: drjit was imported before omnisim chose its LLVM")
 
 
 def test_cli_llvm_error_exits_nonzero(tmp_path, monkeypatch, capsys):
