@@ -329,6 +329,29 @@ def test_translation_ambiguity_refit_recovers_the_rotation_with_the_true_directi
     assert np.linalg.norm(Rotation.from_matrix(rotation_ab.T @ off).as_rotvec()) > 1e-4
 
 
+def test_translation_ambiguity_window_refit_finds_a_shared_direction(monkeypatch):
+    ambiguity = _benchmark_module("translation_ambiguity", monkeypatch)
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(4)
+    points = rng.normal(size=(80, 3))
+    points *= rng.uniform(1.0, 5.0, size=(80, 1)) / np.linalg.norm(points, axis=1, keepdims=True)
+    direction = np.array([0.6, -0.48, 0.64])  # unit, camera 0's frame
+    rotations_0k = Rotation.from_rotvec([[0, 0, 0], [0.02, -0.05, 0.2], [0.06, -0.02, 0.45],
+                                         [0.03, 0.04, 0.7]]).as_matrix()
+    positions = 0.02 * np.arange(4)[:, None] * direction  # 2 cm steps along one direction
+    rays = [(points - p) @ R for R, p in zip(rotations_0k, positions)]  # R_0k^T (X - p_k), row-wise
+    rays = [r / np.linalg.norm(r, axis=1, keepdims=True) for r in rays]
+    truth = [rotations_0k[k].T @ rotations_0k[k + 1] for k in range(3)]
+    nudge = Rotation.from_rotvec([0.004, -0.003, 0.002]).as_matrix()  # 5 mrad off each start
+    pairs = [(rays[k], rays[k + 1], nudge @ truth[k]) for k in range(3)]
+    start = Rotation.from_rotvec([0.0, 0.0, np.radians(20)]).apply(direction)
+    rotations, found = ambiguity.window_rotations(pairs, rotations_0k[:3], [start], scale=2e-3)
+    for fitted, true in zip(rotations, truth):
+        assert np.linalg.norm(Rotation.from_matrix(true.T @ fitted).as_rotvec()) < 1e-8
+    assert min(np.linalg.norm(found - direction), np.linalg.norm(found + direction)) < 1e-6
+
+
 def test_translation_ambiguity_records_the_pairs_the_tracker_kept(tmp_path, monkeypatch):
     ambiguity = _benchmark_module("translation_ambiguity", monkeypatch)
     from ifmi.pipeline import EstimateConfig, estimate_dataset
@@ -344,3 +367,4 @@ def test_translation_ambiguity_records_the_pairs_the_tracker_kept(tmp_path, monk
     np.testing.assert_allclose(np.array(chained), estimate.trajectory.rotations, atol=1e-12)
     # The synthetic camera only turns: no pair has a translation direction to hold.
     assert ambiguity.pair_rows(str(data), EstimateConfig(), method="ifmi", scale=2e-3) == []
+    assert ambiguity.pair_rows(str(data), EstimateConfig(), method="ifmi", scale=2e-3, window_half=1) == []
