@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -124,6 +126,19 @@ def test_malformed_tum(tmp_path, content, message):
     with pytest.raises(InputError, match=message) as info:
         read_tum(path)
     assert str(path) in str(info.value)
+
+
+def test_identity_in_w_x_y_z_order_warns(tmp_path):
+    from ifmi.errors import InputWarning
+
+    path = tmp_path / "wxyz.txt"
+    path.write_text("# t tx ty tz qw qx qy qz\n0 0 0 0 1 0 0 0\n1 0.1 0 0 0.999 0 0 0.0447\n")
+    with pytest.warns(InputWarning, match=r"wxyz.txt: line 2: the first pose reads as a half turn about x"):
+        read_tum(path)
+    path.write_text("0 0 0 0 0 0 0 1\n1 0 0 0 1 0 0 0\n")  # a half turn later on is a pose like any other
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_tum(path)
 
 
 def test_missing_tum(tmp_path):

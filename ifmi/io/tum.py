@@ -7,11 +7,12 @@ coordinates to camera-0 coordinates); ``#`` starts a comment line.
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, InputWarning
 from ..rotations import matrix_from_quat_xyzw, quat_xyzw_from_matrix
 from ..trajectory import Trajectory
 from .atomic import atomic_write_text
@@ -33,6 +34,13 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
     InputError
         Missing file, a line without 8 numbers, a quaternion that is not of
         unit norm (within :data:`QUATERNION_NORM_TOLERANCE`), or no poses.
+
+    Warns
+    -----
+    InputWarning
+        The first pose is the identity written in ``qw qx qy qz`` order
+        (``0 0 0 1 0 0 0`` after the timestamp reads as a half turn about x
+        at the origin): the file's quaternions are likely in that order.
     """
     path = Path(path)
     lines = read_text_file(path, what="trajectory file").splitlines()
@@ -58,11 +66,23 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
                                    f"expected 1 within {QUATERNION_NORM_TOLERANCE:g} "
                                    "(columns: t tx ty tz qx qy qz qw)")
         rows.append(values)
+        if len(rows) == 1:
+            _warn_if_scalar_first_identity(path, number, values)
     if not rows:
         raise InputError(path, "no poses in trajectory file")
     data = np.asarray(rows)
     return Trajectory(timestamps=data[:, 0], positions=data[:, 1:4],
                       rotations=matrix_from_quat_xyzw(data[:, 4:8]))
+
+
+def _warn_if_scalar_first_identity(path: Path, number: int, values: list) -> None:
+    """Warn when the first pose is ``0 0 0  1 0 0 0``: the identity in w x y z order, a half turn
+    about x in TUM's x y z w. Trajectories start at the identity (frame 0 is camera 0)."""
+    position, quaternion = np.asarray(values[1:4]), np.asarray(values[4:8]) / np.linalg.norm(values[4:8])
+    if np.allclose(position, 0.0, atol=1e-9) and abs(quaternion[0]) > 1.0 - 1e-9:
+        warnings.warn(f"{path}: line {number}: the first pose reads as a half turn about x at the origin "
+                      "(qx = 1); if it is meant as the identity the quaternions are in w x y z order, "
+                      "but TUM files hold qx qy qz qw", InputWarning, stacklevel=3)
 
 
 def format_tum(trajectory: Trajectory, *, header: str = "") -> str:
