@@ -189,7 +189,8 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
         ``seconds`` value that is not a time >= 0 (each naming the line).
     """
     path = Path(path)
-    text = read_text_file(path, what="frames file")
+    # A byte-order mark (spreadsheets and Windows editors write one) is skipped, not a column name.
+    text = read_text_file(path, what="frames file", encoding="utf-8-sig")
     # Comment lines are read as empty lines so that the reader's line numbers are the file's.
     reader = csv.reader("\n" if line.startswith("#") else line for line in io.StringIO(text))
     numbered = [(reader.line_num, row) for row in reader if row]

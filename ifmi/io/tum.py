@@ -35,7 +35,8 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
         unit norm (within :data:`QUATERNION_NORM_TOLERANCE`), or no poses.
     """
     path = Path(path)
-    lines = read_text_file(path, what="trajectory file").splitlines()
+    # A byte-order mark (Windows editors write one) is skipped, not part of the first timestamp.
+    lines = read_text_file(path, what="trajectory file", encoding="utf-8-sig").splitlines()
     rows = []
     for number, line in enumerate(lines, start=1):
         text = line.strip()
