@@ -478,14 +478,27 @@ def _motion_flow_blocks(records: Sequence[EvaluationRecord], figures: Path, *, c
     return ([("h2", "Motion flow (Fig. 2 style)")] + blocks) if blocks else []
 
 
-def _sweep_blocks(sweep_dir: Path, figures: Path) -> tuple[list, dict]:
+def _sweep_names(sweeps: Sequence[Path]) -> dict:
+    """Distinct names of sweep folders for titles, figures and copies: the folder name, with
+    parents where two share one (``site_a/sweep`` and ``site_b/sweep``: ``site_a_sweep``, ...).
+
+    Returns
+    -------
+    dict
+        Sweep folder (as given) -> name.
+    """
+    labels = dataset_labels(sweeps) if sweeps else {}
+    return {s: labels[resolved_folder(s)].replace("/", "_") for s in sweeps}
+
+
+def _sweep_blocks(sweep_dir: Path, figures: Path, *, name: str) -> tuple[list, dict]:
     import pandas as pd
 
     from .plots import sweep_heatmap
     from .sweep import METRICS, read_cells
 
     records = read_cells(sweep_dir)
-    blocks = [("h3", f"Sweep: {sweep_dir.name}")]
+    blocks = [("h3", f"Sweep: {name}")]
     if not records:
         blocks.append(("p", "No finished cells."))
         return blocks, {"path": str(sweep_dir), "cells": []}
@@ -507,10 +520,10 @@ def _sweep_blocks(sweep_dir: Path, figures: Path) -> tuple[list, dict]:
         for metric in ("rmse_mean_rad", "time_per_frame_s"):
             if metric not in group or group[metric].isna().all():
                 continue
-            name = _file_name(f"heatmap_{sweep_dir.name}_{dataset}_{method}_{metric}") + ".png"
+            file = _file_name(f"heatmap_{name}_{dataset}_{method}_{metric}") + ".png"
             sweep_heatmap(group, metric=metric, label=METRICS[metric],
-                          title=f"{dataset} ({method}): {METRICS[metric]}", path=figures / name)
-            blocks.append(("img", f"figures/{name}",
+                          title=f"{dataset} ({method}): {METRICS[metric]}", path=figures / file)
+            blocks.append(("img", f"figures/{file}",
                            f"{dataset}, {method}: {METRICS[metric]} over tile size and overlap"))
     return blocks, {"path": str(sweep_dir), "cells": jsonable(table.to_dict(orient="records"))}
 
@@ -550,8 +563,9 @@ def _copy_data(inputs: ReportInputs, records: Sequence[EvaluationRecord], data: 
         if dst.exists():
             shutil.rmtree(dst)
         shutil.copytree(rec.path, dst)
+    names = _sweep_names(inputs.sweeps)
     for sweep in inputs.sweeps:
-        dst = data / "sweep" / sweep.name
+        dst = data / "sweep" / names[sweep]
         if dst.exists():
             shutil.rmtree(dst)
         (dst / "cells").mkdir(parents=True)
@@ -620,8 +634,9 @@ def _write_report(inputs: ReportInputs, records: list[EvaluationRecord], out: Pa
     sweeps = []
     if inputs.sweeps:
         blocks.append(("h2", "Tile size × overlap sweeps"))
+        names = _sweep_names(inputs.sweeps)
         for sweep_dir in inputs.sweeps:
-            b, sweep_data = _sweep_blocks(sweep_dir, figures)
+            b, sweep_data = _sweep_blocks(sweep_dir, figures, name=names[sweep_dir])
             blocks += b
             sweeps.append(sweep_data)
     provenance_blocks, provenance = _provenance_blocks(records)

@@ -434,3 +434,13 @@ def test_report_inside_its_results_folder_leaves_out_its_own_copies_on_a_rerun(t
     doc = json.loads((out / "report.json").read_text())
     assert sorted(doc["evaluations"]) == sorted(str(root / "eval" / "office" / m) for m in METHODS)
 
+
+def test_two_sweeps_of_one_folder_name_get_their_own_figures_and_copies(tmp_path):
+    a = _make_results(tmp_path / "site_a", scenes=("office",))
+    b = _make_results(tmp_path / "site_b", scenes=("office",))
+    out = tmp_path / "r"
+    assert main(["report", str(a / "sweep"), str(b / "sweep"), "--out", str(out)]) == 0
+    assert sorted(p.name for p in (out / "data" / "sweep").iterdir()) == ["site_a_sweep", "site_b_sweep"]
+    figures = sorted(p.name for p in (out / "figures").glob("heatmap_*.png"))
+    assert len(figures) == 4 and {f.split("_sweep_")[0] for f in figures} == {"heatmap_site_a",
+                                                                             "heatmap_site_b"}
