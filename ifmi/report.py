@@ -28,7 +28,7 @@ from typing import Sequence
 import numpy as np
 
 from .dataset_names import dataset_labels, resolved_folder
-from .errors import InputError
+from .errors import InputError, OutputError
 from .io.atomic import atomic_write_json, atomic_write_text, check_output_folder, folder_of_kind, write_folder
 from .io.provenance import package_versions as _package_versions
 from .io.results import (EvaluationRecord, is_evaluation_dir, jsonable, read_evaluation,
@@ -70,11 +70,27 @@ class ReportInputs:
     sweeps: list = field(default_factory=list)
 
 
-def find_results(paths: Sequence[str | os.PathLike]) -> ReportInputs:
+def _inside(path: Path, folder: Path) -> bool:
+    """True when ``path`` is ``folder`` or lies below it (links resolved)."""
+    path, folder = Path(os.path.realpath(path)), Path(os.path.realpath(folder))
+    return path == folder or folder in path.parents
+
+
+def find_results(paths: Sequence[str | os.PathLike], *,
+                 skip: str | os.PathLike | None = None) -> ReportInputs:
     """Find evaluation folders and sweep folders in or below ``paths``.
 
     Evaluation folders inside a sweep (its per-cell runs) belong to the sweep
     and are not listed as evaluations.
+
+    Parameters
+    ----------
+    paths : sequence of path
+    skip : path, optional, keyword-only
+        The report folder about to be replaced: the copies in its ``data/``
+        are left out where found below a path outside it (``ifmi report
+        results --out results/report`` run twice), and read where a path
+        lies inside it (``ifmi report OUT/data --out OUT``).
 
     Raises
     ------
@@ -93,6 +109,9 @@ def find_results(paths: Sequence[str | os.PathLike]) -> ReportInputs:
         else:
             evals = [p.parent for p in sorted(path.rglob("evaluation.json"))]
         evals = [e for e in evals if not any(s in e.parents for s in sweeps)]
+        if skip is not None and not _inside(path, Path(skip)):
+            sweeps = [s for s in sweeps if not _inside(s, Path(skip))]
+            evals = [e for e in evals if not _inside(e, Path(skip))]
         if not sweeps and not evals:
             raise InputError(path, "no evaluation.json or sweep.json found in or below it")
         found.sweeps.extend(s for s in sweeps if s not in found.sweeps)
@@ -160,6 +179,18 @@ def records_with_distinct_scenes(records: Sequence[EvaluationRecord]) -> list[Ev
             rec = replace(rec, meta={**rec.meta, "scene": f"{rec.scene}-{label}"})
         out.append(rec)
     return out
+
+
+def _refuse_repeated_evaluations(records: Sequence[EvaluationRecord]) -> None:
+    """Two evaluations of one method on one scene would share a row: one would be dropped."""
+    first: dict = {}
+    for rec in records:
+        key = (rec.scene, rec.method)
+        if key in first:
+            raise InputError(rec.path, f"evaluates method {rec.method} on scene {rec.scene}, as "
+                                       f"{first[key]} does; expected one evaluation per scene and "
+                                       "method (report the runs separately)")
+        first[key] = rec.path
 
 
 def scene_tables(records: Sequence[EvaluationRecord]) -> dict:
@@ -447,14 +478,27 @@ def _motion_flow_blocks(records: Sequence[EvaluationRecord], figures: Path, *, c
     return ([("h2", "Motion flow (Fig. 2 style)")] + blocks) if blocks else []
 
 
-def _sweep_blocks(sweep_dir: Path, figures: Path) -> tuple[list, dict]:
+def _sweep_names(sweeps: Sequence[Path]) -> dict:
+    """Distinct names of sweep folders for titles, figures and copies: the folder name, with
+    parents where two share one (``site_a/sweep`` and ``site_b/sweep``: ``site_a_sweep``, ...).
+
+    Returns
+    -------
+    dict
+        Sweep folder (as given) -> name.
+    """
+    labels = dataset_labels(sweeps) if sweeps else {}
+    return {s: labels[resolved_folder(s)].replace("/", "_") for s in sweeps}
+
+
+def _sweep_blocks(sweep_dir: Path, figures: Path, *, name: str) -> tuple[list, dict]:
     import pandas as pd
 
     from .plots import sweep_heatmap
     from .sweep import METRICS, read_cells
 
     records = read_cells(sweep_dir)
-    blocks = [("h3", f"Sweep: {sweep_dir.name}")]
+    blocks = [("h3", f"Sweep: {name}")]
     if not records:
         blocks.append(("p", "No finished cells."))
         return blocks, {"path": str(sweep_dir), "cells": []}
@@ -476,10 +520,10 @@ def _sweep_blocks(sweep_dir: Path, figures: Path) -> tuple[list, dict]:
         for metric in ("rmse_mean_rad", "time_per_frame_s"):
             if metric not in group or group[metric].isna().all():
                 continue
-            name = _file_name(f"heatmap_{sweep_dir.name}_{dataset}_{method}_{metric}") + ".png"
+            file = _file_name(f"heatmap_{name}_{dataset}_{method}_{metric}") + ".png"
             sweep_heatmap(group, metric=metric, label=METRICS[metric],
-                          title=f"{dataset} ({method}): {METRICS[metric]}", path=figures / name)
-            blocks.append(("img", f"figures/{name}",
+                          title=f"{dataset} ({method}): {METRICS[metric]}", path=figures / file)
+            blocks.append(("img", f"figures/{file}",
                            f"{dataset}, {method}: {METRICS[metric]} over tile size and overlap"))
     return blocks, {"path": str(sweep_dir), "cells": jsonable(table.to_dict(orient="records"))}
 
@@ -519,8 +563,9 @@ def _copy_data(inputs: ReportInputs, records: Sequence[EvaluationRecord], data: 
         if dst.exists():
             shutil.rmtree(dst)
         shutil.copytree(rec.path, dst)
+    names = _sweep_names(inputs.sweeps)
     for sweep in inputs.sweeps:
-        dst = data / "sweep" / sweep.name
+        dst = data / "sweep" / names[sweep]
         if dst.exists():
             shutil.rmtree(dst)
         (dst / "cells").mkdir(parents=True)
@@ -589,8 +634,9 @@ def _write_report(inputs: ReportInputs, records: list[EvaluationRecord], out: Pa
     sweeps = []
     if inputs.sweeps:
         blocks.append(("h2", "Tile size × overlap sweeps"))
+        names = _sweep_names(inputs.sweeps)
         for sweep_dir in inputs.sweeps:
-            b, sweep_data = _sweep_blocks(sweep_dir, figures)
+            b, sweep_data = _sweep_blocks(sweep_dir, figures, name=names[sweep_dir])
             blocks += b
             sweeps.append(sweep_data)
     provenance_blocks, provenance = _provenance_blocks(records)
@@ -650,18 +696,25 @@ def build_report(paths: Sequence[str | os.PathLike], *, out_dir: str | os.PathLi
     ------
     InputError
         A results path that is missing or holds no results, or a malformed
-        one (:func:`~ifmi.io.results.read_evaluation`); every evaluation is
-        read before anything is written.
+        one (:func:`~ifmi.io.results.read_evaluation`), or two evaluations
+        of one method on one scene; every evaluation is read before anything
+        is written.
     OutputError
-        ``out_dir`` is a file or an existing folder that is neither empty
-        nor a report folder (checked before any work), or the report cannot
+        ``out_dir`` is a file, an existing folder that is neither empty nor
+        a report folder, or inside an evaluation folder it reads (checked
+        before any work), or the report cannot
         be written (names ``out_dir`` and the OS reason).
     """
-    inputs = find_results(paths)
+    inputs = find_results(paths, skip=out_dir)
+    for folder in inputs.evaluations:
+        if _inside(Path(out_dir), folder):  # the report would copy the folder into itself
+            raise OutputError(out_dir, f"is inside the evaluation folder {folder} that the report "
+                                       "reads; choose another output path")
     # A symlinked report folder is written through, not replaced.
     out = check_output_folder(out_dir, is_own=is_report_dir,
                               what="a report folder written by ifmi report")
     records = records_with_distinct_scenes([read_evaluation(p) for p in inputs.evaluations])
+    _refuse_repeated_evaluations(records)
     write_folder(out, lambda folder: _write_report(inputs, records, folder, options),
                  replaces=REPORT_ENTRIES)
     return Path(out_dir) / "README.md"

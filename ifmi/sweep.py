@@ -332,8 +332,16 @@ def _prepare_output(out_dir: str | os.PathLike, document: dict) -> Path:
 
     A new or empty folder gets ``sweep.json`` at once (an interrupted sweep is
     then recognised as one). The folder's parent must be writable too: the
-    result set is built beside the folder at the end.
+    result set is built beside the folder at the end. A folder inside a data
+    folder of an input dataset (``images/``, ...) is refused: it would add
+    entries to the frames.
     """
+    from .io.dataset import dataset_conflict
+
+    for dataset in dict.fromkeys(cell["dataset"] for cell in document["cells"]):
+        conflict = dataset_conflict(dataset, out_dir)
+        if conflict:
+            raise OutputError(out_dir, conflict + "; choose another output path")
     out = check_output_folder(out_dir, is_own=is_sweep_dir,
                               what="a sweep folder written by ifmi sweep")
     try:

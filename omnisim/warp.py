@@ -275,6 +275,14 @@ def warp_image(source: np.ndarray, model, rotation: np.ndarray, *,
     return out[..., 0] if source.ndim == 2 else out
 
 
+def _comparable_pixels(model, band: tuple[float, float]) -> np.ndarray:
+    """(H, W) mask of the source pixels a round trip compares: inside the image and ``band`` by
+    three kernel reaches (:func:`round_trip_error`)."""
+    h, w = model.size
+    grid = np.stack(np.mgrid[0:h, 0:w], axis=-1).astype(np.float64)
+    return _inside(model, grid, _shrunk(model, band, 3 * _EDGE_PX))
+
+
 def round_trip_error(source: np.ndarray, frame: np.ndarray, model, rotation: np.ndarray, *,
                      band: tuple[float, float]) -> tuple[float, float]:
     """Frame ``k`` warped back onto frame 0 with its ground truth, compared with the source.
@@ -340,7 +348,9 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
     ------
     InputError
         Unreadable image or calibration, an image whose size differs from
-        the calibration's, or an output folder holding something else.
+        the calibration's, an image too small for any pixel of its valid
+        band to be compared after a round trip, or an output folder holding
+        something else.
     """
     image_path, calib_path, out_dir = Path(image_path), Path(calib_path), Path(out_dir)
     model = read_camera(calib_path)
@@ -356,6 +366,10 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
         band = valid_source_band(model, source)
     except ValueError as exc:
         raise InputError(image_path, str(exc)) from None
+    if not _comparable_pixels(model, band).any():
+        raise InputError(image_path, f"image of {model.height}x{model.width} px too small to warp: no "
+                                     f"pixel of its valid band lies {3 * _EDGE_PX:g} px inside the band "
+                                     "and the image edges (expected a larger image)")
     meta = open_output_folder(out_dir, identity)
     rotations = rotations_in_camera_frame(model, rotation_walk(settings))
     meta.update({"source": str(image_path.resolve()), "settings": settings.identity(), "frames": settings.frames,

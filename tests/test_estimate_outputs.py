@@ -415,3 +415,22 @@ def test_estimate_to_a_folder_path_is_refused(dataset, tmp_path, capsys):
     assert err == [f"ifmi estimate: error: cannot write {out}: expected the estimate's file path (DIR/NAME.txt), "
                    f"got a folder path ending in a separator"]
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize(("first", "second"), [("e.txt", "e"), ("e", "e.txt"), ("e.txt", "e.tum")])
+def test_estimate_refuses_the_side_files_of_another_estimate_of_the_same_name(dataset, tmp_path, capsys,
+                                                                              first, second):
+    """e and e.txt share e.frames.csv and e.config.json: the second run would pair its side files with
+    the first run's trajectory (evaluate then labels one run's poses with the other's method and times)."""
+    assert main(["estimate", str(dataset), "--out", str(tmp_path / first), *FAST]) == 0
+    before = _snapshot(tmp_path)
+    capsys.readouterr()
+    assert main(["estimate", str(dataset), "--out", str(tmp_path / second), "--method", "orb",
+                 "--no-progress"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"ifmi estimate: error: cannot write {tmp_path / 'e.frames.csv'}: is also the side file of "
+                   f"the estimate {tmp_path / first} (side files are named without the suffix, so they would "
+                   f"pair with both); choose another output path or pass --force to replace it"]
+    assert _snapshot(tmp_path) == before
+    assert main(["estimate", str(dataset), "--out", str(tmp_path / second), "--method", "orb",
+                 "--no-progress", "--force"]) == 0

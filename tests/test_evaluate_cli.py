@@ -466,3 +466,18 @@ def test_config_json_field_of_the_wrong_kind_is_one_line_error(tmp_path, capsys,
     code, err = _run_error(_gate(tmp_path, "--out", str(tmp_path / "eval")), capsys)
     assert code == 2 and len(err.splitlines()) == 1
     assert f"est.config.json: {expected}" in err and not (tmp_path / "eval").exists()
+
+
+def test_byte_order_marks_of_windows_editors_are_skipped(tmp_path, capsys):
+    # Notepad and spreadsheets save UTF-8 with a byte-order mark: the files read as without one
+    # (before: "line 1: non-numeric value", "missing column(s) frame; got \ufeffframe, ...").
+    _write_run(tmp_path)
+    argv = ["evaluate", "--gt", str(tmp_path / "groundtruth.txt"), "--est", str(tmp_path / "est.txt"),
+            "--json"]
+    assert main(argv) == 0
+    plain = json.loads(capsys.readouterr().out)
+    for name in ("groundtruth.txt", "est.txt", "est.frames.csv"):
+        path = tmp_path / name
+        path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out)["summary"] == plain["summary"]

@@ -300,3 +300,22 @@ def test_rolling_shutter_out_of_range_is_a_one_line_error(tmp_path, source_files
     assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
     assert err.endswith(f"expected 0 <= rolling_shutter <= 1 (a fraction of the frame interval), got "
                         f"{float(value)}")
+
+
+def test_image_too_small_for_a_round_trip_is_a_one_line_error(tmp_path, capsys):
+    # 8x8 px: no pixel lies 6 px inside the edges, so the round trip compared nothing
+    # (NaN in meta.json, numpy warnings on stderr) after writing the whole dataset.
+    from omnisim.cli import main
+
+    image = cv2.GaussianBlur((np.random.default_rng(0).random((8, 8)) * 255).astype(np.uint8), (0, 0), 1)
+    cv2.imwrite(str(tmp_path / "tiny.png"), image)
+    (tmp_path / "camera.yaml").write_text(
+        "cam0:\n  camera_model: pinhole\n  intrinsics: [4.0, 4.0, 3.5, 3.5]\n"
+        "  distortion_model: none\n  distortion_coeffs: []\n  resolution: [8, 8]\n")
+    code = main(["warp", str(tmp_path / "tiny.png"), "--calib", str(tmp_path / "camera.yaml"),
+                 "--out", str(tmp_path / "o"), "--frames", "3", "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [f"omnisim warp: error: {tmp_path / 'tiny.png'}: image of 8x8 px too small to "
+                                 "warp: no pixel of its valid band lies 6 px inside the band and the image "
+                                 "edges (expected a larger image)"]
+    assert not (tmp_path / "o").exists()

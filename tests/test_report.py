@@ -395,3 +395,52 @@ def test_bad_motion_flow_sample_is_one_line_error(tmp_path, capsys, damage, expe
     err = capsys.readouterr().err.strip()
     assert code == 2 and err == f"ifmi report: error: {sample}: {expected}"
     assert not (tmp_path / "r").exists() and not list(tmp_path.glob(".r.new-*"))
+
+
+def test_two_evaluations_of_one_method_on_one_scene_are_one_line_error(tmp_path, capsys):
+    # Both would be the scene's one row for the method: the report showed the last one only.
+    root = _make_results(tmp_path / "run1", scenes=("office",))
+    again = tmp_path / "run2" / "ifmi"
+    evaluate_files(root / "data" / "office_20" / "groundtruth.txt", root / "runs" / "office" / "ifmi.txt",
+                   out_dir=again)
+    out = tmp_path / "r"
+    code = main(["report", str(root / "eval"), str(again), "--out", str(out), "--no-motion-flow"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert err == (f"ifmi report: error: {again}: evaluates method ifmi on scene office, as "
+                   f"{root / 'eval' / 'office' / 'ifmi'} does; expected one evaluation per scene and "
+                   "method (report the runs separately)")
+    assert not out.exists() and not list(tmp_path.glob(".r.*"))
+
+
+def test_report_inside_an_evaluation_it_reads_is_one_line_error(tmp_path, capsys):
+    # The evaluation folder would be copied into itself (a RecursionError before).
+    root = _make_results(tmp_path, scenes=("office",))
+    evaluation = root / "eval" / "office" / "orb"
+    before = sorted(p.name for p in evaluation.iterdir())
+    out = evaluation / "report"
+    code = main(["report", str(evaluation), "--out", str(out), "--no-motion-flow"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and err == (f"ifmi report: error: cannot write {out}: is inside the evaluation "
+                                 f"folder {evaluation} that the report reads; choose another output path")
+    assert sorted(p.name for p in evaluation.iterdir()) == before
+
+
+def test_report_inside_its_results_folder_leaves_out_its_own_copies_on_a_rerun(tmp_path):
+    root = _make_results(tmp_path, scenes=("office",))
+    out = root / "eval" / "report"
+    for _ in range(2):
+        assert main(["report", str(root / "eval"), "--out", str(out), "--no-motion-flow"]) == 0
+    doc = json.loads((out / "report.json").read_text())
+    assert sorted(doc["evaluations"]) == sorted(str(root / "eval" / "office" / m) for m in METHODS)
+
+
+def test_two_sweeps_of_one_folder_name_get_their_own_figures_and_copies(tmp_path):
+    a = _make_results(tmp_path / "site_a", scenes=("office",))
+    b = _make_results(tmp_path / "site_b", scenes=("office",))
+    out = tmp_path / "r"
+    assert main(["report", str(a / "sweep"), str(b / "sweep"), "--out", str(out)]) == 0
+    assert sorted(p.name for p in (out / "data" / "sweep").iterdir()) == ["site_a_sweep", "site_b_sweep"]
+    figures = sorted(p.name for p in (out / "figures").glob("heatmap_*.png"))
+    assert len(figures) == 4 and {f.split("_sweep_")[0] for f in figures} == {"heatmap_site_a",
+                                                                             "heatmap_site_b"}

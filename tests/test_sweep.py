@@ -265,3 +265,33 @@ def test_sweep_repeats_the_method_of_a_run_file_unless_told(tmp_path):
     assert _base_config(str(run_file), None)[1] == "orb"
     assert _base_config(str(run_file), "ifmi")[1] == "ifmi"
     assert _base_config(None, None)[1] == "ifmi"
+
+
+@pytest.mark.parametrize("second", ["same", "slash", "link"])
+def test_sweep_cli_refuses_a_dataset_given_twice(datasets, tmp_path, capsys, second):
+    # One folder twice (also spelt otherwise) would be one cell counted as two rows of the table.
+    good, _ = datasets
+    other = {"same": str(good), "slash": f"{good}/", "link": str(tmp_path / "link")}[second]
+    (tmp_path / "link").symlink_to(good)
+    code = main(["sweep", str(good), other, "--tile-size", "32", "--overlap", "0", "--scheduler",
+                 "synchronous", "--out", str(tmp_path / "o"), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert f"{other}: dataset given twice (also as {good}); expected each dataset once" in err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(("option", "grid", "shown"), [("--tile-size", ["32", "48", "32.0"], "32 48 32"),
+                                                        ("--overlap", ["0", "0.0"], "0 0")])
+def test_sweep_cli_refuses_a_grid_value_given_twice(datasets, tmp_path, capsys, option, grid, shown):
+    good, _ = datasets
+    values = {"--tile-size": ["32"], "--overlap": ["0"]}
+    values[option] = grid
+    code = main(["sweep", str(good), "--tile-size", *values["--tile-size"], "--overlap",
+                 *values["--overlap"], "--scheduler", "synchronous", "--out", str(tmp_path / "o"),
+                 "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    value = shown.split()[0]
+    assert f"{option}: value {value} given twice; expected distinct values (got {shown})" in err
+    assert not (tmp_path / "o").exists()

@@ -193,3 +193,22 @@ def test_unwritable_parent_is_refused_before_any_cell(tmp_path, calls, capsys, m
     assert code == 1 and len(err.splitlines()) == 1 and calls == [] and not out.exists()
     assert err == (f"ifmi sweep: error: cannot write {out}: Permission denied (the results are "
                    f"built beside it, in {tmp_path})")
+
+
+@pytest.mark.parametrize("through_link", [False, True])
+def test_out_inside_the_images_of_an_input_dataset_is_refused_before_any_cell(tmp_path, calls, capsys,
+                                                                               through_link):
+    # A sweep folder in images/ would be an entry among the frames of the dataset it measures.
+    data = _dataset(tmp_path, "office")
+    (data / "images").mkdir()
+    (data / "images" / "000000.png").write_bytes(b"frame")
+    images = data / "images"
+    if through_link:
+        (tmp_path / "link").symlink_to(images)
+        images = tmp_path / "link"
+    out = images / "sweep"
+    code, err = _sweep_cli(data, out, capsys)
+    assert code == 1 and len(err.splitlines()) == 1 and calls == []
+    assert err == (f"ifmi sweep: error: cannot write {out}: would write into images/ of the input "
+                   f"dataset {data}; choose another output path")
+    assert sorted(p.name for p in (data / "images").iterdir()) == ["000000.png"]

@@ -89,12 +89,28 @@ def _base_config(path: str | None, method: str | None) -> tuple[dict, str]:
     return config.to_dict(), method
 
 
+def _refuse_repeats(args) -> None:
+    """A dataset (by resolved path), tile size or overlap given twice would be two rows of one cell."""
+    seen = {}
+    for d in args.datasets:
+        folder = Path(d).resolve()
+        if folder in seen:
+            raise InputError(d, f"dataset given twice (also as {seen[folder]}); expected each dataset once")
+        seen[folder] = d
+    for option, values in (("--tile-size", args.tile_size), ("--overlap", args.overlap)):
+        repeated = sorted({v for v in values if values.count(v) > 1})
+        if repeated:
+            raise InputError(option, f"value {repeated[0]:g} given twice; expected distinct values "
+                                     f"(got {' '.join(f'{v:g}' for v in values)})")
+
+
 def run(args) -> int:
     for d in args.datasets:
         if not Path(d).is_dir():
             raise InputError(d, "dataset folder not found")
         if not (Path(d) / "groundtruth.txt").is_file():
             raise InputError(Path(d) / "groundtruth.txt", "ground truth not found (a sweep needs it)")
+    _refuse_repeats(args)
     base_config, method = _base_config(args.config, args.method)
     cells = sweep_cells([str(Path(d).resolve()) for d in args.datasets], method=method,
                         tile_sizes=args.tile_size, overlaps=args.overlap)

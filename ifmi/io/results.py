@@ -189,7 +189,8 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
         ``seconds`` value that is not a time >= 0 (each naming the line).
     """
     path = Path(path)
-    text = read_text_file(path, what="frames file")
+    # A byte-order mark (spreadsheets and Windows editors write one) is skipped, not a column name.
+    text = read_text_file(path, what="frames file", encoding="utf-8-sig")
     # Comment lines are read as empty lines so that the reader's line numbers are the file's.
     reader = csv.reader("\n" if line.startswith("#") else line for line in io.StringIO(text))
     numbered = [(reader.line_num, row) for row in reader if row]
@@ -495,7 +496,8 @@ def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.Pat
     OutputError
         An output would replace a file of the input dataset (compared by
         resolved path and by inode, so links count), or without ``overwrite``
-        a non-empty file no estimate wrote; ``path`` ends in a separator; an
+        a non-empty file no estimate wrote or the side files of another
+        estimate beside it (``NAME`` and ``NAME.txt``); ``path`` ends in a separator; an
         output is a folder, a device
         node, a FIFO or a socket, a regular file stands where a folder of
         its path should be, or its folder cannot be written
@@ -518,7 +520,28 @@ def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.Pat
         if not overwrite and not _earlier_estimate_output(target, kind):
             raise OutputError(output, "an existing file that no estimate wrote; choose another output path "
                                       "or pass --force to replace it")
+    sibling = None if overwrite else _sibling_estimate(Path(path))
+    if sibling is not None:
+        raise OutputError(outputs[1], f"is also the side file of the estimate {sibling} (side files are "
+                                      "named without the suffix, so they would pair with both); choose "
+                                      "another output path or pass --force to replace it")
     return outputs
+
+
+def _sibling_estimate(path: Path) -> Path | None:
+    """Another estimate's trajectory beside ``path`` with the same side files (``DIR/NAME`` for
+    ``DIR/NAME.txt`` and the other way round), or ``None``."""
+    stem = path.with_suffix("") if path.suffix else path
+    try:
+        candidates = [p for p in stem.parent.iterdir() if p.name == stem.name or p.name.startswith(f"{stem.name}.")]
+    except OSError:
+        return None
+    for candidate in sorted(candidates):
+        if (side_file_paths(candidate) == side_file_paths(path) and not _same_file(candidate, path)
+                and candidate.name != path.name and candidate.is_file() and candidate.stat().st_size > 0
+                and _earlier_estimate_output(candidate, "trajectory")):
+            return candidate
+    return None
 
 
 # How much of an existing output is read to tell whether an earlier estimate wrote it.

@@ -43,7 +43,8 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
         at the origin): the file's quaternions are likely in that order.
     """
     path = Path(path)
-    lines = read_text_file(path, what="trajectory file").splitlines()
+    # A byte-order mark (Windows editors write one) is skipped, not part of the first timestamp.
+    lines = read_text_file(path, what="trajectory file", encoding="utf-8-sig").splitlines()
     rows = []
     for number, line in enumerate(lines, start=1):
         text = line.strip()
