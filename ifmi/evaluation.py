@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError, OutputError
+from .io.dataset import dataset_conflict
 from .io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
 from .io.tum import read_tum
 from .metrics import AXES, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors, trajectory_errors
@@ -242,6 +243,7 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     meta = _run_meta(gt_path, est_path, side, summary, options)
     meta["per_frame_columns"] = list(errors.arrays())
     out = Path(out_dir) if out_dir is not None else default_evaluation_dir(est_path)
+    _refuse_dataset_output(out, gt_path, side)
     try:
         write_evaluation(out, meta=meta, arrays=errors.arrays(), side_files=side)
     except OutputError:
@@ -251,6 +253,17 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     meta = jsonable(meta)
     meta["path"] = str(out)
     return meta
+
+
+def _refuse_dataset_output(out: Path, gt_path: Path, side: EstimateSideFiles) -> None:
+    """The evaluation folder must not lie in a data folder (``images/``, ...) of the dataset the
+    ground truth sits in or the estimate's config names: it would add entries to the frames."""
+    config = side.config or {}
+    named = config.get("dataset")
+    for dataset in dict.fromkeys([gt_path.parent, *([Path(named)] if isinstance(named, str) else [])]):
+        conflict = dataset_conflict(dataset, out)
+        if conflict:
+            raise OutputError(out, f"{conflict}; choose another output path")
 
 
 def summary_of(meta: dict) -> EvaluationSummary:

@@ -85,6 +85,19 @@ def test_entries_that_are_not_frames_are_skipped_with_one_warning(tmp_path):
         read_dataset(_folder(tmp_path / "clean", ["000000.png"]))
 
 
+def test_dataset_marked_incomplete_warns_with_the_count(tmp_path):
+    root = _folder(tmp_path, ["000000.png", "000001.png"])
+    meta = '{"frames": 5, "images": {"000000.png": "x", "000001.png": "y"}, "complete": %s}'
+    (root / "meta.json").write_text(meta % "false")
+    with pytest.warns(InputWarning, match=r"meta.json: the dataset is marked incomplete \(2 of 5 frames written\)"):
+        read_dataset(root)
+    for text in (meta % "true", "[1, 2]", "{broken"):  # complete, or provenance that says nothing
+        (root / "meta.json").write_text(text)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            read_dataset(root)
+
+
 def test_cli_prints_the_warning_as_one_line(tmp_path, capsys):
     root = _folder(tmp_path, ["000000.png", "Thumbs.db"])
     (root / "images" / "000000.png").write_bytes(b"junk")

@@ -91,6 +91,18 @@ def _run_error(argv, capsys):
     return code, err
 
 
+def test_out_inside_a_data_folder_of_the_dataset_is_refused(tmp_path, capsys):
+    _write_run(tmp_path)  # the ground truth sits in tmp_path: the dataset folder
+    (tmp_path / "images").mkdir()
+    out = tmp_path / "images" / "ev"
+    code, err = _run_error(["evaluate", "--gt", str(tmp_path / "groundtruth.txt"),
+                            "--est", str(tmp_path / "est.txt"), "--out", str(out)], capsys)
+    assert code == 1 and len(err.splitlines()) == 1
+    assert err.endswith(f"{out}: would write into images/ of the input dataset {tmp_path}; "
+                        "choose another output path")
+    assert list((tmp_path / "images").iterdir()) == []
+
+
 def test_missing_estimate_is_one_line_error(tmp_path, capsys):
     _write_run(tmp_path)
     code, err = _run_error(["evaluate", "--gt", str(tmp_path / "groundtruth.txt"),

@@ -19,6 +19,7 @@ and the frames by :func:`frame_files`.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import warnings
@@ -123,6 +124,21 @@ def _warn_skipped(image_dir: Path, skipped: tuple) -> None:
                   InputWarning, stacklevel=3)
 
 
+def _warn_incomplete(root: Path) -> None:
+    """Warn when ``meta.json`` (optional provenance; unreadable means absent) says ``"complete": false``."""
+    try:
+        meta = json.loads((root / "meta.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return
+    if not isinstance(meta, dict) or meta.get("complete") is not False:
+        return
+    written, frames = meta.get("images"), meta.get("frames")
+    count = (f" ({len(written)} of {frames} frames written)"
+             if isinstance(written, dict) and isinstance(frames, int) and not isinstance(frames, bool) else "")
+    warnings.warn(f"{root / 'meta.json'}: the dataset is marked incomplete{count}; run the omnisim "
+                  "command that made it again to finish it", InputWarning, stacklevel=3)
+
+
 def _listed(names) -> str:
     """The first few ``names``, and how many more."""
     more = f" and {len(names) - _LISTED_SKIPS} more" if len(names) > _LISTED_SKIPS else ""
@@ -202,7 +218,9 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     Warns
     -----
     InputWarning
-        Entries of ``images/`` that are not frames were skipped.
+        Entries of ``images/`` that are not frames were skipped, or the
+        folder's ``meta.json`` marks it incomplete (an interrupted
+        ``omnisim`` run: ``"complete": false``).
     """
     root = Path(path)
     if not root.exists():
@@ -217,6 +235,7 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
         raise InputError(image_dir, "images folder not found")
     frames = frame_files(image_dir)
     _warn_skipped(image_dir, frames.skipped)
+    _warn_incomplete(root)
     groundtruth = root / "groundtruth.txt"
     return Dataset(root=root, calib_path=calib_path, model=model, image_paths=frames.paths,
                    frame_indices=frames.indices,
