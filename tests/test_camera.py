@@ -179,6 +179,8 @@ def _broken(text: str, old: str, new: str) -> str:
         ("5 -2.063866e+02", "6 -2.063866e+02", "direct polynomial: expected 6 coefficients, got 5"),
         ("12 293.052431", "11 293.052431", "inverse polynomial: expected 11 coefficients, got 12"),
         ("0.998881 -0.042038", "0.998881 abc", "affine.*non-numeric value 'abc'"),
+        # Python's float() reads digit separators (12_8.45 as 128.45): a typing error in a file.
+        ("241.019976 385.783141", "24_1.019976 385.783141", r"center.*non-numeric value '24_1.019976'"),
         ("241.019976 385.783141", "241.019976", r"center \(row col\): expected 2 values, got 1"),
         ("480 748", "480.5 748", "image size must be positive integers"),
         ("0.998881 -0.042038 0.045079", "1.0 1.0 1.0", "singular"),

@@ -407,6 +407,7 @@ def test_frames_csv_with_some_times_missing_times_the_others(tmp_path, capsys):
     ("frame", "", "column frame: expected a frame number (a whole number >= 0), got ''"),
     ("frame", "-3", "column frame: expected a frame number (a whole number >= 0), got '-3'"),
     ("frame", "2.5", "column frame: expected a frame number (a whole number >= 0), got '2.5'"),
+    ("frame", "1_4", "column frame: expected a frame number (a whole number >= 0), got '1_4'"),
     ("reference_frame", "1.5", "column reference_frame: expected a frame number (a whole number; "
                                "empty for none), got '1.5'"),
 ])

@@ -112,6 +112,7 @@ def test_tum_round_trip(tmp_path):
     [
         ("0 0 0 0 0 0 0\n", "line 1: expected 8 values"),
         ("# c\n0 0 0 0 0 0 0 x\n", "line 2: non-numeric value"),
+        ("1_0 0 0 0 0 0 0 1\n", "line 1: non-numeric value"),  # float() would read 10
         ("0 0 0 0 0 0 0 0\n", "line 1: zero quaternion"),
         ("0 0 0 nan 0 0 0 1\n", "line 1: non-finite value"),
         # Positions and quaternion swapped (t qx qy qz qw tx ty tz): the norm gives it away.

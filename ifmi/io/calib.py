@@ -32,7 +32,7 @@ from ..camera import INVERSE_TOLERANCE_PX, OcamModel, check_affine, check_center
 from ..errors import InputError
 from ..unwarp import inverse_polynomial_error
 from .atomic import atomic_write_text
-from .text_file import read_text_file
+from .text_file import number_from_text, read_text_file
 
 __all__ = ["read_calib", "write_calib", "format_calib", "parse_calib", "inverse_polynomial_error",
            "INVERSE_TOLERANCE_PX"]
@@ -49,7 +49,7 @@ _BLOCK_WORDS = (("direct", "cam2world"), ("inverse", "world2cam"), ("center", "c
 
 def _numbers(path, block: str, line: str) -> list[float]:
     try:
-        return [float(tok) for tok in line.split()]
+        return [number_from_text(tok) for tok in line.split()]
     except ValueError:
         bad = next(tok for tok in line.split() if not _is_float(tok))
         raise InputError(path, f"{block}: non-numeric value {bad!r}") from None
@@ -57,7 +57,7 @@ def _numbers(path, block: str, line: str) -> list[float]:
 
 def _is_float(tok: str) -> bool:
     try:
-        float(tok)
+        number_from_text(tok)
     except ValueError:
         return False
     return True
@@ -154,7 +154,7 @@ def _data_lines(text: str) -> tuple[list[str], list[str]]:
 def _fits(block: int, line: str) -> bool:
     """Whether a data line has the shape of ``_BLOCKS[block]`` (a non-numeric line fits any)."""
     try:
-        values = [float(tok) for tok in line.split()]
+        values = [number_from_text(tok) for tok in line.split()]
     except ValueError:
         return True
     if block < 2:

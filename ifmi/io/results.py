@@ -40,7 +40,7 @@ from .camera_file import calibration_path
 from .evaluation_file import (check_evaluation_document, check_per_frame_arrays,
                               check_run_config)
 from .provenance import package_versions
-from .text_file import read_text_file
+from .text_file import number_from_text, read_text_file
 
 __all__ = [
     "EVALUATION_KIND",
@@ -219,7 +219,7 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
 
 def _parse_number(text: str) -> float:
     """The number of a CSV field; an empty field is NaN (raises ValueError when not a number)."""
-    return float(text) if text.strip() != "" else np.nan
+    return number_from_text(text) if text.strip() != "" else np.nan
 
 
 def _optional_numeric_column(values: list[str]) -> np.ndarray:

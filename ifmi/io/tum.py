@@ -16,7 +16,7 @@ from ..errors import InputError, InputWarning
 from ..rotations import matrix_from_quat_xyzw, quat_xyzw_from_matrix
 from ..trajectory import Trajectory
 from .atomic import atomic_write_text
-from .text_file import read_text_file
+from .text_file import number_from_text, read_text_file
 
 __all__ = ["Trajectory", "read_tum", "write_tum", "format_tum", "QUATERNION_NORM_TOLERANCE"]
 
@@ -54,7 +54,7 @@ def read_tum(path: str | os.PathLike) -> Trajectory:
         if len(tokens) != 8:
             raise InputError(path, f"line {number}: expected 8 values (t tx ty tz qx qy qz qw), got {len(tokens)}")
         try:
-            values = [float(tok) for tok in tokens]
+            values = [number_from_text(tok) for tok in tokens]
         except ValueError:
             raise InputError(path, f"line {number}: non-numeric value") from None
         if not np.all(np.isfinite(values)):
