@@ -677,8 +677,9 @@ def check_usable_region(model) -> None:
         angle = float(angular_pixel_size(model, centre))
         valid = bool(model.valid_pixels(centre))
     if not (valid and MIN_PIXEL_ANGLE_RAD <= angle <= MAX_PIXEL_ANGLE_RAD):
+        size = f"{angle:.3g} rad" if np.isfinite(angle) else "no measurable angle (its rays do not lift)"
         raise ValueError(f"the camera images no usable region: one pixel at the principal point subtends "
-                         f"{angle:.3g} rad{'' if valid else ' and the pixel is outside the valid region'} "
+                         f"{size}{'' if valid else ' and the pixel is outside the valid region'} "
                          f"(expected {MIN_PIXEL_ANGLE_RAD:g} to {MAX_PIXEL_ANGLE_RAD:g} rad)")
 
 
