@@ -674,8 +674,11 @@ def check_usable_region(model) -> None:
                          f"image (expected 0 < pu < {model.width - 1}, 0 < pv < {model.height - 1})")
     centre = np.array([pv, pu])
     with np.errstate(all="ignore"):
-        angle = float(angular_pixel_size(model, centre))
-        valid = bool(model.valid_pixels(centre))
+        try:
+            angle = float(angular_pixel_size(model, centre))
+            valid = bool(model.valid_pixels(centre))
+        except OverflowError:  # Python float arithmetic of parameters such as xi = 1e300
+            angle, valid = float("nan"), False
     if not (valid and MIN_PIXEL_ANGLE_RAD <= angle <= MAX_PIXEL_ANGLE_RAD):
         size = f"{angle:.3g} rad" if np.isfinite(angle) else "no measurable angle (its rays do not lift)"
         raise ValueError(f"the camera images no usable region: one pixel at the principal point subtends "

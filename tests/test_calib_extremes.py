@@ -144,6 +144,7 @@ def test_an_equirectangular_camera_of_one_pixel_is_refused(tmp_path):
     ("ds", "[1.0, 0.0, 1.0e-300, 80.0, 129.7, 127.2]"),
     ("ds", "[1.0, 0.0, 1.0e+300, 1.0e+300, 129.7, 127.2]"),
     ("pinhole", "[1.0e-300, 1.0e-300, 129.7, 127.2]"),
+    ("omni", "[1e300, 79.5, 79.6, 129.7, 127.2]"),  # before: OverflowError traceback (xi ** 2)
 ])
 def test_parameters_that_image_no_usable_region_are_refused(tmp_path, camera_model, intrinsics):
     # Before: "ValueError: pixel_angle_rad must be finite and > 0, got nan" (a traceback), or
