@@ -46,6 +46,16 @@ SUPPORTED_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
 MAX_RESOLUTION = 16384
 # Samplers that can drive the sensor (low-discrepancy ones first).
 SAMPLERS = ("multijitter", "ldsampler", "stratified", "independent", "orthogonal")
+# Largest samples per pixel: Mitsuba's sample_count is a 32-bit unsigned integer and its samplers
+# round a count up (to a square, a power of two, a prime's square); from 2^30 every rounding stays under 2^32.
+MAX_SPP = 2 ** 30
+# Largest frame count: a million frames (over 9 hours at 30 fps) is beyond any render here; the
+# trajectory holds a few arrays per frame, so a mistyped 10^19 would fail allocating them.
+MAX_FRAMES = 1_000_000
+# Longest correlation of the random motion, frames: its smoothing kernel draws 16x this many
+# samples per signal (roll and pitch use 4x the length, 4 sigma each side); beyond a thousand
+# frames the motion is a constant rate over any sequence rendered.
+MAX_SMOOTHNESS_FRAMES = 1000.0
 
 
 @dataclass(frozen=True)
@@ -73,7 +83,7 @@ class RenderSettings:
 
     resolution: tuple[int, int] = setting((512, 512), "[height, width] pixels; the calibration is scaled to it",
                                           minimum=8, maximum=MAX_RESOLUTION)
-    spp: int = setting(16, "samples per pixel", minimum=1)
+    spp: int = setting(16, "samples per pixel", minimum=1, maximum=MAX_SPP)
     max_depth: int = setting(3, "path length of the path tracer (2 = direct light only)", minimum=1, maximum=64)
     sampler: str = setting("multijitter", "Mitsuba sampler", choices=SAMPLERS)
     variant: str = setting("", "Mitsuba variant; empty for automatic", choices=("",) + SUPPORTED_VARIANTS)
@@ -88,14 +98,15 @@ class RenderSettings:
 class TrajectorySettings:
     """``[trajectory]``: smooth random rotation (degrees) and optional translation (metres), or a TUM file."""
 
-    frames: int = setting(200, "number of frames", minimum=1)
+    frames: int = setting(200, "number of frames", minimum=1, maximum=MAX_FRAMES)
     position: tuple[float, float, float] = setting((0.0, 0.0, 1.2), "camera centre in the world, metres")
     max_yaw_step_deg: float = setting(3.0, "peak yaw rate, degrees per frame", minimum=0.0, maximum=90.0)
     max_roll_deg: float = setting(15.0, "roll bound, degrees", minimum=0.0, maximum=90.0)
     max_pitch_deg: float = setting(15.0, "pitch bound, degrees", minimum=0.0, maximum=90.0)
     max_tilt_step_deg: float = setting(1.5, "largest roll/pitch change per frame, degrees",
                                        minimum=0.0, maximum=90.0)
-    smoothness_frames: float = setting(6.0, "correlation length of the motion, frames", minimum=0.0)
+    smoothness_frames: float = setting(6.0, "correlation length of the motion, frames", minimum=0.0,
+                                       maximum=MAX_SMOOTHNESS_FRAMES)
     translation_step_m: float = setting(0.0, "largest translation per frame, metres (0 = pure rotation)",
                                         minimum=0.0)
     translation_radius_m: float = setting(0.5, "largest distance from position, metres", minimum=0.0)
