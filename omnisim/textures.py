@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .settings import check_fields, setting
+from .settings import SettingError, check_fields, setting
 
 __all__ = ["BUNDLED_PHOTOS", "PhotoTexture", "NoiseTexture", "TEXTURE_SOURCES", "photo_texture",
            "noise_texture", "texture_image", "linear_texture_from_image"]
@@ -21,6 +21,9 @@ __all__ = ["BUNDLED_PHOTOS", "PhotoTexture", "NoiseTexture", "TEXTURE_SOURCES", 
 BUNDLED_PHOTOS = ("grass", "brick", "gravel", "camera", "astronaut", "coffee", "chelsea",
                   "rocket", "moon", "page", "coins", "clock", "colorwheel", "hubble_deep_field",
                   "immunohistochemistry", "text", "cat", "cell")
+# Largest noise texture side, pixels: the noise is summed in a float64 (size, size) array and
+# kept as float32 RGB, 512 MiB + 768 MiB at 8192 px (textures here are 256 px).
+MAX_NOISE_SIZE = 8192
 
 
 def _as_rgb(image: np.ndarray) -> np.ndarray:
@@ -145,7 +148,7 @@ class PhotoTexture:
 class NoiseTexture:
     """``[textures.NAME]`` with ``source = "noise"``: seeded fractal value noise between two colours."""
 
-    size: int = setting(256, "texture side in pixels", minimum=2)
+    size: int = setting(256, "texture side in pixels", minimum=2, maximum=MAX_NOISE_SIZE)
     octaves: int = setting(5, "number of frequency doublings", minimum=1, maximum=16)
     cells: int = setting(4, "lattice cells across the texture at the lowest frequency", minimum=1)
     color_a: tuple[float, float, float] = setting((0.2, 0.2, 0.2), "linear RGB at noise 0", minimum=0.0)
@@ -154,6 +157,12 @@ class NoiseTexture:
 
     def __post_init__(self):
         check_fields(self)
+        # The lattice doubles every octave; a (cells, cells) lattice is drawn for each.
+        finest = self.cells * 2 ** (self.octaves - 1)
+        if finest > self.size:
+            raise SettingError("cells", f"expected cells * 2^(octaves - 1) <= size = {self.size} (the finest "
+                                        f"lattice no finer than the pixels), got {self.cells} * "
+                                        f"2^{self.octaves - 1} = {finest}")
 
 
 # The classes a texture table's ``source`` key selects.

@@ -93,6 +93,18 @@ def test_unknown_texture_source_and_key(tmp_path):
         load_scene_config(write_scene(tmp_path, BASE + '[textures.t]\nsource = "photo"\nname = "moonlight"\n'))
 
 
+@pytest.mark.parametrize("keys, message", [
+    ("size = 100000", r"\[textures.t\] size: expected <= 8192, got 100000"),
+    ("cells = 100000000\noctaves = 16", r"\[textures.t\] cells: expected cells \* 2\^\(octaves - 1\) <= size = 256 "
+                                        r"\(the finest lattice no finer than the pixels\), got 100000000 \* 2\^15"),
+])
+def test_noise_texture_too_large_to_make_is_one_line(tmp_path, keys, message):
+    with pytest.raises(InputError) as info:
+        load_scene_config(write_scene(tmp_path, BASE + f'[textures.t]\nsource = "noise"\n{keys}\n'))
+    assert re.search(message, str(info.value)), str(info.value)
+    assert "\n" not in str(info.value)
+
+
 def test_unknown_photo_and_missing_mesh_file_are_found_before_rendering(tmp_path):
     posters = BASE + '[[objects]]\ngenerator = "posters"\nphotos = ["astronaut", "selfie"]\n'
     with pytest.raises(InputError, match=r"#2 \(posters\) photos: unknown photo 'selfie'"):
