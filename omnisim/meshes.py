@@ -38,6 +38,8 @@ __all__ = ["MeshPart", "mesh_parts_from_file"]
 DEFAULT_GREY = (0.5, 0.5, 0.5)
 # Largest value of the 8-bit colours trimesh stores.
 UINT8_MAX = 255.0
+# Largest coordinate a placed mesh may have, metres: Mitsuba stores vertices as float32.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True)
@@ -127,16 +129,35 @@ def mesh_parts_from_file(path) -> list[MeshPart]:
     except Exception as exc:  # trimesh raises many kinds for a broken file
         first = str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__
         raise InputError(path, f"cannot read mesh file ({first})") from None
-    parts = [_part(m) for m in meshes
-             if isinstance(m, trimesh.Trimesh) and len(m.faces) > 0]
-    if not parts:
+    meshes = [m for m in meshes if isinstance(m, trimesh.Trimesh) and len(m.faces) > 0]
+    if not meshes:
         raise InputError(path, "mesh file holds no triangles")
-    return parts
+    for number, mesh in enumerate(meshes):
+        vertices = np.asarray(mesh.vertices, dtype=np.float64)
+        bad = ~np.isfinite(vertices).all(axis=1)
+        if bad.any():
+            index = int(np.argmax(bad))
+            raise InputError(path, f"geometry {number} vertex {index}: expected finite coordinates, "
+                                   f"got {vertices[index].tolist()}")
+    return [_part(m) for m in meshes]
 
 
 def _planar_uvs(positions: np.ndarray) -> np.ndarray:
     """Metric UVs for a named material on a mesh without its own: (x + z, y + z) in metres."""
     return np.stack([positions[:, 0] + positions[:, 2], positions[:, 1] + positions[:, 2]], axis=1)
+
+
+def _placed(ctx: GeneratorContext, positions: np.ndarray, rotation: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """``R (scale p) + position`` of a part's vertices, refused when the renderer's float32 cannot hold them."""
+    reach = float(np.abs(positions).max())
+    if not ctx["scale"] * reach <= FLOAT32_MAX:
+        ctx.fail("scale", f"expected at most {FLOAT32_MAX:.3g} / {reach:.3g} (the mesh's reach in file units; "
+                          f"the renderer stores float32 metres), got {ctx['scale']:g}")
+    placed = (ctx["scale"] * positions) @ rotation.T + offset
+    if not float(np.abs(placed).max()) <= FLOAT32_MAX:
+        ctx.fail("position", f"expected the placed mesh within {FLOAT32_MAX:.3g} m of the origin (the renderer "
+                             f"stores float32), got {list(ctx['position'])}")
+    return placed
 
 
 @register_generator(
@@ -156,7 +177,7 @@ def _mesh(ctx: GeneratorContext):
     rotation = matrix_from_rpy(np.radians(np.asarray(ctx["rotation_deg"], dtype=np.float64)))
     offset = np.asarray(ctx["position"], dtype=np.float64)
     for k, part in enumerate(mesh_parts_from_file(ctx["file"])):
-        positions = (ctx["scale"] * part.positions) @ rotation.T + offset
+        positions = _placed(ctx, part.positions, rotation, offset)
         if ctx["material"] is not None:
             uvs = part.uvs if part.uvs is not None else _planar_uvs(positions)
             ctx.add(ctx["material"], (positions, part.faces, uvs), color=part.colors)

@@ -305,6 +305,26 @@ def test_unreadable_mesh_file_is_one_line_error(tmp_path):
         mesh_parts_from_file(tmp_path / "junk.glb")
 
 
+@pytest.mark.parametrize("vertex, key, message", [
+    ("nan 0 0", None, r"tri.obj: geometry 0 vertex 0: expected finite coordinates, got \[nan, 0.0, 0.0\]"),
+    ("inf 0 0", None, r"tri.obj: geometry 0 vertex 0: expected finite coordinates, got \[inf, 0.0, 0.0\]"),
+    ("0 0 0", "scale = 1e300", r"scene.toml: \[\[objects\]\] #2 \(mesh\) scale: expected at most 3.4e\+38 / 1 "
+                               r"\(the mesh's reach in file units; the renderer stores float32 metres\), got 1e\+300"),
+    ("0 0 0", "position = [1e300, 0, 0]", r"scene.toml: \[\[objects\]\] #2 \(mesh\) position: expected the placed "
+                                          r"mesh within 3.4e\+38 m of the origin"),
+])
+def test_cli_mesh_the_renderer_cannot_hold_is_one_line_exit_2(tmp_path, capsys, vertex, key, message):
+    pytest.importorskip("trimesh")
+    from omnisim.cli import main
+
+    (tmp_path / "tri.obj").write_text(f"v {vertex}\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    scene = write_scene(tmp_path, BASE + f'[[objects]]\ngenerator = "mesh"\nfile = "tri.obj"\n{key or ""}\n')
+    code = main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and re.search(message, err), err
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("content", ["[]", "{\"images\": []}", "{broken"])
 def test_meta_json_that_is_not_a_dataset_record_is_refused_in_one_line(tmp_path, content):
     from omnisim.render import check_output_folder
