@@ -111,6 +111,19 @@ def test_convert_calib_command(tmp_path, capsys):
     assert isinstance(read_kalibr(out), object) and not isinstance(read_kalibr(out), ExtendedUnifiedModel)
 
 
+def test_image_given_as_calibration_is_said_to_be_no_text_calibration(tmp_path, capsys):
+    from PIL import Image
+
+    source = tmp_path / "calib.png"
+    Image.new("RGB", (32, 32)).save(source)
+    assert main(["convert-calib", str(source), "--to", "ds", "--out", str(tmp_path / "c.yaml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert err.endswith(f"{source}: not a text calibration file (it holds NUL bytes: binary data such as an "
+                        f"image, or UTF-16 text); expected OCamCalib's calib_results.txt text")
+    assert not (tmp_path / "c.yaml").exists()
+
+
 def test_pinhole_target_refuses_cameras_seeing_180_degrees_or_more(tmp_path, capsys):
     """A pinhole images less than a half space: its fit to a wider camera has no meaningful error."""
     with pytest.raises(ValueError, match="pinhole model sees less than 180 degrees"):

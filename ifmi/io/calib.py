@@ -96,9 +96,13 @@ def parse_calib(text: str, *, source: str | os.PathLike = "<calib>") -> OcamMode
     Raises
     ------
     InputError
-        On a missing block, a wrong count, a non-numeric value or an
-        inconsistent model.
+        On binary text (NUL bytes), a missing block, a wrong count, a
+        non-numeric value or an inconsistent model.
     """
+    if "\x00" in text:
+        # OCamCalib writes ASCII; NUL bytes mean an image, an archive or UTF-16 text.
+        raise InputError(source, "not a text calibration file (it holds NUL bytes: binary data such as an "
+                                 "image, or UTF-16 text); expected OCamCalib's calib_results.txt text")
     data, comments = _data_lines(text)
     if len(data) < len(_BLOCKS):
         raise InputError(source, f"expected {len(_BLOCKS)} data blocks, got {len(data)} "
