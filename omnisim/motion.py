@@ -118,13 +118,20 @@ def random_trajectory(settings: TrajectorySettings, *, seed: int) -> WorldPoses:
 def poses_from_tum(path, *, frames: int, position) -> WorldPoses:
     """World poses from a TUM file (its poses are read as camera-to-world, metres).
 
-    The first ``frames`` poses are used; ``position`` (3,) offsets them in metres.
+    The first ``frames`` poses are used, one per frame in line order, so their
+    timestamps must increase; ``position`` (3,) offsets them in metres.
     """
     from ifmi.errors import InputError
 
     traj = read_tum(path)
     if len(traj) < frames:
         raise InputError(path, f"trajectory has {len(traj)} poses, expected at least {frames} frames")
+    times = traj.timestamps[:frames]
+    late = np.flatnonzero(np.diff(times) <= 0)
+    if late.size:
+        k = int(late[0]) + 1
+        raise InputError(path, f"pose {k} has timestamp {times[k]:g} after {times[k - 1]:g}; expected "
+                               "increasing timestamps (the poses are rendered in line order, one per frame)")
     return WorldPoses(rotations=traj.rotations[:frames].copy(),
                       positions=traj.positions[:frames] + np.asarray(position, dtype=np.float64))
 

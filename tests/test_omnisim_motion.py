@@ -120,6 +120,18 @@ def test_llvm_found_in_prefix_and_explicit(tmp_path):
                      system_globs=()) == explicit
 
 
+def test_trajectory_file_with_timestamps_out_of_order_is_refused(tmp_path):
+    from ifmi.errors import InputError
+    from omnisim.motion import poses_from_tum
+
+    path = tmp_path / "walk.txt"
+    path.write_text("0 0 0 1 0 0 0 1\n1 0.1 0 1 0 0 0 1\n1 0.2 0 1 0 0 0 1\n3 0.3 0 1 0 0 0 1\n")
+    with pytest.raises(InputError, match=r"walk.txt: pose 2 has timestamp 1 after 1; expected increasing"):
+        poses_from_tum(path, frames=4, position=(0.0, 0.0, 0.0))
+    poses = poses_from_tum(path, frames=2, position=(0.0, 0.0, 1.0))  # the frames used are in order
+    np.testing.assert_allclose(poses.positions, [[0, 0, 2], [0.1, 0, 2]])
+
+
 MAPS_LINE = "7f1c2a000000-7f1c2b000000 r-xp 00000000 08:01 1234 {}\n"
 
 
