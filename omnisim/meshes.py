@@ -30,6 +30,7 @@ from ifmi.errors import InputError
 
 from .generators import GeneratorContext, Param, register_generator
 from .materials import Appearance, MaterialSettings
+from .settings import FLOAT32_MAX  # largest coordinate a placed mesh may have: Mitsuba stores float32
 from .textures import linear_texture_from_image
 
 __all__ = ["MeshPart", "mesh_parts_from_file"]
@@ -38,8 +39,6 @@ __all__ = ["MeshPart", "mesh_parts_from_file"]
 DEFAULT_GREY = (0.5, 0.5, 0.5)
 # Largest value of the 8-bit colours trimesh stores.
 UINT8_MAX = 255.0
-# Largest coordinate a placed mesh may have, metres: Mitsuba stores vertices as float32.
-FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from ifmi.io.tum import Trajectory, read_tum
 from ifmi.rotations import matrix_from_rpy
 
 from .config import TrajectorySettings
+from .settings import FLOAT32_MAX
 
 __all__ = ["WorldPoses", "smooth_noise", "random_trajectory", "poses_from_tum",
            "relative_trajectory", "world_trajectory", "poses_for_settings", "poses_at_times",
@@ -132,8 +133,12 @@ def poses_from_tum(path, *, frames: int, position) -> WorldPoses:
         k = int(late[0]) + 1
         raise InputError(path, f"pose {k} has timestamp {times[k]:g} after {times[k - 1]:g}; expected "
                                "increasing timestamps (the poses are rendered in line order, one per frame)")
-    return WorldPoses(rotations=traj.rotations[:frames].copy(),
-                      positions=traj.positions[:frames] + np.asarray(position, dtype=np.float64))
+    positions = traj.positions[:frames] + np.asarray(position, dtype=np.float64)
+    far = np.flatnonzero(~(np.abs(positions).max(axis=1) <= FLOAT32_MAX))
+    if far.size:
+        raise InputError(path, f"pose {int(far[0])}: expected positions of magnitude <= {FLOAT32_MAX:.4g} m "
+                               f"(the renderer stores float32), got {positions[far[0]].tolist()}")
+    return WorldPoses(rotations=traj.rotations[:frames].copy(), positions=positions)
 
 
 def poses_for_settings(settings: TrajectorySettings, *, seed: int) -> WorldPoses:

@@ -21,9 +21,15 @@ from dataclasses import MISSING, field, fields
 from functools import lru_cache
 from typing import Any, Mapping
 
+import numpy as np
+
 from ifmi.errors import InputError
 
-__all__ = ["SettingError", "setting", "check_fields", "check_value", "check_bounds", "settings_from_table",
+# Largest magnitude of a decimal setting: Mitsuba stores scene values as float32, whose largest
+# finite value this is; a larger one turns into inf there (garbage pixels, or a NaN pose).
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+__all__ = ["FLOAT32_MAX", "SettingError", "setting", "check_fields", "check_value", "check_bounds", "settings_from_table",
            "type_name", "field_docs"]
 
 
@@ -137,12 +143,16 @@ def check_bounds(value, key: str, *, minimum=None, maximum=None, above=None, cho
     Raises
     ------
     SettingError
-        A value out of bounds ("expected >= 0.0, got [-1.0, 2.0]").
+        A value out of bounds ("expected >= 0.0, got [-1.0, 2.0]"), or a decimal
+        value beyond float32's range (:data:`FLOAT32_MAX`), which the renderer stores.
     """
     values = value if isinstance(value, tuple) else (value,)
     for v in values:
         if not isinstance(v, (int, float)) or isinstance(v, bool):
             continue
+        if isinstance(v, float) and abs(v) > FLOAT32_MAX:
+            raise SettingError(key, f"expected magnitudes <= {FLOAT32_MAX:.4g} (the renderer stores float32), "
+                                    f"got {_show(value)}")
         if minimum is not None and v < minimum:
             raise SettingError(key, f"expected >= {minimum}, got {_show(value)}")
         if maximum is not None and v > maximum:

@@ -59,8 +59,8 @@ def test_base_scene_loads_with_declared_defaults(tmp_path):
     (("frames = 2", "frames = -1"), r"\[trajectory\] frames: expected >= 1, got -1"),
     (("frames = 2", "frames = 9223372036854775807"),
      r"\[trajectory\] frames: expected <= 1000000, got 9223372036854775807"),
-    (("frames = 2", "frames = 2\nsmoothness_frames = 1e300"),
-     r"\[trajectory\] smoothness_frames: expected <= 1000.0, got 1e\+300"),
+    (("frames = 2", "frames = 2\nsmoothness_frames = 1e6"),
+     r"\[trajectory\] smoothness_frames: expected <= 1000.0, got 1000000.0"),
     (("spp = 2", "spp = 9223372036854775807"), r"\[render\] spp: expected <= 1073741824, got 9223372036854775807"),
     (("seed = 2", "seed = 1.5"), r"\[scene\] seed: expected an integer, got 1.5"),
     (("spp = 2", "spp = true"), r"\[render\] spp: expected an integer, got True"),
@@ -73,6 +73,11 @@ def test_base_scene_loads_with_declared_defaults(tmp_path):
     (("frames = 2", "frames = 2\n[effects]\njpeg = 50"), r"\[effects\] jpeg: unknown key; accepted keys: noise_sigma"),
     (("radius_max = 61.5", "radius_max = 5.0"), r"\[camera\] radius_max: expected > radius_min = 10.0, got 5.0"),
     (("center = [64.35, 63.3]\n", ""), r"\[camera\] center: missing \(give either 'calib' or 'pol'"),
+    # Mitsuba stores scene values as float32: beyond its range a value turns into inf there.
+    (("frames = 2", "frames = 2\nposition = [1e300, 0, 1.2]"),
+     r"\[trajectory\] position: expected magnitudes <= 3.403e\+38 \(the renderer stores float32\), "
+     r"got \[1e\+300, 0.0, 1.2\]"),
+    (("count = 3", "count = 3\nregion = [0.5, 1e39]"), r"\(boxes\) region: expected magnitudes <= 3.403e\+38"),
 ])
 def test_bad_scene_is_one_line_naming_section_and_key(tmp_path, edit, message):
     old, new = edit
@@ -308,10 +313,12 @@ def test_unreadable_mesh_file_is_one_line_error(tmp_path):
 @pytest.mark.parametrize("vertex, key, message", [
     ("nan 0 0", None, r"tri.obj: geometry 0 vertex 0: expected finite coordinates, got \[nan, 0.0, 0.0\]"),
     ("inf 0 0", None, r"tri.obj: geometry 0 vertex 0: expected finite coordinates, got \[inf, 0.0, 0.0\]"),
-    ("0 0 0", "scale = 1e300", r"scene.toml: \[\[objects\]\] #2 \(mesh\) scale: expected at most 3.4e\+38 / 1 "
-                               r"\(the mesh's reach in file units; the renderer stores float32 metres\), got 1e\+300"),
-    ("0 0 0", "position = [1e300, 0, 0]", r"scene.toml: \[\[objects\]\] #2 \(mesh\) position: expected the placed "
+    ("1e37 0 0", "scale = 100", r"scene.toml: \[\[objects\]\] #2 \(mesh\) scale: expected at most 3.4e\+38 / 1e\+37 "
+                                r"\(the mesh's reach in file units; the renderer stores float32 metres\), got 100"),
+    ("3e38 0 0", "position = [3e38, 0, 0]", r"scene.toml: \[\[objects\]\] #2 \(mesh\) position: expected the placed "
                                           r"mesh within 3.4e\+38 m of the origin"),
+    ("0 0 0", "scale = 1e300", r"scene.toml: \[\[objects\]\] #2 \(mesh\) scale: expected magnitudes <= 3.403e\+38 "
+                               r"\(the renderer stores float32\), got 1e\+300"),
 ])
 def test_cli_mesh_the_renderer_cannot_hold_is_one_line_exit_2(tmp_path, capsys, vertex, key, message):
     pytest.importorskip("trimesh")

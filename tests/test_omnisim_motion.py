@@ -120,7 +120,7 @@ def test_llvm_found_in_prefix_and_explicit(tmp_path):
                      system_globs=()) == explicit
 
 
-def test_trajectory_file_with_timestamps_out_of_order_is_refused(tmp_path):
+def test_trajectory_file_out_of_order_or_out_of_range_is_refused(tmp_path):
     from ifmi.errors import InputError
     from omnisim.motion import poses_from_tum
 
@@ -130,6 +130,9 @@ def test_trajectory_file_with_timestamps_out_of_order_is_refused(tmp_path):
         poses_from_tum(path, frames=4, position=(0.0, 0.0, 0.0))
     poses = poses_from_tum(path, frames=2, position=(0.0, 0.0, 1.0))  # the frames used are in order
     np.testing.assert_allclose(poses.positions, [[0, 0, 2], [0.1, 0, 2]])
+    path.write_text("0 0 0 1 0 0 0 1\n1 1e300 0 1 0 0 0 1\n")  # beyond the renderer's float32
+    with pytest.raises(InputError, match=r"walk.txt: pose 1: expected positions of magnitude <= 3.403e\+38 m"):
+        poses_from_tum(path, frames=2, position=(0.0, 0.0, 0.0))
 
 
 MAPS_LINE = "7f1c2a000000-7f1c2b000000 r-xp 00000000 08:01 1234 {}\n"
