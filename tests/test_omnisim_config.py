@@ -357,6 +357,18 @@ def test_hand_written_obj_with_two_materials_gives_two_base_coloured_parts(tmp_p
     assert all(len(p.faces) == 2 and np.allclose(p.colors, p.colors[0], atol=1 / 255) for p in parts)
 
 
+def test_obj_that_is_not_utf8_is_read(tmp_path):
+    """Exporters write comments and names in their locale's encoding (here Latin-1 'für')."""
+    import numpy as np
+
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "latin.obj").write_bytes(b"# Modell f\xfcr Tests\nv 0 0 0\nv 2 0 0\nv 0 3 0\nf 1 2 3\n")
+    (part,) = mesh_parts_from_file(tmp_path / "latin.obj")
+    np.testing.assert_allclose(np.ptp(part.positions, axis=0), [2.0, 3.0, 0.0])
+
+
 def test_capture_must_end_by_the_next_frame(tmp_path):
     with pytest.raises(SettingError, match=r"exposure \+ rolling_shutter: expected <= 1"):
         CaptureSettings(exposure=0.7, rolling_shutter=0.5)
