@@ -21,12 +21,13 @@ Without ``material`` each geometry keeps the file's own appearance:
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ifmi.errors import InputError
+from ifmi.errors import InputError, InputWarning
 
 from .generators import GeneratorContext, Param, register_generator
 from .materials import Appearance, MaterialSettings
@@ -118,10 +119,18 @@ def mesh_parts_from_file(path) -> list[MeshPart]:
     ------
     InputError
         The file cannot be read or holds no triangles.
+
+    Warns
+    -----
+    InputWarning
+        An OBJ's material library (``mtllib``) or a texture it names
+        (``map_Kd``) is missing: the geometry renders with the colour left.
     """
     import trimesh
 
     path = Path(path)
+    if path.suffix.lower() == ".obj":
+        _warn_missing_obj_files(path)
     try:
         scene = trimesh.load_scene(str(path), process=False)
         meshes = scene.dump(concatenate=False)
@@ -139,6 +148,42 @@ def mesh_parts_from_file(path) -> list[MeshPart]:
             raise InputError(path, f"geometry {number} vertex {index}: expected finite coordinates, "
                                    f"got {vertices[index].tolist()}")
     return [_part(m) for m in meshes]
+
+
+def _named_files(path: Path, keyword: str) -> list[tuple[str, Path | None]]:
+    """``(name, file or None if missing)`` of each file that a line starting with ``keyword`` names in
+    the text file ``path``, relative to it. Options come first (``map_Kd -s 1 1 1 wood.png``) and
+    names may hold spaces, so every tail of the line is tried; a missing name is shown as the rest
+    of the line, or its last word after options. An unreadable file names nothing."""
+    try:
+        lines = path.read_bytes().decode("utf-8", errors="replace").splitlines()
+    except OSError:
+        return []
+    named = []
+    for line in lines:
+        words = line.split()
+        if len(words) < 2 or words[0] != keyword:
+            continue
+        rest = line.strip()[len(keyword):].strip()
+        tails = [" ".join(words[k:]) for k in range(1, len(words))]  # the name after any options
+        found = next((path.parent / n for n in tails if (path.parent / n).is_file()), None)
+        named.append((words[-1] if rest.startswith("-") else rest, found))
+    return named
+
+
+def _warn_missing_obj_files(path: Path) -> None:
+    """One warning naming the material libraries and diffuse textures an OBJ needs that are not there."""
+    missing = []
+    for library, found in _named_files(path, "mtllib"):
+        if found is None:
+            missing.append(f"material library {library}")
+            continue
+        missing += [f"texture {texture} (named by {library})"
+                    for texture, there in _named_files(found, "map_Kd") if there is None]
+    if missing:
+        warnings.warn(f"{path}: {', '.join(missing)} not found; the geometries that use "
+                      f"{'it' if len(missing) == 1 else 'them'} render with their base colour or grey",
+                      InputWarning, stacklevel=3)
 
 
 def _planar_uvs(positions: np.ndarray) -> np.ndarray:

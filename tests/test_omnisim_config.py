@@ -357,6 +357,33 @@ def test_hand_written_obj_with_two_materials_gives_two_base_coloured_parts(tmp_p
     assert all(len(p.faces) == 2 and np.allclose(p.colors, p.colors[0], atol=1 / 255) for p in parts)
 
 
+def test_obj_whose_material_files_are_missing_warns_in_one_line(tmp_path):
+    import warnings
+
+    import cv2
+    import numpy as np
+
+    pytest.importorskip("trimesh")
+    from ifmi.errors import InputWarning
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "a.obj").write_text("mtllib a.mtl\nmtllib gone.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\n"
+                                    "vt 0 0\nvt 1 0\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\n")
+    (tmp_path / "a.mtl").write_text("newmtl m\nKd 0.5 0.5 0.5\nmap_Kd wood grain.png\n")
+    with pytest.warns(InputWarning) as record:
+        mesh_parts_from_file(tmp_path / "a.obj")
+    assert [str(w.message) for w in record] == [
+        f"{tmp_path / 'a.obj'}: texture wood grain.png (named by a.mtl), material library gone.mtl not found; "
+        "the geometries that use them render with their base colour or grey"]
+    # With the files there (a name with a space, after options), nothing is said.
+    (tmp_path / "a.obj").write_text((tmp_path / "a.obj").read_text().replace("mtllib gone.mtl\n", ""))
+    (tmp_path / "a.mtl").write_text("newmtl m\nKd 0.5 0.5 0.5\nmap_Kd -s 1 1 1 wood grain.png\n")
+    cv2.imwrite(str(tmp_path / "wood grain.png"), np.full((4, 4, 3), 128, np.uint8))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", InputWarning)
+        mesh_parts_from_file(tmp_path / "a.obj")
+
+
 def test_obj_that_is_not_utf8_is_read(tmp_path):
     """Exporters write comments and names in their locale's encoding (here Latin-1 'für')."""
     import numpy as np
