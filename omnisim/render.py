@@ -21,12 +21,13 @@ import hashlib
 import json
 import platform
 import time
+import warnings
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from ifmi.errors import InputError, OutputError
+from ifmi.errors import InputError, InputWarning, OutputError
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
 from ifmi.io.camera_file import write_camera
 from ifmi.io.provenance import package_versions
@@ -98,6 +99,12 @@ class OmniRenderer:
         Replaces the scene's integrator (e.g. an AOV integrator for tests).
     sampler : str, optional, keyword-only
         Replaces the scene's sampler plugin.
+
+    Attributes
+    ----------
+    spp : int
+        Samples per pixel rendered: the scene's, rounded up as the sampler
+        needs (multijitter 5 -> 6, ldsampler 5 -> 16; :func:`rendered_spp`).
     """
 
     def __init__(self, config: SceneConfig, *, variant: str | None = None,
@@ -108,9 +115,10 @@ class OmniRenderer:
         self.mi = import_mitsuba(variant or config.render.variant or None)
         register_omni_sensor(self.mi)
         cam = config.camera
+        sampler = sampler or config.render.sampler
+        self.spp = rendered_spp(self.mi, sampler, config.render.spp)
         sensor = sensor_dict(cam.model, to_world=np.eye(4), radius_min=cam.radius_min,
-                             radius_max=cam.radius_max, spp=config.render.spp,
-                             sampler=sampler or config.render.sampler, mi=self.mi,
+                             radius_max=cam.radius_max, spp=self.spp, sampler=sampler, mi=self.mi,
                              timing=sensor_timing_props(config.capture))
         scene_dict = build_scene_dict(config, self.mi, sensor=sensor)
         if integrator is not None:
@@ -139,8 +147,24 @@ class OmniRenderer:
         ``end`` as in :meth:`set_pose`; without it a timed capture stands still.
         """
         self.set_pose(rotation, position, end=end)
-        image = self.mi.render(self.scene, seed=int(seed), spp=int(spp or self.config.render.spp))
+        image = self.mi.render(self.scene, seed=int(seed), spp=int(spp or self.spp))
         return np.array(image, dtype=np.float32)
+
+
+def rendered_spp(mi, sampler: str, spp: int) -> int:
+    """Samples per pixel the Mitsuba ``sampler`` renders when ``spp`` are asked for.
+
+    Stratified samplers round the count up (to a square, a power of two, a
+    prime's square, or a multiple of a grid); asked for the rounded count,
+    they render the same samples without logging the rounding every frame.
+    """
+    logger = mi.logger()
+    level = logger.log_level()
+    logger.set_log_level(mi.LogLevel.Error)  # the rounding is reported once, by render_dataset
+    try:
+        return int(mi.load_dict({"type": sampler, "sample_count": int(spp)}).sample_count())
+    finally:
+        logger.set_log_level(level)
 
 
 def set_sensor_pose(mi, params, prefix: str, rotation, position, *, end=None) -> None:
@@ -584,8 +608,13 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     # the output folder is touched, so a scene error leaves nothing behind; it also renders
     # the frames unless a cluster does.
     local = FrameRenderer(plan)
+    if local.renderer.spp != config.render.spp:
+        warnings.warn(f"{scene_path}: [render] spp {config.render.spp}: the {config.render.sampler} sampler "
+                      f"renders {local.renderer.spp} samples per pixel (meta.json: spp_rendered)",
+                      InputWarning, stacklevel=2)
     out_dir = Path(out_dir)
-    meta = _open_dataset(scene_path, out_dir, config, seed, plan.variant, plan.trajectory)
+    meta = _open_dataset(scene_path, out_dir, config, seed, plan.variant, plan.trajectory,
+                         spp_rendered=local.renderer.spp)
     kinds = ("images",) + aovs
     jobs = _pending_jobs(out_dir, meta, n, kinds)
     rendered, start = 0, time.perf_counter()
@@ -605,7 +634,7 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
 
 
 def _open_dataset(scene_path, out_dir: Path, config: SceneConfig, seed: int, variant: str,
-                  trajectory: WorldPoses) -> dict:
+                  trajectory: WorldPoses, *, spp_rendered: int) -> dict:
     """Check or create the folder, write calibration, ground truth and meta.json; return the meta."""
     identity = {
         "scene_sha256": config.sha256,
@@ -621,6 +650,7 @@ def _open_dataset(scene_path, out_dir: Path, config: SceneConfig, seed: int, var
         "scene_name": config.name,
         "seed": seed,
         "spp": config.render.spp,
+        "spp_rendered": spp_rendered,
         "resolution": list(config.render.resolution),
         "frames": config.trajectory.frames,
         "variant": variant,

@@ -200,3 +200,19 @@ def test_broken_envmap_file_fails_before_the_output_folder_exists(tmp_path):
     with pytest.raises(InputError, match=r"sky.exr: \[\[lights\]\] #2"):
         render_dataset(scene, tmp_path / "out", progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_spp_the_sampler_rounds_up_is_rendered_as_the_rounded_count_and_recorded(tmp_path):
+    """multijitter renders 6 samples when asked for 5: said once, recorded, and the images are those
+    of spp 6 (Mitsuba is asked for the rounded count, so it does not log the rounding per frame)."""
+    from ifmi.errors import InputWarning
+    from omnisim.render import render_dataset
+
+    with pytest.warns(InputWarning, match=r"\[render\] spp 5: the multijitter sampler renders 6 samples per pixel"):
+        render_dataset(_scene(tmp_path, spp=5, frames=1, name="five.toml"), tmp_path / "five", progress=False)
+    render_dataset(_scene(tmp_path, spp=6, frames=1, name="six.toml"), tmp_path / "six", progress=False)
+    meta = json.loads((tmp_path / "five" / "meta.json").read_text())
+    assert (meta["spp"], meta["spp_rendered"]) == (5, 6)
+    assert json.loads((tmp_path / "six" / "meta.json").read_text())["spp_rendered"] == 6
+    image = Path("images") / "000000.png"
+    assert (tmp_path / "five" / image).read_bytes() == (tmp_path / "six" / image).read_bytes()
