@@ -35,7 +35,7 @@ from .materials import Appearance
 from .settings import SettingError, check_bounds, check_value
 from .textures import BUNDLED_PHOTOS
 
-__all__ = ["Param", "Relation", "Generator", "GeneratorContext", "ObjectSpec", "MAX_COUNT",
+__all__ = ["Param", "Relation", "Generator", "GeneratorContext", "ObjectSpec", "MAX_COUNT", "MAX_ENTRY_TRIANGLES",
            "register_generator", "registered_generators", "object_from_table", "not_below",
            "describe_generators"]
 
@@ -46,6 +46,10 @@ __all__ = ["Param", "Relation", "Generator", "GeneratorContext", "ObjectSpec", "
 # some 7 GiB -- what a 24 GiB machine holds beside the film, the textures and a second such
 # entry. Building them takes minutes, where a mistyped count of 10^8 would never finish.
 MAX_COUNT = 10_000
+# Largest number of triangles one [[objects]] entry may make, whatever multiplies up to it (shelves
+# x boards x books, a long street's poles, a mesh file): MAX_COUNT of the heaviest object, about
+# 13 million triangles and 7 GiB while built (see above), with room for a detailed mesh file.
+MAX_ENTRY_TRIANGLES = 20_000_000
 
 _SCALAR_TYPES = {"int": int, "float": float, "bool": bool, "str": str, "material": str, "file": str}
 _LIST_TYPES = {"str[]": str, "material[]": str, "photo[]": str}
@@ -324,6 +328,7 @@ class GeneratorContext:
         self.spec, self.path, self.rng = spec, Path(path), rng
         self.index = spec.index
         self.groups, self.appearances = groups, appearances
+        self.triangles = 0  # made so far, bounded by MAX_ENTRY_TRIANGLES
 
     def __getitem__(self, name: str):
         return self.spec.params[name]
@@ -333,7 +338,14 @@ class GeneratorContext:
         raise InputError(self.path, f"{self.spec.where()} {key}: {problem}")
 
     def add(self, appearance: str, mesh, color=(1.0, 1.0, 1.0)) -> None:
-        """Append ``mesh = (positions, faces, uvs)`` to the group of ``appearance`` with ``color``."""
+        """Append ``mesh = (positions, faces, uvs)`` to the group of ``appearance`` with ``color``.
+
+        Raises InputError once the entry's meshes exceed :data:`MAX_ENTRY_TRIANGLES` triangles.
+        """
+        self.triangles += len(mesh[1])
+        if self.triangles > MAX_ENTRY_TRIANGLES:
+            raise InputError(self.path, f"{self.spec.where()}: makes more than {MAX_ENTRY_TRIANGLES} triangles; "
+                                        "expected fewer (lower its counts or sizes, or split the mesh file)")
         self.groups.setdefault(appearance, MeshGroup()).add(*mesh, color=color)
 
     def add_appearance(self, name: str, appearance: Appearance) -> None:

@@ -113,6 +113,23 @@ def test_objects_that_just_fit_are_built(tmp_path, table):
     assert sum(len(group.arrays()[1]) for group in groups.values()) > 0
 
 
+def test_an_entry_whose_counts_multiply_past_the_triangle_budget_is_refused(tmp_path, monkeypatch):
+    """Each count is bounded, but shelves x boards x books multiply: the entry's triangles are bounded
+    too. Here the budget is lowered to 1000 (three default shelves make several thousand)."""
+    import omnisim.generators as generators
+
+    table = _object("shelves", count=3, books="painted", **PAINTED)
+    groups, _ = scene_meshes(load_scene_config(write_scene(tmp_path, BASE + table)))
+    made = sum(len(group.arrays()[1]) for group in groups.values())
+    assert made > 1000
+    monkeypatch.setattr(generators, "MAX_ENTRY_TRIANGLES", 1000)
+    with pytest.raises(InputError, match=r"\[\[objects\]\] #1 \(shelves\): makes more than 1000 triangles; "
+                                         r"expected fewer"):
+        scene_meshes(load_scene_config(write_scene(tmp_path, BASE + table)))
+    monkeypatch.setattr(generators, "MAX_ENTRY_TRIANGLES", made)  # exactly what it makes: built
+    scene_meshes(load_scene_config(write_scene(tmp_path, BASE + table)))
+
+
 def test_generator_listing_states_the_bounds_that_are_checked():
     text = describe_generators()
     assert f"    count (int, default 5, >= 0, <= {MAX_COUNT}): number of boxes" in text
