@@ -117,6 +117,14 @@ def _shelf_fits_room(params) -> str | None:
     return None
 
 
+def _boards_in_all_shelves(params) -> str | None:
+    """None when the shelves' boards number at most MAX_COUNT, else the bound (each board carries a
+    row of books, so boards are the objects that multiply)."""
+    if params["count"] * params["boards"] <= MAX_COUNT:
+        return None
+    return f"<= {MAX_COUNT // max(params['count'], 1)} (count x boards <= {MAX_COUNT}; count is {params['count']})"
+
+
 @register_generator(
     "shelves",
     Param("room", "float[3]", (6.0, 5.0, 3.0), "room extent x, y, z, metres (shelves stand at its walls)", above=0.0),
@@ -126,7 +134,8 @@ def _shelf_fits_room(params) -> str | None:
     Param("material", "material", "wood", "material of the boards"),
     Param("books", "material", "books", "material of the books (vertex_color gives each its colour)"),
     relations=(Relation("size", f"width <= the shorter wall of room less {2 * WALL_END_GAP:g}, "
-                                f"{2 * SHELF_BOARD_INSET:g} < height <= the height of room", _shelf_fits_room),),
+                                f"{2 * SHELF_BOARD_INSET:g} < height <= the height of room", _shelf_fits_room),
+               Relation("boards", f"count x boards <= {MAX_COUNT}", _boards_in_all_shelves)),
 )
 def _shelves(ctx: GeneratorContext):
     """Book shelves standing against the room walls, filled with books of random size and colour."""

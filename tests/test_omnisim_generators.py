@@ -91,6 +91,8 @@ STREET = {"road": "painted", "sidewalk": "painted", "marking": "painted"}
      r"\(facades\) length: expected <= 30000.0, got 1000000000.0"),
     (_object("street", length=1e9, **STREET), r"\(street\) length: expected <= 60000.0, got 1000000000.0"),
     (_object("ground", cells=100000, **PAINTED), r"\(ground\) cells: expected <= 2048, got 100000"),
+    (_object("shelves", count=10000, boards=10000, books="painted", **PAINTED),
+     r"\(shelves\) boards: expected <= 1 \(count x boards <= 10000; count is 10000\), got 10000"),
 ])
 def test_impossible_generator_parameters_are_one_line_errors(tmp_path, table, message):
     with pytest.raises(InputError) as info:
