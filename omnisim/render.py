@@ -104,7 +104,7 @@ class OmniRenderer:
     ----------
     spp : int
         Samples per pixel rendered: the scene's, rounded up as the sampler
-        needs (multijitter 5 -> 6, ldsampler 5 -> 16; :func:`rendered_spp`).
+        needs (multijitter 5 -> 6, ldsampler 5 -> 16), read from the loaded sampler.
     """
 
     def __init__(self, config: SceneConfig, *, variant: str | None = None,
@@ -115,10 +115,9 @@ class OmniRenderer:
         self.mi = import_mitsuba(variant or config.render.variant or None)
         register_omni_sensor(self.mi)
         cam = config.camera
-        sampler = sampler or config.render.sampler
-        self.spp = rendered_spp(self.mi, sampler, config.render.spp)
         sensor = sensor_dict(cam.model, to_world=np.eye(4), radius_min=cam.radius_min,
-                             radius_max=cam.radius_max, spp=self.spp, sampler=sampler, mi=self.mi,
+                             radius_max=cam.radius_max, spp=config.render.spp,
+                             sampler=sampler or config.render.sampler, mi=self.mi,
                              timing=sensor_timing_props(config.capture))
         scene_dict = build_scene_dict(config, self.mi, sensor=sensor)
         if integrator is not None:
@@ -127,6 +126,8 @@ class OmniRenderer:
         # sampling pattern and the image bytes, the same from run to run.
         self.scene = self.mi.load_dict(scene_dict, parallel=False)
         self.params = self.mi.traverse(self.scene)
+        # Rendering at the sampler's own count gives its samples without logging the rounding per frame.
+        self.spp = int(self.scene.sensors()[0].sampler().sample_count())
 
     @property
     def variant(self) -> str:
@@ -149,22 +150,6 @@ class OmniRenderer:
         self.set_pose(rotation, position, end=end)
         image = self.mi.render(self.scene, seed=int(seed), spp=int(spp or self.spp))
         return np.array(image, dtype=np.float32)
-
-
-def rendered_spp(mi, sampler: str, spp: int) -> int:
-    """Samples per pixel the Mitsuba ``sampler`` renders when ``spp`` are asked for.
-
-    Stratified samplers round the count up (to a square, a power of two, a
-    prime's square, or a multiple of a grid); asked for the rounded count,
-    they render the same samples without logging the rounding every frame.
-    """
-    logger = mi.logger()
-    level = logger.log_level()
-    logger.set_log_level(mi.LogLevel.Error)  # the rounding is reported once, by render_dataset
-    try:
-        return int(mi.load_dict({"type": sampler, "sample_count": int(spp)}).sample_count())
-    finally:
-        logger.set_log_level(level)
 
 
 def set_sensor_pose(mi, params, prefix: str, rotation, position, *, end=None) -> None:
