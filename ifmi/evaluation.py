@@ -7,7 +7,6 @@ Reads the TUM files and the run's side files, computes the errors of
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -16,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError, OutputError
-from .io.dataset import dataset_conflict
+from .io.dataset import dataset_meta, refuse_output_in_datasets
 from .io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
 from .io.tum import read_tum
 from .metrics import AXES, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors, trajectory_errors
@@ -75,19 +74,12 @@ def dataset_label(dataset_dir: str | os.PathLike | None) -> tuple[str, str]:
     folder = Path(dataset_dir)
     name = folder.name or str(folder)
     scene = name
-    meta_path = folder / "meta.json"
-    if meta_path.is_file():
-        try:
-            meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            meta = {}
-        value = None
-        if isinstance(meta, dict):
-            value = meta.get("scene_name") or meta.get("scene")
-        if isinstance(value, dict):
-            value = value.get("name")
-        if isinstance(value, str) and value:
-            scene = Path(value).stem
+    meta = dataset_meta(folder) or {}
+    value = meta.get("scene_name") or meta.get("scene")
+    if isinstance(value, dict):
+        value = value.get("name")
+    if isinstance(value, str) and value:
+        scene = Path(value).stem
     return name, scene
 
 
@@ -100,15 +92,8 @@ _FIXED_DECIMALS_MIN = 1e-3
 
 def dataset_provenance(dataset_dir: str | os.PathLike | None) -> dict:
     """Selected ``meta.json`` entries of a dataset folder (empty when unavailable)."""
-    if dataset_dir is None:
-        return {}
-    try:
-        meta = json.loads((Path(dataset_dir) / "meta.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    if not isinstance(meta, dict):
-        return {}
-    return {k: meta[k] for k in DATASET_META_KEYS if k in meta}
+    meta = None if dataset_dir is None else dataset_meta(dataset_dir)
+    return {} if meta is None else {k: meta[k] for k in DATASET_META_KEYS if k in meta}
 
 
 def _check_unique_timestamps(path: Path, trajectory: Trajectory) -> None:
@@ -258,12 +243,8 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
 def _refuse_dataset_output(out: Path, gt_path: Path, side: EstimateSideFiles) -> None:
     """The evaluation folder must not lie in a data folder (``images/``, ...) of the dataset the
     ground truth sits in or the estimate's config names: it would add entries to the frames."""
-    config = side.config or {}
-    named = config.get("dataset")
-    for dataset in dict.fromkeys([gt_path.parent, *([Path(named)] if isinstance(named, str) else [])]):
-        conflict = dataset_conflict(dataset, out)
-        if conflict:
-            raise OutputError(out, f"{conflict}; choose another output path")
+    named = (side.config or {}).get("dataset")
+    refuse_output_in_datasets(out, [gt_path.parent, *([Path(named)] if isinstance(named, str) else [])])
 
 
 def summary_of(meta: dict) -> EvaluationSummary:

@@ -336,12 +336,9 @@ def _prepare_output(out_dir: str | os.PathLike, document: dict) -> Path:
     folder of an input dataset (``images/``, ...) is refused: it would add
     entries to the frames.
     """
-    from .io.dataset import dataset_conflict
+    from .io.dataset import refuse_output_in_datasets
 
-    for dataset in dict.fromkeys(cell["dataset"] for cell in document["cells"]):
-        conflict = dataset_conflict(dataset, out_dir)
-        if conflict:
-            raise OutputError(out_dir, conflict + "; choose another output path")
+    refuse_output_in_datasets(out_dir, (cell["dataset"] for cell in document["cells"]))
     out = check_output_folder(out_dir, is_own=is_sweep_dir,
                               what="a sweep folder written by ifmi sweep")
     try:

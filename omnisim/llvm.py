@@ -178,7 +178,7 @@ def loaded_llvm(maps_text: str | None = None) -> Path | None:
 def _refuse_loaded_old_llvm(maps_text: str | None = None) -> None:
     """Raise when drjit already loaded an LLVM older than 16: choosing another one is too late then."""
     path = loaded_llvm(maps_text)
-    major = None if path is None else _major_from_name(path) or _major_from_name(Path(os.path.realpath(path)))
+    major = None if path is None else llvm_major_version(path)
     if major is not None and major < MINIMUM_LLVM_MAJOR:
         raise LlvmNotFoundError(
             f"drjit was imported before omnisim chose its LLVM and loaded {path} (LLVM {major}), which "

@@ -138,13 +138,16 @@ def test_trajectory_file_out_of_order_or_out_of_range_is_refused(tmp_path):
 MAPS_LINE = "7f1c2a000000-7f1c2b000000 r-xp 00000000 08:01 1234 {}\n"
 
 
-def test_loaded_llvm_is_read_from_the_process_maps():
+def test_loaded_llvm_is_read_from_the_process_maps(tmp_path):
     from omnisim.llvm import _refuse_loaded_old_llvm, loaded_llvm
 
-    old = MAPS_LINE.format("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1")
-    new = MAPS_LINE.format("/venv/lib/libLLVM.so.23.1")
+    # Mapped libraries are files; their versions are read from the names (empty stand-ins here).
+    for name in ("libLLVM-15.so.1", "libLLVM.so.23.1"):
+        (tmp_path / name).write_bytes(b"")
+    old = MAPS_LINE.format(tmp_path / "libLLVM-15.so.1")
+    new = MAPS_LINE.format(tmp_path / "libLLVM.so.23.1")
     other = MAPS_LINE.format("/usr/lib/x86_64-linux-gnu/libc.so.6") + "7f00-7f01 rw-p 00000000 00:00 0\n"
-    assert loaded_llvm(other + old) == Path("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1")
+    assert loaded_llvm(other + old) == tmp_path / "libLLVM-15.so.1"
     assert loaded_llvm(other) is None
     with pytest.raises(LlvmNotFoundError) as info:
         _refuse_loaded_old_llvm(other + old)

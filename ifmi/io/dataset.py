@@ -32,13 +32,13 @@ from typing import Iterator
 import numpy as np
 
 from ..camera import OcamModel
-from ..errors import InputError, InputWarning
+from ..errors import InputError, InputWarning, OutputError
 from ..frames import MissingFrame
 from .camera_file import calibration_path, read_camera
 from .images import IMAGE_SUFFIXES, read_image
 
 __all__ = ["Dataset", "FrameFiles", "read_dataset", "read_image", "frame_files", "frame_index",
-           "dataset_conflict", "IMAGE_SUFFIXES", "DATASET_FILES", "DATASET_FOLDERS"]
+           "dataset_conflict", "dataset_meta", "refuse_output_in_datasets", "IMAGE_SUFFIXES", "DATASET_FILES", "DATASET_FOLDERS"]
 
 # Files and folders of the dataset contract (DESIGN.md); outputs never replace them.
 DATASET_FILES = ("calib_results.txt", "camera.yaml", "groundtruth.txt", "meta.json")
@@ -124,13 +124,20 @@ def _warn_skipped(image_dir: Path, skipped: tuple) -> None:
                   InputWarning, stacklevel=3)
 
 
-def _warn_incomplete(root: Path) -> None:
-    """Warn when ``meta.json`` (optional provenance; unreadable means absent) says ``"complete": false``."""
+def dataset_meta(dataset_dir: str | os.PathLike) -> dict | None:
+    """A dataset folder's ``meta.json`` as a mapping, or None when it is absent, unreadable or not a
+    JSON object (it is optional provenance, never required to read a dataset)."""
     try:
-        meta = json.loads((root / "meta.json").read_text(encoding="utf-8"))
+        meta = json.loads((Path(dataset_dir) / "meta.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return
-    if not isinstance(meta, dict) or meta.get("complete") is not False:
+        return None
+    return meta if isinstance(meta, dict) else None
+
+
+def _warn_incomplete(root: Path) -> None:
+    """Warn when ``meta.json`` says ``"complete": false`` (an interrupted omnisim run)."""
+    meta = dataset_meta(root)
+    if meta is None or meta.get("complete") is not False:
         return
     written, frames = meta.get("images"), meta.get("frames")
     count = (f" ({len(written)} of {frames} frames written)"
@@ -251,6 +258,15 @@ def _dataset_files(root: Path) -> Iterator[Path]:
             yield from (root / folder).iterdir()
         except OSError:
             continue
+
+
+def refuse_output_in_datasets(out: str | os.PathLike, datasets) -> None:
+    """Raise :class:`~ifmi.errors.OutputError` when writing ``out`` would harm one of ``datasets``
+    (:func:`dataset_conflict`; e.g. a results folder inside a dataset's ``images/``)."""
+    for dataset in dict.fromkeys(datasets):
+        conflict = dataset_conflict(dataset, out)
+        if conflict:
+            raise OutputError(out, f"{conflict}; choose another output path")
 
 
 def dataset_conflict(dataset_dir: str | os.PathLike, path: str | os.PathLike) -> str | None:
