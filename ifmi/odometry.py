@@ -48,6 +48,7 @@ per frame: monocular translation is known only up to scale.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterable, Sequence
@@ -125,6 +126,10 @@ class FrameRecord:
         Relative-pose model used (``"5pt"``, ``"rotation"`` or ``""``).
     rotation_rad : float
         Rotation angle from the reference frame, radians.
+    rotation_sigma_rad : float
+        Predicted RMS error of that rotation from the relative-pose fit's
+        noise and geometry (:attr:`ifmi.relative_pose.RelativePoseInfo.rotation_sigma_rad`),
+        radians; NaN for frame 0, failed frames and unknown noise.
     diagnostics : dict
         Front-end figures (JSON scalars).
     """
@@ -138,6 +143,7 @@ class FrameRecord:
     seconds: float
     model: str = ""
     rotation_rad: float = 0.0
+    rotation_sigma_rad: float = math.nan
     diagnostics: dict = field(default_factory=dict)
 
     def to_row(self) -> dict:
@@ -147,6 +153,7 @@ class FrameRecord:
             "success": self.success, "reason": self.reason,
             "n_correspondences": self.n_correspondences, "n_inliers": self.n_inliers,
             "seconds": self.seconds, "model": self.model, "rotation_rad": self.rotation_rad,
+            "rotation_sigma_rad": self.rotation_sigma_rad,
         }
         for key, value in self.diagnostics.items():
             row.setdefault(key, value)
@@ -413,8 +420,9 @@ class Tracker:
                 self._reference = self._last_good
             self._good = [self._good[-1], (k, rotation)]
             self._failures_in_row = 0
+            sigma = getattr(info, "rotation_sigma_rad", math.nan)  # a custom pose_solver may not predict it
             record = FrameRecord(k, reference.frame, True, "", info.n_correspondences, info.n_inliers,
-                                 0.0, info.model, _angle(pose.rotation), dict(corr.diagnostics))
+                                 0.0, info.model, _angle(pose.rotation), sigma, dict(corr.diagnostics))
             return record, rotation, position
         rotation, position = self.rotations[-1], self.positions[-1]
         reason = corr.reason if info is None else f"relative pose: {info.reason}"
@@ -430,7 +438,7 @@ class Tracker:
             reason += f"; reference reset after {keyframe.max_failures} failures"
         record = FrameRecord(k, reference.frame, False, reason, len(corr.rays_a),
                              0 if info is None else info.n_inliers, 0.0,
-                             "" if info is None else info.model, 0.0, dict(corr.diagnostics))
+                             "" if info is None else info.model, 0.0, diagnostics=dict(corr.diagnostics))
         return record, rotation, position
 
     def trajectory(self, timestamps: Sequence[float] | None = None) -> Trajectory:

@@ -121,6 +121,17 @@ class SequenceEstimate:
     config: EstimateConfig
     method: str
 
+    def least_certain_frame(self) -> tuple[int, float] | None:
+        """``(frame, rotation_sigma_rad)`` of the successful frame whose rotation the fit predicts
+        least accurately (:attr:`ifmi.odometry.FrameRecord.rotation_sigma_rad`, radians), or None
+        when no frame has a finite prediction. ``frame`` is the record's frame index."""
+        known = [(r.rotation_sigma_rad, r.frame) for r in self.frames
+                 if r.success and np.isfinite(r.rotation_sigma_rad)]
+        if not known:
+            return None
+        sigma, frame = max(known)
+        return frame, sigma
+
 
 
 

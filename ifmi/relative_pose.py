@@ -303,6 +303,20 @@ class RelativePoseInfo:
     inlier_mask : (N,) ndarray of bool
     model : str
         ``"5pt"`` or ``"rotation"`` (the model chosen, also on failure).
+    rotation_sigma_rad : float
+        Predicted root-mean-square geodesic error of ``R_ab`` (radians):
+        the square root of the trace of the rotation block of the chosen
+        model's covariance, the inverse Fisher information of its inliers at
+        the estimate (a group of ``rays_per_measurement`` rays counting as one
+        measurement) times the noise level its inlier residuals give. It is
+        the least-squares figure: with Gaussian ray noise the true RMS error
+        is within about 12 % of it for both models, and 13-15 % above it
+        for the rotation model with its Cauchy re-weighting on
+        (``robust_iterations``), which trades that for loosely matched
+        inliers. It describes noise only: a model that does not fit the
+        motion (the rotation model under strong parallax) can be off by
+        far more. NaN on failure, and when the inliers leave no degree of
+        freedom to measure the noise with.
     """
 
     success: bool
@@ -311,6 +325,7 @@ class RelativePoseInfo:
     n_inliers: int
     inlier_mask: np.ndarray
     model: str
+    rotation_sigma_rad: float = math.nan
 
 
 def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -775,7 +790,8 @@ def noise_sigma_from_residuals(angles: np.ndarray, threshold: float) -> float:
     return math.exp(brentq(excess, math.log(lower), math.log(upper), xtol=1e-6))
 
 
-def _noise_sigma_of_5pt(errors: np.ndarray, threshold: float, group: int) -> float | None:
+def _noise_sigma_of_5pt(errors: np.ndarray, threshold: float, group: int,
+                        min_dof: int = _NOISE_DOF) -> float | None:
     """Ray noise (radians, per axis) from the 5-point model's epipolar angles below ``threshold``.
 
     An epipolar angle is one-dimensional, so the inliers' mean square over
@@ -787,11 +803,11 @@ def _noise_sigma_of_5pt(errors: np.ndarray, threshold: float, group: int) -> flo
     Returns
     -------
     float or None
-        None when ``m - 5 < _NOISE_DOF``.
+        None when ``m - 5 < min_dof``.
     """
     inliers = errors[errors < threshold]
     dof = len(inliers) / group - _SAMPLE_5PT
-    if dof < _NOISE_DOF:
+    if dof < min_dof or dof <= 0:
         return None
     return float(np.sqrt(np.sum(inliers ** 2) / (group * dof)))
 
@@ -827,6 +843,49 @@ def _rotation_misses_motion(rotation_inliers: int, inliers_5pt: int, sigma_5pt: 
     third of ``threshold`` and the rotation model's inliers are fewer than ``min_share`` of its
     own (counts of rays; ``RelativePoseOptions.rotation_min_inlier_share``)."""
     return sigma_5pt is not None and sigma_5pt <= threshold / 3.0 and rotation_inliers < min_share * inliers_5pt
+
+
+def _rotation_sigma_of_5pt(rays_a, rays_b, rotation, translation, noise: float | None, group: int) -> float:
+    """Predicted RMS geodesic error of a 5-point rotation (see ``RelativePoseInfo.rotation_sigma_rad``).
+
+    The symmetric residuals give every ray two rows of nearly the same
+    information, so their Gauss-Newton matrix is halved; a group of
+    ``group`` rays shares one error, so it is divided by ``group`` as well.
+    ``noise`` is the standard deviation of one epipolar angle.
+    """
+    if noise is None:
+        return math.nan
+    if noise == 0.0:  # residuals all zero: exact geometry
+        return 0.0
+    _, jac, _ = _symmetric_epipolar_residuals(rays_a, rays_b, rotation, translation)
+    information = jac.T @ jac / (2.0 * group * noise * noise)
+    try:
+        covariance = np.linalg.inv(information)
+    except np.linalg.LinAlgError:
+        return math.inf
+    return _root_trace(covariance[:3, :3])
+
+
+def _rotation_sigma_of_rotation(rays_b, rotation, noise: float, group: int) -> float:
+    """Predicted RMS geodesic error of a rotation-model rotation from its inlier rays ``rays_b``.
+
+    A ray's residual is two-dimensional, in the plane normal to ``R_ab b``,
+    with ``noise`` per axis: its information about a rotation vector applied
+    on the left is the projector onto that plane over ``noise**2``.
+    """
+    turned = rays_b @ rotation.T
+    information = (len(turned) * np.eye(3) - turned.T @ turned) / (group * noise * noise)
+    try:
+        covariance = np.linalg.inv(information)
+    except np.linalg.LinAlgError:
+        return math.inf
+    return _root_trace(covariance)
+
+
+def _root_trace(covariance: np.ndarray) -> float:
+    """Square root of a covariance block's trace; infinite for a singular (non-positive) one."""
+    trace = float(np.trace(covariance))
+    return math.sqrt(trace) if trace > 0 and np.all(np.linalg.eigvalsh(covariance) > 0) else math.inf
 
 
 def _gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int,
@@ -1029,4 +1088,12 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
         return RelativePose(), info
     pose = RelativePose(rotation=np.asarray(rotation, dtype=np.float64),
                         translation_direction=np.asarray(translation, dtype=np.float64))
-    return pose, RelativePoseInfo(True, "", n, count, mask, model)
+    if model == "rotation":
+        sigma = _rotation_sigma_of_rotation(rays_b[mask], pose.rotation, rotation_fit[3], rays_per_measurement)
+    else:
+        errors = _epipolar_angles_of_essentials(products, rays_b, (_skew(translation) @ rotation)[None])[0]
+        noise = options.noise_sigma_rad or _noise_sigma_of_5pt(errors, options.ransac_threshold_rad,
+                                                               rays_per_measurement, min_dof=1)
+        sigma = _rotation_sigma_of_5pt(rays_a[mask], rays_b[mask], pose.rotation, pose.translation_direction,
+                                       noise, rays_per_measurement)
+    return pose, RelativePoseInfo(True, "", n, count, mask, model, sigma)

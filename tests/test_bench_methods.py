@@ -368,3 +368,35 @@ def test_translation_ambiguity_records_the_pairs_the_tracker_kept(tmp_path, monk
     # The synthetic camera only turns: no pair has a translation direction to hold.
     assert ambiguity.pair_rows(str(data), EstimateConfig(), method="ifmi", scale=2e-3) == []
     assert ambiguity.pair_rows(str(data), EstimateConfig(), method="ifmi", scale=2e-3, window_half=1) == []
+
+
+def test_bench_uncertainty_takes_each_pairs_error_from_its_own_reference_frame(tmp_path, monkeypatch):
+    from scipy.spatial.transform import Rotation
+
+    from ifmi.io.tum import write_tum
+    from ifmi.trajectory import Trajectory
+
+    module = _benchmark_module("bench_uncertainty", monkeypatch)
+    stamps = np.arange(4.0)
+    gt_rot = Rotation.from_rotvec([[0, 0, 0], [0, 0, 0.1], [0, 0, 0.2], [0, 0, 0.3]]).as_matrix()
+    # Estimate: frame 1 off by 0.01 rad about x; frames 2 and 3 estimated against frame 1 (a
+    # keyframe) and each 0.002 rad off about y from it; frame 3 failed (pose held, not counted).
+    off_1 = Rotation.from_rotvec([0.01, 0, 0]).as_matrix()
+    est_rot = gt_rot.copy()
+    est_rot[1] = gt_rot[1] @ off_1
+    est_rot[2] = est_rot[1] @ gt_rot[1].T @ gt_rot[2] @ Rotation.from_rotvec([0, 0.002, 0]).as_matrix()
+    est_rot[3] = est_rot[2]
+    zeros = np.zeros((4, 3))
+    write_tum(tmp_path / "gt.txt", Trajectory(stamps, zeros, gt_rot))
+    write_tum(tmp_path / "est.txt", Trajectory(stamps, zeros, est_rot))
+    (tmp_path / "est.frames.csv").write_text(
+        "frame,reference_frame,success,model,rotation_sigma_rad\n0,0,true,,\n1,0,true,rotation,0.005\n"
+        "2,1,true,5pt,0.004\n3,1,false,,\n")
+    pairs = module.pair_errors_of_run(tmp_path / "est.txt", tmp_path / "est.frames.csv", tmp_path / "gt.txt",
+                                      method="ifmi", mode="keyframe")
+    assert pairs.models == ("rotation", "5pt")
+    assert np.allclose(pairs.true_rad, [0.01, 0.002], atol=1e-9)
+    assert np.allclose(pairs.predicted_rad, [0.005, 0.004])
+    by_model = {s.model: s for s in module.calibration_summaries([pairs])}
+    assert by_model["all"].pairs == 2 and np.isclose(by_model["all"].z_median, (2.0 + 0.5) / 2)
+    assert by_model["rotation"].share_far == 0.0 and np.isclose(by_model["5pt"].z_p99, 0.5)

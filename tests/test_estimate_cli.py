@@ -43,8 +43,14 @@ def test_estimate_writes_trajectory_and_side_files(dataset, tmp_path, capsys):
     with open(tmp_path / "run" / "estimate.frames.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["frame"] for r in rows] == [str(k) for k in range(6)]
-    for key in ("reference_frame", "success", "reason", "n_correspondences", "n_inliers", "seconds"):
+    for key in ("reference_frame", "success", "reason", "n_correspondences", "n_inliers", "seconds",
+                "rotation_sigma_rad"):
         assert key in rows[0]
+    # Frame 0 has no fit; every other frame a finite, positive predicted error, the largest reported.
+    sigmas = [float(r["rotation_sigma_rad"]) for r in rows[1:]]
+    assert rows[0]["rotation_sigma_rad"] == "" and all(0 < s < 4e-3 for s in sigmas)
+    largest = int(np.argmax(sigmas)) + 1
+    assert f"largest predicted rotation error {max(sigmas):.2g} rad (frame {largest})" in capsys.readouterr().out
     config = json.loads((tmp_path / "run" / "estimate.config.json").read_text())
     assert config["method"] == "ifmi"
     assert config["config"]["ifmi"]["panorama"]["width"] == 512

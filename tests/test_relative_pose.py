@@ -292,7 +292,7 @@ def test_two_pair_rotations_of_degenerate_pairs_are_rotations():
 
 
 def _grouped_rays(seed: int, *, groups: int = 20, size: int = 5, noise_rad: float = 3e-3,
-                  translation=None):
+                  translation=None, with_rotation: bool = False):
     """Rays in tight groups (like flow points of one tile) whose members share one error."""
     rng = np.random.default_rng(seed)
     centres = rng.normal(size=(groups, 3))
@@ -307,6 +307,8 @@ def _grouped_rays(seed: int, *, groups: int = 20, size: int = 5, noise_rad: floa
     rays_a = points / np.linalg.norm(points, axis=-1, keepdims=True)
     rays_a = rays_a + rng.normal(scale=noise_rad, size=(groups, 1, 3))
     rays_a /= np.linalg.norm(rays_a, axis=-1, keepdims=True)
+    if with_rotation:
+        return rays_a.reshape(-1, 3), rays_b.reshape(-1, 3), rotation
     return rays_a.reshape(-1, 3), rays_b.reshape(-1, 3)
 
 
@@ -526,3 +528,35 @@ def test_distinct_best_orders_by_inliers_then_cost_and_drops_the_same_model():
     assert len(_distinct_best(candidates, threshold, 1)) == 1
     assert len(_distinct_best(candidates, threshold, 10)) == 3
     assert _distinct_best([], threshold, 5) == []
+
+
+
+@pytest.mark.parametrize("translation, size", [((0.3, 0.1, 0.0), 1), ((0.3, 0.1, 0.0), 5),
+                                               (None, 1), (None, 5)])
+def test_predicted_rotation_error_matches_the_error_over_noise_draws(translation, size):
+    # 300 scenes with 1e-3 rad ray noise shared by groups of `size` rays: the RMS of the predicted
+    # errors matches the RMS of the true ones to first order (measured ratios 0.98, 1.12, 0.98,
+    # 1.00 in the order of the parameters; an RMS over 300 three-axis errors is itself good to
+    # about 3 %). Counting each ray of a group as its own measurement would predict sqrt(5) too little.
+    translation = None if translation is None else np.array(translation)
+    options = RelativePoseOptions(ransac_threshold_rad=8e-3, rotation_only=translation is None,
+                                  robust_iterations=0)  # least squares, which the prediction describes
+    errors, predicted = [], []
+    for seed in range(300):
+        rays_a, rays_b, rotation = _grouped_rays(seed, groups=60 // size, size=size, noise_rad=1e-3,
+                                                 translation=translation, with_rotation=True)
+        pose, info = relative_pose_from_rays(rays_a, rays_b, options=options, rays_per_measurement=size)
+        assert info.success and info.model == ("rotation" if translation is None else "5pt")
+        errors.append(geodesic_angle(rotation, pose.rotation))
+        predicted.append(info.rotation_sigma_rad)
+    ratio = np.sqrt(np.mean(np.square(predicted)) / np.mean(np.square(errors)))
+    assert 0.8 < ratio < 1.25
+
+
+def test_predicted_rotation_error_is_zero_for_exact_rays_and_nan_on_failure():
+    rays_a, rays_b, _, _, _ = _scene(outliers=0)
+    _, info = relative_pose_from_rays(rays_a, rays_b, options=_options())
+    assert info.model == "5pt" and info.rotation_sigma_rad < 1e-9
+    rays_a, rays_b, _, _, _ = _scene(n=6, outliers=0)
+    _, info = relative_pose_from_rays(rays_a, rays_b, options=_options())
+    assert not info.success and np.isnan(info.rotation_sigma_rad)

@@ -330,7 +330,10 @@ def run(args) -> int:
     write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs, extra=extra,
                        overwrite=args.force)
     failed = sum(not r.success for r in estimate.frames)
-    print(f"{out}: {len(estimate.frames)} frames, {failed} failed")
+    least_certain = estimate.least_certain_frame()
+    certainty = "" if least_certain is None else (
+        f"; largest predicted rotation error {least_certain[1]:.2g} rad (frame {least_certain[0]})")
+    print(f"{out}: {len(estimate.frames)} frames, {failed} failed{certainty}")
     if 2 * failed > len(estimate.frames):
         print(f"ifmi estimate: warning: {failed} of {len(estimate.frames)} frames failed (more than "
               f"half; see {side_file_paths(out)[0].name}); exit status {EXIT_MOSTLY_FAILED}",
