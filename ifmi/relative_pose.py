@@ -316,7 +316,8 @@ class RelativePoseInfo:
         inliers. It describes noise only: a model that does not fit the
         motion (the rotation model under strong parallax) can be off by
         far more. NaN on failure, and when the inliers leave no degree of
-        freedom to measure the noise with.
+        freedom to measure the noise with; infinite when they do not fix
+        the rotation (degenerate geometry).
     """
 
     success: bool
