@@ -60,6 +60,7 @@ from ifmi.io.camera_file import calibration_path, read_camera
 from ifmi.io.config import read_estimate_config
 from ifmi.io.dataset import read_dataset
 from ifmi.io.results import write_estimate_run
+from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig, estimate_dataset, estimate_sequence, resolved_config
 from ifmi.methods import builtin_method_names
 from ifmi.report import machine_info
@@ -107,9 +108,26 @@ def interleaved_timing(dataset: str, methods, configs, *, frames: int, rounds: i
 
 def labelled_datasets(paths) -> list[tuple[str, str]]:
     """``(dataset, label)`` once per folder, in the order given: a folder given twice (under two
-    spellings too) is measured once; labels tell apart sets of one name (:func:`dataset_labels`)."""
+    spellings too) is measured once; labels tell apart sets of one name (:func:`dataset_labels`).
+
+    Every folder is checked before any is measured: a dataset (calibration and images) of at
+    least two frames with a ground truth of at least two poses; else :class:`InputError`.
+    """
     labels = dataset_labels(paths)
-    return [(d, labels[folder]) for folder, d in {resolved_folder(d): d for d in paths}.items()]
+    chosen = [(d, labels[folder]) for folder, d in {resolved_folder(d): d for d in paths}.items()]
+    for dataset, _ in chosen:
+        _check_benchmark_dataset(Path(dataset))
+    return chosen
+
+
+def _check_benchmark_dataset(folder: Path) -> None:
+    """:class:`InputError` unless ``folder`` can be estimated and evaluated (two frames at least)."""
+    frames = len(read_dataset(folder).image_paths)
+    if frames < 2:
+        raise InputError(folder, f"a benchmark set needs at least 2 frames, found {frames}")
+    poses = len(read_tum(folder / "groundtruth.txt"))
+    if poses < 2:
+        raise InputError(folder / "groundtruth.txt", f"a benchmark set needs at least 2 poses, found {poses}")
 
 
 def _or_nan(value) -> float:

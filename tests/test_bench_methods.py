@@ -61,6 +61,27 @@ def test_two_datasets_of_one_name_get_their_own_rows_and_folders(tmp_path, capsy
     assert "site_a/office" in printed and "site_b/office" in printed
 
 
+@pytest.mark.parametrize("short", ["images", "groundtruth"])
+def test_a_set_too_short_to_evaluate_is_refused_before_any_set_is_measured(tmp_path, capsys, short):
+    # One frame or one ground-truth pose measures nothing: refused before the other sets' (possibly
+    # long) runs, not at that set's evaluation.
+    good = _write_dataset(tmp_path / "good", seed=5, max_step_rad=0.03)
+    bad = _write_dataset(tmp_path / "bad", seed=6, max_step_rad=0.03)
+    if short == "images":
+        for image in sorted((bad / "images").iterdir())[1:]:
+            image.unlink()
+    else:
+        lines = (bad / "groundtruth.txt").read_text().splitlines(keepends=True)
+        (bad / "groundtruth.txt").write_text("".join(line for line in lines if line.startswith("#"))
+                                             + next(line for line in lines if not line.startswith("#")))
+    out = tmp_path / "bench"
+    assert _benchmark_module().main([str(good), str(bad), "--methods", "ifmi", "--modes", "frame",
+                                     "--timing-rounds", "0", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "needs at least 2" in err and str(bad) in err
+    assert not out.exists()
+
+
 def test_a_file_instead_of_a_dataset_folder_is_a_one_line_error(tmp_path, capsys):
     not_a_folder = tmp_path / "groundtruth.txt"
     not_a_folder.write_text("0 0 0 0 0 0 0 1\n")
@@ -206,23 +227,6 @@ def test_config_file_reaches_every_method_and_a_bad_one_is_a_one_line_error(tmp_
                        "--out", str(tmp_path / "bench2")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and str(config) in err and "akaze_min_keypoints must be >= 0, got -1" in err
-
-
-def test_a_one_frame_set_is_refused_in_one_line(tmp_path, capsys):
-    # A set of one frame has one associated pose, which measures nothing: the evaluation refuses it
-    # (as `ifmi evaluate` does) instead of summarising an error of zero.
-    dataset = _write_dataset(tmp_path / "still", seed=5, max_step_rad=0.03)
-    for image in sorted((dataset / "images").iterdir())[1:]:
-        image.unlink()
-    lines = (dataset / "groundtruth.txt").read_text().splitlines()
-    (dataset / "groundtruth.txt").write_text("\n".join(l for l in lines if l.startswith("#") or
-                                                       l.split()[0] in ("0", "0.0", "0.000000")) + "\n")
-    out = tmp_path / "bench"
-    assert _benchmark_module().main([str(dataset), "--methods", "ifmi", "--modes", "frame", "--timing-rounds", "0",
-                                     "--out", str(out)]) == 2
-    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
-    assert len(err) == 1 and err[0].endswith("ifmi.txt: only 1 pose associated with groundtruth.txt (within 0.001); "
-                                             "expected at least 2 (an error over one pose measures nothing)")
 
 
 def test_bench_seeds_runs_each_seed_and_summarises_over_them(tmp_path, capsys, monkeypatch):
