@@ -63,6 +63,7 @@ from ifmi.io.results import write_estimate_run
 from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig, estimate_dataset, estimate_sequence, resolved_config
 from ifmi.methods import builtin_method_names
+from ifmi.metrics import MIN_ASSOCIATED
 from ifmi.report import machine_info
 
 METHODS = builtin_method_names()
@@ -121,13 +122,15 @@ def labelled_datasets(paths) -> list[tuple[str, str]]:
 
 
 def _check_benchmark_dataset(folder: Path) -> None:
-    """:class:`InputError` unless ``folder`` can be estimated and evaluated (two frames at least)."""
+    """:class:`InputError` unless ``folder`` can be estimated and evaluated: as many frames and
+    ground-truth poses as an evaluation needs (:data:`ifmi.metrics.MIN_ASSOCIATED`)."""
     frames = len(read_dataset(folder).image_paths)
-    if frames < 2:
-        raise InputError(folder, f"a benchmark set needs at least 2 frames, found {frames}")
+    if frames < MIN_ASSOCIATED:
+        raise InputError(folder, f"a benchmark set needs at least {MIN_ASSOCIATED} frames, found {frames}")
     poses = len(read_tum(folder / "groundtruth.txt"))
-    if poses < 2:
-        raise InputError(folder / "groundtruth.txt", f"a benchmark set needs at least 2 poses, found {poses}")
+    if poses < MIN_ASSOCIATED:
+        raise InputError(folder / "groundtruth.txt",
+                         f"a benchmark set needs at least {MIN_ASSOCIATED} poses, found {poses}")
 
 
 def _or_nan(value) -> float:

@@ -23,7 +23,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 from dataclasses import asdict, dataclass
@@ -31,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ifmi.io.results import read_frames_csv
 from ifmi.io.tum import read_tum
 from ifmi.metrics import associate_timestamps
 from ifmi.rotations import geodesic_angle
@@ -78,20 +78,20 @@ def pair_errors_of_run(est_path: Path, frames_path: Path, gt_path: Path, *, meth
     gt, est = read_tum(gt_path), read_tum(est_path)
     gi, ei = associate_timestamps(gt.timestamps, est.timestamps, max_difference=_MAX_TIME_DIFFERENCE)
     gt_row = dict(zip(ei.tolist(), gi.tolist()))
-    with open(frames_path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    row_of_frame = {int(r["frame"]): i for i, r in enumerate(rows)}
+    frames = read_frames_csv(frames_path)
+    sigma, model = frames.columns["rotation_sigma_rad"], frames.columns["model"]
+    row_of_frame = {int(f): i for i, f in enumerate(frames.frame)}
     true, predicted, models = [], [], []
-    for i, r in enumerate(rows):
-        ref = row_of_frame.get(int(r["reference_frame"]))
-        if r["success"] != "true" or ref is None or ref == i or i not in gt_row or ref not in gt_row \
-                or not r["rotation_sigma_rad"]:
+    for i, reference in enumerate(frames.reference_frame):
+        ref = row_of_frame.get(int(reference))
+        if not frames.success[i] or ref is None or ref == i or i not in gt_row or ref not in gt_row \
+                or not np.isfinite(sigma[i]):
             continue
         rel_gt = gt.rotations[gt_row[ref]].T @ gt.rotations[gt_row[i]]
         rel_est = est.rotations[ref].T @ est.rotations[i]
         true.append(float(geodesic_angle(rel_gt, rel_est)))
-        predicted.append(float(r["rotation_sigma_rad"]))
-        models.append(r["model"])
+        predicted.append(float(sigma[i]))
+        models.append(str(model[i]))
     return PairErrors(method, mode, tuple(models), np.array(true), np.array(predicted))
 
 

@@ -859,12 +859,7 @@ def _rotation_sigma_of_5pt(rays_a, rays_b, rotation, translation, noise: float |
     if noise == 0.0:  # residuals all zero: exact geometry
         return 0.0
     _, jac, _ = _symmetric_epipolar_residuals(rays_a, rays_b, rotation, translation)
-    information = jac.T @ jac / (2.0 * group * noise * noise)
-    try:
-        covariance = np.linalg.inv(information)
-    except np.linalg.LinAlgError:
-        return math.inf
-    return _root_trace(covariance[:3, :3])
+    return _rotation_rms_from_information(jac.T @ jac / (2.0 * group * noise * noise))
 
 
 def _rotation_sigma_of_rotation(rays_b, rotation, noise: float, group: int) -> float:
@@ -875,16 +870,16 @@ def _rotation_sigma_of_rotation(rays_b, rotation, noise: float, group: int) -> f
     on the left is the projector onto that plane over ``noise**2``.
     """
     turned = rays_b @ rotation.T
-    information = (len(turned) * np.eye(3) - turned.T @ turned) / (group * noise * noise)
+    return _rotation_rms_from_information((len(turned) * np.eye(3) - turned.T @ turned) / (group * noise * noise))
+
+
+def _rotation_rms_from_information(information: np.ndarray) -> float:
+    """Square root of the trace of the covariance's rotation block (the first three parameters),
+    the covariance being the inverse of ``information``; infinite when that is singular."""
     try:
-        covariance = np.linalg.inv(information)
+        covariance = np.linalg.inv(information)[:3, :3]
     except np.linalg.LinAlgError:
         return math.inf
-    return _root_trace(covariance)
-
-
-def _root_trace(covariance: np.ndarray) -> float:
-    """Square root of a covariance block's trace; infinite for a singular (non-positive) one."""
     trace = float(np.trace(covariance))
     return math.sqrt(trace) if trace > 0 and np.all(np.linalg.eigvalsh(covariance) > 0) else math.inf
 
@@ -1004,7 +999,8 @@ def _lowest_cost_refined_5pt(rays_a, rays_b, products, hypotheses, options: Rela
 
 def _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options: RelativePoseOptions,
                        rng, group: int):
-    """The 5-point model ``(rotation, unit translation, inlier mask)`` when GRIC prefers it, else None.
+    """The 5-point model ``(rotation, unit translation, inlier mask, epipolar angles)`` when GRIC
+    prefers it, else None.
 
     GRIC compares the models on the correspondences that either explains: a
     gross outlier costs the 5-point model less than the rotation model (its
@@ -1028,13 +1024,13 @@ def _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options: Re
         sigma_5pt = _noise_sigma_of_5pt(errors_5pt, threshold, group)
         if _rotation_misses_motion(rot_mask.sum(), (errors_5pt < threshold).sum(), sigma_5pt, threshold,
                                    options.rotation_min_inlier_share):
-            return rotation_5pt, translation / np.linalg.norm(translation), errors_5pt < threshold
+            return rotation_5pt, translation / np.linalg.norm(translation), errors_5pt < threshold, errors_5pt
         noise, from_5pt = _selection_noise(sigma_5pt, sigma, threshold, options.rotation_threshold_factor * threshold)
     margin = _NOISE_5PT_MARGIN * either.sum() / group if from_5pt else 0.0
     if (_gric(errors_5pt[either], noise, dimension=3, parameters=5, group=group) + margin
             >= _gric(rot_errors[either], noise, dimension=2, parameters=3, group=group)):
         return None
-    return rotation_5pt, translation / np.linalg.norm(translation), errors_5pt < threshold
+    return rotation_5pt, translation / np.linalg.norm(translation), errors_5pt < threshold, errors_5pt
 
 
 def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
@@ -1081,7 +1077,7 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
         five_point = _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options, rng,
                                         rays_per_measurement)
         if five_point is not None:
-            model, (rotation, translation, mask) = "5pt", five_point
+            model, (rotation, translation, mask, errors_5pt) = "5pt", five_point
     count = int(mask.sum())
     if count < options.min_inliers:
         info = RelativePoseInfo(False, f"too few inliers ({count} < {options.min_inliers})", n,
@@ -1092,8 +1088,7 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     if model == "rotation":
         sigma = _rotation_sigma_of_rotation(rays_b[mask], pose.rotation, rotation_fit[3], rays_per_measurement)
     else:
-        errors = _epipolar_angles_of_essentials(products, rays_b, (_skew(translation) @ rotation)[None])[0]
-        noise = options.noise_sigma_rad or _noise_sigma_of_5pt(errors, options.ransac_threshold_rad,
+        noise = options.noise_sigma_rad or _noise_sigma_of_5pt(errors_5pt, options.ransac_threshold_rad,
                                                                rays_per_measurement, min_dof=1)
         sigma = _rotation_sigma_of_5pt(rays_a[mask], rays_b[mask], pose.rotation, pose.translation_direction,
                                        noise, rays_per_measurement)

@@ -394,8 +394,8 @@ def test_bench_uncertainty_takes_each_pairs_error_from_its_own_reference_frame(t
     write_tum(tmp_path / "gt.txt", Trajectory(stamps, zeros, gt_rot))
     write_tum(tmp_path / "est.txt", Trajectory(stamps, zeros, est_rot))
     (tmp_path / "est.frames.csv").write_text(
-        "frame,reference_frame,success,model,rotation_sigma_rad\n0,0,true,,\n1,0,true,rotation,0.005\n"
-        "2,1,true,5pt,0.004\n3,1,false,,\n")
+        "frame,reference_frame,success,seconds,model,rotation_sigma_rad\n0,0,true,0.1,,\n"
+        "1,0,true,0.1,rotation,0.005\n2,1,true,0.1,5pt,0.004\n3,1,false,0.1,,\n")
     pairs = module.pair_errors_of_run(tmp_path / "est.txt", tmp_path / "est.frames.csv", tmp_path / "gt.txt",
                                       method="ifmi", mode="keyframe")
     assert pairs.models == ("rotation", "5pt")
