@@ -29,7 +29,8 @@ import numpy as np
 
 from .dataset_names import dataset_labels, resolved_folder
 from .errors import InputError, OutputError
-from .io.atomic import atomic_write_json, atomic_write_text, check_output_folder, folder_of_kind, write_folder
+from .io.atomic import (atomic_write_json, atomic_write_text, check_output_folder, folder_of_kind,
+                        path_within, write_folder)
 from .io.provenance import package_versions as _package_versions
 from .io.results import (EvaluationRecord, is_evaluation_dir, jsonable, read_evaluation,
                          read_motion_flow, write_motion_flow)
@@ -70,12 +71,6 @@ class ReportInputs:
     sweeps: list = field(default_factory=list)
 
 
-def _inside(path: Path, folder: Path) -> bool:
-    """True when ``path`` is ``folder`` or lies below it (links resolved)."""
-    path, folder = Path(os.path.realpath(path)), Path(os.path.realpath(folder))
-    return path == folder or folder in path.parents
-
-
 def find_results(paths: Sequence[str | os.PathLike], *,
                  skip: str | os.PathLike | None = None) -> ReportInputs:
     """Find evaluation folders and sweep folders in or below ``paths``.
@@ -109,9 +104,9 @@ def find_results(paths: Sequence[str | os.PathLike], *,
         else:
             evals = [p.parent for p in sorted(path.rglob("evaluation.json"))]
         evals = [e for e in evals if not any(s in e.parents for s in sweeps)]
-        if skip is not None and not _inside(path, Path(skip)):
-            sweeps = [s for s in sweeps if not _inside(s, Path(skip))]
-            evals = [e for e in evals if not _inside(e, Path(skip))]
+        if skip is not None and not path_within(path, Path(skip)):
+            sweeps = [s for s in sweeps if not path_within(s, Path(skip))]
+            evals = [e for e in evals if not path_within(e, Path(skip))]
         if not sweeps and not evals:
             raise InputError(path, "no evaluation.json or sweep.json found in or below it")
         found.sweeps.extend(s for s in sweeps if s not in found.sweeps)
@@ -707,7 +702,7 @@ def build_report(paths: Sequence[str | os.PathLike], *, out_dir: str | os.PathLi
     """
     inputs = find_results(paths, skip=out_dir)
     for folder in inputs.evaluations:
-        if _inside(Path(out_dir), folder):  # the report would copy the folder into itself
+        if path_within(Path(out_dir), folder):  # the report would copy the folder into itself
             raise OutputError(out_dir, f"is inside the evaluation folder {folder} that the report "
                                        "reads; choose another output path")
     # A symlinked report folder is written through, not replaced.

@@ -38,7 +38,7 @@ from ..errors import OutputError
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "atomic_write_files",
            "writable_target", "probe_writable", "json_text", "check_output_folder", "write_folder",
-           "folder_of_kind"]
+           "folder_of_kind", "path_within"]
 
 # Tries at a free backup name (names are random; a clash is already unlikely).
 _BACKUP_ATTEMPTS = 16
@@ -47,6 +47,12 @@ _LISTED_ENTRIES = 3
 # renameat2(2) arguments (<linux/fs.h>, <fcntl.h>): swap two paths atomically, relative to the cwd.
 _RENAME_EXCHANGE = 2
 _AT_FDCWD = -100
+
+
+def path_within(path: str | os.PathLike, folder: str | os.PathLike) -> bool:
+    """True when ``path`` is ``folder`` or lies below it, symbolic links resolved on both."""
+    path, folder = Path(os.path.realpath(path)), Path(os.path.realpath(folder))
+    return path == folder or folder in path.parents
 
 
 def _umask() -> int:

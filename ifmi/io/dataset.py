@@ -34,6 +34,7 @@ import numpy as np
 from ..camera import OcamModel
 from ..errors import InputError, InputWarning, OutputError
 from ..frames import MissingFrame
+from .atomic import path_within
 from .camera_file import calibration_path, read_camera
 from .images import IMAGE_SUFFIXES, read_image
 
@@ -289,8 +290,7 @@ def dataset_conflict(dataset_dir: str | os.PathLike, path: str | os.PathLike) ->
     real = Path(os.path.realpath(path))
     where = f"of the input dataset {root}"
     for folder in DATASET_FOLDERS:
-        real_folder = Path(os.path.realpath(root / folder))
-        if (root / folder).is_dir() and (real == real_folder or real_folder in real.parents):
+        if (root / folder).is_dir() and path_within(real, root / folder):
             return f"would write into {folder}/ {where}"
     for name in DATASET_FILES:
         if real == Path(os.path.realpath(root / name)):
