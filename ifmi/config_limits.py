@@ -39,7 +39,7 @@ def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
     are at most four times the tile side (a tile larger than the panorama
     is reported by the front end, naming the calibration), and a feature
     front end's ``radius_band`` lies inside the image. Explicit band radii in ``config`` (e.g. decided from the frames)
-    are the band checked.
+    are the band checked. A bundle-adjustment window needs a global shutter.
 
     Parameters
     ----------
@@ -53,6 +53,10 @@ def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
         Named after the configuration key (``ifmi.panorama.width``): what is
         accepted for this camera and what was given.
     """
+    if config.bundle_adjustment.window and config.rolling_shutter.readout:
+        raise InputError("bundle_adjustment.window",
+                         f"a bundle-adjustment window ({config.bundle_adjustment.window} frames) needs a global "
+                         f"shutter, got a read-out time of {config.rolling_shutter.readout}")
     if config.features is not None:
         _check_feature_sizes(config.features, model)
     pano = config.ifmi.panorama

@@ -44,6 +44,16 @@ an interval at the new frame (given the current fit).
 
 Positions chain the estimated translation directions as unit-length steps
 per frame: monocular translation is known only up to scale.
+
+With a bundle-adjustment window (:class:`~ifmi.bundle_adjustment.BundleAdjustmentOptions`,
+off by default) the trajectory is refined over the points the frames
+share: each accepted pair's inlier rays are kept, rays of one frame handed
+to two pairs are joined into tracks, and the chained poses are adjusted
+by a fixed-lag smoother over the last ``window`` frames
+(:func:`~ifmi.bundle_adjustment.poses_from_sliding_window`). The records
+keep each pair's own estimate; the trajectory holds the refined poses.
+It needs a global shutter (a rolling-shutter fit moves each pair's rays
+by its own velocities).
 """
 
 from __future__ import annotations
@@ -56,6 +66,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .bundle_adjustment import BundleAdjustmentOptions, poses_from_sliding_window, tracks_from_pair_rays
 from .errors import InputError
 from .frames import MissingFrame
 from .relative_pose import RelativePoseOptions, relative_pose_from_rays
@@ -234,18 +245,24 @@ class Tracker:
         to their image's middle row (:mod:`ifmi.rolling_shutter`; the rows
         are those of the correspondences' ``pixels_a`` and ``pixels_b``,
         frames taken as equally spaced). Default: a global shutter.
+    bundle_adjustment : BundleAdjustmentOptions, keyword-only
+        With a ``window``, :meth:`trajectory` returns the poses refined
+        over the points the frames share (see the module docstring); its
+        ``robust_scale_rad`` defaults to the RANSAC threshold. Default off.
 
     Raises
     ------
     ValueError
         ``pose_options.ransac_threshold_rad`` is not set (a threshold in
-        pixels must be converted for the camera first).
+        pixels must be converted for the camera first), or a
+        bundle-adjustment window is asked for with a rolling shutter.
     """
 
     def __init__(self, front_end, *, pose_options: RelativePoseOptions,
                  keyframe: KeyframeOptions = KeyframeOptions(),
                  pose_solver: PoseSolver = relative_pose_from_rays,
-                 rolling_shutter: RollingShutterOptions = RollingShutterOptions()):
+                 rolling_shutter: RollingShutterOptions = RollingShutterOptions(),
+                 bundle_adjustment: BundleAdjustmentOptions = BundleAdjustmentOptions()):
         if pose_options.ransac_threshold_rad is None:
             raise ValueError("pose_options.ransac_threshold_rad is None; resolve it for the camera "
                              "first (RelativePoseOptions.resolved or ifmi.pipeline.resolved_config)")
@@ -254,6 +271,14 @@ class Tracker:
         self.keyframe = keyframe
         self.pose_solver = pose_solver
         self.rolling_shutter = rolling_shutter
+        if bundle_adjustment.window and rolling_shutter.readout != 0.0:
+            raise ValueError(f"a bundle-adjustment window ({bundle_adjustment.window} frames) needs a global "
+                             f"shutter, got a read-out time of {rolling_shutter.readout}")
+        if bundle_adjustment.robust_scale_rad is None:
+            bundle_adjustment = replace(bundle_adjustment, robust_scale_rad=pose_options.ransac_threshold_rad)
+        self.bundle_adjustment = bundle_adjustment
+        # Each accepted pair's (reference, frame, inlier rays_a, inlier rays_b), for the adjustment.
+        self._pair_rays: list = []
         self._height = 0  # rows of the images (the first frame's), for the rolling-shutter row times
         self.rotations: list = []
         self.positions: list = []
@@ -420,6 +445,9 @@ class Tracker:
                 self._reference = self._last_good
             self._good = [self._good[-1], (k, rotation)]
             self._failures_in_row = 0
+            if self.bundle_adjustment.window:
+                inliers = np.asarray(info.inlier_mask, dtype=bool)
+                self._pair_rays.append((reference.frame, k, corr.rays_a[inliers], corr.rays_b[inliers]))
             sigma = getattr(info, "rotation_sigma_rad", math.nan)  # a custom pose_solver may not predict it
             record = FrameRecord(k, reference.frame, True, "", info.n_correspondences, info.n_inliers,
                                  0.0, info.model, _angle(pose.rotation), sigma, dict(corr.diagnostics))
@@ -450,8 +478,17 @@ class Tracker:
             stamps = np.asarray(timestamps, dtype=np.float64)
             if stamps.shape != (n,):
                 raise ValueError(f"expected {n} timestamps, got {stamps.shape}")
-        return Trajectory(timestamps=stamps, positions=np.asarray(self.positions).reshape(n, 3),
-                          rotations=np.asarray(self.rotations).reshape(n, 3, 3))
+        rotations = np.asarray(self.rotations).reshape(n, 3, 3)
+        positions = np.asarray(self.positions).reshape(n, 3)
+        if self.bundle_adjustment.window and self._pair_rays:
+            # A failed frame holds the pose before it; a good one is chained from its reference.
+            references = np.array([record.reference_frame if record.success else max(record.frame - 1, 0)
+                                   for record in self.records])
+            observations = tracks_from_pair_rays(self._pair_rays,
+                                                 tolerance_rad=self.bundle_adjustment.match_tolerance_rad)
+            rotations, positions, _ = poses_from_sliding_window(rotations, positions, references, observations,
+                                                                options=self.bundle_adjustment)
+        return Trajectory(timestamps=stamps, positions=positions, rotations=rotations)
 
 
 def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: RelativePoseOptions,
@@ -460,6 +497,7 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
                    timestamps: Sequence[float] | None = None,
                    pose_solver: PoseSolver = relative_pose_from_rays,
                    rolling_shutter: RollingShutterOptions = RollingShutterOptions(),
+                   bundle_adjustment: BundleAdjustmentOptions = BundleAdjustmentOptions(),
                    ) -> tuple[Trajectory, list[FrameRecord]]:
     """Estimate every frame's pose ``T_0k`` with ``front_end`` and the relative-pose back end.
 
@@ -480,6 +518,8 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
         See :class:`Tracker`.
     rolling_shutter : RollingShutterOptions, keyword-only
         See :class:`Tracker`.
+    bundle_adjustment : BundleAdjustmentOptions, keyword-only
+        See :class:`Tracker`.
 
     Returns
     -------
@@ -494,7 +534,7 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
         ``pose_options.ransac_threshold_rad`` is not set.
     """
     tracker = Tracker(front_end, pose_options=pose_options, keyframe=keyframe, pose_solver=pose_solver,
-                      rolling_shutter=rolling_shutter)
+                      rolling_shutter=rolling_shutter, bundle_adjustment=bundle_adjustment)
     iterator = iter(images)
     while True:
         started = time.perf_counter()  # the frame's time includes producing it (e.g. reading)

@@ -22,6 +22,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 from tqdm import tqdm
 
+from .bundle_adjustment import BundleAdjustmentOptions
 from .camera import OcamModel
 from .config_limits import check_config_for_model
 from .errors import CalibrationFitError, InputError
@@ -67,6 +68,9 @@ class EstimateConfig:
     keyframe : KeyframeOptions
     rolling_shutter : RollingShutterOptions
         The camera's row read-out time; a global shutter by default.
+    bundle_adjustment : BundleAdjustmentOptions
+        Refinement of the trajectory over the points frames share
+        (:mod:`ifmi.bundle_adjustment`); off by default.
     """
 
     ifmi: IfmiConfig = field(default_factory=IfmiConfig)
@@ -74,6 +78,7 @@ class EstimateConfig:
     relative_pose: RelativePoseOptions = field(default_factory=RelativePoseOptions)
     keyframe: KeyframeOptions = field(default_factory=KeyframeOptions)
     rolling_shutter: RollingShutterOptions = field(default_factory=RollingShutterOptions)
+    bundle_adjustment: BundleAdjustmentOptions = field(default_factory=BundleAdjustmentOptions)
 
     def to_dict(self) -> dict:
         """JSON-serialisable nested dict (inverse of :meth:`from_dict`)."""
@@ -83,6 +88,7 @@ class EstimateConfig:
             "relative_pose": asdict(self.relative_pose),
             "keyframe": asdict(self.keyframe),
             "rolling_shutter": asdict(self.rolling_shutter),
+            "bundle_adjustment": asdict(self.bundle_adjustment),
         }
 
     @classmethod
@@ -191,6 +197,7 @@ def estimate_sequence(images: Iterable[np.ndarray], model: OcamModel, *, method:
         trajectory, records = track_sequence(images, front_end, pose_options=config.relative_pose,
                                              keyframe=config.keyframe, timestamps=timestamps,
                                              rolling_shutter=config.rolling_shutter,
+                                             bundle_adjustment=config.bundle_adjustment,
                                              on_frame=lambda record: bar.update(1))
     return SequenceEstimate(trajectory=trajectory, frames=tuple(records), config=config,
                             method=method)

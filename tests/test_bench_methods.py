@@ -404,3 +404,31 @@ def test_bench_uncertainty_takes_each_pairs_error_from_its_own_reference_frame(t
     by_model = {s.model: s for s in module.calibration_summaries([pairs])}
     assert by_model["all"].pairs == 2 and np.isclose(by_model["all"].z_median, (2.0 + 0.5) / 2)
     assert by_model["rotation"].share_far == 0.0 and np.isclose(by_model["5pt"].z_p99, 0.5)
+
+
+def test_bundle_window_comparison_counts_ratios_and_misses(tmp_path, monkeypatch):
+    module = _benchmark_module("bench_bundle_window", monkeypatch)
+
+    def runs(path, ates):
+        rows = [{"mode": "frame", "dataset": dataset, "method": method, "seed": seed, "geodesic_rmse": ate}
+                for (dataset, method), per_seed in ates.items() for seed, ate in enumerate(per_seed)]
+        path.write_text(json.dumps({"rows": rows}))
+        return str(path)
+
+    # lawn_trans_x3: iFMI halves and stays above AKAZE before, falls below it after;
+    # office_x5: iFMI doubles, still the best.
+    before = runs(tmp_path / "a.json", {("lawn_trans_x3", "ifmi"): [0.02, 0.04, 0.03],
+                                        ("lawn_trans_x3", "orb"): [0.05] * 3, ("lawn_trans_x3", "akaze"): [0.02] * 3,
+                                        ("office_x5", "ifmi"): [0.001] * 3, ("office_x5", "orb"): [0.01] * 3,
+                                        ("office_x5", "akaze"): [0.01] * 3})
+    after = runs(tmp_path / "b.json", {("lawn_trans_x3", "ifmi"): [0.015, 0.01, 0.02],
+                                       ("lawn_trans_x3", "orb"): [0.05] * 3, ("lawn_trans_x3", "akaze"): [0.02] * 3,
+                                       ("office_x5", "ifmi"): [0.002] * 3, ("office_x5", "orb"): [0.01] * 3,
+                                       ("office_x5", "akaze"): [0.01] * 3})
+    result = module.compare(before, after)
+    translated = result["changes"][("frame", "translated", "designed")]["ifmi"]
+    assert translated.geometric_mean_ratio == pytest.approx(0.5) and (translated.lower, translated.higher) == (1, 0)
+    rotation = result["changes"][("frame", "rotation only", "designed")]["ifmi"]
+    assert rotation.geometric_mean_ratio == pytest.approx(2.0) and rotation.higher == 1
+    assert result["misses"][("frame", "translated", "designed")] == [1, 1, 0]
+    assert result["misses"][("frame", "rotation only", "designed")] == [1, 0, 0]

@@ -290,3 +290,22 @@ def test_rolling_shutter_outside_the_frame_interval_is_refused(dataset, tmp_path
     assert _one_line_error(capsys) == (
         f"ifmi estimate: error: --rolling-shutter: readout must be in [0, 1] (a fraction of the frame "
         f"interval), got {float(value)}")
+
+
+# --- bundle adjustment ----------------------------------------------------------------
+
+def test_bundle_window_option_is_saved_with_the_run(dataset, tmp_path):
+    out = tmp_path / "ba.txt"
+    assert main(["estimate", str(dataset), "--bundle-window", "3", "--out", str(out), *QUIET]) == 0
+    saved = _saved(out)["config"]["bundle_adjustment"]
+    assert saved["window"] == 3 and saved["robust_scale_rad"] is None
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--bundle-window", "1"], "--bundle-window: window must be 0 (off) or at least 2 frames, got 1"),
+    (["--bundle-window", "3", "--rolling-shutter", "0.4"],
+     "a bundle-adjustment window (3 frames) needs a global shutter, got a read-out time of 0.4"),
+])
+def test_bad_bundle_window_is_refused(dataset, tmp_path, capsys, extra, message):
+    assert main(["estimate", str(dataset), *extra, "--out", str(tmp_path / "e.txt"), *QUIET]) == 2
+    assert _one_line_error(capsys).endswith(message)

@@ -167,7 +167,8 @@ def test_pixel_threshold_is_resolved_for_the_calibration(sequence):
 @pytest.mark.parametrize(
     ("data", "message"),
     [
-        ({"bogus": {}}, r"^unknown key bogus; expected ifmi, features, relative_pose, keyframe, rolling_shutter$"),
+        ({"bogus": {}}, r"^unknown key bogus; expected ifmi, features, relative_pose, keyframe, rolling_shutter, "
+         r"bundle_adjustment$"),
         ({"relative_pose": {"threshold": 1.0}}, r"^relative_pose: unknown key threshold; expected "),
         ({"keyframe": {"every": 3}}, r"^keyframe: unknown key every; expected enabled, "),
         ({"ifmi": {"tiling": {"size": 64}}}, r"^ifmi.tiling: unknown key size; expected tile_size, overlap$"),
