@@ -470,7 +470,11 @@ class Tracker:
         return record, rotation, position
 
     def trajectory(self, timestamps: Sequence[float] | None = None) -> Trajectory:
-        """Poses of the frames so far; ``timestamps`` default to the frame indices."""
+        """Poses of the frames so far; ``timestamps`` default to the frame indices.
+
+        With a bundle-adjustment window the poses are refined over the points
+        the frames share (recomputed on each call, from the chained poses).
+        """
         n = len(self.rotations)
         if timestamps is None:
             stamps = np.arange(n, dtype=np.float64)
