@@ -37,8 +37,10 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from .options import check_finite_fields
+from .rotations import cross_product_matrix
 
 __all__ = [
     "BundleAdjustmentOptions",
@@ -104,6 +106,15 @@ class BundleAdjustmentOptions:
             raise ValueError(f"iterations must be >= 1 and tolerance >= 0, got {self.iterations}, "
                              f"{self.tolerance}")
 
+    def shutter_conflict(self, readout: float) -> str | None:
+        """Why this window cannot run with a rolling-shutter read-out time ``readout`` (a fraction of
+        the frame interval), or None: a rolling-shutter fit moves each pair's rays by its own
+        velocities, so a ray handed to two pairs is no longer one ray."""
+        if self.window and readout != 0.0:
+            return f"a bundle-adjustment window ({self.window} frames) needs a global shutter, got a " \
+                   f"read-out time of {readout}"
+        return None
+
 
 @dataclass(frozen=True)
 class TrackObservations:
@@ -155,8 +166,8 @@ class BundleAdjustmentInfo:
     final_cost: float
     tracks: int
     observations: int
-    noise_rad: float = float("nan")
-    free_frames: int = 0
+    noise_rad: float
+    free_frames: int
 
 
 def tracks_from_pair_rays(pairs, *, tolerance_rad: float) -> TrackObservations:
@@ -211,23 +222,6 @@ def _components(count: int, edges: np.ndarray) -> np.ndarray:
     """Connected-component label of each of ``count`` nodes joined by ``edges`` (E, 2)."""
     graph = csr_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(count, count))
     return connected_components(graph, directed=False)[1]
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) cross-product matrices of (..., 3) vectors."""
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    return out - np.swapaxes(out, -1, -2)
-
-
-def _exp(v: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotation matrices of (..., 3) rotation vectors (Rodrigues)."""
-    angle = np.linalg.norm(v, axis=-1)[..., None, None]
-    k = _skew(v)
-    small = angle < 1e-12
-    a = np.where(small, 1.0, np.sin(angle) / np.where(small, 1.0, angle))
-    b = np.where(small, 0.5, (1.0 - np.cos(angle)) / np.where(small, 1.0, angle) ** 2)
-    return np.eye(3) + a * k + b * (k @ k)
 
 
 def _tangent_bases(rays: np.ndarray) -> np.ndarray:
@@ -314,8 +308,9 @@ def _residuals(problem: _Problem, rotations, positions, rho, *, jacobian: bool):
     projector = (problem.bases - np.einsum("ki,kj->kij", np.einsum("kij,kj->ki", problem.bases, n), n)) \
         / length[:, None]
     p_rt = projector @ np.swapaxes(r_f, 1, 2)  # (K, 2, 3): d res / d (world vector)
-    blocks = np.concatenate([-p_rt @ r_a @ _skew(problem.anchor_ray), p_rt * inverse_depth[:, :, None],
-                             projector @ _skew(w), -p_rt * inverse_depth[:, :, None]], axis=2)
+    blocks = np.concatenate([-p_rt @ r_a @ cross_product_matrix(problem.anchor_ray),
+                             p_rt * inverse_depth[:, :, None], projector @ cross_product_matrix(w),
+                             -p_rt * inverse_depth[:, :, None]], axis=2)
     return res, blocks, np.einsum("kij,kj->ki", p_rt, baseline)
 
 
@@ -412,8 +407,8 @@ def poses_from_bundle_adjustment(rotations: np.ndarray, positions: np.ndarray, o
     if options.robust_scale_rad is None:
         raise ValueError("expected options.robust_scale_rad set, got None")
     problem = _problem(observations, fixed)
-    if not len(problem.free) or not len(problem.frame):
-        return rotations, positions, BundleAdjustmentInfo(0, 0.0, 0.0, 0, 0)
+    if problem.tracks == 0:  # then no free frame sees a shared point either
+        return rotations, positions, BundleAdjustmentInfo(0, 0.0, 0.0, 0, 0, float("nan"), 0)
     rho = _triangulated_inverse_depths(problem, rotations, positions)
     gauge = float(rho.mean())
     column = np.full(len(rotations), -1)
@@ -434,7 +429,7 @@ def poses_from_bundle_adjustment(rotations: np.ndarray, positions: np.ndarray, o
             step_frames, step_rho = _damped_step(normal, weight, gauge_weight * (rho.mean() - gauge), damping)
             cams = step_frames.reshape(-1, 6)
             trial_r, trial_p = rotations.copy(), positions.copy()
-            trial_r[problem.free] = trial_r[problem.free] @ _exp(cams[:, :3])
+            trial_r[problem.free] = trial_r[problem.free] @ Rotation.from_rotvec(cams[:, :3]).as_matrix()
             trial_p[problem.free] += cams[:, 3:]
             trial_rho = rho + step_rho
             trial_res, *_ = _residuals(problem, trial_r, trial_p, trial_rho, jacobian=False)

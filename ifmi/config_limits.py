@@ -53,10 +53,9 @@ def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
         Named after the configuration key (``ifmi.panorama.width``): what is
         accepted for this camera and what was given.
     """
-    if config.bundle_adjustment.window and config.rolling_shutter.readout:
-        raise InputError("bundle_adjustment.window",
-                         f"a bundle-adjustment window ({config.bundle_adjustment.window} frames) needs a global "
-                         f"shutter, got a read-out time of {config.rolling_shutter.readout}")
+    conflict = config.bundle_adjustment.shutter_conflict(config.rolling_shutter.readout)
+    if conflict is not None:
+        raise InputError("bundle_adjustment.window", conflict)
     if config.features is not None:
         _check_feature_sizes(config.features, model)
     pano = config.ifmi.panorama

@@ -271,9 +271,9 @@ class Tracker:
         self.keyframe = keyframe
         self.pose_solver = pose_solver
         self.rolling_shutter = rolling_shutter
-        if bundle_adjustment.window and rolling_shutter.readout != 0.0:
-            raise ValueError(f"a bundle-adjustment window ({bundle_adjustment.window} frames) needs a global "
-                             f"shutter, got a read-out time of {rolling_shutter.readout}")
+        conflict = bundle_adjustment.shutter_conflict(rolling_shutter.readout)
+        if conflict is not None:
+            raise ValueError(conflict)
         if bundle_adjustment.robust_scale_rad is None:
             bundle_adjustment = replace(bundle_adjustment, robust_scale_rad=pose_options.ransac_threshold_rad)
         self.bundle_adjustment = bundle_adjustment

@@ -51,7 +51,7 @@ import poselib
 from scipy.optimize import brentq
 
 from .options import check_finite_fields
-from .rotations import geodesic_angle
+from .rotations import cross_product_matrix, geodesic_angle
 
 __all__ = [
     "RelativePoseOptions",
@@ -336,18 +336,6 @@ def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], axis=-1)
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrices ``[v]_x`` of (..., 3) vectors, (..., 3, 3)."""
-    if v.ndim == 1:
-        x, y, z = v.tolist()
-        return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
 def _ray_products(rays_a: np.ndarray, rays_b: np.ndarray) -> np.ndarray:
     """Flattened outer products ``a_n b_n^T`` of the rays, (N, 9).
 
@@ -397,7 +385,7 @@ def epipolar_angles(rays_a: np.ndarray, rays_b: np.ndarray, rotations: np.ndarra
         by ``t_ab`` and ``R_ab @ rays_b``.
     """
     return _epipolar_angles_of_essentials(_ray_products(rays_a, rays_b), rays_b,
-                                          _skew(translations) @ rotations)
+                                          cross_product_matrix(translations) @ rotations)
 
 
 def rotation_angles(rays_a: np.ndarray, rays_b: np.ndarray, rotations: np.ndarray) -> np.ndarray:
@@ -547,7 +535,7 @@ def _ransac_5pt(rays, products, threshold, options, rng):
         if rotations:
             rotations, translations = np.stack(rotations), np.stack(translations)
             count, cost = _score(_epipolar_angles_of_essentials(
-                products, rays[1], _skew(translations) @ rotations), threshold)
+                products, rays[1], cross_product_matrix(translations) @ rotations), threshold)
             sample_of = np.asarray(owners)
             order = np.lexsort((cost, -count, sample_of))
             first = np.ones(len(order), dtype=bool)
@@ -679,7 +667,7 @@ def _symmetric_epipolar_residuals(rays_a, rays_b, rotation, t, *, jacobian=True)
     """
     n = len(rays_a)
     rotated = rays_b @ rotation.T
-    cross_t = _skew(t)
+    cross_t = cross_product_matrix(t)
     # Rows 0..N-1: moving ray R b, partner a; rows N..2N-1: moving ray a, partner R b.
     stacked = np.concatenate([rotated, rays_a, rotated])
     moving, partner = stacked[:2 * n], stacked[n:]
@@ -954,14 +942,16 @@ def _refined_5pt(rays_a, rays_b, products, rotation, translation, options: Relat
     """The 5-point model refined on its inliers, then on the refined model's inliers
     (``options.polish_rounds``), and the epipolar angles of every correspondence under it."""
     threshold = options.ransac_threshold_rad
-    errors = _epipolar_angles_of_essentials(products, rays_b, (_skew(translation) @ rotation)[None])[0]
+    errors = _epipolar_angles_of_essentials(products, rays_b,
+                                            (cross_product_matrix(translation) @ rotation)[None])[0]
     mask = errors < threshold
     for _ in range(1 + options.polish_rounds if options.refine else 0):
         if mask.sum() < _SAMPLE_5PT:
             break
         rotation, translation = _refine_5pt(rays_a[mask], rays_b[mask], rotation, translation,
                                             options.refine_iterations)
-        errors = _epipolar_angles_of_essentials(products, rays_b, (_skew(translation) @ rotation)[None])[0]
+        errors = _epipolar_angles_of_essentials(products, rays_b,
+                                                (cross_product_matrix(translation) @ rotation)[None])[0]
         refined_mask = errors < threshold
         if np.array_equal(refined_mask, mask):
             break

@@ -20,6 +20,7 @@ __all__ = [
     "wrap_angle",
     "project_to_rotation",
     "matrix_aligning_rays",
+    "cross_product_matrix",
 ]
 
 
@@ -114,3 +115,15 @@ def matrix_aligning_rays(from_rays: np.ndarray, to_rays: np.ndarray, *, fraction
     # angle / sin -> 1 as the rays meet: the rotation vector is axis * angle / sin.
     scale = np.divide(angle, sin, out=np.ones_like(angle), where=sin > 1e-300)
     return Rotation.from_rotvec(fraction * scale[:, None] * axis).as_matrix().reshape(-1, 3, 3)
+
+
+def cross_product_matrix(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices ``[v]_x`` (``[v]_x @ u == cross(v, u)``) of (..., 3) vectors, (..., 3, 3)."""
+    if v.ndim == 1:  # one vector: plain floats, faster than the array path on small inputs
+        x, y, z = v.tolist()
+        return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
