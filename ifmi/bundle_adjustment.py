@@ -203,8 +203,10 @@ def tracks_from_pair_rays(pairs, *, tolerance_rad: float) -> TrackObservations:
     if not rays:
         return TrackObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)))
     frames, rays = np.concatenate(frames), np.concatenate(rays)
-    links = [np.concatenate(links)] + [_same_rays(rays, np.flatnonzero(frames == k), tolerance_rad)
-                                       for k in np.unique(frames)]
+    by_frame = np.argsort(frames, kind="stable")
+    bounds = np.flatnonzero(np.diff(frames[by_frame])) + 1
+    links = [np.concatenate(links)] + [_same_rays(rays, index, tolerance_rad)
+                                       for index in np.split(by_frame, bounds)]
     label = _components(len(rays), np.concatenate(links))
     keep = np.unique(np.stack([label, frames], axis=1), axis=0, return_index=True)[1]
     keep.sort()
@@ -493,15 +495,16 @@ def poses_from_sliding_window(rotations: np.ndarray, positions: np.ndarray, refe
             or np.any(references[1:] >= np.arange(1, len(references))) or np.any(references < 0):
         raise ValueError(f"expected rotations (N, 3, 3), positions (N, 3) and references (N,) each before its "
                          f"frame, got {start_r.shape}, {start_p.shape} and {references.shape}")
+    window_of = _WindowIndex(observations)
     rotations, positions, infos, step_scale = start_r.copy(), start_p.copy(), [], 1.0
     for end in range(1, len(rotations)):
         r = references[end]
         rotations[end] = rotations[r] @ start_r[r].T @ start_r[end]
         positions[end] = positions[r] + step_scale * rotations[r] @ start_r[r].T @ (start_p[end] - start_p[r])
-        upto = observations.frame <= end
+        first = max(end - options.window + 1, 1)
         fixed = np.ones(len(rotations), dtype=bool)
-        fixed[max(end - options.window + 1, 1):end + 1] = False
-        part = TrackObservations(observations.track[upto], observations.frame[upto], observations.rays[upto])
+        fixed[first:end + 1] = False
+        part = window_of(first, end)
         rotations, positions, info = poses_from_bundle_adjustment(rotations, positions, part, fixed=fixed,
                                                                   options=options)
         infos.append(info)
@@ -509,3 +512,31 @@ def poses_from_sliding_window(rotations: np.ndarray, positions: np.ndarray, refe
         if info.free_frames and start_step > 0:
             step_scale = float(np.linalg.norm(positions[end] - positions[r]) / start_step) or step_scale
     return rotations, positions, infos
+
+
+class _WindowIndex:
+    """The observations a window needs, found without scanning the whole sequence's.
+
+    Called with ``(first, last)`` frames, it returns the observations up to
+    ``last`` of the tracks seen in ``first .. last`` (the tracks that can
+    reach a free frame), in their original order.
+    """
+
+    def __init__(self, observations: TrackObservations):
+        self.observations = observations
+        self.by_frame = np.argsort(observations.frame, kind="stable")
+        self.sorted_frames = observations.frame[self.by_frame]
+        self.by_track = np.argsort(observations.track, kind="stable")
+        self.track_starts = np.searchsorted(observations.track[self.by_track],
+                                            np.arange(observations.track.max(initial=-1) + 2))
+
+    def __call__(self, first: int, last: int) -> TrackObservations:
+        seen = self.by_frame[np.searchsorted(self.sorted_frames, first):
+                             np.searchsorted(self.sorted_frames, last, side="right")]
+        tracks = np.unique(self.observations.track[seen])
+        starts, lengths = self.track_starts[tracks], self.track_starts[tracks + 1] - self.track_starts[tracks]
+        within = np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+        index = np.sort(self.by_track[np.repeat(starts, lengths) + within])
+        index = index[self.observations.frame[index] <= last]
+        obs = self.observations
+        return TrackObservations(obs.track[index], obs.frame[index], obs.rays[index])
