@@ -258,3 +258,20 @@ def test_run_file_names_the_calibration_the_dataset_holds(tmp_path, calib_name):
     assert main(["estimate", str(root), "--method", "orb", "--out", str(out), "--no-progress"]) == 0
     run = json.loads(out.with_name("e.config.json").read_text())
     assert (run["dataset"], run["calib"]) == (str(root.resolve()), str((root / calib_name).resolve()))
+
+
+def test_twelve_bit_frames_in_16_bit_files_estimate_as_their_8_bit_originals(dataset, tmp_path, capsys):
+    """Unscaled 12-bit samples (a machine-vision camera's PNGs) are read at 12 bits, with one warning."""
+    root, _ = dataset
+    copy = tmp_path / "deep"
+    shutil.copytree(root, copy)
+    for path in sorted((copy / "images").glob("*.png")):
+        cv2.imwrite(str(path), cv2.imread(str(path), cv2.IMREAD_GRAYSCALE).astype(np.uint16) << 4)
+    assert main(["estimate", str(root), "--out", str(tmp_path / "eight.txt"), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["estimate", str(copy), "--out", str(tmp_path / "deep.txt"), "--no-progress"]) == 0
+    warned = [line for line in capsys.readouterr().err.splitlines() if "16-bit" in line]
+    assert warned == [f"ifmi estimate: warning: {copy / 'images'}: 16-bit images whose values stay below "
+                      f"4096 are read as 12-bit data (their top 8 of 12 bits), not as 16-bit data"]
+    np.testing.assert_array_equal(read_tum(tmp_path / "deep.txt").rotations,
+                                  read_tum(tmp_path / "eight.txt").rotations)

@@ -222,3 +222,42 @@ def test_other_output_during_a_decode_still_reaches_stderr(tmp_path, capfd, monk
         warnings.simplefilter("error")
         np.testing.assert_array_equal(read_image(path), _pattern())
     assert capfd.readouterr().err == "\r 50%|#####     | 1/2"
+
+
+@pytest.mark.parametrize("largest, depth", [(0, 8), (255, 8), (256, 10), (1023, 10), (1024, 12),
+                                            (4095, 12), (4096, 14), (16383, 14), (16384, 16), (65535, 16)])
+def test_sensor_bit_depth_is_the_smallest_common_depth_holding_the_largest_sample(largest, depth):
+    assert images.sensor_bit_depth(largest) == depth
+
+
+@pytest.mark.parametrize("gray", [True, False])
+@pytest.mark.parametrize("alpha", [False, True])
+def test_sixteen_bit_file_of_unscaled_12_bit_samples_reads_as_their_top_8_bits(tmp_path, gray, alpha):
+    """12-bit samples stored unscaled (values < 4096) give back the 8-bit image they were made from;
+    a full-range alpha channel beside them does not count."""
+    image = _pattern()
+    low_bits = np.random.default_rng(3).integers(0, 16, SHAPE, dtype=np.uint16)
+    samples = (image.astype(np.uint16) << 4) | low_bits
+    if alpha:
+        samples = np.dstack([samples, samples, samples, np.full(SHAPE, 65535, np.uint16)])
+    path = tmp_path / "000000.png"
+    cv2.imwrite(str(path), samples)
+    with pytest.warns(InputWarning) as record:
+        got = read_image(path, gray=gray)
+    np.testing.assert_array_equal(got, np.dstack([image] * 3) if alpha and not gray else image)
+    assert [str(r.message) for r in record] == [
+        f"{tmp_path}: 16-bit images whose values stay below 4096 are read as 12-bit data "
+        f"(their top 8 of 12 bits), not as 16-bit data"]
+
+
+def test_sixteen_bit_file_of_full_range_samples_reads_as_its_high_byte(tmp_path):
+    image = _pattern(colour=True)
+    path = tmp_path / "000000.png"
+    cv2.imwrite(str(path), (image.astype(np.uint16) << 8) | 0x5A)  # the largest sample is >= 2**14
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = read_image(path, gray=False)
+        gray = read_image(path)
+    np.testing.assert_array_equal(got, image[..., ::-1])  # written BGR, read RGB
+    # Gray is converted from the 16-bit samples and then truncated to 8 bits: within 1 level.
+    np.testing.assert_allclose(gray, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), atol=1, rtol=0)

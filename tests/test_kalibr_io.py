@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
 from ifmi.camera import paracatadioptric_model
-from ifmi.errors import InputError
+from ifmi.errors import InputError, InputWarning
 from ifmi.io.camera_file import calibration_path, read_camera, write_camera
 from ifmi.io.kalibr import format_kalibr, parse_kalibr, read_kalibr, write_kalibr
 
@@ -55,9 +57,18 @@ def test_write_read_round_trip_is_exact(tmp_path, name):
 
 
 def test_reads_a_kalibr_camchain_with_extra_keys():
-    model = parse_kalibr(CAMCHAIN)
+    with pytest.warns(InputWarning) as record:
+        model = parse_kalibr(CAMCHAIN, source="stereo.yaml")
     assert model == EXAMPLES["ds"]
     assert model.size == (480, 752)
+    assert [str(r.message) for r in record] == [
+        "stereo.yaml: a camchain of 2 cameras; the images are taken to be cam0's (cam1 ignored)"]
+
+
+def test_one_camera_camchain_reads_without_warning():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert parse_kalibr(_cam0()) == EXAMPLES["omni-radtan"]
 
 
 def test_example_file_reads_as_written():

@@ -6,10 +6,12 @@ file, a fallback) only the message matters. Inside
 :func:`input_warnings_as_lines` these are printed as
 ``PROGRAM COMMAND: warning: MESSAGE`` on standard error:
 
-* :class:`~ifmi.errors.InputWarning`, once per call;
-* a plain ``UserWarning`` (or subclass) raised by the project's own packages
-  (``ifmi``, ``omnisim``): these are messages for the user, e.g. the mirror
-  band fallback of :func:`ifmi.unwarp.radius_band`;
+* :class:`~ifmi.errors.InputWarning`, and a plain ``UserWarning`` (or
+  subclass) raised by the project's own packages (``ifmi``, ``omnisim``):
+  these are messages for the user, e.g. the mirror band fallback of
+  :func:`ifmi.unwarp.radius_band`; each message once (a message raised for
+  every frame of a folder, e.g. the bit depth of its 16-bit images, is
+  printed the first time);
 * a ``RuntimeWarning`` (e.g. NumPy's ``invalid value encountered in
   divide``, ``Mean of empty slice``) as ``MESSAGE (at PACKAGE/MODULE.py:LINE)``,
   naming the innermost line of the project that led to it (NumPy's own
@@ -75,6 +77,7 @@ def input_warnings_as_lines(prefix: Callable[[], str]) -> Iterator[None]:
         warning is shown, so it may name a command parsed after entry.
     """
     shown_runtime: set[tuple[str, str]] = set()
+    shown_input: set[str] = set()
     with warnings.catch_warnings():
         default_show = warnings.showwarning
 
@@ -82,7 +85,9 @@ def input_warnings_as_lines(prefix: Callable[[], str]) -> Iterator[None]:
             dirs = _package_dirs()
             if issubclass(category, InputWarning) or (
                     issubclass(category, UserWarning) and _in_own_package(filename, dirs)):
-                print(f"{prefix()}: warning: {message}", file=sys.stderr)
+                if str(message) not in shown_input:
+                    shown_input.add(str(message))
+                    print(f"{prefix()}: warning: {message}", file=sys.stderr)
             elif issubclass(category, RuntimeWarning):
                 where = _own_caller(dirs) or f"{os.path.basename(filename)}:{lineno}"
                 if (str(message), where) not in shown_runtime:

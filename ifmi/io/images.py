@@ -1,4 +1,4 @@
-"""Image files of a dataset: 8-bit PNG or JPEG, decoded with OpenCV.
+"""Image files of a dataset: 8- or 16-bit PNG or JPEG, decoded with OpenCV.
 
 A damaged file comes back as one :class:`~ifmi.errors.InputError` naming the
 file instead of the decoder's own lines on stderr (libpng prints ``libpng
@@ -34,7 +34,11 @@ import numpy as np
 from ..errors import InputError, InputWarning
 from .native_stderr import call_with_captured_stderr
 
-__all__ = ["read_image", "IMAGE_SUFFIXES", "image_file_problem"]
+__all__ = ["read_image", "IMAGE_SUFFIXES", "SENSOR_BIT_DEPTHS", "image_file_problem", "sensor_bit_depth"]
+
+#: Sample depths of common image sensors, in bits; a 16-bit file whose values
+#: all fit the smaller of them is read at that depth (:func:`sensor_bit_depth`).
+SENSOR_BIT_DEPTHS = (8, 10, 12, 14, 16)
 
 # Image file types of a dataset (lower case).
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -53,10 +57,11 @@ _PNG_INTERLACE_METHODS = (0, 1)
 _ADAM7_PASSES = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2),
                  (0, 1, 1, 2))
 
-# Decode flags. Gray: the raw pixel grid, without applying an EXIF orientation tag.
+# Decode flags. Gray: the raw pixel grid at its stored depth (8 or 16 bits), without applying
+# an EXIF orientation tag (plain IMREAD_GRAYSCALE would drop the low byte of 16-bit samples).
 # Colour: as stored (depth, alpha); IMREAD_UNCHANGED (-1) never applies the orientation
 # tag and cannot be combined with other flags (-1 | flag == -1).
-_GRAY_FLAGS = cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION
+_GRAY_FLAGS = cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION
 _COLOUR_FLAGS = cv2.IMREAD_UNCHANGED
 
 # Messages of libjpeg (one line each, no prefix) that mean damaged image data ...
@@ -222,9 +227,45 @@ def _decode_checked(path: Path, data: bytes, *, gray: bool) -> np.ndarray:
     return image
 
 
+def sensor_bit_depth(largest: int) -> int:
+    """The bit depth a 16-bit file's samples were recorded at, from its largest sample.
+
+    Cameras with 10-, 12- or 14-bit sensors often store their samples
+    unscaled in a 16-bit file (values up to 1023, 4095 or 16383), where the
+    PNG standard would scale them to the full 16 bits. The recorded depth is
+    taken as the smallest of :data:`SENSOR_BIT_DEPTHS` whose range holds
+    ``largest``.
+
+    Parameters
+    ----------
+    largest : int
+        The largest sample of the image, 0 to 65535.
+
+    Returns
+    -------
+    int
+        8, 10, 12, 14 or 16.
+    """
+    return next(depth for depth in SENSOR_BIT_DEPTHS if largest < 2 ** depth)
+
+
+def _eight_bit_from_sixteen(path: Path, image: np.ndarray) -> np.ndarray:
+    """``image`` (uint16) as uint8: its top 8 bits at its recorded depth (:func:`sensor_bit_depth`)."""
+    depth = sensor_bit_depth(int(image.max()))
+    if depth < 16:
+        warnings.warn(f"{path.parent}: 16-bit images whose values stay below {2 ** depth} are read as "
+                      f"{depth}-bit data (their top 8 of {depth} bits), not as 16-bit data", InputWarning,
+                      stacklevel=3)
+    return (image >> (depth - 8)).astype(np.uint8)
+
+
 def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
                gray: bool = True) -> np.ndarray:
-    """Read an 8-bit image as its raw pixel grid (an EXIF orientation tag is ignored).
+    """Read an 8- or 16-bit image as 8-bit, as its raw pixel grid (an EXIF orientation tag is ignored).
+
+    A 16-bit image keeps the top 8 bits of the depth its samples were
+    recorded at (:func:`sensor_bit_depth`): 16-bit data its high byte,
+    12-bit data stored unscaled its bits 4 to 11, and so on.
 
     Parameters
     ----------
@@ -250,7 +291,9 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
     -----
     InputWarning
         The decoder found a problem in metadata that does not change the
-        pixels (e.g. a PNG's colour profile).
+        pixels (e.g. a PNG's colour profile), or a 16-bit image is read at
+        a smaller recorded depth (one message per folder and depth on the
+        command line).
     """
     path = Path(path)
     try:
@@ -263,14 +306,13 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
     if problem:
         raise InputError(path, problem)
     image = _decode_checked(path, data, gray=gray)
-    if image.dtype != np.uint8:
-        if image.dtype == np.uint16:
-            image = (image >> 8).astype(np.uint8)
-        else:
-            raise InputError(path, f"expected an 8-bit image, got {image.dtype}")
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = image[..., :3]  # the alpha channel goes before the bit depth is judged
+    if image.dtype == np.uint16:
+        image = _eight_bit_from_sixteen(path, image)
+    elif image.dtype != np.uint8:
+        raise InputError(path, f"expected an 8- or 16-bit image, got {image.dtype}")
     if image.ndim == 3:
-        if image.shape[2] == 4:
-            image = image[..., :3]
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     if size is not None and image.shape[:2] != tuple(size):
         raise InputError(path, f"image is {image.shape[0]}x{image.shape[1]} (height x width), "

@@ -3,8 +3,9 @@
 The file holds ``cam0`` with ``camera_model``, ``intrinsics``,
 ``distortion_model``, ``distortion_coeffs`` and ``resolution``
 ``[width, height]``; other keys of a Kalibr camchain (``T_cam_imu``,
-``rostopic``, further cameras, ...) are allowed and ignored. Intrinsics are in
-Kalibr's orders:
+``rostopic``, ...) are allowed and ignored. Further cameras (``cam1``, ...)
+are ignored with an :class:`~ifmi.errors.InputWarning`: a dataset's images
+are cam0's. Intrinsics are in Kalibr's orders:
 
 =================  ==========================  ==================================
 camera_model       intrinsics                  distortion_model (coefficients)
@@ -35,7 +36,9 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import reprlib
+import warnings
 from pathlib import Path
 
 from ..camera import MAX_IMAGE_SIDE_PX, MIN_IMAGE_SIDE_PX
@@ -48,7 +51,7 @@ from ..camera_models import (
     UnifiedModel,
     check_usable_region,
 )
-from ..errors import InputError
+from ..errors import InputError, InputWarning
 from .atomic import atomic_write_text
 from .text_file import read_text_file
 
@@ -159,6 +162,11 @@ def _cam0(text: str, source) -> dict:
         raise InputError(source, f"not valid YAML: {str(exc).split(';')[0]}") from None
     if not isinstance(data, dict) or not isinstance(data.get("cam0"), dict):
         raise InputError(source, "expected a Kalibr camchain with a 'cam0' mapping, found none")
+    others = sorted((key for key in data if isinstance(key, str) and re.fullmatch(r"cam[1-9][0-9]*", key)),
+                    key=lambda key: int(key[3:]))
+    if others:
+        warnings.warn(f"{source}: a camchain of {len(others) + 1} cameras; the images are taken to be "
+                      f"cam0's ({', '.join(others)} ignored)", InputWarning, stacklevel=4)
     cam = data["cam0"]
     for key in ("camera_model", "intrinsics", "distortion_model", "distortion_coeffs", "resolution"):
         if key not in cam:
