@@ -119,7 +119,15 @@ class RelativePoseOptions:
         inliers).
     min_iterations : int
         Smallest number of samples per model before the adaptive stop (at
-        most 100 000).
+        most 100 000). The adaptive stop trusts the best inlier count so
+        far; with a threshold of a pixel or so on a fast or translating
+        pair, a wrong model can count nearly every ray as an inlier and stop
+        the draw after a few samples. Against 8, the default 40 made the
+        rotations of seeds 0-19 stray more than 5 mrad from their consensus
+        2.9x less often (174 -> 59 of 5440 runs on 272 iFMI pairs of
+        held-out sets) and halved iFMI's runs with an ATE above 3x the
+        set's median (13 -> 5 of 756 runs over 126 sets), for about 1.6 ms
+        more per pair of 55-215 rays.
     confidence : float
         Adaptive stop: probability of having drawn one all-inlier sample.
     min_inliers : int
@@ -197,7 +205,7 @@ class RelativePoseOptions:
     ransac_threshold_rad: float | None = None
     ransac_threshold_px: float = 1.0
     max_iterations: int = 200
-    min_iterations: int = 8
+    min_iterations: int = 40
     confidence: float = 0.999
     min_inliers: int = 8
     seed: int = 0

@@ -432,3 +432,25 @@ def test_bundle_window_comparison_counts_ratios_and_misses(tmp_path, monkeypatch
     assert rotation.geometric_mean_ratio == pytest.approx(2.0) and rotation.higher == 1
     assert result["misses"][("frame", "translated", "designed")] == [1, 1, 0]
     assert result["misses"][("frame", "rotation only", "designed")] == [1, 0, 0]
+
+
+def test_perturbed_copy_moves_each_sample_by_at_most_one_level_and_repeats_with_its_seed(tmp_path, capsys):
+    from ifmi.io.dataset import read_dataset
+    from ifmi.io.images import read_image
+
+    perturb = _benchmark_module("perturb_dataset")
+    source = _write_dataset(tmp_path / "source", seed=3, max_step_rad=0.05)
+    assert perturb.main([str(source), str(tmp_path / "a"), "--seed", "1"]) == 0
+    assert perturb.main([str(source), str(tmp_path / "b"), "--seed", "1"]) == 0
+    originals, copies = read_dataset(source), read_dataset(tmp_path / "a")
+    assert copies.frame_indices == originals.frame_indices
+    assert (tmp_path / "a" / "groundtruth.txt").read_bytes() == originals.groundtruth_path.read_bytes()
+    steps = np.concatenate([(read_image(c, gray=False).astype(int) - read_image(o, gray=False)).ravel()
+                            for c, o in zip(copies.image_paths, originals.image_paths)])
+    assert set(np.unique(steps)) <= {-1, 0, 1} and np.count_nonzero(steps) > steps.size // 2
+    # The same seed, the same copy.
+    assert [p.read_bytes() for p in sorted((tmp_path / "b" / "images").iterdir())] == \
+        [p.read_bytes() for p in sorted((tmp_path / "a" / "images").iterdir())]
+    capsys.readouterr()
+    assert perturb.main([str(source), str(tmp_path / "a"), "--seed", "1"]) == 2
+    assert capsys.readouterr().err == f"error: {tmp_path / 'a'}: output folder exists; choose a new one\n"

@@ -129,19 +129,25 @@ class PointFrontEnd:
         return Correspondences(rays_a[:, :2] * 0, rays_b[:, :2] * 0, rays_a, rays_b, {"n_tiles": 1})
 
 
-def test_tracker_refines_a_translated_sequence_with_short_steps():
+def test_tracker_refines_translated_sequences_with_short_steps():
     # 1 cm steps 1-4 m from the points with 2 mrad ray noise: one pair's parallax is a few
-    # milliradians, so the pairs' rotations take up some of it; the window ties them together.
-    points, rotations, positions = _scene(16, n_points=120, step_m=0.01, seed=5)
-    frames = [(k, rotations[k], positions[k]) for k in range(16)]
-    pose = RelativePoseOptions(ransac_threshold_rad=1e-2, seed=0)
-    errors = {}
-    for window in (0, 4):
-        trajectory, records = track_sequence(frames, PointFrontEnd(points, noise_rad=2e-3), pose_options=pose,
-                                             bundle_adjustment=BundleAdjustmentOptions(window=window))
-        assert all(record.success for record in records)
-        errors[window] = float(np.sqrt(np.mean(geodesic_angle(rotations, trajectory.rotations) ** 2)))
-    assert errors[4] < 0.7 * errors[0]
+    # milliradians, so the pairs' rotations take up some of it; an 8-frame window (7 cm of baseline)
+    # ties them together. One scene's chain error moves with the RANSAC draw (0.45-1.5 mrad over
+    # these scenes), so the gain is judged over six: measured 0.48-0.93x, geometric mean 0.69x.
+    ratios = []
+    for scene in range(5, 11):
+        points, rotations, positions = _scene(16, n_points=120, step_m=0.01, seed=scene)
+        frames = [(k, rotations[k], positions[k]) for k in range(16)]
+        pose = RelativePoseOptions(ransac_threshold_rad=1e-2, seed=0)
+        errors = {}
+        for window in (0, 8):
+            trajectory, records = track_sequence(frames, PointFrontEnd(points, noise_rad=2e-3), pose_options=pose,
+                                                 bundle_adjustment=BundleAdjustmentOptions(window=window))
+            assert all(record.success for record in records)
+            errors[window] = float(np.sqrt(np.mean(geodesic_angle(rotations, trajectory.rotations) ** 2)))
+        ratios.append(errors[8] / errors[0])
+    assert max(ratios) < 1.0
+    assert np.exp(np.mean(np.log(ratios))) < 0.8
 
 
 def test_exact_frames_stay_exact_through_the_tracker_window():

