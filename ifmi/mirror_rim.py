@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from .camera import OcamModel, pixel_offsets_from_sensor, pixels_from_sensor
+from .unwarp import _NOISE_MEDIAN_PX, gray_from_image  # pixels are judged lit as for the radius band
 
 __all__ = ["RimCircle", "rim_circle_from_frames"]
 
@@ -34,8 +35,6 @@ _RIM_STEP_PX = 0.5
 # its last lit sample (the image border is not a rim), and a rim needs half of the rays.
 _DARK_SAMPLES_AFTER = 4
 _MIN_RAY_SHARE = 0.5
-# Median filter (px) applied before pixels are judged lit, as for the radius band.
-_NOISE_MEDIAN_PX = 5
 # Circle fit: RANSAC over three-point circles (this many, seeded), inliers within this distance
 # (px) of the circle; the rim must be a circle along at least this share of all rays. Dark objects
 # at the rim only pull edge points inward, and an image warped from another view (omnisim warp)
@@ -81,8 +80,8 @@ def _lit_mask(frames: Sequence[np.ndarray], dark_level: float) -> np.ndarray:
     """(H, W) bool: pixels brighter than ``dark_level`` in at least half of the median-filtered frames."""
     lit = []
     for image in frames:
-        gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-        lit.append(cv2.medianBlur(np.ascontiguousarray(gray, dtype=np.uint8), _NOISE_MEDIAN_PX) > dark_level)
+        gray = np.ascontiguousarray(gray_from_image(image), dtype=np.uint8)
+        lit.append(cv2.medianBlur(gray, _NOISE_MEDIAN_PX) > dark_level)
     return np.mean(lit, axis=0) >= 0.5
 
 
@@ -166,9 +165,18 @@ def rim_circle_from_frames(model: OcamModel, frames: Sequence[np.ndarray], *,
         rim is a circle along fewer than half of them (objects darker than
         ``dark_level`` along much of it, or a lit region that is no circle),
         or without frames.
+
+    Raises
+    ------
+    ValueError
+        A frame whose size is not the calibration's.
     """
     if not len(frames):
         return None
+    for k, image in enumerate(frames):
+        if np.shape(image)[:2] != tuple(model.size):
+            raise ValueError(f"frames[{k}]: expected {model.size[0]}x{model.size[1]} pixels (the calibration's "
+                             f"size), got shape {np.shape(image)}")
     edges = _rim_edges(model, _lit_mask(frames, dark_level))
     if len(edges) < _MIN_RAY_SHARE * _RIM_AZIMUTHS:
         return None

@@ -97,3 +97,9 @@ def test_estimate_warns_once_about_a_calibration_centre_off_the_rim(tmp_path, ca
     assert found and found[1] == str(moved / "calib_results.txt")
     # The calibration's centre moved 6 px along the columns; the rim stayed where it was.
     np.testing.assert_allclose([float(v) for v in found.groups()[1:5]], [6.0, 0.0, -6.0, 120.0], atol=0.2)
+
+
+def test_a_frame_of_another_size_is_refused():
+    with pytest.raises(ValueError, match=r"frames\[1\]: expected 256x256 pixels \(the calibration's size\), "
+                                         r"got shape \(128, 256\)"):
+        rim_circle_from_frames(MODEL, [np.zeros(SIZE, np.uint8), np.zeros((128, 256), np.uint8)], dark_level=DARK)
