@@ -103,3 +103,26 @@ def test_a_frame_of_another_size_is_refused():
     with pytest.raises(ValueError, match=r"frames\[1\]: expected 256x256 pixels \(the calibration's size\), "
                                          r"got shape \(128, 256\)"):
         rim_circle_from_frames(MODEL, [np.zeros(SIZE, np.uint8), np.zeros((128, 256), np.uint8)], dark_level=DARK)
+
+
+def test_a_kalibr_image_circle_clipped_by_the_image_sides_is_found_about_the_principal_point():
+    # An image circle of radius 380 px on a 480 x 752 sensor: only four arcs near the corners show.
+    from ifmi.camera_models import ExtendedUnifiedModel
+
+    model = ExtendedUnifiedModel(0.63, 1.04, (380.0, 380.0), (376.0, 240.0), (480, 752))
+    rows, cols = np.mgrid[0:480, 0:752]
+    for moved in ((0.0, 0.0), (-4.0, 3.0)):  # (row, col) of the circle's centre minus (pv, pu)
+        lit = np.hypot(rows - 240.0 - moved[0], cols - 376.0 - moved[1]) < 380.0
+        frame = np.where(lit, np.random.default_rng(1).integers(40, 241, lit.shape), 0).astype(np.uint8)
+        rim = rim_circle_from_frames(model, [frame], dark_level=DARK)
+        np.testing.assert_allclose(rim.centre_offset_px, moved, atol=0.25)
+        assert rim.n_rays < 180  # most rays leave the image before the rim
+
+
+def test_an_equirectangular_model_has_no_rim():
+    from ifmi.camera_models import EquirectangularModel
+    from ifmi.mirror_rim import model_images_a_rim
+
+    model = EquirectangularModel((128, 256))
+    assert not model_images_a_rim(model)
+    assert rim_circle_from_frames(model, [np.zeros((128, 256), np.uint8)], dark_level=DARK) is None

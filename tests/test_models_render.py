@@ -221,7 +221,7 @@ def test_new_calibration_reuses_the_compiled_kernel(mi, name):
     try:
         # Read the first image back like the second, so that both renders run the same kernels
         # (the read-back has its own): only the calibration differs between them.
-        image = np.array(mi.render(scene))
+        np.array(mi.render(scene))
         # Work left queued by earlier tests runs now, not inside the measured render.
         gc.collect()
         dr.eval()
@@ -234,12 +234,14 @@ def test_new_calibration_reuses_the_compiled_kernel(mi, name):
         history = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
-    # The render's kernels run over the film's pixels: one lane per pixel (the render) and one
-    # per pixel and channel (the read-back).
+    # The render's kernel runs one lane per film pixel and is the one that reads the calibration;
+    # it must come from the cache. The read-back's (one lane per pixel and channel) reads no
+    # calibration, and whether it hits the cache depends on what earlier tests left in the
+    # process: one clean-clone suite run of three compiled it anew.
     pixels = model.height * model.width
-    film = [k for k in history if k["size"] in (pixels, image.size)]
-    assert len(film) >= 2, f"expected the render and its read-back among {[k['size'] for k in history]}"
-    missed = [{key: k.get(key) for key in ("hash", "size", "operation_count")} for k in film if not k.get("cache_hit")]
+    render = [k for k in history if k["size"] == pixels]
+    assert render, f"expected the render's kernel among sizes {[k['size'] for k in history]} ({pixels} pixels)"
+    missed = [{key: k.get(key) for key in ("hash", "size", "operation_count")} for k in render if not k.get("cache_hit")]
     assert not missed, f"compiled anew: {missed}"
     valid = _eroded(valid_mask(other))
     rows, cols = np.mgrid[0:other.height, 0:other.width]
