@@ -19,7 +19,7 @@ with its centre and affine part; the inverse polynomial is refitted).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -42,7 +42,8 @@ from .camera_models import (
 )
 from .unwarp import inverse_polynomial_error
 
-__all__ = ["TARGETS", "CalibrationFit", "fit_camera_model", "reprojection_errors", "rays_in_frame_of"]
+__all__ = ["TARGETS", "CalibrationFit", "fit_camera_model", "reprojection_errors", "rays_in_frame_of",
+           "percent_below"]
 
 TARGETS = ("omni", "pinhole", "kb", "eucm", "ds", "ocamcalib")
 # OCamCalib frame -> Kalibr frame (a proper rotation, its own inverse).
@@ -84,6 +85,12 @@ class CalibrationFit:
         can represent the whole valid region).
     success : bool
     reason : str
+    target_from_source : (3, 3) ndarray
+        Rotation carrying directions of the source's camera frame into the
+        fitted model's (the identity when both keep one toolbox's frame;
+        the half turn of the module notes between OCamCalib and Kalibr).
+        A camera rotation ``R`` estimated with the source is
+        ``T R T^T`` with the fitted model, ``T`` this matrix.
     """
 
     model: object
@@ -92,6 +99,12 @@ class CalibrationFit:
     coverage: float
     success: bool
     reason: str = ""
+    target_from_source: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    @property
+    def changes_frame(self) -> bool:
+        """Whether the fitted model's camera frame differs from the source's."""
+        return not np.array_equal(self.target_from_source, np.eye(3))
 
 
 def rays_in_frame_of(rays: np.ndarray, source, target) -> np.ndarray:
@@ -333,7 +346,13 @@ def fit_camera_model(source, target: str) -> CalibrationFit:
         errors = reprojection_errors(source, model, grid)
     seen = np.isfinite(errors)
     coverage = float(seen.mean())
-    reason = "" if coverage == 1.0 else f"the {target} model sees only {100 * coverage:.1f} % of the valid region"
+    reason = "" if coverage == 1.0 else f"the {target} model sees only {percent_below(coverage)} % of the valid region"
     return CalibrationFit(model=model, max_error_px=float(np.max(errors[seen])) if seen.any() else np.inf,
                           median_error_px=float(np.median(errors[seen])) if seen.any() else np.inf,
-                          coverage=coverage, success=coverage == 1.0, reason=reason)
+                          coverage=coverage, success=coverage == 1.0, reason=reason,
+                          target_from_source=rays_in_frame_of(np.eye(3), source, model).T)
+
+
+def percent_below(fraction: float) -> str:
+    """``fraction`` as a percentage with one decimal, rounded down (99.96 % shows as 99.9, never 100.0)."""
+    return f"{np.floor(1000.0 * fraction) / 10.0:.1f}"

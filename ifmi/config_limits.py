@@ -26,7 +26,7 @@ __all__ = ["check_config_for_model"]
 _MAX_OVERSAMPLING = 4
 
 
-def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
+def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=None) -> None:
     """Refuse sizes and radii that the images of ``model`` cannot give.
 
     Checked: the panorama's radius band lies inside the image (and is not
@@ -46,12 +46,16 @@ def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
     config : ifmi.pipeline.EstimateConfig
     model : OcamModel or another camera model (:mod:`ifmi.camera_models`)
     method : str, keyword-only
+    calib_path : path, optional, keyword-only
+        The calibration file ``model`` was read from: a problem of the
+        camera's geometry itself (no full ring of rays to unwrap) names it.
 
     Raises
     ------
     InputError
         Named after the configuration key (``ifmi.panorama.width``): what is
-        accepted for this camera and what was given.
+        accepted for this camera and what was given; or after ``calib_path``
+        (default ``ifmi.panorama``) when the camera model gives no band.
     """
     conflict = config.bundle_adjustment.shutter_conflict(config.rolling_shutter.readout)
     if conflict is not None:
@@ -71,7 +75,10 @@ def check_config_for_model(config, model, *, method: str = "ifmi") -> None:
     except InputError:
         raise
     except ValueError as exc:
-        raise InputError("ifmi.panorama", str(exc)) from None
+        if calib_path is None:
+            raise InputError("ifmi.panorama", str(exc)) from None
+        raise InputError(calib_path, f"{exc} (checked for the panorama with the ifmi.panorama "
+                                     "settings)") from None
     limits = {"width": int(_MAX_OVERSAMPLING * 2 * np.pi * outer), "height": int(_MAX_OVERSAMPLING * outer)}
     for name, limit in limits.items():
         value = getattr(pano, name)

@@ -8,13 +8,14 @@ Reads the TUM files and the run's side files, computes the errors of
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, OutputError
+from .errors import InputError, InputWarning, OutputError
 from .io.dataset import dataset_meta, refuse_output_in_datasets
 from .io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
 from .io.tum import read_tum
@@ -41,16 +42,26 @@ class EvaluateOptions:
         associated with a ground-truth pose; fewer is an error, not a
         summary of a few frames. In [0, 1]. Whatever it is, at least
         :data:`MIN_ASSOCIATED` poses must be associated.
+    origin_tolerance_rad : float
+        The trajectories are compared re-based to their first associated
+        frame (:func:`~ifmi.metrics.trajectory_errors`); a ground-truth
+        pose there further than this from the identity (radians, > 0; the
+        default allows quaternions written with five decimals) is reported
+        with a warning, since it means the files do not start on the same
+        frame.
     """
 
     max_time_difference: float = 1e-3
     min_matched: float = 0.5
+    origin_tolerance_rad: float = 1e-5
 
     def __post_init__(self) -> None:
         if not self.max_time_difference >= 0:
             raise ValueError(f"expected max_time_difference >= 0, got {self.max_time_difference}")
         if not 0 <= self.min_matched <= 1:
             raise ValueError(f"expected min_matched in [0, 1], got {self.min_matched}")
+        if not self.origin_tolerance_rad > 0:
+            raise ValueError(f"expected origin_tolerance_rad > 0, got {self.origin_tolerance_rad}")
 
     def to_dict(self) -> dict:
         return {"max_time_difference": self.max_time_difference, "min_matched": self.min_matched}
@@ -157,6 +168,18 @@ def _check_matched(gt_path: Path, est_path: Path, n_matched: int, n_gt: int, n_e
                                "measures nothing)")
 
 
+def _warn_if_rebased(gt_path: Path, est_path: Path, errors, options: EvaluateOptions) -> None:
+    """Warn when the ground truth is not the identity at the first associated frame (re-based there)."""
+    if errors.gt_origin_angle <= options.origin_tolerance_rad:
+        return
+    warnings.warn(f"{gt_path}: the pose at {est_path.name}'s first associated timestamp "
+                  f"{errors.timestamps[0]:g} is {errors.gt_origin_angle:.4g} rad from the identity, "
+                  "so the two files do not start on the same frame; both are compared re-based to "
+                  "that frame (right for an estimate that starts later, or ground truth in a world "
+                  "frame; wrong if the estimate numbers its frames differently, e.g. from 1)",
+                  InputWarning, stacklevel=3)
+
+
 def _run_meta(gt_path: Path, est_path: Path, side: EstimateSideFiles, summary: EvaluationSummary,
               options: EvaluateOptions) -> dict:
     config = side.config or {}
@@ -189,7 +212,9 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     gt_path, est_path : path
         TUM trajectory files (``R_0k``, frame 0 the identity).
     out_dir : path, optional, keyword-only
-        Output folder; default :func:`default_evaluation_dir` of ``est_path``.
+        Output folder. Default: :func:`default_evaluation_dir` of
+        ``est_path``, written if it can be; if not (a read-only folder, a
+        file of that name), a warning says so and ``path`` is None.
     options : EvaluateOptions, keyword-only
 
     Returns
@@ -206,7 +231,7 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
         ``options.min_matched`` of the ground truth's or of the estimate's,
         or fewer than :data:`MIN_ASSOCIATED`.
     OutputError
-        The evaluation folder cannot be written.
+        The ``out_dir`` given cannot be written.
     """
     gt_path, est_path = Path(gt_path), Path(est_path)
     gt = read_tum(gt_path)
@@ -221,22 +246,30 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     except ValueError as exc:
         raise InputError(est_path, str(exc)) from None
     _check_matched(gt_path, est_path, len(errors), len(gt), len(est), options)
+    _warn_if_rebased(gt_path, est_path, errors, options)
     frames = side.frames
     summary = summary_from_errors(errors, n_gt=len(gt), n_est=len(est),
                                   frame_success=None if frames is None else frames.success,
                                   frame_seconds=None if frames is None else frames.seconds)
     meta = _run_meta(gt_path, est_path, side, summary, options)
+    meta["origin"] = {"timestamp": float(errors.timestamps[0]),
+                      "groundtruth_angle_rad": errors.gt_origin_angle,
+                      "estimate_angle_rad": errors.est_origin_angle}
     meta["per_frame_columns"] = list(errors.arrays())
     out = Path(out_dir) if out_dir is not None else default_evaluation_dir(est_path)
     _refuse_dataset_output(out, gt_path, side)
     try:
         write_evaluation(out, meta=meta, arrays=errors.arrays(), side_files=side)
-    except OutputError:
-        raise
-    except OSError as exc:  # e.g. the folder cannot be made: a regular file in the way
-        raise OutputError.from_os_error(out, exc) from None
+    except OSError as exc:  # OutputError, or e.g. the folder cannot be made: a regular file in the way
+        error = OutputError.from_os_error(out, exc)
+        if out_dir is not None:
+            raise error from None
+        # The default folder is a convenience: the result still stands (and a gate's verdict with it).
+        warnings.warn(f"{error}; the evaluation is not saved (--out chooses a folder)", InputWarning,
+                      stacklevel=2)
+        out = None
     meta = jsonable(meta)
-    meta["path"] = str(out)
+    meta["path"] = None if out is None else str(out)
     return meta
 
 

@@ -211,6 +211,11 @@ class TrajectoryErrors:
     translation_direction : (N,) ndarray
         Translation-direction angle error against each frame's reference
         frame (see :func:`translation_direction_errors`); NaN where undefined.
+    gt_origin_angle, est_origin_angle : float
+        Angle (radians) of each trajectory's pose at the first associated
+        frame from the identity, before both were re-based to that frame
+        (see :func:`trajectory_errors`). Zero when both start at the first
+        associated frame, as the file contract says.
     """
 
     timestamps: np.ndarray
@@ -222,6 +227,8 @@ class TrajectoryErrors:
     geodesic: np.ndarray
     relative_geodesic: np.ndarray
     translation_direction: np.ndarray
+    gt_origin_angle: float = 0.0
+    est_origin_angle: float = 0.0
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -256,10 +263,20 @@ def trajectory_errors(gt: Trajectory, est: Trajectory, *, max_time_difference: f
                       reference_timestamps: np.ndarray | None = None) -> TrajectoryErrors:
     """Associate ``est`` with ``gt`` by timestamp and compute per-frame errors.
 
+    Both trajectories are first re-based to their first associated frame f
+    (``R_fk = R_0f^T R_0k``, positions likewise), so that an estimate that
+    starts later than the ground truth (its first frames dropped) or ground
+    truth given in a world frame is compared in one frame. With both files
+    starting at the identity on the same frame, as the file contract says,
+    this changes nothing; :attr:`TrajectoryErrors.gt_origin_angle` tells
+    how far from it the ground truth was. Frame-to-frame and
+    translation-direction errors do not depend on it.
+
     Parameters
     ----------
     gt, est : Trajectory
-        Ground truth and estimate, both ``R_0k`` with frame 0 the identity.
+        Ground truth and estimate, ``R_0k`` (frame 0 the identity) or any
+        common world frame.
     max_time_difference : float, keyword-only
         Largest timestamp difference accepted when associating frames.
     reference_timestamps : (len(est),) array_like, optional, keyword-only
@@ -283,8 +300,9 @@ def trajectory_errors(gt: Trajectory, est: Trajectory, *, max_time_difference: f
             f"(ground truth {gt.timestamps.min():g}..{gt.timestamps.max():g}, "
             f"estimate {est.timestamps.min():g}..{est.timestamps.max():g})"
         )
-    R_gt = gt.rotations[gi]
-    R_est = est.rotations[ei]
+    sub_gt = _rebased(Trajectory(gt.timestamps[gi], gt.positions[gi], gt.rotations[gi]))
+    sub_est = _rebased(Trajectory(est.timestamps[ei], est.positions[ei], est.rotations[ei]))
+    R_gt, R_est = sub_gt.rotations, sub_est.rotations
     rpy_gt = rpy_from_matrix(R_gt)
     rpy_est = rpy_from_matrix(R_est)
     rpy_error = wrap_angle(rpy_est - rpy_gt)
@@ -294,8 +312,6 @@ def trajectory_errors(gt: Trajectory, est: Trajectory, *, max_time_difference: f
         rel_gt = np.swapaxes(R_gt[:-1], -1, -2) @ R_gt[1:]
         rel_est = np.swapaxes(R_est[:-1], -1, -2) @ R_est[1:]
         relative[1:] = geodesic_angle(rel_gt, rel_est)
-    sub_gt = Trajectory(gt.timestamps[gi], gt.positions[gi], R_gt)
-    sub_est = Trajectory(est.timestamps[ei], est.positions[ei], R_est)
     if reference_timestamps is None:
         reference = np.arange(len(gi)) - 1
     else:
@@ -305,7 +321,16 @@ def trajectory_errors(gt: Trajectory, est: Trajectory, *, max_time_difference: f
     return TrajectoryErrors(timestamps=est.timestamps[ei], gt_index=gi, est_index=ei,
                             rpy_gt=rpy_gt, rpy_est=rpy_est, rpy_error=rpy_error,
                             geodesic=geodesic, relative_geodesic=relative,
-                            translation_direction=translation)
+                            translation_direction=translation,
+                            gt_origin_angle=float(geodesic_angle(gt.rotations[gi[0]], np.eye(3))),
+                            est_origin_angle=float(geodesic_angle(est.rotations[ei[0]], np.eye(3))))
+
+
+def _rebased(trajectory: Trajectory) -> Trajectory:
+    """``trajectory`` expressed in the frame of its first pose: ``R_0^T R_k`` and ``R_0^T (p_k - p_0)``."""
+    r0_inv = trajectory.rotations[0].T
+    return Trajectory(trajectory.timestamps, (trajectory.positions - trajectory.positions[0]) @ r0_inv.T,
+                      r0_inv @ trajectory.rotations)
 
 
 @dataclass(frozen=True)

@@ -236,7 +236,11 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     from .io.dataset import read_dataset
 
     dataset = read_dataset(Path(dataset_dir))
-    check_config_for_model(config, dataset.model, method=method)
+    try:
+        check_config_for_model(config, dataset.model, method=method, calib_path=dataset.calib_path)
+    except InputError:
+        _check_first_frame_size(dataset)  # frames of another size than the calibration's explain it better
+        raise
     # The RANSAC threshold is resolved on the calibration's band first, as for any sequence; the
     # band the panorama uses is then decided from several frames (saved with the configuration).
     config = _config_with_band(resolved_config(config, dataset.model), dataset.model,
@@ -253,6 +257,21 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     frames = tuple(replace(r, frame=index[r.frame], reference_frame=index[r.reference_frame])
                    for r in estimate.frames)
     return replace(estimate, frames=frames)
+
+
+def _check_first_frame_size(dataset) -> None:
+    """Raise the size error of the dataset's first frame when it differs from the calibration's."""
+    from .io.images import image_file_problem
+
+    if not dataset.image_paths:
+        return
+    path = dataset.image_paths[0]
+    try:
+        problem = image_file_problem(path.read_bytes(), size=dataset.model.size)
+    except OSError:
+        return
+    if problem and problem.startswith("image is "):
+        raise InputError(path, problem)
 
 
 # Frames, spread evenly over a dataset or a video, that decide the mirror band together.
@@ -344,6 +363,7 @@ def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike,
 
     model = read_camera(Path(calib_path))  # calib_results.txt or a Kalibr camera.yaml
     frames = VideoFrames(video_path, size=model.size)
+    check_config_for_model(config, model, method=method, calib_path=calib_path)
     try:
         # The RANSAC threshold is resolved on the calibration's band, then the band is decided.
         config = _config_with_band(resolved_config(config, model), model,

@@ -232,8 +232,9 @@ def _warn(message: str) -> None:
 
 def read_cell_record(path: Path, *, action: str) -> dict | None:
     """A cell's record, or None when it is missing; a record that is not a JSON object
-    (truncated, ``[]``) or lacks an entry of :data:`RECORD_KEYS` is None too, with a
-    warning naming the file and ``action``."""
+    (truncated, ``[]``), lacks an entry of :data:`RECORD_KEYS` or holds a value of the wrong
+    kind (text where a number belongs, ...) is None too, with a warning naming the file, the
+    entry and ``action``."""
     try:
         record = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -248,7 +249,31 @@ def read_cell_record(path: Path, *, action: str) -> dict | None:
     if missing:
         _warn(f"{path}: sweep cell without {', '.join(missing)}; {action}")
         return None
+    problem = _record_type_problem(record)
+    if problem:
+        _warn(f"{path}: sweep cell {problem}; {action}")
+        return None
     return record
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _record_type_problem(record: dict) -> str:
+    """What is of the wrong kind in a cell record ("" when nothing): text keys, the grid's numbers,
+    and the measured numbers (``*_rad``, ``*_s``, counts; null allowed) of a finished cell."""
+    for key in ("cell_id", "dataset", "method", "status"):
+        if not isinstance(record[key], str):
+            return f"{key}: expected text, got {json.dumps(record[key])}"
+    for key in ("tile_size", "overlap"):
+        if not _is_number(record[key]):
+            return f"{key}: expected a number, got {json.dumps(record[key])}"
+    measured = [k for k in record if k.endswith(("_rad", "_s")) or k in ("failures", "frames")]
+    for key in measured:
+        if record[key] is not None and not _is_number(record[key]):
+            return f"{key}: expected a number or null, got {json.dumps(record[key])}"
+    return ""
 
 
 def _finished(out_dir: Path, cell: SweepCell, digest: str, data_digest: str) -> bool:

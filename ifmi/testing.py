@@ -89,7 +89,9 @@ def assert_trajectory_close(gt, est, *, rmse_rad: float, max_rad: float | None =
     ----------
     gt, est : Trajectory, path or (N, 3, 3) array_like
         A trajectory, a TUM file, or rotations ``R_0k`` (frame k at time k).
-        Poses are associated by timestamp, as ``ifmi evaluate`` does.
+        Poses are associated by timestamp and compared from the first
+        associated frame, as ``ifmi evaluate`` does
+        (:func:`~ifmi.metrics.trajectory_errors`).
     rmse_rad : float, keyword-only
         Largest accepted geodesic RMSE over the associated poses, radians.
     max_rad : float, optional, keyword-only

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import signal
 import sys
 import threading
@@ -17,7 +18,8 @@ __all__ = ["main", "build_parser"]
 
 
 def _resolution(text: str):
-    parts = text.lower().replace("x", " ").replace(",", " ").split()
+    """``N`` (square), ``HEIGHTxWIDTH`` or ``HEIGHT,WIDTH``: every part a number, none left empty."""
+    parts = re.split(r"\s*[x,]\s*", text.strip().lower())
     try:
         values = [int(p) for p in parts]
     except ValueError:

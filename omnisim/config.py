@@ -287,7 +287,7 @@ def _read_toml(path: Path) -> tuple[bytes, dict]:
     except OSError as exc:
         raise InputError(path, f"cannot read scene file ({exc.strerror or exc.__class__.__name__})") from None
     try:
-        data = tomllib.loads(raw.decode("utf-8"))
+        data = tomllib.loads(raw.decode("utf-8-sig"))  # a byte-order mark of Windows editors is skipped
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise InputError(path, f"not valid TOML: {str(exc).splitlines()[0]}") from None
     for key in data:
@@ -530,7 +530,7 @@ def write_scene_with_kalibr_camera(scene_file, camera_model, folder) -> Path:
 
     folder = Path(folder)
     out, skipping = [], False
-    for line in Path(scene_file).read_text(encoding="utf-8").splitlines():
+    for line in Path(scene_file).read_text(encoding="utf-8-sig").splitlines():
         if line.startswith("["):
             skipping = line.strip() == "[camera]"
             if skipping:

@@ -79,6 +79,14 @@ def degrade_image(image: np.ndarray, effects: EffectsSettings, *, gain: float, s
     return np.ascontiguousarray(rgb[..., 0]) if gray else rgb
 
 
+def _frame_sha256(path: Path) -> str:
+    """:func:`sha256_file` of a source frame; an unreadable one (a dangling or looping link) is bad input."""
+    try:
+        return sha256_file(path)
+    except OSError as exc:
+        raise InputError(path, f"cannot read the frame ({exc.strerror or exc.__class__.__name__})") from None
+
+
 def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int = 0,
                     progress: bool = True) -> DegradeResult:
     """Write a copy of a dataset folder with capture effects applied to every image.
@@ -123,7 +131,7 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
         raise InputError(out_dir, f"is inside the source dataset {dataset.root}; choose an output folder "
                                   f"outside it")
     names = [path.name for path in dataset.image_paths]
-    source_hashes = {path.name: sha256_file(path) for path in dataset.image_paths}
+    source_hashes = {path.name: _frame_sha256(path) for path in dataset.image_paths}
     identity = {
         "source_images_sha256": hashlib.sha256(json.dumps(source_hashes, sort_keys=True).encode()).hexdigest(),
         "effects": asdict(effects),

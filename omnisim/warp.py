@@ -65,6 +65,7 @@ from ifmi.rolling_shutter import row_time_offsets
 from ifmi.trajectory import Trajectory
 from ifmi.unwarp import PanoramaConfig, gray_from_image, lit_off_axis_band, panorama_axis_rotation, radius_band
 
+from .config import MAX_FRAMES
 from .render import META_FORMAT, encode_png, open_output_folder, pending_images, write_row_poses
 
 __all__ = ["WarpSettings", "WarpResult", "rotation_walk", "valid_source_band", "warp_image",
@@ -106,8 +107,9 @@ class WarpSettings:
     rolling_shutter: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.frames < 1 or self.seed < 0:
-            raise ValueError(f"expected frames >= 1 and seed >= 0, got {self.frames}, {self.seed}")
+        if not 1 <= self.frames <= MAX_FRAMES or self.seed < 0:
+            raise ValueError(f"expected 1 <= frames <= {MAX_FRAMES} (as a render) and seed >= 0, got "
+                             f"{self.frames}, {self.seed}")
         if not 0 < self.max_step_deg <= 90 or not 0 <= self.max_tilt_deg <= 45:
             raise ValueError(f"expected 0 < max_step_deg <= 90 and 0 <= max_tilt_deg <= 45, got "
                              f"{self.max_step_deg}, {self.max_tilt_deg}")

@@ -168,3 +168,36 @@ def test_omni_radtan_to_double_sphere_starts_from_its_best_radial_shape():
     assert fit.success
     assert fit.model.xi < 0
     assert fit.max_error_px < 40.0 and fit.median_error_px < 8.0
+
+
+def test_fit_across_toolboxes_carries_rays_by_its_frame_rotation():
+    """A ray of the source at a pixel, turned by ``target_from_source``, is the fitted model's ray there."""
+    source = paracatadioptric_model((240, 320), horizon_radius_px=100.0)
+    fit = fit_camera_model(source, "ds")
+    assert fit.changes_frame
+    np.testing.assert_array_equal(fit.target_from_source, [[0, 1, 0], [1, 0, 0], [0, 0, -1]])
+    rows, cols = np.nonzero(valid_mask(source)[::16, ::16])
+    pixels = np.stack([rows, cols], axis=-1).astype(float) * 16
+    turned = source.rays_from_pixels(pixels) @ fit.target_from_source.T
+    # The fit's error (< 0.01 px here, README "convert-calib") is ~1e-4 rad at 100 px per radian.
+    np.testing.assert_allclose(fit.model.rays_from_pixels(pixels), turned, atol=1e-3)
+    same = fit_camera_model(UNIFIED, "eucm")
+    assert not same.changes_frame
+
+
+def test_converting_across_toolboxes_warns_that_ground_truth_no_longer_fits(tmp_path, capsys):
+    source = tmp_path / "calib_results.txt"
+    write_calib(source, paracatadioptric_model((240, 320), horizon_radius_px=100.0))
+    assert main(["convert-calib", str(source), "--to", "ds", "--out", str(tmp_path / "camera.yaml")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "camera.yaml: the Kalibr camera frame is not the OCamCalib one" in err[0]
+    assert "groundtruth.txt" in err[0]
+    assert main(["convert-calib", str(tmp_path / "camera.yaml"), "--to", "eucm",
+                 "--out", str(tmp_path / "e.yaml")]) == 0
+    assert capsys.readouterr().err == ""
+
+
+def test_coverage_just_under_whole_is_not_printed_as_100_percent():
+    from ifmi.calib_fit import percent_below
+
+    assert percent_below(0.99996) == "99.9" and percent_below(0.625) == "62.5" and percent_below(1.0) == "100.0"

@@ -139,6 +139,25 @@ def test_warning_lines_of_own_and_foreign_user_warnings(capsys):
     assert [str(w.message) for w in default_display] == ["a library's own warning"]
 
 
+def test_warning_line_during_a_progress_bar_starts_a_line_of_its_own(capsys):
+    import sys
+
+    from tqdm import tqdm
+
+    from ifmi.cli.warning_lines import input_warnings_as_lines
+
+    with input_warnings_as_lines(lambda: "ifmi estimate"), tqdm(total=3, file=sys.stderr, desc="estimate") as bar:
+        bar.update(1)
+        bar.refresh()
+        warnings.warn("clip.avi: only 7 of the 13 frames could be read", InputWarning)
+        bar.update(2)
+    err = capsys.readouterr().err
+    line = "ifmi estimate: warning: clip.avi: only 7 of the 13 frames could be read\n"
+    before = err[:err.index(line)]
+    # Everything the bar drew before it on that line is wiped by a carriage return and blanks.
+    assert before.endswith("\r") and before[before.rstrip("\r").rfind("\r") + 1:].strip(" \r") == ""
+
+
 def test_warning_lines_of_numpy_runtime_warnings_name_the_project_line(capsys):
     from ifmi.cli.warning_lines import input_warnings_as_lines
 
@@ -285,3 +304,12 @@ def test_reference_frames_across_two_gaps_keep_their_timestamps():
     side = EstimateSideFiles(table, None, Path("x.frames.csv"), Path("x.config.json"))
     got = _reference_timestamps(est, side)
     np.testing.assert_array_equal(got, [np.nan, 0, 1, 2, 4, 6])
+
+
+def test_frame_number_beyond_64_bits_is_refused_naming_the_file(tmp_path):
+    stamps = ["1403636579763555584.png", "1403636579813555456.png"]  # EuRoC nanosecond names fit
+    assert read_dataset(_folder(tmp_path / "ok", stamps)).frame_indices[0] == 1403636579763555584
+    root = _folder(tmp_path / "bad", ["000000.png", "99999999999999999999999999.png"])
+    with pytest.raises(InputError, match=r"99999999999999999999999999.png: frame number 99999999999999999999999999 "
+                                         r"is larger than 9223372036854775807"):
+        read_dataset(root)

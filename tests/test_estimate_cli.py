@@ -275,3 +275,41 @@ def test_twelve_bit_frames_in_16_bit_files_estimate_as_their_8_bit_originals(dat
                       f"4096 are read as 12-bit data (their top 8 of 12 bits), not as 16-bit data"]
     np.testing.assert_array_equal(read_tum(tmp_path / "deep.txt").rotations,
                                   read_tum(tmp_path / "eight.txt").rotations)
+
+
+def _kalibr_dataset(root, model, image_size):
+    from ifmi.io.kalibr import write_kalibr
+
+    (root / "images").mkdir(parents=True)
+    write_kalibr(root / "camera.yaml", model)
+    texture = (np.random.default_rng(0).random(image_size) * 255).astype(np.uint8)
+    for k in range(3):
+        cv2.imwrite(str(root / "images" / f"{k:06d}.png"), np.roll(texture, 3 * k, axis=1))
+    return root
+
+
+def _cut_eucm(height):
+    """The example EUCM camera at half size (240 x 376), its image cut to ``height`` rows: no full ring."""
+    from ifmi.camera_models import ExtendedUnifiedModel
+
+    from camera_examples import EXAMPLES
+
+    m = EXAMPLES["eucm"].scaled(0.5)
+    return ExtendedUnifiedModel(m.alpha, m.beta, tuple(m.focal), tuple(m.principal_point), (height, m.size[1]))
+
+
+@pytest.mark.parametrize("method", ["ifmi", "orb"])
+def test_kalibr_resolution_other_than_the_images_is_named_as_a_size_mismatch(tmp_path, capsys, method):
+    root = _kalibr_dataset(tmp_path / "ds", _cut_eucm(121), (240, 376))
+    assert main(["estimate", str(root), "--method", method, "--out", str(tmp_path / "e.txt")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert err.endswith("000000.png: image is 240x376 (height x width), but the calibration names 121x376")
+
+
+def test_camera_imaging_no_full_ring_is_an_error_naming_its_calibration(tmp_path, capsys):
+    root = _kalibr_dataset(tmp_path / "ds", _cut_eucm(121), (121, 376))
+    assert main(["estimate", str(root), "--out", str(tmp_path / "e.txt")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert f"{root / 'camera.yaml'}: the camera model images no full ring of rays about its axis" in err

@@ -290,6 +290,8 @@ def test_evaluate_options_are_checked():
         EvaluateOptions(min_matched=1.5)
     with pytest.raises(ValueError, match="expected max_time_difference >= 0, got -1"):
         EvaluateOptions(max_time_difference=-1)
+    with pytest.raises(ValueError, match="expected origin_tolerance_rad > 0, got 0"):
+        EvaluateOptions(origin_tolerance_rad=0)
 
 
 def test_evaluate_cli_rejects_bad_min_matched(tmp_path, capsys):
@@ -494,3 +496,46 @@ def test_byte_order_marks_of_windows_editors_are_skipped(tmp_path, capsys):
         path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
     assert main(argv) == 0
     assert json.loads(capsys.readouterr().out)["summary"] == plain["summary"]
+
+
+def test_estimate_starting_later_than_the_ground_truth_is_rebased_with_a_warning(tmp_path, capsys):
+    gt, _ = _write_run(tmp_path, yaw_offset=0.0)
+    first = 5  # the estimate's first frames were dropped: it starts at the identity on frame 5
+    later = Trajectory(gt.timestamps[first:], gt.positions[first:], gt.rotations[first].T @ gt.rotations[first:])
+    write_tum(tmp_path / "later.txt", later)
+    assert main(["evaluate", "--gt", str(tmp_path / "groundtruth.txt"), "--est", str(tmp_path / "later.txt"),
+                 "--json", "--out", str(tmp_path / "ev")]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)["summary"]
+    assert summary["geodesic"]["rmse"] < 1e-9
+    warning_lines = [line for line in captured.err.splitlines() if "warning" in line]
+    assert len(warning_lines) == 1
+    assert "groundtruth.txt" in warning_lines[0] and "timestamp 5 is 0.1316 rad from the identity" in warning_lines[0]
+    origin = json.loads((tmp_path / "ev" / "evaluation.json").read_text())["origin"]
+    assert origin["timestamp"] == 5.0 and origin["estimate_angle_rad"] == 0.0
+
+
+def test_ground_truth_starting_on_the_estimates_first_frame_gives_no_warning(tmp_path, capsys):
+    _write_run(tmp_path)
+    assert main(["evaluate", "--gt", str(tmp_path / "groundtruth.txt"), "--est", str(tmp_path / "est.txt"),
+                 "--out", str(tmp_path / "ev")]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_default_folder_that_cannot_be_written_keeps_the_verdict(tmp_path, capsys):
+    """Without --out the folder beside the estimate is a convenience: a file of the user's in its
+    place is kept, the result is still printed, and a gate's exit code stays its verdict."""
+    _write_run(tmp_path)  # geodesic error 0.01 rad
+    blocker = tmp_path / "est.eval"
+    blocker.write_text("user notes\n")
+    assert main(_gate(tmp_path, "--max-rmse", "0.0100")) == 0
+    captured = capsys.readouterr()
+    assert captured.out.startswith("PASS")
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and str(blocker) in err[0] and "not saved" in err[0]
+    assert main(_gate(tmp_path, "--max-rmse", "0.005")) == 1
+    assert capsys.readouterr().out.startswith("FAIL")
+    assert main(_gate(tmp_path)) == 0
+    captured = capsys.readouterr()
+    assert "geodesic" in captured.out and "results written" not in captured.out
+    assert blocker.read_text() == "user notes\n"

@@ -261,3 +261,30 @@ def test_sixteen_bit_file_of_full_range_samples_reads_as_its_high_byte(tmp_path)
     np.testing.assert_array_equal(got, image[..., ::-1])  # written BGR, read RGB
     # Gray is converted from the 16-bit samples and then truncated to 8 bits: within 1 level.
     np.testing.assert_allclose(gray, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), atol=1, rtol=0)
+
+
+def test_png_claiming_a_huge_image_is_refused_by_its_header_before_inflating(tmp_path, monkeypatch):
+    """A few bytes of deflate can claim gigabytes of pixels: the header is checked against the
+    calibration's size first, and nothing is inflated."""
+    header = struct.pack(">IIBBBBB", 30000, 30000, 8, 2, 0, 0, 0)
+    data = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", header) + _chunk(b"IDAT", zlib.compress(bytes(1000)))
+            + _chunk(b"IEND", b""))
+    path = tmp_path / "000005.png"
+    path.write_bytes(data)
+
+    def no_inflating(*args, **kwargs):
+        raise AssertionError("image data inflated before the size was checked")
+
+    monkeypatch.setattr(images.zlib, "decompress", no_inflating)
+    with pytest.raises(InputError, match=r"000005.png: image is 30000x30000 \(height x width\), but the "
+                                         r"calibration names 16x24"):
+        read_image(path, size=SHAPE)
+
+
+@pytest.mark.parametrize("progressive", [0, 1])
+def test_jpeg_of_another_size_is_refused_by_its_frame_header(tmp_path, monkeypatch, progressive):
+    data = cv2.imencode(".jpg", _pattern(), [cv2.IMWRITE_JPEG_PROGRESSIVE, progressive])[1].tobytes()
+    monkeypatch.setattr(images, "_decode_checked", lambda *a, **k: pytest.fail("decoded"))
+    assert image_file_problem(data, size=SHAPE) is None
+    assert image_file_problem(data, size=(24, 16)) == ("image is 16x24 (height x width), but the calibration "
+                                                       "names 24x16")

@@ -45,6 +45,7 @@ def test_per_axis_errors_are_the_applied_offsets():
     gt = Trajectory(gt.timestamps, gt.positions, matrix_from_rpy(rpy_gt))
     rng = np.random.default_rng(1)
     offset = rng.uniform(-0.05, 0.05, size=(40, 3))
+    offset[0] = 0.0  # both trajectories start at the identity (the file contract)
     est = Trajectory(gt.timestamps, gt.positions, matrix_from_rpy(rpy_gt + offset))
     err = trajectory_errors(gt, est)
     np.testing.assert_allclose(err.rpy_error, offset, atol=1e-12)
@@ -78,6 +79,30 @@ def test_geodesic_and_relative_errors():
     expected_rel[10], expected_rel[25] = 0.02, 0.03
     assert np.isnan(err.relative_geodesic[0])
     np.testing.assert_allclose(err.relative_geodesic[1:], expected_rel[1:], atol=1e-9)
+
+
+def test_ground_truth_in_a_world_frame_is_rebased_to_the_first_frame():
+    gt = _gt()
+    world_from_0 = _axis_rotation([0.2, 0.9, -0.4], 2.5)
+    p0 = np.array([3.0, -1.0, 1.6])
+    gt_world = Trajectory(gt.timestamps, p0 + gt.positions @ world_from_0.T, world_from_0 @ gt.rotations)
+    angles = np.linspace(0.0, 0.04, 40)
+    est = Trajectory(gt.timestamps, gt.positions, _axis_rotation([0.3, -0.2, 0.9], angles) @ gt.rotations)
+    err = trajectory_errors(gt_world, est)
+    np.testing.assert_allclose(err.geodesic, angles, atol=1e-12)
+    np.testing.assert_allclose(err.rpy_error, trajectory_errors(gt, est).rpy_error, atol=1e-12)
+    assert err.gt_origin_angle == pytest.approx(2.5, abs=1e-12)
+    assert err.est_origin_angle == 0.0
+
+
+def test_estimate_starting_later_is_compared_from_its_first_frame():
+    gt = _gt()
+    first = 12
+    later = Trajectory(gt.timestamps[first:], gt.positions[first:], gt.rotations[first].T @ gt.rotations[first:])
+    err = trajectory_errors(gt, later)
+    assert err.gt_origin_angle > 0.05
+    np.testing.assert_allclose(err.geodesic, 0.0, atol=1e-12)
+    np.testing.assert_allclose(err.relative_geodesic[1:], 0.0, atol=1e-12)
 
 
 def test_association_by_timestamp_drops_unmatched_and_reorders():
@@ -124,6 +149,8 @@ def test_geodesic_matches_evo_ape(tmp_path):
     rng = np.random.default_rng(4)
     noise = np.cumsum(rng.normal(scale=0.01, size=60))
     axes = rng.normal(size=(60, 3))
+    # The estimate's first pose is off too: both are compared from their first frame, which is evo's
+    # APE after align_origin.
     est_R = np.stack([gt.rotations[k] @ _axis_rotation(axes[k], noise[k]) for k in range(60)])
     # Same files for both: small timestamp jitter and two frames missing from the estimate.
     keep = np.setdiff1d(np.arange(60), [7, 31])
@@ -139,6 +166,7 @@ def test_geodesic_matches_evo_ape(tmp_path):
     traj_ref = file_interface.read_tum_trajectory_file(str(tmp_path / "gt.txt"))
     traj_est = file_interface.read_tum_trajectory_file(str(tmp_path / "est.txt"))
     traj_ref, traj_est = sync.associate_trajectories(traj_ref, traj_est, max_diff=1e-3)
+    traj_est.align_origin(traj_ref)
     ape = evo_metrics.APE(evo_metrics.PoseRelation.rotation_angle_rad)
     ape.process_data((traj_ref, traj_est))
     stats = ape.get_all_statistics()

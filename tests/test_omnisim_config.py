@@ -159,6 +159,21 @@ def test_resolution_of_another_aspect_is_named_as_the_option(tmp_path):
         load_scene_config(write_scene(tmp_path, BASE), resolution=(64, 32))
 
 
+@pytest.mark.parametrize("text, expected", [("64", (64, 64)), ("64x48", (64, 48)), ("64,48", (64, 48)),
+                                            (" 64 x 48 ", (64, 48)), ("64x", None), ("x64", None),
+                                            ("64xx48", None), ("64 48", None), ("64x48x2", None)])
+def test_cli_resolution_is_one_number_or_two_with_nothing_left_out(text, expected):
+    import argparse
+
+    from omnisim.cli import _resolution
+
+    if expected is not None:
+        assert _resolution(text) == expected
+    else:
+        with pytest.raises(argparse.ArgumentTypeError, match="expected N or HEIGHTxWIDTH"):
+            _resolution(text)
+
+
 def test_cli_bad_file_value_under_overriding_options_is_one_line_exit_2(tmp_path, capsys):
     from omnisim.cli import main
 

@@ -128,3 +128,18 @@ def test_skipped_file_in_the_source_is_one_warning_line(source, tmp_path, capsys
     lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(lines) == 1, lines
     assert lines[0].startswith("omnisim degrade: warning: ") and "Thumbs.db" in lines[0]
+
+
+@pytest.mark.parametrize("target", ["missing", "self"])
+def test_frame_that_is_a_broken_link_is_one_line_naming_it(source, tmp_path, capsys, target):
+    import shutil
+
+    broken = tmp_path / "src"
+    shutil.copytree(source, broken)
+    frame = sorted((broken / "images").glob("*.png"))[1]
+    frame.unlink()
+    frame.symlink_to(frame.name if target == "self" else tmp_path / "nowhere.png")
+    assert omnisim_main(["degrade", str(broken), "--out", str(tmp_path / "q"), "--noise-sigma", "2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(frame) in err and "cannot read the frame" in err
+    assert not (tmp_path / "q").exists()

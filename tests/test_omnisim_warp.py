@@ -125,6 +125,10 @@ def test_cli_errors_name_the_file(tmp_path, source_files, capsys):
     code = main(["warp", str(source_files[0]), "--calib", str(source_files[1]), "--out", str(tmp_path / "o"),
                  "--frames", "0", "--no-progress"])
     assert code == 2 and "frames" in capsys.readouterr().err
+    code = main(["warp", str(source_files[0]), "--calib", str(source_files[1]), "--out", str(tmp_path / "o"),
+                 "--frames", "100000000", "--no-progress"])
+    assert code == 2 and "1 <= frames <= 1000000" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
     code = main(["warp", str(source_files[0]), "--calib", str(tmp_path / "missing.txt"),
                  "--out", str(tmp_path / "o"), "--frames", "2", "--no-progress"])
     assert code == 2 and "missing.txt" in capsys.readouterr().err

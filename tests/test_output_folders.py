@@ -208,3 +208,20 @@ def test_reports_written_before_the_kind_existed_are_recognised(tmp_path):
     (tmp_path / "other").mkdir()
     (tmp_path / "other" / "report.json").write_text(json.dumps({"kind": "other", **keys}))
     assert is_report_dir(tmp_path / "old") and not is_report_dir(tmp_path / "other")
+
+
+def test_failed_copy_of_many_files_is_one_short_line_naming_the_first(tmp_path):
+    """copytree gathers one (source, destination, reason) per file; a full disk fails them all."""
+    import shutil
+
+    failures = [(f"/data/run/{k}.png", f"/out/.tmp/{k}.png", "[Errno 28] No space left on device")
+                for k in range(40)]
+
+    def fill(folder):
+        raise shutil.Error(failures)
+
+    with pytest.raises(OutputError) as caught:
+        write_folder(tmp_path / "report", fill, replaces=())
+    assert str(caught.value) == (f"cannot write {tmp_path / 'report'}: [Errno 28] No space left on device "
+                                 "(copying /data/run/0.png and 39 more)")
+    assert not (tmp_path / "report").exists() and list(tmp_path.iterdir()) == []

@@ -295,3 +295,27 @@ def test_sweep_cli_refuses_a_grid_value_given_twice(datasets, tmp_path, capsys, 
     value = shown.split()[0]
     assert f"{option}: value {value} given twice; expected distinct values (got {shown})" in err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("key, value, expected", [
+    ("rmse_geodesic_rad", "0.1", 'rmse_geodesic_rad: expected a number or null, got "0.1"'),
+    ("tile_size", None, "tile_size: expected a number, got null"),
+    ("status", 1, "status: expected text, got 1"),
+])
+def test_cell_record_of_the_wrong_kind_is_named_recomputed_and_left_out_of_reports(
+        datasets, tmp_path, capsys, key, value, expected):
+    good, _ = datasets
+    cells = sweep_cells([str(good)], method="ifmi", tile_sizes=[32], overlaps=[0.0])
+    out = tmp_path / "sweep"
+    options = SweepOptions(scheduler="synchronous", progress=False)
+    run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
+    path = next((out / "cells").glob("*.json"))
+    edited = dict(json.loads(path.read_text()), **{key: value})
+    path.write_text(json.dumps(edited))
+    capsys.readouterr()
+    assert main(["report", "--no-motion-flow", str(out), "--out", str(tmp_path / "rep")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(path) in err[0] and expected in err[0] and "skipped" in err[0]
+    records = run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
+    assert expected in capsys.readouterr().err
+    assert records[0]["status"] == "ok" and json.loads(path.read_text())[key] != value

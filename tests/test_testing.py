@@ -46,14 +46,16 @@ def test_rotation_close_fails_on_nan():
 def _trajectories(rng, n=20, error=0.002):
     rpy = np.column_stack([np.zeros(n), np.zeros(n), np.linspace(0, 0.5, n)])
     gt = Trajectory(np.arange(n, dtype=float), np.zeros((n, 3)), matrix_from_rpy(rpy))
-    est = Trajectory(gt.timestamps, gt.positions, _perturbed(gt.rotations, np.full(n, error), rng))
+    errors = np.full(n, error)
+    errors[0] = 0.0  # both start at the identity on frame 0 (the file contract)
+    est = Trajectory(gt.timestamps, gt.positions, _perturbed(gt.rotations, errors, rng))
     return gt, est
 
 
 def test_trajectory_close_passes_for_objects_files_and_arrays(rng, tmp_path):
     gt, est = _trajectories(rng)
     summary = assert_trajectory_close(gt, est, rmse_rad=0.0021, max_rad=0.0021)
-    assert summary.geodesic.rmse == pytest.approx(0.002, rel=1e-9)
+    assert summary.geodesic.rmse == pytest.approx(0.002 * np.sqrt(19 / 20), rel=1e-9)
     write_tum(tmp_path / "gt.txt", gt)
     assert_trajectory_close(tmp_path / "gt.txt", est.rotations, rmse_rad=0.0021)
 
@@ -63,8 +65,8 @@ def test_trajectory_close_fails_with_measured_value_and_worst_pose(rng):
     R = est.rotations.copy()
     R[7] = _perturbed(gt.rotations[7:8], [0.05], rng)[0]
     est = Trajectory(est.timestamps, est.positions, R)
-    # RMSE = sqrt((19 * 0.002^2 + 0.05^2) / 20) = 0.011349 rad.
-    with pytest.raises(AssertionError, match=r"geodesic RMSE 0.011349 rad \(0.6503 deg\) > 0.01 rad "
+    # RMSE = sqrt((18 * 0.002^2 + 0.05^2) / 20) = 0.01134 rad.
+    with pytest.raises(AssertionError, match=r"geodesic RMSE 0.0113402 rad \(0.6497 deg\) > 0.01 rad "
                                              r"over 20 poses; worst at timestamp 7: 0.05 rad"):
         assert_trajectory_close(gt, est, rmse_rad=0.01)
     with pytest.raises(AssertionError, match=r"largest geodesic error 0.05 rad > 0.02 rad"):

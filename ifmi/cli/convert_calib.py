@@ -5,11 +5,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from ..calib_fit import TARGETS
+from ..calib_fit import TARGETS, percent_below
 from ..errors import InputError
 from ..io.camera_file import convert_calibration_file
 
-__all__ = ["add_parser", "run", "fit_summary", "check_out_suffix"]
+__all__ = ["add_parser", "run", "fit_summary", "check_out_suffix", "frame_change_note"]
 
 # Suffixes that ifmi.io.camera_file.read_camera reads as a Kalibr camchain (any other: OCamCalib
 # text); --out must carry one exactly when the target is a Kalibr model, so the file reads back.
@@ -35,7 +35,7 @@ def add_parser(subparsers) -> None:
 def fit_summary(fit) -> str:
     """The fit's errors and the region they are measured over, e.g. ``max reprojection error 0.1 px, ...``."""
     region = ("over the valid region" if fit.coverage == 1.0 else
-              f"over the {100 * fit.coverage:.1f} % of the valid region that the model sees")
+              f"over the {percent_below(fit.coverage)} % of the valid region that the model sees")
     return (f"max reprojection error {fit.max_error_px:.4f} px, median {fit.median_error_px:.4f} px "
             f"{region}")
 
@@ -65,4 +65,14 @@ def run(args) -> int:
     print(f"{args.out}: {args.to} fitted to {args.calib}: {fit_summary(fit)}")
     if not fit.success:
         print(f"ifmi convert-calib: warning: {fit.reason}", file=sys.stderr)
+    if fit.changes_frame:
+        print(f"ifmi convert-calib: warning: {frame_change_note(args.out, args.to)}", file=sys.stderr)
     return 0
+
+
+def frame_change_note(out, target: str) -> str:
+    """One line: ``out`` keeps another toolbox's camera frame than its source, so poses differ."""
+    new, old = (("OCamCalib", "Kalibr") if target == "ocamcalib" else ("Kalibr", "OCamCalib"))
+    return (f"{out}: the {new} camera frame is not the {old} one of the source (x and y swapped, z "
+            "reversed): rotations estimated with it are T R T^T of the source's, T = [[0,1,0],[1,0,0],"
+            "[0,0,-1]], so a dataset's groundtruth.txt made for the source does not fit it")

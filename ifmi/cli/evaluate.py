@@ -90,5 +90,6 @@ def run(args) -> int:
         print(json.dumps(meta, indent=2, sort_keys=True, default=lambda v: None))
     else:
         print(format_summary_table(meta))
-        print(f"results written to {meta['path']}")
+        if meta["path"] is not None:
+            print(f"results written to {meta['path']}")
     return 0

@@ -66,6 +66,13 @@ def _own_caller(dirs: list[str]) -> str | None:
     return None
 
 
+def _print_line(text: str) -> None:
+    """Print ``text`` on stderr on a line of its own, also while a progress bar is drawn there."""
+    from tqdm import tqdm
+
+    tqdm.write(text, file=sys.stderr)
+
+
 @contextmanager
 def input_warnings_as_lines(prefix: Callable[[], str]) -> Iterator[None]:
     """Print input warnings, the project's UserWarnings and RuntimeWarnings as one line each.
@@ -87,12 +94,12 @@ def input_warnings_as_lines(prefix: Callable[[], str]) -> Iterator[None]:
                     issubclass(category, UserWarning) and _in_own_package(filename, dirs)):
                 if str(message) not in shown_input:
                     shown_input.add(str(message))
-                    print(f"{prefix()}: warning: {message}", file=sys.stderr)
+                    _print_line(f"{prefix()}: warning: {message}")
             elif issubclass(category, RuntimeWarning):
                 where = _own_caller(dirs) or f"{os.path.basename(filename)}:{lineno}"
                 if (str(message), where) not in shown_runtime:
                     shown_runtime.add((str(message), where))
-                    print(f"{prefix()}: warning: {message} (at {where})", file=sys.stderr)
+                    _print_line(f"{prefix()}: warning: {message} (at {where})")
             else:
                 default_show(message, category, filename, lineno, file, line)
 

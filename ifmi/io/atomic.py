@@ -452,7 +452,15 @@ def _move_entries(names: list[str], source: Path, destination: Path) -> None:
 
 
 def _failure_reason(exc: OSError) -> str:
-    return exc.reason if isinstance(exc, OutputError) else (exc.strerror or str(exc))
+    if isinstance(exc, OutputError):
+        return exc.reason
+    failures = exc.args[0] if isinstance(exc, shutil.Error) and exc.args else None
+    if isinstance(failures, list) and failures and len(failures[0]) == 3:
+        # copytree gathers every file's (source, destination, reason): the first one says enough.
+        source, _, reason = failures[0]
+        more = f" and {len(failures) - 1} more" if len(failures) > 1 else ""
+        return f"{reason} (copying {source}{more})"
+    return exc.strerror or str(exc)
 
 
 def write_folder(out: str | os.PathLike, fill: Callable[[Path], None], *,

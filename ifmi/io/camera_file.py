@@ -33,7 +33,8 @@ def calibration_path(folder: str | os.PathLike) -> Path:
         Neither or both of ``calib_results.txt`` and ``camera.yaml`` present.
     """
     folder = Path(folder)
-    found = [folder / name for name in (OCAMCALIB_FILE, KALIBR_FILE) if (folder / name).is_file()]
+    # Whatever exists under either name is the calibration: a folder of that name is then named as one.
+    found = [folder / name for name in (OCAMCALIB_FILE, KALIBR_FILE) if (folder / name).exists()]
     if not found:
         raise InputError(folder / OCAMCALIB_FILE, f"calibration file not found (expected "
                                                   f"{OCAMCALIB_FILE} or {KALIBR_FILE})")

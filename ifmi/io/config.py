@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 
 from ..errors import InputError
 from ..options import replaced_at_paths
+from .text_file import read_failure
 
 if TYPE_CHECKING:
     from ..pipeline import EstimateConfig
@@ -47,6 +48,22 @@ class _TooManyDigits(Exception):
     def __init__(self, digits: int) -> None:
         super().__init__(digits)
         self.digits = digits
+
+
+class _DuplicateKey(Exception):
+    def __init__(self, key: str) -> None:
+        super().__init__(key)
+        self.key = key
+
+
+def _object_without_duplicates(pairs: list) -> dict:
+    """A JSON object's mapping; a key written twice (the last would silently win) is refused."""
+    seen = {}
+    for key, value in pairs:
+        if key in seen:
+            raise _DuplicateKey(key)
+        seen[key] = value
+    return seen
 
 
 def _json_int(text: str) -> int:
@@ -97,16 +114,14 @@ def read_json_object(path: str | os.PathLike, *, what: str = "JSON file") -> dic
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(path, f"{what} not found") from None
-    except IsADirectoryError:
-        raise InputError(path, f"is a folder; expected a {what}") from None
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark of Windows editors is skipped
     except (OSError, UnicodeDecodeError) as exc:
-        reason = getattr(exc, "strerror", None) or exc.__class__.__name__
-        raise InputError(path, f"cannot read {what} ({reason})") from None
+        raise read_failure(path, exc, what=what) from None
     try:
-        data = json.loads(text, parse_int=_json_int)
+        data = json.loads(text, parse_int=_json_int, object_pairs_hook=_object_without_duplicates)
+    except _DuplicateKey as exc:
+        raise InputError(path, f"invalid JSON: key {json.dumps(exc.key)} given twice in one object; expected "
+                               "each key once") from None
     except json.JSONDecodeError as exc:
         raise InputError(path, f"invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
     except RecursionError:

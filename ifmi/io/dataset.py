@@ -46,6 +46,8 @@ DATASET_FILES = ("calib_results.txt", "camera.yaml", "groundtruth.txt", "meta.js
 DATASET_FOLDERS = ("images", "depth", "normal")
 # A frame's file stem: an optional text prefix (no digits, not hidden) and the index.
 _FRAME_STEM = re.compile(r"(?:[^\d.][^\d]*)?(\d+)")
+# Largest frame number: frame indices are 64-bit integers (19-digit nanosecond stamps fit).
+_MAX_FRAME_INDEX = 2 ** 63 - 1
 # Skipped file names listed in the warning; the rest are counted.
 _LISTED_SKIPS = 5
 
@@ -103,6 +105,9 @@ def frame_files(image_dir: str | os.PathLike) -> FrameFiles:
         index = frame_index(path) if path.is_file() or path.is_symlink() else None
         if index is None:
             skipped.append(path.name)
+        elif index > _MAX_FRAME_INDEX:
+            raise InputError(path, f"frame number {index} is larger than {_MAX_FRAME_INDEX} (a 64-bit "
+                                   "integer; nanosecond timestamps fit); expected a shorter frame number")
         elif index in by_index:
             raise InputError(image_dir, f"frame {index} has two files, {by_index[index].name} and "
                                         f"{path.name}; keep one")

@@ -46,6 +46,10 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _JPEG_START = b"\xff\xd8"
 _JPEG_END = b"\xff\xd9"
+# JPEG start-of-frame markers (SOF0-SOF15 but DHT C4, JPG C8 and DAC CC), which carry the image size,
+# and the start-of-scan marker after which no header segment follows.
+_JPEG_START_OF_FRAME = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+_JPEG_START_OF_SCAN = 0xDA
 # Samples per pixel of each PNG colour type (gray, RGB, palette, gray+alpha, RGBA).
 _PNG_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
 _PNG_BIT_DEPTHS = (1, 2, 4, 8, 16)
@@ -115,7 +119,14 @@ def _png_rows(width: int, height: int, bits_per_pixel: int, interlace: int) -> l
     return passes
 
 
-def _png_problem(data: bytes) -> str | None:
+def _size_problem(height: int, width: int, size: tuple[int, int] | None) -> str | None:
+    if size is None or (height, width) == tuple(size):
+        return None
+    return (f"image is {height}x{width} (height x width), but the calibration names "
+            f"{size[0]}x{size[1]}")
+
+
+def _png_problem(data: bytes, size: tuple[int, int] | None) -> str | None:
     chunks, problem = _png_chunks(data)
     if problem:
         return problem
@@ -128,6 +139,9 @@ def _png_problem(data: bytes) -> str | None:
             or interlace not in _PNG_INTERLACE_METHODS):
         return (f"corrupt PNG (invalid header: {width}x{height}, colour type {colour}, depth {depth}, "
                 f"interlace method {interlace})")
+    problem = _size_problem(height, width, size)  # before inflating: a small file can claim a huge image
+    if problem:
+        return problem
     try:
         raw = zlib.decompress(b"".join(chunks["IDAT"]))
     except zlib.error as exc:
@@ -148,20 +162,41 @@ def _png_problem(data: bytes) -> str | None:
     return None
 
 
-def image_file_problem(data: bytes) -> str | None:
+def _jpeg_frame_size(data: bytes) -> tuple[int, int] | None:
+    """``(height, width)`` from a JPEG's start-of-frame segment, or None when none is found."""
+    pos = len(_JPEG_START)
+    while pos + 4 <= len(data) and data[pos] == 0xFF:
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+            continue
+        length = struct.unpack(">H", data[pos + 2:pos + 4])[0]
+        if marker in _JPEG_START_OF_FRAME and pos + 9 <= len(data):
+            return struct.unpack(">HH", data[pos + 5:pos + 9])
+        if marker == _JPEG_START_OF_SCAN or length < 2:
+            return None
+        pos += 2 + length
+    return None
+
+
+def image_file_problem(data: bytes, *, size: tuple[int, int] | None = None) -> str | None:
     """Why the bytes of an image file cannot be decoded, or ``None`` when they look sound.
 
     PNG: every chunk's CRC, the inflated image data's exact length and its
     row filters (interlaced or not). JPEG: start and end-of-image markers
     (damaged entropy-coded data is found while decoding, by
     :func:`read_image`). Other content: "not a readable PNG/JPEG image".
+    With ``size`` ``(height, width)``, a header naming another size is a
+    problem found before any image data is inflated or decoded (a file of
+    a few MB can claim gigabytes of pixels).
     """
     if data.startswith(_PNG_SIGNATURE):
-        return _png_problem(data)
+        return _png_problem(data, size)
     if data.startswith(_JPEG_START):
         if data.rfind(_JPEG_END) < len(_JPEG_START):
             return "truncated JPEG (no end-of-image marker)"
-        return None
+        frame_size = _jpeg_frame_size(data)
+        return None if frame_size is None else _size_problem(*frame_size, size)
     return "not a readable PNG/JPEG image"
 
 
@@ -302,7 +337,7 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
         raise InputError(path, "image file not found") from None
     except OSError as exc:
         raise InputError(path, f"cannot read image ({exc.strerror or exc.__class__.__name__})") from None
-    problem = image_file_problem(data)
+    problem = image_file_problem(data, size=size)
     if problem:
         raise InputError(path, problem)
     image = _decode_checked(path, data, gray=gray)

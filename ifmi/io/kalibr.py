@@ -148,11 +148,36 @@ def _model_from_fields(kind: str, distortion: str, p: list[float], coeffs: list[
     return EquirectangularModel(size)
 
 
+def _yaml_without_duplicate_keys(text: str):
+    """``yaml.safe_load`` of ``text``, but a key given twice in one mapping is an error (PyYAML keeps
+    the last one silently)."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    def mapping(loader, node, deep=False):
+        keys = set()
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # "<<: *anchor" entries may be overridden
+                continue
+            key = loader.construct_object(key_node, deep=deep)
+            if key in keys:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} given twice in one mapping; expected each key once",
+                    key_node.start_mark)
+            keys.add(key)
+        return loader.construct_mapping(node, deep=deep)
+
+    Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
+    return yaml.load(text, Loader=Loader)
+
+
 def _cam0(text: str, source) -> dict:
     import yaml
 
     try:
-        data = yaml.safe_load(text)
+        data = _yaml_without_duplicate_keys(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""

@@ -40,7 +40,7 @@ from .camera_file import calibration_path
 from .evaluation_file import (check_evaluation_document, check_per_frame_arrays,
                               check_run_config)
 from .provenance import package_versions
-from .text_file import number_from_text, read_text_file
+from .text_file import number_from_text, read_failure, read_text_file
 
 __all__ = [
     "EVALUATION_KIND",
@@ -270,11 +270,9 @@ def read_run_config(path: str | os.PathLike) -> dict:
     """
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(path, "config file not found") from None
+        data = json.loads(path.read_text(encoding="utf-8-sig"))
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot read config file ({exc.__class__.__name__})") from None
+        raise read_failure(path, exc, what="config file") from None
     except json.JSONDecodeError as exc:
         raise InputError(path, f"invalid JSON at line {exc.lineno}: {exc.msg}") from None
     if not isinstance(data, dict):

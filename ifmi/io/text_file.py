@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["read_text_file", "number_from_text"]
+__all__ = ["read_text_file", "read_failure", "number_from_text"]
 
 
 def read_text_file(path: str | os.PathLike, *, what: str, encoding: str = "utf-8",
@@ -29,16 +29,35 @@ def read_text_file(path: str | os.PathLike, *, what: str, encoding: str = "utf-8
     Raises
     ------
     InputError
-        ``"{what} not found"`` for a missing file; ``"cannot read {what}
-        (ErrorName)"`` for any other read or decoding failure.
+        As :func:`read_failure` words it.
     """
     path = Path(path)
     try:
         return path.read_text(encoding=encoding, errors=errors)
-    except FileNotFoundError:
-        raise InputError(path, f"{what} not found") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot read {what} ({exc.__class__.__name__})") from None
+        raise read_failure(path, exc, what=what, encoding=encoding) from None
+
+
+def read_failure(path, exc: Exception, *, what: str, encoding: str = "utf-8") -> InputError:
+    """The one-line error for ``exc``, raised while reading the ``what`` at ``path``.
+
+    A missing file is "``what`` not found", a folder "is a folder", text in
+    another encoding says which (UTF-16, or the first byte that is not
+    ``encoding``), any other failure gives the system's reason.
+    """
+    if isinstance(exc, FileNotFoundError):
+        return InputError(path, f"{what} not found")
+    if isinstance(exc, IsADirectoryError):
+        return InputError(path, f"is a folder; expected a {what}")
+    if isinstance(exc, UnicodeDecodeError):
+        # utf-8-sig is UTF-8 with an optional byte-order mark: it is UTF-8 to the user.
+        name = "UTF-8" if encoding.lower().replace("_", "-") in ("utf-8", "utf8", "utf-8-sig") else encoding
+        if exc.object[:2] in (b"\xff\xfe", b"\xfe\xff"):
+            found = "UTF-16 text"
+        else:
+            found = f"byte 0x{exc.object[exc.start]:02x} at offset {exc.start} is not {name} text"
+        return InputError(path, f"cannot read {what}: {found}; expected {name} text")
+    return InputError(path, f"cannot read {what} ({getattr(exc, 'strerror', None) or exc.__class__.__name__})")
 
 
 def number_from_text(text: str) -> float:
