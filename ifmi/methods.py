@@ -202,31 +202,42 @@ def load_factory(method: str) -> Callable:
 def create_front_end(method: str, model, config):
     """Front end of ``method`` for the camera ``model`` and an ``EstimateConfig``.
 
-    A third-party factory that raises, or returns something without
-    ``prepare`` and ``correspondences``, is reported as an
-    :class:`InputError` naming the method (built-in factories' errors pass
-    unchanged).
+    A third-party factory that raises, exits, or returns a class or
+    something without ``prepare`` and ``correspondences``, is reported as
+    an :class:`InputError` naming the method (built-in factories' errors
+    pass unchanged). A third-party front end comes back wrapped in
+    :class:`~ifmi.checked_front_end.CheckedFrontEnd`, which holds what it
+    returns to the contract.
 
     Returns
     -------
     FrontEnd
     """
+    from .checked_front_end import CheckedFrontEnd, one_line
+
     factory = load_factory(method)
     if method in builtin_method_names():
         return factory(model, config)
+    where = f"method {method}"
     try:
         front_end = factory(model, config)
     except InputError:
         raise
+    except SystemExit as exc:
+        raise InputError(where, f"factory called sys.exit({exc.code!r}); a factory must return a front "
+                                "end or raise") from None
     except Exception as exc:  # a plugin's failure, reported in one line with its method
-        raise InputError(f"method {method}", f"factory raised {type(exc).__name__}: {exc}") from None
+        raise InputError(where, f"factory raised {one_line(exc)}") from None
+    if isinstance(front_end, type):
+        raise InputError(where, f"factory returned the class {front_end.__name__}; expected an instance "
+                                f"(call it: {front_end.__name__}(...))")
     missing = [name for name in ("prepare", "correspondences")
                if not callable(getattr(front_end, name, None))]
     if missing:
-        raise InputError(f"method {method}", f"factory returned an object without "
-                                             f"{'() and '.join(missing)}(); expected prepare() and "
-                                             f"correspondences(), got {type(front_end).__name__}")
-    return front_end
+        raise InputError(where, f"factory returned an object without "
+                                f"{'() and '.join(missing)}(); expected prepare() and "
+                                f"correspondences(), got {type(front_end).__name__}")
+    return CheckedFrontEnd(front_end, method)
 
 
 def method_sort_key(method: str) -> tuple[int, str]:

@@ -493,6 +493,13 @@ def _rotations_from_ray_pairs(rays: np.ndarray, first: np.ndarray, second: np.nd
     return rotations
 
 
+def _distinct_count(rays_a: np.ndarray, rays_b: np.ndarray) -> int:
+    """How many correspondences differ: distinct values of one fixed projection of ``(a, b)``
+    (equal rows project equally; distinct rows that project equally are vanishingly rare)."""
+    weights = np.array([1.0, np.sqrt(2.0), np.sqrt(3.0), np.sqrt(5.0), np.sqrt(7.0), np.sqrt(11.0)])
+    return int(np.unique(rays_a @ weights[:3] + rays_b @ weights[3:]).size)
+
+
 def _needed_iterations(inlier_fraction: float, sample: int, confidence: float) -> float:
     good = inlier_fraction ** sample
     if good <= 0:
@@ -1066,6 +1073,11 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     if n < needed:
         info = RelativePoseInfo(False, f"too few correspondences ({n} < {needed})", n, 0,
                                 np.zeros(n, dtype=bool), model)
+        return RelativePose(), info
+    distinct = _distinct_count(rays_a, rays_b)
+    if distinct < needed:  # repeated matches count as many inliers but constrain nothing
+        info = RelativePoseInfo(False, f"too few distinct correspondences ({distinct} of {n} differ; "
+                                       f"< {needed})", n, 0, np.zeros(n, dtype=bool), model)
         return RelativePose(), info
     products = _ray_products(rays_a, rays_b)
     rays = np.stack([rays_a, rays_b])

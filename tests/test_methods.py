@@ -100,7 +100,8 @@ def test_entry_point_plugin_is_listed_and_loaded(plugin_dist, capsys):
     # A plugin cannot shadow a built-in name.
     assert [m.source for m in available_methods() if m.name == "orb"] == ["built-in"]
     front_end = create_front_end("dummy", example_omni_model(64), EstimateConfig())
-    assert front_end.correspondences(None, None).reason == "dummy"
+    state = front_end.prepare(np.zeros((64, 64), np.uint8))
+    assert front_end.correspondences(state, state).reason == "method dummy: dummy"
     assert main(["methods"]) == 0
     out = capsys.readouterr().out
     assert "dummy   Dummy front end that never matches. [plugin fakeplug]" in out

@@ -1,0 +1,217 @@
+"""A third-party front end held to the contract of :mod:`ifmi.front_end`.
+
+Built-in front ends are trusted; a method loaded from a plugin or a
+``package.module:factory`` is wrapped by :class:`CheckedFrontEnd`, which
+applies two rules:
+
+* **What it returns must keep the contract**, or the run stops with one
+  :class:`~ifmi.errors.InputError` naming the method: a result with the
+  fields of :class:`~ifmi.front_end.Correspondences`, ``success`` a bool and
+  ``reason`` text, rays ``(N, 3)`` finite unit vectors (norms within
+  :data:`RAY_NORM_TOLERANCE` of 1, then normalised), pixels ``(N, 2)``
+  finite, both frames' arrays of one length, ``rays_per_measurement`` an
+  integer from 1 to N that divides N, ``diagnostics`` a mapping. These are
+  errors of the plugin's code, the same on every frame, and a wrong result
+  (pixel coordinates passed as rays, say) would otherwise come out as a
+  confident wrong trajectory.
+* **An exception it raises fails that frame only**, with the exception in
+  the frame's reason, as a damaged image does: a matcher may fail on one
+  pair of a sequence. Only the first frame must be prepared, since it is
+  the reference. ``sys.exit`` inside the plugin is an error, not the end of
+  the run with its status, and an ``accept_pose`` that raises stops the run
+  (the pose it was told is already settled).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+from .front_end import Correspondences
+
+__all__ = ["RAY_NORM_TOLERANCE", "CheckedFrontEnd", "checked_correspondences", "one_line"]
+
+# Largest |norm - 1| of a ray accepted as a unit vector (float16 rays round to about 1e-3); the rays
+# are then normalised. Pixel coordinates or unnormalised directions given as rays are far outside it.
+RAY_NORM_TOLERANCE = 2e-3
+# Fields a front end's result must have (those of Correspondences).
+_FIELDS = ("pixels_a", "pixels_b", "rays_a", "rays_b", "diagnostics", "success", "reason",
+           "rays_per_measurement")
+
+
+def one_line(exc: BaseException) -> str:
+    """``Type: first line of the message`` of an exception."""
+    text = str(exc).strip()
+    first = text.splitlines()[0] if text else ""
+    more = " ..." if first != text else ""
+    return f"{type(exc).__name__}: {first}{more}" if first else type(exc).__name__
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    """A frame's state from the plugin, or why ``prepare`` failed on it."""
+
+    state: object = None
+    failure: str = ""
+
+
+class CheckedFrontEnd:
+    """``front_end`` of the plugin ``method`` behind the checks of the module docstring.
+
+    Parameters
+    ----------
+    front_end : object
+        What the plugin's factory returned (it has callable ``prepare`` and
+        ``correspondences``).
+    method : str
+        The method's name, for messages.
+
+    Raises
+    ------
+    InputError
+        ``accept_pose`` present but not callable.
+    """
+
+    def __init__(self, front_end, method: str) -> None:
+        self._inner, self._method, self._where = front_end, method, f"method {method}"
+        self.uses_prior_rotation = bool(getattr(front_end, "uses_prior_rotation", False))
+        accept = getattr(front_end, "accept_pose", None)
+        if accept is not None and not callable(accept):
+            raise InputError(self._where, f"accept_pose is not callable (got {type(accept).__name__}); "
+                                          "expected accept_pose(state, rotation) or none")
+        if accept is not None:
+            self.accept_pose = self._accept_pose
+        self._prepared_any = False
+
+    def _call(self, what: str, function, *args, **kwargs):
+        """``function(*args, **kwargs)``; a plugin's ``sys.exit`` becomes an error naming it."""
+        try:
+            return function(*args, **kwargs)
+        except SystemExit as exc:
+            raise InputError(self._where, f"{what} called sys.exit({exc.code!r}); a method must return "
+                                          "or raise") from None
+
+    def prepare(self, image):
+        """The plugin's state of ``image``, or a failure every pair with this frame reports."""
+        try:
+            state = _Prepared(self._call("prepare()", self._inner.prepare, image))
+        except InputError:
+            raise
+        except Exception as exc:  # a plugin's failure on this frame
+            if not self._prepared_any:
+                raise InputError(self._where, f"prepare() of the first frame raised {one_line(exc)}") from None
+            state = _Prepared(failure=f"prepare() raised {one_line(exc)}")
+        self._prepared_any = True
+        return state
+
+    def correspondences(self, state_a: _Prepared, state_b: _Prepared, **prior) -> Correspondences:
+        """The plugin's matches of a and b, checked (see the module docstring)."""
+        failure = state_a.failure or state_b.failure
+        if failure:
+            return Correspondences.failed(f"{self._where}: {failure}")
+        try:
+            result = self._call("correspondences()", self._inner.correspondences, state_a.state,
+                                state_b.state, **prior)
+        except InputError:
+            raise
+        except Exception as exc:  # a plugin's failure on this pair
+            return Correspondences.failed(f"{self._where}: correspondences() raised {one_line(exc)}")
+        return checked_correspondences(result, method=self._method)
+
+    def _accept_pose(self, state: _Prepared, rotation: np.ndarray) -> None:
+        try:
+            self._call("accept_pose()", self._inner.accept_pose, state.state, rotation)
+        except InputError:
+            raise
+        except Exception as exc:
+            raise InputError(self._where, f"accept_pose() raised {one_line(exc)}") from None
+
+
+def checked_correspondences(result, *, method: str) -> Correspondences:
+    """``result`` of a front end as :class:`~ifmi.front_end.Correspondences`, held to the contract.
+
+    Parameters
+    ----------
+    result : Correspondences or an object with its fields
+    method : str, keyword-only
+        The method's name, for messages.
+
+    Returns
+    -------
+    Correspondences
+        float64 arrays, rays normalised; a failed result keeps only its
+        reason (one line; "no reason given" when empty) and diagnostics.
+
+    Raises
+    ------
+    InputError
+        Any breach of the contract (module docstring), naming the method,
+        the field, what was expected and what came.
+    """
+    where = f"method {method}"
+    missing = [name for name in _FIELDS if not hasattr(result, name)]
+    if missing:
+        raise InputError(where, f"correspondences() returned {type(result).__name__} without "
+                                f"{', '.join(missing)}; expected ifmi.front_end.Correspondences")
+    if not isinstance(result.success, (bool, np.bool_)):
+        raise InputError(where, f"correspondences() returned success={result.success!r}; expected True or False")
+    if not isinstance(result.reason, str):
+        raise InputError(where, f"correspondences() returned reason={result.reason!r}; expected text")
+    if not isinstance(result.diagnostics, Mapping):
+        raise InputError(where, f"correspondences() returned diagnostics of type "
+                                f"{type(result.diagnostics).__name__}; expected a dict")
+    diagnostics = dict(result.diagnostics)
+    if not result.success:
+        reason = " ".join(result.reason.split()) or "no reason given"
+        return Correspondences.failed(f"{where}: {reason}", diagnostics)
+    rays_a, rays_b = (_unit_rays(getattr(result, name), name, where) for name in ("rays_a", "rays_b"))
+    pixels_a, pixels_b = (_array(getattr(result, name), name, 2, where) for name in ("pixels_a", "pixels_b"))
+    lengths = {len(rays_a), len(rays_b), len(pixels_a), len(pixels_b)}
+    if len(lengths) > 1:
+        raise InputError(where, f"correspondences() returned rays_a, rays_b, pixels_a, pixels_b of "
+                                f"{len(rays_a)}, {len(rays_b)}, {len(pixels_a)}, {len(pixels_b)} rows; "
+                                "expected one row per match in each")
+    group = _rays_per_measurement(result.rays_per_measurement, len(rays_a), where)
+    return Correspondences(pixels_a, pixels_b, rays_a, rays_b, diagnostics, success=True, reason="",
+                           rays_per_measurement=group)
+
+
+def _array(value, name: str, columns: int, where: str) -> np.ndarray:
+    """``value`` as a finite float64 ``(N, columns)`` array."""
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(where, f"correspondences() returned {name} that is no numeric array "
+                                f"({one_line(exc)}); expected (N, {columns}) numbers") from None
+    if array.ndim != 2 or array.shape[1] != columns:
+        raise InputError(where, f"correspondences() returned {name} of shape {array.shape}; "
+                                f"expected (N, {columns})")
+    bad = ~np.isfinite(array).all(axis=1)
+    if bad.any():
+        raise InputError(where, f"correspondences() returned {name} with {int(bad.sum())} of {len(array)} "
+                                "rows not finite; expected finite values (leave such matches out)")
+    return array
+
+
+def _unit_rays(value, name: str, where: str) -> np.ndarray:
+    rays = _array(value, name, 3, where)
+    norms = np.linalg.norm(rays, axis=1)
+    if len(rays) and np.abs(norms - 1.0).max() > RAY_NORM_TOLERANCE:
+        raise InputError(where, f"correspondences() returned {name} that are not unit vectors (norms "
+                                f"{norms.min():.4g} to {norms.max():.4g}); expected unit rays in the camera "
+                                "frame, lifted through the camera model (not pixel coordinates)")
+    return rays / norms[:, None] if len(rays) else rays
+
+
+def _rays_per_measurement(value, n: int, where: str) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise InputError(where, f"correspondences() returned rays_per_measurement={value!r}; expected an "
+                                "integer >= 1")
+    group = int(value)
+    if group < 1 or (n and (group > n or n % group)):
+        raise InputError(where, f"correspondences() returned rays_per_measurement={group} for {n} matches; "
+                                "expected an integer >= 1 that divides the number of matches")
+    return group

@@ -1,0 +1,190 @@
+"""A third-party front end that breaks the contract: one line naming it, or the one frame failed.
+
+Each plugin wraps the built-in ORB front end and spoils its result in one way, on a synthetic
+160-px sequence whose ORB estimate is good (so any damage shows).
+"""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+from ifmi.checked_front_end import checked_correspondences
+from ifmi.cli import main
+from ifmi.errors import InputError
+from ifmi.front_end import Correspondences
+from ifmi.io.tum import read_tum
+from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays
+from ifmi.synthetic import example_band_px, example_omni_model, synthetic_sequence, write_synthetic_dataset
+
+FRAMES = 6
+
+PLUGIN = '''
+import sys
+from dataclasses import replace
+
+import numpy as np
+
+from ifmi.methods import create_front_end
+
+
+class Spoiled:
+    """ORB with its result passed through ``spoil(corr, pair)``; ``prepare`` may fail on a frame."""
+
+    def __init__(self, model, config, spoil, prepare_fails_on=None):
+        self.inner, self.spoil, self.fails_on, self.frames = create_front_end("orb", model, config), spoil, \\
+            prepare_fails_on, 0
+
+    def prepare(self, image):
+        frame, self.frames = self.frames, self.frames + 1
+        if frame == self.fails_on:
+            raise RuntimeError("no keypoints:\\nsensor saturated")
+        return frame, self.inner.prepare(image)
+
+    def correspondences(self, a, b):
+        return self.spoil(self.inner.correspondences(a[1], b[1]), b[0])
+
+
+def _make(spoil, **kw):
+    return lambda model, config: Spoiled(model, config, spoil, **kw)
+
+
+pixels_as_rays = _make(lambda c, k: replace(c, rays_a=np.c_[c.pixels_a, np.ones(len(c.pixels_a))],
+                                            rays_b=np.c_[c.pixels_b, np.ones(len(c.pixels_b))]))
+nan_ray = _make(lambda c, k: replace(c, rays_b=np.r_[np.full((1, 3), np.nan), c.rays_b[1:]]))
+short_b = _make(lambda c, k: replace(c, rays_b=c.rays_b[:-5]))
+group_of_7 = _make(lambda c, k: replace(c, rays_a=c.rays_a[:7 * (len(c.rays_a) // 7) + 1],
+                                        rays_b=c.rays_b[:7 * (len(c.rays_b) // 7) + 1],
+                                        pixels_a=c.pixels_a[:7 * (len(c.pixels_a) // 7) + 1],
+                                        pixels_b=c.pixels_b[:7 * (len(c.pixels_b) // 7) + 1],
+                                        rays_per_measurement=7))
+success_text = _make(lambda c, k: replace(c, success="no"))
+returns_none = _make(lambda c, k: None)
+float16_rays = _make(lambda c, k: replace(c, rays_a=c.rays_a.astype(np.float16), rays_b=c.rays_b.astype(np.float16)))
+
+
+def _raise_on_3(c, k):
+    if k == 3:
+        raise MemoryError("matcher ran out of memory\\non this pair")
+    return c
+
+
+raises_on_3 = _make(_raise_on_3)
+prepare_fails_on_2 = _make(lambda c, k: c, prepare_fails_on=2)
+prepare_fails_on_0 = _make(lambda c, k: c, prepare_fails_on=0)
+
+
+def _exit(c, k):
+    sys.exit(0)
+
+
+exits = _make(_exit)
+
+
+def returns_class(model, config):
+    return Spoiled
+
+
+class _Accepting(Spoiled):
+    def accept_pose(self, state, rotation):
+        raise ValueError("pose store is full")
+
+
+def accept_raises(model, config):
+    return _Accepting(model, config, lambda c, k: c)
+'''
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    model = example_omni_model(160)
+    sequence = synthetic_sequence(model, FRAMES, seed=3, max_step_rad=0.04, band_px=example_band_px(model))
+    return write_synthetic_dataset(tmp_path_factory.mktemp("checked") / "ds", sequence)
+
+
+@pytest.fixture
+def plugin(tmp_path, monkeypatch):
+    (tmp_path / "spoiled_orb.py").write_text(PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    return "spoiled_orb"
+
+
+def _estimate(dataset, method, out, capsys):
+    code = main(["estimate", str(dataset), "--method", method, "--out", str(out), "--no-progress"])
+    return code, capsys.readouterr().err.strip()
+
+
+@pytest.mark.parametrize("factory, problem", [
+    ("pixels_as_rays", "correspondences() returned rays_a that are not unit vectors (norms"),
+    ("nan_ray", "correspondences() returned rays_b with 1 of"),
+    ("short_b", "correspondences() returned rays_a, rays_b, pixels_a, pixels_b of"),
+    ("group_of_7", "expected an integer >= 1 that divides the number of matches"),
+    ("success_text", "correspondences() returned success='no'; expected True or False"),
+    ("returns_none", "correspondences() returned NoneType without pixels_a"),
+    ("exits", "correspondences() called sys.exit(0)"),
+    ("returns_class", "factory returned the class Spoiled; expected an instance"),
+    ("accept_raises", "accept_pose() raised ValueError: pose store is full"),
+    ("prepare_fails_on_0", "prepare() of the first frame raised RuntimeError: no keypoints: ..."),
+])
+def test_breach_of_the_contract_is_one_line_naming_the_method(dataset, plugin, tmp_path, capsys, factory,
+                                                              problem):
+    method = f"{plugin}:{factory}"
+    code, err = _estimate(dataset, method, tmp_path / "e.txt", capsys)
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert err.startswith(f"ifmi estimate: error: method {method}: ") and problem in err
+    assert not (tmp_path / "e.txt").exists()
+
+
+def _frames(path):
+    with open(path.with_name(path.stem + ".frames.csv"), newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.parametrize("factory, failed, reason", [
+    ("raises_on_3", ["3"], "correspondences() raised MemoryError: matcher ran out of memory ..."),
+    ("prepare_fails_on_2", ["2"], "prepare() raised RuntimeError: no keypoints: ..."),
+])
+def test_exception_of_the_plugin_fails_that_frame_only(dataset, plugin, tmp_path, capsys, factory, failed,
+                                                       reason):
+    method = f"{plugin}:{factory}"
+    out = tmp_path / "e.txt"
+    code, _ = _estimate(dataset, method, out, capsys)
+    assert code == 0
+    rows = _frames(out)
+    assert [r["frame"] for r in rows if r["success"] != "true"] == failed
+    assert rows[int(failed[0])]["reason"] == f"method {method}: {reason}"
+    assert len(read_tum(out)) == FRAMES
+
+
+def test_float16_rays_are_read_as_unit_rays(dataset, plugin, tmp_path, capsys):
+    code, _ = _estimate(dataset, f"{plugin}:float16_rays", tmp_path / "h.txt", capsys)
+    assert code == 0 and all(r["success"] == "true" for r in _frames(tmp_path / "h.txt"))
+    code, _ = _estimate(dataset, "orb", tmp_path / "o.txt", capsys)
+    # float16 keeps 11 bits: a ray moves by up to 5e-4 rad, about a tenth of this camera's pixel.
+    from ifmi.rotations import geodesic_angle
+
+    half, full = read_tum(tmp_path / "h.txt").rotations, read_tum(tmp_path / "o.txt").rotations
+    assert geodesic_angle(half, full).max() < 2e-3
+
+
+def test_failed_result_keeps_one_line_of_reason():
+    failed = Correspondences.failed("too\nfew\n  matches")
+    assert checked_correspondences(failed, method="m").reason == "method m: too few matches"
+    silent = Correspondences.failed("")
+    assert checked_correspondences(silent, method="m").reason == "method m: no reason given"
+    with pytest.raises(InputError, match="diagnostics of type list; expected a dict"):
+        checked_correspondences(Correspondences(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 3)),
+                                                np.zeros((0, 3)), [], False, "x"), method="m")
+
+
+def test_repeated_matches_are_too_few_distinct_correspondences():
+    rng = np.random.default_rng(0)
+    rays = rng.normal(size=(2, 3))
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    rays_a = np.repeat(rays, 50, axis=0)
+    pose, info = relative_pose_from_rays(rays_a, rays_a.copy(),
+                                         options=RelativePoseOptions(ransac_threshold_rad=0.01))
+    assert not info.success and info.reason == "too few distinct correspondences (2 of 100 differ; < 8)"
+    np.testing.assert_array_equal(pose.rotation, np.eye(3))
