@@ -564,3 +564,30 @@ def test_predicted_rotation_error_is_zero_for_exact_rays_and_nan_on_failure():
     rays_a, rays_b, _, _, _ = _scene(n=6, outliers=0)
     _, info = relative_pose_from_rays(rays_a, rays_b, options=_options())
     assert not info.success and np.isnan(info.rotation_sigma_rad)
+
+
+def test_two_agreeing_measurements_are_too_few_however_many_rays_they_hold():
+    """Two tiles of five flow points fit any rotation: ten inlier rays, but only two measurements."""
+    rng = np.random.default_rng(4)
+    truth = Rotation.from_rotvec([0.05, -0.02, 0.3]).as_matrix()
+    rays_b = rng.normal(size=(25, 3))
+    rays_b /= np.linalg.norm(rays_b, axis=1, keepdims=True)
+    rays_a = rng.normal(size=(25, 3))  # three tiles of unrelated rays
+    rays_a /= np.linalg.norm(rays_a, axis=1, keepdims=True)
+    rays_a[:10] = rays_b[:10] @ truth.T  # two tiles that agree with R_ab
+    options = RelativePoseOptions(ransac_threshold_rad=1e-3, rotation_only=True)
+    _, info = relative_pose_from_rays(rays_a, rays_b, options=options, rays_per_measurement=5)
+    assert not info.success and info.n_inliers == 10
+    assert info.reason == "too few measurements with inliers (2 < 3; 10 inlier rays in groups of 5)"
+    pose, info = relative_pose_from_rays(rays_a, rays_b, rays_per_measurement=5,
+                                         options=RelativePoseOptions(ransac_threshold_rad=1e-3, rotation_only=True,
+                                                                     min_inlier_measurements=2))
+    assert info.success and geodesic_angle(pose.rotation, truth) < 1e-9
+    # The same ten rays as ten keypoint matches are ten measurements.
+    _, info = relative_pose_from_rays(rays_a, rays_b, options=options)
+    assert info.success
+
+
+def test_min_inlier_measurements_below_one_is_refused():
+    with pytest.raises(ValueError, match="min_inlier_measurements >= 1, got 8, 0"):
+        RelativePoseOptions(min_inlier_measurements=0)
