@@ -26,7 +26,7 @@ from ifmi.errors import InputError
 
 from . import meshes, procedural  # noqa: F401  (register the built-in generators)
 from .generators import object_from_table, registered_generators
-from .lights import LIGHT_TYPES, EnvmapLight
+from .lights import ENVIRONMENT_LIGHT_TYPES, LIGHT_TYPES, EnvmapLight
 from .materials import MaterialSettings
 from .settings import SettingError, check_fields, setting, settings_from_table
 from .textures import TEXTURE_SOURCES
@@ -426,6 +426,11 @@ def _lights(path: Path, data: dict) -> tuple:
         if isinstance(light, EnvmapLight):
             light = replace(light, file=_relative_file(path, light.file, f"{where} (envmap) file"))
         out.append(light)
+    environments = [f"#{i + 1} ({t.get('type')})" for i, t in enumerate(_array_of_tables(path, data, "lights"))
+                    if t.get("type") in ENVIRONMENT_LIGHT_TYPES]
+    if len(environments) > 1:
+        raise InputError(path, f"[[lights]] {' and '.join(environments)}: expected at most one environment "
+                               f"light ({', '.join(ENVIRONMENT_LIGHT_TYPES)}); Mitsuba takes one per scene")
     return tuple(out)
 
 

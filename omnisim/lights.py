@@ -21,7 +21,8 @@ import numpy as np
 
 from .settings import check_fields, setting
 
-__all__ = ["SkyLight", "SunLight", "ConstantLight", "EnvmapLight", "LIGHT_TYPES", "sky_image", "emitter_dict"]
+__all__ = ["SkyLight", "SunLight", "ConstantLight", "EnvmapLight", "LIGHT_TYPES", "ENVIRONMENT_LIGHT_TYPES", "sky_image",
+           "emitter_dict"]
 
 # Mitsuba's lat-long maps have their pole on +y; this turn about x puts it on the world's +z.
 LATLONG_POLE_TURN_DEG = 90.0
@@ -82,6 +83,8 @@ class EnvmapLight:
 
 # The classes a light table's ``type`` key selects.
 LIGHT_TYPES = {"sky": SkyLight, "sun": SunLight, "constant": ConstantLight, "envmap": EnvmapLight}
+# The light types that are Mitsuba environment emitters, of which a scene holds one at most.
+ENVIRONMENT_LIGHT_TYPES = ("sky", "constant", "envmap")
 
 
 def sky_image(*, zenith, horizon, ground, width: int = SKY_WIDTH) -> np.ndarray:

@@ -141,13 +141,35 @@ def mesh_parts_from_file(path) -> list[MeshPart]:
     if not meshes:
         raise InputError(path, "mesh file holds no triangles")
     for number, mesh in enumerate(meshes):
-        vertices = np.asarray(mesh.vertices, dtype=np.float64)
-        bad = ~np.isfinite(vertices).all(axis=1)
-        if bad.any():
-            index = int(np.argmax(bad))
-            raise InputError(path, f"geometry {number} vertex {index}: expected finite coordinates, "
-                                   f"got {vertices[index].tolist()}")
+        _check_geometry(path, number, mesh)
     return [_part(m) for m in meshes]
+
+
+def _check_geometry(path: Path, number: int, mesh) -> None:
+    """Refuse vertices that are not finite 3-D points and faces that name vertices the mesh lacks
+    (readers pass both on: a PLY face ``3 0 1 57`` of an 8-vertex mesh rendered with exit 0)."""
+    try:
+        vertices = np.asarray(mesh.vertices, dtype=np.float64)
+        faces = np.asarray(mesh.faces)
+    except (TypeError, ValueError) as exc:  # ragged rows: a vertex line with two coordinates, ...
+        raise InputError(path, f"geometry {number}: vertices or faces are no table of numbers "
+                               f"({str(exc).splitlines()[0]})") from None
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise InputError(path, f"geometry {number}: expected 3 coordinates per vertex, got an array of "
+                               f"shape {vertices.shape}")
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        index = int(np.argmax(bad))
+        raise InputError(path, f"geometry {number} vertex {index}: expected finite coordinates, "
+                               f"got {vertices[index].tolist()}")
+    if faces.ndim != 2 or faces.shape[1] != 3 or not np.issubdtype(faces.dtype, np.integer):
+        raise InputError(path, f"geometry {number}: expected triangles of 3 vertex indices, got an array of "
+                               f"shape {faces.shape} ({faces.dtype})")
+    outside = (faces < 0) | (faces >= len(vertices))
+    if outside.any():
+        face = int(np.argmax(outside.any(axis=1)))
+        raise InputError(path, f"geometry {number} face {face}: vertex indices {faces[face].tolist()}, "
+                               f"expected 0 to {len(vertices) - 1} (the mesh has {len(vertices)} vertices)")
 
 
 def _named_files(path: Path, keyword: str) -> list[tuple[str, Path | None]]:
@@ -172,18 +194,55 @@ def _named_files(path: Path, keyword: str) -> list[tuple[str, Path | None]]:
 
 
 def _warn_missing_obj_files(path: Path) -> None:
-    """One warning naming the material libraries and diffuse textures an OBJ needs that are not there."""
+    """One warning naming the material libraries and diffuse textures an OBJ needs that are not there,
+    or that are there but hold no image (the reader then drops them without a word)."""
     missing = []
     for library, found in _named_files(path, "mtllib"):
         if found is None:
-            missing.append(f"material library {library}")
+            missing.append(f"material library {library} not found")
             continue
-        missing += [f"texture {texture} (named by {library})"
-                    for texture, there in _named_files(found, "map_Kd") if there is None]
+        for texture, there in _named_files(found, "map_Kd"):
+            problem = "not found" if there is None else _image_file_kind_problem(there)
+            if problem:
+                missing.append(f"texture {texture} (named by {library}) {problem}")
     if missing:
-        warnings.warn(f"{path}: {', '.join(missing)} not found; the geometries that use "
+        warnings.warn(f"{path}: {', '.join(missing)}; the geometries that use "
                       f"{'it' if len(missing) == 1 else 'them'} render with their base colour or grey",
                       InputWarning, stacklevel=3)
+
+
+# Leading bytes of the image files a texture may be: PNG, JPEG, TIFF (both byte orders), BMP, GIF, TGA
+# has none (so any non-empty .tga passes).
+_IMAGE_SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"\xff\xd8", b"II*\x00", b"MM\x00*", b"BM", b"GIF8")
+
+
+def _image_file_kind_problem(path: Path) -> str:
+    """Why ``path`` is no image file by its first bytes ("" when it may be one)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc.__class__.__name__})"
+    if not head:
+        return "is empty"
+    if path.suffix.lower() != ".tga" and not head.startswith(_IMAGE_SIGNATURES):
+        return "is no image file"
+    return _image_size_problem(path)
+
+
+def _image_size_problem(path: Path) -> str:
+    """Why the mesh reader will refuse to decode ``path`` for its size ("" when it will decode it):
+    Pillow, which trimesh reads textures with, stops at twice its ``MAX_IMAGE_PIXELS`` (a
+    decompression bomb) and trimesh then drops the texture."""
+    from PIL import Image
+
+    try:
+        with Image.open(path):
+            return ""
+    except Image.DecompressionBombError:  # raised on opening, from the header's size
+        return f"is too large to be read (more than {2 * Image.MAX_IMAGE_PIXELS} pixels)"
+    except Exception:  # any other error of Pillow's is the reader's to report
+        return ""
 
 
 def _planar_uvs(positions: np.ndarray) -> np.ndarray:

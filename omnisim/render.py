@@ -124,7 +124,11 @@ class OmniRenderer:
             scene_dict["integrator"] = integrator
         # Serial loading keeps the order of shapes and emitters, hence the light
         # sampling pattern and the image bytes, the same from run to run.
-        self.scene = self.mi.load_dict(scene_dict, parallel=False)
+        try:
+            self.scene = self.mi.load_dict(scene_dict, parallel=False)
+        except RuntimeError as exc:  # e.g. a Mitsuba file's environment light beside the scene file's
+            lines = str(exc).strip().splitlines()
+            raise InputError(config.path, f"Mitsuba cannot build the scene: {lines[-1] if lines else exc}") from None
         self.params = self.mi.traverse(self.scene)
         # Rendering at the sampler's own count gives its samples without logging the rounding per frame.
         self.spp = int(self.scene.sensors()[0].sampler().sample_count())
@@ -239,7 +243,8 @@ def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
     InputError
         The folder holds anything else: frames made with a different
         identity (the message names the settings that differ), an unreadable
-        ``meta.json``, or files without one.
+        ``meta.json`` or one omnisim did not write (no identity), or files
+        without one.
     """
     meta_path = out_dir / "meta.json"
     if not out_dir.exists():
@@ -254,7 +259,11 @@ def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
         if not isinstance(meta, dict) or not isinstance(meta.get("images", {}), dict):
             raise InputError(meta_path, "expected a JSON object with an 'images' table; remove the folder "
                                         "or choose another --out")
-        previous = meta.get("identity", {})
+        previous = meta.get("identity")
+        if not isinstance(previous, dict) or "format" not in previous:
+            # Not written by omnisim: a user's meta.json (and the files beside it) is never replaced.
+            raise InputError(meta_path, "is not an omnisim dataset's (no 'identity' with a 'format'); "
+                                        "refusing to write a dataset into this folder: choose another --out")
         if previous == identity:
             return meta
         if not _has_written_frames(out_dir, meta):

@@ -25,7 +25,7 @@ from .lights import emitter_dict
 from .materials import Appearance, bsdf_dict
 from .textures import texture_image
 
-__all__ = ["scene_meshes", "mitsuba_file_entries", "build_scene_dict"]
+__all__ = ["scene_meshes", "mitsuba_file_entries", "build_scene_dict", "RADIANCE_INTEGRATORS"]
 
 
 def scene_meshes(config: SceneConfig) -> tuple[dict, dict]:
@@ -71,6 +71,13 @@ def _first_line(exc: Exception) -> str:
     return text.splitlines()[-1] if text else exc.__class__.__name__
 
 
+# Mitsuba integrators that trace radiance from the sensor, as the omni camera's images need: light
+# tracers sample the sensor from the scene side, which the omni sensor does not offer, and AOV,
+# depth or moment integrators write other quantities than an image.
+RADIANCE_INTEGRATORS = ("path", "direct", "volpath", "volpathmis", "prb", "prb_basic", "direct_projective",
+                        "prb_projective")
+
+
 def mitsuba_file_entries(mi, xml_path) -> tuple[dict, object | None]:
     """Shapes, non-surface emitters and integrator of a Mitsuba 3 scene file, its sensors dropped.
 
@@ -94,7 +101,8 @@ def mitsuba_file_entries(mi, xml_path) -> tuple[dict, object | None]:
     Raises
     ------
     InputError
-        Not XML, or Mitsuba cannot load it (the message is Mitsuba's last line).
+        Not XML, an integrator not in :data:`RADIANCE_INTEGRATORS`, or Mitsuba
+        cannot load it (the message is Mitsuba's last line).
     """
     xml_path = Path(xml_path)
     try:
@@ -105,7 +113,12 @@ def mitsuba_file_entries(mi, xml_path) -> tuple[dict, object | None]:
         raise InputError(xml_path, f"expected a <scene> root element, got <{root.tag}>")
     for sensor in root.findall("sensor"):
         root.remove(sensor)
-    has_integrator = root.find("integrator") is not None
+    integrator_element = root.find("integrator")
+    has_integrator = integrator_element is not None
+    if has_integrator and integrator_element.get("type") not in RADIANCE_INTEGRATORS:
+        raise InputError(xml_path, f"<integrator type={integrator_element.get('type')!r}>: expected one that "
+                                   f"renders radiance from the camera ({', '.join(RADIANCE_INTEGRATORS)}); "
+                                   "depth and normals come with --aov")
     resolver = mi.file_resolver()
     saved = [str(resolver[i]) for i in range(len(resolver))]
     resolver.prepend(str(xml_path.resolve().parent))

@@ -347,6 +347,31 @@ def test_cli_mesh_the_renderer_cannot_hold_is_one_line_exit_2(tmp_path, capsys, 
     assert not (tmp_path / "out").exists()
 
 
+def _ascii_ply(vertices, faces) -> str:
+    header = ["ply", "format ascii 1.0", f"element vertex {len(vertices)}", "property float x", "property float y",
+              "property float z", f"element face {len(faces)}", "property list uchar int vertex_indices", "end_header"]
+    return "\n".join(header + [" ".join(map(str, v)) for v in vertices]
+                     + [" ".join(map(str, [len(f), *f])) for f in faces]) + "\n"
+
+
+@pytest.mark.parametrize("name, text, message", [
+    ("far.ply", _ascii_ply([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(0, 1, 2), (0, 1, 57)]),
+     r"far.ply: geometry 0 face 1: vertex indices \[0, 1, 57\], expected 0 to 2 \(the mesh has 3 vertices\)"),
+    ("negative.ply", _ascii_ply([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(0, 1, -5)]),
+     r"negative.ply: geometry 0 face 0: vertex indices \[0, 1, -5\], expected 0 to 2"),
+    ("flat.obj", "v 0 0\nv 1 0\nv 0 1\nf 1 2 3\n",
+     r"flat.obj: geometry 0: expected 3 coordinates per vertex, got an array of shape \(3, 2\)"),
+])
+def test_mesh_faces_naming_missing_vertices_are_refused(tmp_path, name, text, message):
+    """Readers pass such faces on, and Mitsuba rendered them (with exit 0) or raised a traceback."""
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / name).write_text(text)
+    with pytest.raises(InputError, match=message):
+        mesh_parts_from_file(tmp_path / name)
+
+
 @pytest.mark.parametrize("content", ["[]", "{\"images\": []}", "{broken"])
 def test_meta_json_that_is_not_a_dataset_record_is_refused_in_one_line(tmp_path, content):
     from omnisim.render import check_output_folder
@@ -388,8 +413,8 @@ def test_obj_whose_material_files_are_missing_warns_in_one_line(tmp_path):
     with pytest.warns(InputWarning) as record:
         mesh_parts_from_file(tmp_path / "a.obj")
     assert [str(w.message) for w in record] == [
-        f"{tmp_path / 'a.obj'}: texture wood grain.png (named by a.mtl), material library gone.mtl not found; "
-        "the geometries that use them render with their base colour or grey"]
+        f"{tmp_path / 'a.obj'}: texture wood grain.png (named by a.mtl) not found, material library gone.mtl "
+        "not found; the geometries that use them render with their base colour or grey"]
     # With the files there (a name with a space, after options), nothing is said.
     (tmp_path / "a.obj").write_text((tmp_path / "a.obj").read_text().replace("mtllib gone.mtl\n", ""))
     (tmp_path / "a.mtl").write_text("newmtl m\nKd 0.5 0.5 0.5\nmap_Kd -s 1 1 1 wood grain.png\n")
@@ -397,6 +422,23 @@ def test_obj_whose_material_files_are_missing_warns_in_one_line(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", InputWarning)
         mesh_parts_from_file(tmp_path / "a.obj")
+    # A texture that is there but holds no image was dropped by the reader without a word.
+    import struct
+    import zlib
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    # A PNG whose header claims 20000 x 20000 pixels: the reader's guard against decompression bombs drops it.
+    bomb = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 20000, 20000, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(bytes(64))) + chunk(b"IEND", b""))
+    for content, problem in ((b"", "is empty"), (b"not a picture", "is no image file"),
+                             (bomb, r"is too large to be read \(more than \d+ pixels\)")):
+        (tmp_path / "wood grain.png").write_bytes(content)
+        # (after options the name is shown as its last word)
+        with pytest.warns(InputWarning, match=rf"a.obj: texture grain.png \(named by a.mtl\) {problem}; the "
+                                              r"geometries that use it render with their base colour or grey"):
+            mesh_parts_from_file(tmp_path / "a.obj")
 
 
 def test_obj_that_is_not_utf8_is_read(tmp_path):

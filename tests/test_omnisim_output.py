@@ -78,11 +78,27 @@ def test_folder_with_no_frames_is_reused_whatever_it_was_started_with(tmp_path):
     scene = _scene(tmp_path)
     started = tmp_path / "started"
     (started / "images").mkdir(parents=True)
-    (started / "meta.json").write_text(json.dumps({"identity": {"seed": 99}, "images": {}, "complete": False}))
+    (started / "meta.json").write_text(json.dumps({"identity": {"format": 1, "seed": 99}, "images": {},
+                                                   "complete": False}))
     assert render_dataset(scene, started, progress=False).rendered == 2
     empty = tmp_path / "empty"
     (empty / "images").mkdir(parents=True)
     assert render_dataset(scene, empty, progress=False).rendered == 2
+
+
+@pytest.mark.parametrize("meta", [{"camera": "my real rig"}, {}, {"identity": "x", "images": {}}])
+def test_folder_with_a_meta_json_omnisim_did_not_write_is_refused_and_kept(tmp_path, meta):
+    from omnisim.render import render_dataset
+
+    scene = _scene(tmp_path)
+    mine = tmp_path / "rig"
+    mine.mkdir()
+    files = {"meta.json": json.dumps(meta), "calib_results.txt": "my calibration\n", "groundtruth.txt": "0 0 0 0 0 0 0 1\n"}
+    for name, text in files.items():
+        (mine / name).write_text(text)
+    with pytest.raises(InputError, match=r"rig/meta.json: is not an omnisim dataset's"):
+        render_dataset(scene, mine, progress=False)
+    assert {p.name: p.read_text() for p in mine.iterdir()} == files
 
 
 def test_refusal_names_the_setting_that_differs(tmp_path):
@@ -196,8 +212,9 @@ def test_broken_envmap_file_fails_before_the_output_folder_exists(tmp_path):
     from omnisim.render import render_dataset
 
     (tmp_path / "sky.exr").write_bytes(b"not an image")
-    scene = _scene(tmp_path, extra='\n[[lights]]\ntype = "envmap"\nfile = "sky.exr"\n')
-    with pytest.raises(InputError, match=r"sky.exr: \[\[lights\]\] #2"):
+    scene = _scene(tmp_path)  # its constant light replaced by the envmap: a scene holds one environment light
+    scene.write_text(scene.read_text().replace('type = "constant"', 'type = "envmap"\nfile = "sky.exr"'))
+    with pytest.raises(InputError, match=r"sky.exr: \[\[lights\]\] #1"):
         render_dataset(scene, tmp_path / "out", progress=False)
     assert not (tmp_path / "out").exists()
 

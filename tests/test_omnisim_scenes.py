@@ -406,3 +406,43 @@ def test_example_mesh_script_rebuilds_the_shipped_mesh(tmp_path):
         if a.image is not None:
             np.testing.assert_array_equal(a.image, b.image)
     assert sum(p.image is not None for p in shipped) == 2  # walls and floor are textured
+
+
+@pytest.mark.parametrize("integrator", ["ptracer", "aov", "depth"])
+def test_mitsuba_xml_integrator_that_renders_no_radiance_image_is_refused(tmp_path, integrator):
+    """A light tracer samples the sensor from the scene side, which the omni camera does not offer (it
+    crashed in the render, after the folder was made); AOV and depth integrators would be written as
+    if they were images."""
+    from ifmi.errors import InputError
+    from omnisim.render import render_dataset
+
+    scene = _xml_scene(tmp_path)
+    (tmp_path / "room.xml").write_text(XML_SCENE.replace(
+        '<integrator type="path"><integer name="max_depth" value="2"/></integrator>',
+        f'<integrator type="{integrator}"/>'))
+    with pytest.raises(InputError, match=rf"room.xml: <integrator type='{integrator}'>: expected one that renders "
+                                         r"radiance from the camera \(path, direct, "):
+        render_dataset(scene, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_two_environment_lights_are_one_line_before_the_folder_exists(tmp_path, capsys):
+    from omnisim.cli import main
+
+    sky = '\n[[lights]]\ntype = "constant"\nradiance = [0.5, 0.5, 0.5]\n\n[[lights]]\ntype = "sky"\n'
+    scene = tmp_path / "two.toml"
+    scene.write_text(_scene_text(frames=1, spp=1, extra=sky))
+    assert main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.endswith(
+        "two.toml: [[lights]] #1 (constant) and #2 (sky): expected at most one environment light "
+        "(sky, constant, envmap); Mitsuba takes one per scene")
+    # The same through a Mitsuba file's environment light beside the scene file's: Mitsuba's reason.
+    _xml_scene(tmp_path)
+    (tmp_path / "room.xml").write_text(XML_SCENE.replace("</scene>", '<emitter type="constant"/></scene>'))
+    xml_scene = tmp_path / "xml_room.toml"
+    xml_scene.write_text(xml_scene.read_text() + '\n[[lights]]\ntype = "sky"\n')
+    assert main(["render", str(xml_scene), "--out", str(tmp_path / "out"), "--no-progress", "--frames", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "xml_room.toml: Mitsuba cannot build the scene: " in err
+    assert "Only one environment emitter" in err and not (tmp_path / "out").exists()
