@@ -497,6 +497,17 @@ def _pending_jobs(out_dir: Path, meta: dict, frames: int, kinds: tuple) -> list:
     return jobs
 
 
+def _is_black_frame(files: dict) -> bool:
+    """Whether the frame's image (``images/*.png`` among ``files``) has every pixel 0."""
+    import cv2
+
+    for rel, data in files.items():
+        if rel.startswith("images/"):
+            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            return image is not None and not image.any()
+    return False
+
+
 def _store_frame(out_dir: Path, meta: dict, files: dict) -> None:
     """Write a frame's files atomically and record their SHA-256 in meta.json (then rewritten)."""
     for rel, data in files.items():
@@ -611,15 +622,20 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
                          spp_rendered=local.renderer.spp)
     kinds = ("images",) + aovs
     jobs = _pending_jobs(out_dir, meta, n, kinds)
-    rendered, start = 0, time.perf_counter()
+    rendered, black, start = 0, 0, time.perf_counter()
     if jobs:
         from tqdm import tqdm
 
         with tqdm(total=n, initial=n - len(jobs), disable=not progress, unit="frame", desc=config.name) as bar:
             for _, files in frame_results(plan, jobs, workers=workers, scheduler=scheduler, renderer=local):
                 _store_frame(out_dir, meta, files)
+                black += _is_black_frame(files)
                 rendered += 1
                 bar.update(1)
+    if black:
+        warnings.warn(f"{scene_path}: {black} of the {rendered} frames rendered now are black (every pixel 0): "
+                      "the camera sees no light (none in the scene, all enclosed, or a negative radiance)",
+                      InputWarning, stacklevel=2)
     seconds = time.perf_counter() - start
     meta["complete"] = all(len(meta.get(kind, {})) == n for kind in kinds)
     atomic_write_json(out_dir / "meta.json", meta)

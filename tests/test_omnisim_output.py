@@ -233,3 +233,19 @@ def test_spp_the_sampler_rounds_up_is_rendered_as_the_rounded_count_and_recorded
     assert json.loads((tmp_path / "six" / "meta.json").read_text())["spp_rendered"] == 6
     image = Path("images") / "000000.png"
     assert (tmp_path / "five" / image).read_bytes() == (tmp_path / "six" / image).read_bytes()
+
+
+def test_frames_with_no_light_are_warned_about(tmp_path):
+    """A scene whose camera sees no light renders black frames; that is said once, not left silent."""
+    import warnings
+
+    from ifmi.errors import InputWarning
+    from omnisim.render import render_dataset
+
+    dark = _scene(tmp_path, name="dark.toml")
+    dark.write_text(dark.read_text().replace('[[lights]]\ntype = "constant"\n', ""))
+    with pytest.warns(InputWarning, match=r"dark.toml: 2 of the 2 frames rendered now are black \(every pixel 0\)"):
+        render_dataset(dark, tmp_path / "dark", progress=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", InputWarning)
+        render_dataset(_scene(tmp_path), tmp_path / "lit", progress=False)
