@@ -20,11 +20,10 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Callable, Sequence
 
-import cv2
 import numpy as np
 
 from .camera import OcamModel, pixel_offsets_from_sensor, pixels_from_sensor
-from .unwarp import _NOISE_MEDIAN_PX, gray_from_image  # pixels are judged lit as for the radius band
+from .unwarp import denoised_gray_from_image  # pixels are judged lit as for the radius band
 
 __all__ = ["RimCircle", "model_images_a_rim", "rim_circle_from_frames"]
 
@@ -81,11 +80,7 @@ class RimCircle:
 
 def _lit_mask(frames: Sequence[np.ndarray], dark_level: float) -> np.ndarray:
     """(H, W) bool: pixels brighter than ``dark_level`` in at least half of the median-filtered frames."""
-    lit = []
-    for image in frames:
-        gray = np.ascontiguousarray(gray_from_image(image), dtype=np.uint8)
-        lit.append(cv2.medianBlur(gray, _NOISE_MEDIAN_PX) > dark_level)
-    return np.mean(lit, axis=0) >= 0.5
+    return np.mean([denoised_gray_from_image(image) > dark_level for image in frames], axis=0) >= 0.5
 
 
 def _centre_plane(model) -> tuple[Callable, Callable] | None:

@@ -260,17 +260,19 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
 
 
 def _check_first_frame_size(dataset) -> None:
-    """Raise the size error of the dataset's first frame when it differs from the calibration's."""
-    from .io.images import image_file_problem
+    """Raise the size error of the dataset's first frame when its header names another size than
+    the calibration's."""
+    from .io.images import image_header_size, size_problem
 
     if not dataset.image_paths:
         return
     path = dataset.image_paths[0]
     try:
-        problem = image_file_problem(path.read_bytes(), size=dataset.model.size)
+        found = image_header_size(path.read_bytes())
     except OSError:
         return
-    if problem and problem.startswith("image is "):
+    problem = None if found is None else size_problem(*found, dataset.model.size)
+    if problem:
         raise InputError(path, problem)
 
 

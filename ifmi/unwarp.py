@@ -60,6 +60,7 @@ __all__ = [
     "panorama_pixels_from_omni_pixels",
     "panorama_pixels_from_rays",
     "gray_from_image",
+    "denoised_gray_from_image",
     "PANORAMA_INTERPOLATIONS",
 ]
 
@@ -198,6 +199,16 @@ def gray_from_image(image: np.ndarray) -> np.ndarray:
     raise ValueError(f"expected an image of shape (H, W) or (H, W, 3), got {image.shape}")
 
 
+def denoised_gray_from_image(image: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 gray of ``image`` ((H, W) or (H, W, 3)) after a median filter: what pixels are
+    judged lit or dark on (the mirror band, the mirror rim).
+
+    Median filtering removes isolated noisy pixels (sensor noise in the black regions, JPEG
+    ringing) before rings are judged; the band's edges move by less than a pixel.
+    """
+    return cv2.medianBlur(np.clip(gray_from_image(image), 0, _MAX_GRAY_LEVEL).astype(np.uint8), _NOISE_MEDIAN_PX)
+
+
 def _inscribed_radius(model: OcamModel) -> float:
     """Largest sensor radius whose whole circle lies inside the image."""
     phi = np.linspace(0.0, 2 * np.pi, 1440, endpoint=False)
@@ -233,10 +244,7 @@ def _ring_maps(model: OcamModel, radii: np.ndarray) -> tuple[np.ndarray, np.ndar
 def _ring_lit_fractions(ring_maps: tuple[np.ndarray, np.ndarray], image: np.ndarray,
                         dark_level: float) -> np.ndarray:
     """Fraction of each ring's pixels (:func:`_ring_maps`) brighter than ``dark_level`` (median-filtered image)."""
-    # Median filtering removes isolated noisy pixels (sensor noise in the black regions,
-    # JPEG ringing) before rings are judged; the band's edges move by less than a pixel.
-    gray = cv2.medianBlur(np.clip(gray_from_image(image), 0, 255).astype(np.uint8),
-                          _NOISE_MEDIAN_PX).astype(np.float32)
+    gray = denoised_gray_from_image(image).astype(np.float32)
     ring = cv2.remap(gray, *ring_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     return (ring > dark_level).mean(axis=1)
 

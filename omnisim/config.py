@@ -415,7 +415,7 @@ def _array_of_tables(path: Path, data: dict, section: str) -> list:
 
 
 def _lights(path: Path, data: dict) -> tuple:
-    out = []
+    out, environments = [], []
     for index, table in enumerate(_array_of_tables(path, data, "lights")):
         kind = table.get("type")
         where = f"[[lights]] #{index + 1}"
@@ -426,8 +426,8 @@ def _lights(path: Path, data: dict) -> tuple:
         if isinstance(light, EnvmapLight):
             light = replace(light, file=_relative_file(path, light.file, f"{where} (envmap) file"))
         out.append(light)
-    environments = [f"#{i + 1} ({t.get('type')})" for i, t in enumerate(_array_of_tables(path, data, "lights"))
-                    if t.get("type") in ENVIRONMENT_LIGHT_TYPES]
+        if kind in ENVIRONMENT_LIGHT_TYPES:
+            environments.append(f"#{index + 1} ({kind})")
     if len(environments) > 1:
         raise InputError(path, f"[[lights]] {' and '.join(environments)}: expected at most one environment "
                                f"light ({', '.join(ENVIRONMENT_LIGHT_TYPES)}); Mitsuba takes one per scene")

@@ -39,7 +39,7 @@ from .config import SceneConfig, load_scene_config
 from .effects import apply_effects, exposure_gains, srgb_uint8_from_linear
 from .motion import (WorldPoses, poses_at_times, poses_for_settings, relative_trajectory, trajectory_in_camera,
                      world_trajectory)
-from .scene import build_scene_dict
+from .scene import build_scene_dict, mitsuba_reason
 from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
 
 __all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
@@ -127,8 +127,7 @@ class OmniRenderer:
         try:
             self.scene = self.mi.load_dict(scene_dict, parallel=False)
         except RuntimeError as exc:  # e.g. a Mitsuba file's environment light beside the scene file's
-            lines = str(exc).strip().splitlines()
-            raise InputError(config.path, f"Mitsuba cannot build the scene: {lines[-1] if lines else exc}") from None
+            raise InputError(config.path, f"Mitsuba cannot build the scene: {mitsuba_reason(exc)}") from None
         self.params = self.mi.traverse(self.scene)
         # Rendering at the sampler's own count gives its samples without logging the rounding per frame.
         self.spp = int(self.scene.sensors()[0].sampler().sample_count())

@@ -25,7 +25,7 @@ from .lights import emitter_dict
 from .materials import Appearance, bsdf_dict
 from .textures import texture_image
 
-__all__ = ["scene_meshes", "mitsuba_file_entries", "build_scene_dict", "RADIANCE_INTEGRATORS"]
+__all__ = ["scene_meshes", "mitsuba_file_entries", "build_scene_dict", "RADIANCE_INTEGRATORS", "mitsuba_reason"]
 
 
 def scene_meshes(config: SceneConfig) -> tuple[dict, dict]:
@@ -66,7 +66,8 @@ def _mesh(mi, name, group: MeshGroup, bsdf, emission=None):
     return mesh
 
 
-def _first_line(exc: Exception) -> str:
+def mitsuba_reason(exc: Exception) -> str:
+    """The line of a Mitsuba error that says what is wrong: its last (the class name when empty)."""
     text = str(exc).strip()
     return text.splitlines()[-1] if text else exc.__class__.__name__
 
@@ -108,7 +109,7 @@ def mitsuba_file_entries(mi, xml_path) -> tuple[dict, object | None]:
     try:
         root = ElementTree.parse(xml_path).getroot()
     except (ElementTree.ParseError, OSError) as exc:
-        raise InputError(xml_path, f"not a readable Mitsuba scene file ({_first_line(exc)})") from None
+        raise InputError(xml_path, f"not a readable Mitsuba scene file ({mitsuba_reason(exc)})") from None
     if root.tag != "scene":
         raise InputError(xml_path, f"expected a <scene> root element, got <{root.tag}>")
     for sensor in root.findall("sensor"):
@@ -125,7 +126,7 @@ def mitsuba_file_entries(mi, xml_path) -> tuple[dict, object | None]:
     try:
         loaded = mi.load_string(ElementTree.tostring(root, encoding="unicode"), parallel=False)
     except RuntimeError as exc:
-        raise InputError(xml_path, f"Mitsuba cannot load it: {_first_line(exc)}") from None
+        raise InputError(xml_path, f"Mitsuba cannot load it: {mitsuba_reason(exc)}") from None
     finally:
         resolver.clear()
         for folder in saved:
@@ -173,12 +174,12 @@ def build_scene_dict(config: SceneConfig, mi, *, sensor: dict) -> dict:
             bsdf = bsdf_dict(mi, appearance, texture_images)
             scene[f"mesh_{name}"] = _mesh(mi, name, group, bsdf, emission=appearance.emission)
         except RuntimeError as exc:
-            raise InputError(path, f"[materials.{name}]: {_first_line(exc)}") from None
+            raise InputError(path, f"[materials.{name}]: {mitsuba_reason(exc)}") from None
     for index, light in enumerate(config.lights):
         # Instantiated one by one, in file order, so the emitter order never changes.
         try:
             scene[f"light_{index}"] = mi.load_dict(emitter_dict(mi, light), parallel=False)
         except RuntimeError as exc:
             source = getattr(light, "file", path)
-            raise InputError(source, f"[[lights]] #{index + 1}: {_first_line(exc)}") from None
+            raise InputError(source, f"[[lights]] #{index + 1}: {mitsuba_reason(exc)}") from None
     return scene

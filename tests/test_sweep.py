@@ -187,17 +187,26 @@ def test_changed_dataset_is_recomputed_never_reused(tmp_path):
     assert first[0]["rmse_geodesic_rad"] != second[0]["rmse_geodesic_rad"]
 
 
-@pytest.mark.parametrize("content", ["[]", '{"status": "ok", "cell_'])
-def test_bad_cell_record_is_warned_and_recomputed(datasets, tmp_path, capsys, content):
+def _one_cell_sweep(datasets, tmp_path):
+    """A finished one-cell sweep of the good dataset: ``(rerun, sweep folder, the cell's record file)``."""
     good, _ = datasets
     cells = sweep_cells([str(good)], method="ifmi", tile_sizes=[32], overlaps=[0.0])
     out = tmp_path / "sweep"
     options = SweepOptions(scheduler="synchronous", progress=False)
-    run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
-    path = next((out / "cells").glob("*.json"))
+
+    def rerun():
+        return run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
+
+    rerun()
+    return rerun, out, next((out / "cells").glob("*.json"))
+
+
+@pytest.mark.parametrize("content", ["[]", '{"status": "ok", "cell_'])
+def test_bad_cell_record_is_warned_and_recomputed(datasets, tmp_path, capsys, content):
+    rerun, _, path = _one_cell_sweep(datasets, tmp_path)
     path.write_text(content)
     capsys.readouterr()
-    records = run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
+    records = rerun()
     err = capsys.readouterr().err
     assert str(path) in err and "computing the cell again" in err
     assert records[0]["status"] == "ok" and json.loads(path.read_text())["status"] == "ok"
@@ -304,18 +313,13 @@ def test_sweep_cli_refuses_a_grid_value_given_twice(datasets, tmp_path, capsys, 
 ])
 def test_cell_record_of_the_wrong_kind_is_named_recomputed_and_left_out_of_reports(
         datasets, tmp_path, capsys, key, value, expected):
-    good, _ = datasets
-    cells = sweep_cells([str(good)], method="ifmi", tile_sizes=[32], overlaps=[0.0])
-    out = tmp_path / "sweep"
-    options = SweepOptions(scheduler="synchronous", progress=False)
-    run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
-    path = next((out / "cells").glob("*.json"))
+    rerun, out, path = _one_cell_sweep(datasets, tmp_path)
     edited = dict(json.loads(path.read_text()), **{key: value})
     path.write_text(json.dumps(edited))
     capsys.readouterr()
     assert main(["report", "--no-motion-flow", str(out), "--out", str(tmp_path / "rep")]) == 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(path) in err[0] and expected in err[0] and "skipped" in err[0]
-    records = run_sweep(cells, out_dir=out, base_config=EstimateConfig().to_dict(), options=options)
+    records = rerun()
     assert expected in capsys.readouterr().err
     assert records[0]["status"] == "ok" and json.loads(path.read_text())[key] != value

@@ -34,7 +34,8 @@ import numpy as np
 from ..errors import InputError, InputWarning
 from .native_stderr import call_with_captured_stderr
 
-__all__ = ["read_image", "IMAGE_SUFFIXES", "SENSOR_BIT_DEPTHS", "image_file_problem", "sensor_bit_depth"]
+__all__ = ["read_image", "IMAGE_SUFFIXES", "SENSOR_BIT_DEPTHS", "image_file_problem", "image_header_size",
+           "sensor_bit_depth", "size_problem"]
 
 #: Sample depths of common image sensors, in bits; a 16-bit file whose values
 #: all fit the smaller of them is read at that depth (:func:`sensor_bit_depth`).
@@ -119,7 +120,9 @@ def _png_rows(width: int, height: int, bits_per_pixel: int, interlace: int) -> l
     return passes
 
 
-def _size_problem(height: int, width: int, size: tuple[int, int] | None) -> str | None:
+def size_problem(height: int, width: int, size: tuple[int, int] | None) -> str | None:
+    """Why an image of ``height`` x ``width`` pixels does not fit the calibration's ``size``
+    ``(height, width)``, or None when it does (or ``size`` is None)."""
     if size is None or (height, width) == tuple(size):
         return None
     return (f"image is {height}x{width} (height x width), but the calibration names "
@@ -139,7 +142,7 @@ def _png_problem(data: bytes, size: tuple[int, int] | None) -> str | None:
             or interlace not in _PNG_INTERLACE_METHODS):
         return (f"corrupt PNG (invalid header: {width}x{height}, colour type {colour}, depth {depth}, "
                 f"interlace method {interlace})")
-    problem = _size_problem(height, width, size)  # before inflating: a small file can claim a huge image
+    problem = size_problem(height, width, size)  # before inflating: a small file can claim a huge image
     if problem:
         return problem
     try:
@@ -179,6 +182,17 @@ def _jpeg_frame_size(data: bytes) -> tuple[int, int] | None:
     return None
 
 
+def image_header_size(data: bytes) -> tuple[int, int] | None:
+    """``(height, width)`` that a PNG's or JPEG's header names, read without decoding (None when
+    the bytes hold no such header)."""
+    if data.startswith(_PNG_SIGNATURE) and data[12:16] == b"IHDR" and len(data) >= 24:
+        width, height = struct.unpack(">II", data[16:24])
+        return height, width
+    if data.startswith(_JPEG_START):
+        return _jpeg_frame_size(data)
+    return None
+
+
 def image_file_problem(data: bytes, *, size: tuple[int, int] | None = None) -> str | None:
     """Why the bytes of an image file cannot be decoded, or ``None`` when they look sound.
 
@@ -196,7 +210,7 @@ def image_file_problem(data: bytes, *, size: tuple[int, int] | None = None) -> s
         if data.rfind(_JPEG_END) < len(_JPEG_START):
             return "truncated JPEG (no end-of-image marker)"
         frame_size = _jpeg_frame_size(data)
-        return None if frame_size is None else _size_problem(*frame_size, size)
+        return None if frame_size is None else size_problem(*frame_size, size)
     return "not a readable PNG/JPEG image"
 
 
@@ -349,7 +363,7 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
         raise InputError(path, f"expected an 8- or 16-bit image, got {image.dtype}")
     if image.ndim == 3:
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-    if size is not None and image.shape[:2] != tuple(size):
-        raise InputError(path, f"image is {image.shape[0]}x{image.shape[1]} (height x width), "
-                               f"but the calibration names {size[0]}x{size[1]}")
+    problem = size_problem(*image.shape[:2], size)
+    if problem:
+        raise InputError(path, problem)
     return image
