@@ -20,6 +20,7 @@ import scipy.fft
 __all__ = [
     "hann_window",
     "windowed_spectra",
+    "gaussian_lowpass",
     "normalized_cross_power",
     "correlation_surface",
     "Peaks",
@@ -73,13 +74,48 @@ def windowed_spectra(stack: np.ndarray, window: np.ndarray, *, workers: int = 1)
     return scipy.fft.rfft2((stack - stack.mean(axis=(1, 2), keepdims=True)) * window, workers=workers)
 
 
-def normalized_cross_power(spectra_a: np.ndarray, spectra_b: np.ndarray) -> np.ndarray:
-    """Phase-only cross-power spectrum ``conj(A) B / |A B|``.
+@lru_cache(maxsize=16)
+def gaussian_lowpass(shape: tuple[int, int], sigma: float) -> np.ndarray:
+    """Gaussian weight of the ``rfft2`` half plane, ``exp(-|f|^2 / (2 sigma^2))``.
+
+    Weighting the phase-only cross-power spectrum with it convolves the
+    correlation surface with a Gaussian of ``1 / (2 pi sigma)`` pixels
+    standard deviation: frequencies where image noise outweighs the texture
+    no longer count as much as the rest, so a noisy pair's peak stands out.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        ``(rows, cols)`` of the images.
+    sigma : float
+        Standard deviation in cycles per pixel (> 0).
+
+    Returns
+    -------
+    (rows, cols // 2 + 1) float32 ndarray
+        Read-only (shared between calls).
+    """
+    if not sigma > 0:
+        raise ValueError(f"expected sigma > 0 cycles per pixel, got {sigma}")
+    fr = scipy.fft.fftfreq(shape[0])[:, None]
+    fc = scipy.fft.rfftfreq(shape[1])[None, :]
+    weight = np.exp(-0.5 * (fr * fr + fc * fc) / (sigma * sigma)).astype(np.float32)
+    weight.flags.writeable = False
+    return weight
+
+
+def normalized_cross_power(spectra_a: np.ndarray, spectra_b: np.ndarray, *,
+                           lowpass_sigma: float | None = None) -> np.ndarray:
+    """Phase-only cross-power spectrum ``conj(A) B / |A B|``, optionally low-passed.
 
     Parameters
     ----------
     spectra_a, spectra_b : (T, H, W//2+1) complex ndarray
-        ``rfft2`` spectra.
+        ``rfft2`` spectra of images ``(H, W)`` with even ``W``.
+    lowpass_sigma : float or None, keyword-only
+        When given, the spectrum is weighted by :func:`gaussian_lowpass` of
+        this standard deviation (cycles per pixel); the peak stays where it
+        is and its value drops below 1.
 
     Returns
     -------
@@ -91,7 +127,10 @@ def normalized_cross_power(spectra_a: np.ndarray, spectra_b: np.ndarray) -> np.n
     floor = _POWER_FLOOR * magnitude.max(axis=(-2, -1), keepdims=True) + np.finfo(np.float32).tiny
     np.maximum(magnitude, floor, out=magnitude)
     # Multiplying by the real reciprocal is several times faster than a complex division.
-    cross *= np.reciprocal(magnitude, out=magnitude)
+    np.reciprocal(magnitude, out=magnitude)
+    if lowpass_sigma is not None:
+        magnitude *= gaussian_lowpass((cross.shape[-2], 2 * (cross.shape[-1] - 1)), lowpass_sigma)
+    cross *= magnitude
     return cross
 
 
