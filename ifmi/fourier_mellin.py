@@ -905,7 +905,6 @@ class FourierMellin:
         re-rotated tiles b and ``peaks`` their translation peaks.
         """
         t = self.count
-        shape = (self.tile_size, self.tile_size)
         workers = self.config.workers
         lp = correlation_surface(normalized_cross_power(spectra_a.descriptor, spectra_b.descriptor),
                                  (self.n_angles, self.n_radii), workers=workers)
