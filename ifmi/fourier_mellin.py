@@ -132,8 +132,8 @@ class FourierMellinConfig:
         0.010 rad ATE, and on 126 fast sequences the median ATE over three
         seeds improved by more than 5 % on 67 and worsened on 43 (frame
         mode), but a frame of office_trans_x10 took a wrong peak (ATE 0.004
-        -> 0.09 rad on two of three seeds); see ``reports/fast_motion``. For noisy footage try
-        ``correlation_lowpass=0.15, th_pr=2.0``.
+        -> 0.09 rad on two of three seeds); see ``reports/fast_motion``.
+        For noisy footage try ``correlation_lowpass=0.15, th_pr=2.0``.
     th_pr : float
         Smallest accepted peak ratio of the translation correlation.
     th_pnr : float
