@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import argparse
 import re
-import signal
 import sys
-import threading
 
+from ifmi.cli.interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
 from ifmi.cli.warning_lines import input_warnings_as_lines
 from ifmi.errors import InputError, OutputError
 
@@ -139,32 +138,6 @@ def _check_llvm(args) -> int:
     return llvm_main([])
 
 
-def _caused_by_interrupt(exc: BaseException) -> bool:
-    """True when ``exc`` is, or was raised while handling, a KeyboardInterrupt.
-
-    Mitsuba and drjit turn an interrupt inside their C++ code into an
-    ImportError or RuntimeError chained to it.
-    """
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return False
-
-
-class _InterruptFlag:
-    """SIGINT handler that remembers the interrupt, then raises KeyboardInterrupt as Python does."""
-
-    def __init__(self):
-        self.seen = False
-
-    def __call__(self, signum, frame):
-        self.seen = True
-        raise KeyboardInterrupt
-
-
 COMMANDS = {"render": _render, "degrade": _degrade, "warp": _warp, "generators": _generators,
             "check-llvm": _check_llvm}
 
@@ -174,14 +147,8 @@ def _exit_status(exc: BaseException, *, interrupted: bool, command: str) -> int 
     from .llvm import BackendError
 
     command = f"omnisim {command}".strip()
-    if interrupted or _caused_by_interrupt(exc):
-        print(f"{command}: interrupted (rerun the same command to resume)", file=sys.stderr)
-        # CPython marks an interrupt that escaped code run by exec() of a string (dataclasses
-        # and namedtuple build their methods so, e.g. while numpy imports) as unhandled, and
-        # `python -m` then ends the process by SIGINT instead of this status; the next exec()
-        # of a string clears that mark.
-        exec("pass")
-        return 130
+    if interrupted or caused_by_interrupt(exc):
+        return report_interrupt(f"{command}: interrupted (rerun the same command to resume)")
     if isinstance(exc, InputError):
         print(f"{command}: error: {exc}", file=sys.stderr)
         return 2
@@ -200,23 +167,21 @@ def main(argv: list[str] | None = None) -> int:
 
     0 done; 1 cannot write, or Mitsuba cannot run here; 2 bad input; 130 interrupted.
     """
-    flag = _InterruptFlag()
-    in_main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, flag) if in_main_thread else None
-    command = ""  # known once the arguments are parsed
-    try:
-        args = build_parser().parse_args(argv)
-        command = args.command
-        with input_warnings_as_lines(lambda: f"omnisim {command}"):
-            return COMMANDS[command](args)
-    except BaseException as exc:
-        status = _exit_status(exc, interrupted=flag.seen, command=command)
-        if status is None:
-            raise
-        return status
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
+    with interrupts_recorded() as flag:
+        command = ""  # known once the arguments are parsed
+        try:
+            args = build_parser().parse_args(argv)
+            command = args.command
+            with input_warnings_as_lines(lambda: f"omnisim {command}"):
+                status = COMMANDS[command](args)
+            if flag.seen:  # library code caught the KeyboardInterrupt and went on
+                raise KeyboardInterrupt
+            return status
+        except BaseException as exc:
+            status = _exit_status(exc, interrupted=flag.seen, command=command)
+            if status is None:
+                raise
+            return status
 
 
 if __name__ == "__main__":

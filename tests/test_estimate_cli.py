@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+import signal
 
 import cv2
 import numpy as np
@@ -313,3 +314,35 @@ def test_camera_imaging_no_full_ring_is_an_error_naming_its_calibration(tmp_path
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert f"{root / 'camera.yaml'}: the camera model images no full ring of rays about its axis" in err
+
+
+def test_interrupt_while_the_library_imports_is_one_line_exit_130(monkeypatch, capsys):
+    import ifmi.cli
+
+    def interrupted_build():
+        signal.raise_signal(signal.SIGINT)
+
+    monkeypatch.setattr(ifmi.cli, "build_parser", interrupted_build)
+    code = main(["estimate", "anything", "--out", "x.txt"])
+    assert code == 130 and capsys.readouterr().err == "ifmi: interrupted\n"
+
+
+def test_interrupt_swallowed_by_library_code_still_exits_130(dataset, tmp_path, monkeypatch, capsys):
+    """An interrupt that library code catches (or turns into another error) is not lost: the
+    estimate it lets finish is written, and the exit status says it was interrupted."""
+    import ifmi.cli.estimate
+
+    real = ifmi.cli.estimate.estimate_dataset
+
+    def swallowing(*args, **kwargs):
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt:
+            pass
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ifmi.cli.estimate, "estimate_dataset", swallowing)
+    root, _ = dataset
+    code = main(["estimate", str(root), "--out", str(tmp_path / "est.txt"), "--width", "512",
+                 "--tile-size", "64", "--no-progress"])
+    assert code == 130 and capsys.readouterr().err == "ifmi estimate: interrupted\n"

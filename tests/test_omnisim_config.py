@@ -269,7 +269,7 @@ def test_cli_bogus_variant_is_one_line_exit_2(tmp_path, capsys):
 
 
 def test_interrupt_is_recognised_through_exception_chains():
-    from omnisim.cli import _caused_by_interrupt
+    from ifmi.cli.interrupts import caused_by_interrupt
 
     try:
         try:
@@ -277,8 +277,8 @@ def test_interrupt_is_recognised_through_exception_chains():
         except KeyboardInterrupt as inner:
             raise RuntimeError("drjit.custom(): error while performing a custom operation") from inner
     except RuntimeError as exc:
-        assert _caused_by_interrupt(exc)
-    assert not _caused_by_interrupt(RuntimeError("plain failure"))
+        assert caused_by_interrupt(exc)
+    assert not caused_by_interrupt(RuntimeError("plain failure"))
 
 
 def test_mesh_parts_keep_each_file_appearance(tmp_path):

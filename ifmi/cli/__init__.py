@@ -13,6 +13,7 @@ import os
 import sys
 
 from ..errors import InputError, OutputError
+from .interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
 from .warning_lines import input_warnings_as_lines
 
 __all__ = ["main"]
@@ -49,26 +50,38 @@ def main(argv: list[str] | None = None) -> int:
     more than half of the frames failed). Each error is one line on stderr;
     :class:`~ifmi.errors.InputWarning` warnings are printed as one line each.
     """
-    parser = build_parser()
-    args = parser.parse_args(argv)
-
-    with input_warnings_as_lines(lambda: f"ifmi {args.command}"):
+    with interrupts_recorded() as flag:
+        command = "ifmi"  # the subcommand is known once the arguments are parsed
         try:
-            return int(args.func(args) or 0)
+            args = build_parser().parse_args(argv)  # imports the library
+            command = f"ifmi {args.command}"
+            status = _run(args, command)
+        except BaseException as exc:
+            if flag.seen or caused_by_interrupt(exc):
+                return report_interrupt(f"{command}: interrupted")
+            raise
+        if flag.seen:  # library code caught the KeyboardInterrupt, or turned it into an error
+            return report_interrupt(f"{command}: interrupted")
+        return status
+
+
+def _run(args, command: str) -> int:
+    """Run the parsed subcommand; errors of the input or the output become one line and a status."""
+    with input_warnings_as_lines(lambda: command):
+        try:
+            status = int(args.func(args) or 0)
         except InputError as exc:
-            print(f"ifmi {args.command}: error: {exc}", file=sys.stderr)
+            print(f"{command}: error: {exc}", file=sys.stderr)
             return 2
         except OutputError as exc:
-            print(f"ifmi {args.command}: error: {exc}", file=sys.stderr)
+            print(f"{command}: error: {exc}", file=sys.stderr)
             return 1
-        except KeyboardInterrupt:
-            print(f"ifmi {args.command}: interrupted", file=sys.stderr)
-            return 130
         except BrokenPipeError:
             # The reader of stdout left (``ifmi evaluate | head``): nothing more to print, and
             # Python's flush at exit must not fail on the closed pipe either.
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
             return 1
+    return status
 
 
 if __name__ == "__main__":
