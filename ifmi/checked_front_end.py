@@ -29,10 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, one_line
 from .front_end import Correspondences
 
-__all__ = ["RAY_NORM_TOLERANCE", "CheckedFrontEnd", "checked_correspondences", "one_line"]
+__all__ = ["RAY_NORM_TOLERANCE", "CheckedFrontEnd", "checked_correspondences"]
 
 # Largest |norm - 1| of a ray accepted as a unit vector (float16 rays round to about 1e-3); the rays
 # are then normalised. Pixel coordinates or unnormalised directions given as rays are far outside it.
@@ -40,14 +40,6 @@ RAY_NORM_TOLERANCE = 2e-3
 # Fields a front end's result must have (those of Correspondences).
 _FIELDS = ("pixels_a", "pixels_b", "rays_a", "rays_b", "diagnostics", "success", "reason",
            "rays_per_measurement")
-
-
-def one_line(exc: BaseException) -> str:
-    """``Type: first line of the message`` of an exception."""
-    text = str(exc).strip()
-    first = text.splitlines()[0] if text else ""
-    more = " ..." if first != text else ""
-    return f"{type(exc).__name__}: {first}{more}" if first else type(exc).__name__
 
 
 @dataclass(frozen=True)

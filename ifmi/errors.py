@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["InputError", "InputWarning", "CalibrationFitError", "OutputError"]
+__all__ = ["InputError", "InputWarning", "CalibrationFitError", "OutputError", "first_line", "one_line"]
 
 
 class InputError(ValueError):
@@ -64,3 +64,18 @@ class InputWarning(UserWarning):
     The message is one line naming the file or folder; command-line entry
     points print it as ``ifmi COMMAND: warning: MESSAGE``.
     """
+
+
+def first_line(exc: BaseException) -> str:
+    """The first line of an exception's message, or its class name when the message is empty."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def one_line(exc: BaseException) -> str:
+    """``Type: first line of the message``, with `` ...`` when lines are left out."""
+    text = str(exc).strip()
+    if not text:
+        return type(exc).__name__
+    first = text.splitlines()[0]
+    return f"{type(exc).__name__}: {first}{' ...' if first != text else ''}"

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from typing import Any, Callable, Iterable
 
-from .errors import InputError
+from .errors import InputError, one_line
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -213,7 +213,7 @@ def create_front_end(method: str, model, config):
     -------
     FrontEnd
     """
-    from .checked_front_end import CheckedFrontEnd, one_line
+    from .checked_front_end import CheckedFrontEnd
 
     factory = load_factory(method)
     if method in builtin_method_names():

@@ -47,7 +47,7 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 from .dataset_names import dataset_folder_id, dataset_labels, resolved_folder
-from .errors import InputError, OutputError
+from .errors import InputError, OutputError, one_line
 from .io.atomic import (atomic_write_bytes, atomic_write_json, atomic_write_text, check_output_folder,
                         folder_of_kind, probe_writable, write_folder)
 
@@ -328,8 +328,7 @@ def run_cell(cell: SweepCell, *, out_dir: str, base_config: dict) -> dict:
         record.update({"status": "ok", "error": "",
                        "evaluation": str((run_dir / "eval").relative_to(out))})
     except Exception as exc:  # a failing cell is recorded, never lost
-        message = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-        record.update({"status": "failed", "error": f"{type(exc).__name__}: {message}",
+        record.update({"status": "failed", "error": one_line(exc),
                        "traceback": traceback.format_exc(limit=6)})
     record["wall_s"] = time.perf_counter() - start
     atomic_write_json(_cell_path(out, cell), record)

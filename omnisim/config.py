@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ifmi.camera import (OcamModel, check_affine, check_center_inside, check_image_size, max_image_radius,
                          model_from_direct_polynomial)
-from ifmi.errors import InputError
+from ifmi.errors import InputError, first_line
 
 from . import meshes, procedural  # noqa: F401  (register the built-in generators)
 from .generators import object_from_table, registered_generators
@@ -289,7 +289,7 @@ def _read_toml(path: Path) -> tuple[bytes, dict]:
     try:
         data = tomllib.loads(raw.decode("utf-8-sig"))  # a byte-order mark of Windows editors is skipped
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"not valid TOML: {str(exc).splitlines()[0]}") from None
+        raise InputError(path, f"not valid TOML: {first_line(exc)}") from None
     for key in data:
         if key not in SECTIONS:
             raise InputError(path, f"[{key}]: unknown section; accepted sections: {', '.join(SECTIONS)}")

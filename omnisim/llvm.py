@@ -19,6 +19,8 @@ import threading
 from contextlib import contextmanager
 from pathlib import Path
 
+from ifmi.errors import first_line
+
 __all__ = [
     "BackendError",
     "LlvmNotFoundError",
@@ -230,8 +232,7 @@ def _cuda_works(mi) -> str:
         drjit.eval(probe)
         return ""
     except (ImportError, AttributeError, RuntimeError) as exc:
-        text = str(exc).strip()
-        return text.splitlines()[0] if text else exc.__class__.__name__
+        return first_line(exc)
 
 
 def import_mitsuba(variant: str | None = None):
