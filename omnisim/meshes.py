@@ -21,17 +21,26 @@ Without ``material`` each geometry keeps the file's own appearance:
 
 from __future__ import annotations
 
+import base64
+import io
+import json
+import struct
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ifmi.errors import InputError, InputWarning
+from ifmi.errors import InputError, InputWarning, first_line
 
 from .generators import GeneratorContext, Param, register_generator
 from .materials import Appearance, MaterialSettings
-from .settings import FLOAT32_MAX  # largest coordinate a placed mesh may have: Mitsuba stores float32
+from .settings import FLOAT32_MAX  # largest coordinate a mesh file may scale to: Mitsuba stores float32
+
+# Largest coordinate of a placed mesh, metres. Measured: a floor 2 m under the camera renders
+# right up to a half-width of 2e9 m, black from 4e9 m and not at all from 4e18 m, with no error
+# from Mitsuba; half the largest good size is allowed.
+MAX_PLACED_REACH_M = 1e9
 from .textures import linear_texture_from_image
 
 __all__ = ["MeshPart", "mesh_parts_from_file"]
@@ -118,26 +127,34 @@ def mesh_parts_from_file(path) -> list[MeshPart]:
     Raises
     ------
     InputError
-        The file cannot be read or holds no triangles.
+        The file cannot be read, holds no triangles, ends before the rows
+        its (PLY) header declares or names an OBJ vertex 0.
 
     Warns
     -----
     InputWarning
         An OBJ's material library (``mtllib``) or a texture it names
-        (``map_Kd``) is missing: the geometry renders with the colour left.
+        (``map_Kd``), or a glTF/GLB material's base colour texture, is
+        missing or holds no image: the geometry renders with the colour left.
     """
     import trimesh
 
     path = Path(path)
-    if path.suffix.lower() == ".obj":
+    suffix = path.suffix.lower()
+    if suffix == ".obj":
+        _check_obj_face_indices(path)
         _warn_missing_obj_files(path)
+    elif suffix in (".gltf", ".glb"):
+        _warn_unreadable_gltf_textures(path)
     try:
         scene = trimesh.load_scene(str(path), process=False)
         meshes = scene.dump(concatenate=False)
     except Exception as exc:  # trimesh raises many kinds for a broken file
-        first = str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__
-        raise InputError(path, f"cannot read mesh file ({first})") from None
-    meshes = [m for m in meshes if isinstance(m, trimesh.Trimesh) and len(m.faces) > 0]
+        raise InputError(path, f"cannot read mesh file ({first_line(exc)})") from None
+    meshes = [m for m in meshes if isinstance(m, trimesh.Trimesh)]
+    for mesh in meshes:  # before empty geometries are left out: a cut file may have no faces left
+        _check_ply_rows(path, mesh)
+    meshes = [m for m in meshes if len(m.faces) > 0]
     if not meshes:
         raise InputError(path, "mesh file holds no triangles")
     for number, mesh in enumerate(meshes):
@@ -170,6 +187,48 @@ def _check_geometry(path: Path, number: int, mesh) -> None:
         face = int(np.argmax(outside.any(axis=1)))
         raise InputError(path, f"geometry {number} face {face}: vertex indices {faces[face].tolist()}, "
                                f"expected 0 to {len(vertices) - 1} (the mesh has {len(vertices)} vertices)")
+
+
+def _check_obj_face_indices(path: Path) -> None:
+    """Refuse an OBJ whose face lines (``f`` first on the line, as the reader finds them) name index 0 in
+    any form (``0``, ``0/1``, ``1/0``, ``1//0``): OBJ counts from 1, negative indices count back from the
+    last, and the reader turns 0 into the last element without a word. Lone zeros are found with numpy
+    (a scan takes a fraction of the reader's time); their face lines are then split to confirm them. An
+    unreadable file is the reader's to report."""
+    try:
+        data = b"\n" + path.read_bytes() + b"\n"
+    except OSError:
+        return
+    text = np.frombuffer(data, dtype=np.uint8)
+    zeros = np.flatnonzero(text == ord("0"))
+    zeros = zeros[np.isin(text[zeros - 1], list(b" \t/")) & np.isin(text[zeros + 1], list(b" \t/\r\n#"))]
+    newlines = np.flatnonzero(text == ord("\n"))
+    lines = np.searchsorted(newlines, zeros) - 1  # the line of each lone zero, counted from 0
+    starts = newlines[lines] + 1
+    for line in np.unique(lines[(text[starts] == ord("f")) & np.isin(text[starts + 1], list(b" \t"))]):
+        words = data[newlines[line] + 1:newlines[line + 1]].split(b"#")[0].split()
+        if b"0" in (index for word in words[1:] for index in word.split(b"/")):
+            shown = b" ".join(words).decode("utf-8", errors="replace")
+            raise InputError(path, f"line {line + 1} ({shown!r}): expected face indices from 1 (OBJ counts "
+                                   f"from 1, negative ones back from the last), got 0")
+
+
+def _check_ply_rows(path: Path, mesh) -> None:
+    """Refuse a PLY file that ends before the rows its header declares: the ASCII reader keeps the rows
+    that are there (a box cut after 5 of its 12 faces rendered with exit 0). Other files pass."""
+    elements = mesh.metadata.get("_ply_raw") or {}  # the PLY reader's header counts and the rows it read
+    rows = [(name, e["length"], _rows_read(e["data"])) for name, e in elements.items()
+            if e.get("length") and "data" in e]
+    if any(got < expected for _, expected, got in rows):
+        declared = " and ".join(f"{expected} {name}" for name, expected, _ in rows)
+        found = " and ".join(f"{got} {name}" for name, _, got in rows)
+        raise InputError(path, f"expected {declared} rows (as its header says), the file ends after {found} rows")
+
+
+def _rows_read(data) -> int:
+    """How many rows of a PLY element the reader read: ``data`` is a dict of columns by property (ASCII)
+    or a record array (binary)."""
+    return len(next(iter(data.values()), ())) if isinstance(data, dict) else len(data)
 
 
 def _named_files(path: Path, keyword: str) -> list[tuple[str, Path | None]]:
@@ -205,10 +264,71 @@ def _warn_missing_obj_files(path: Path) -> None:
             problem = "not found" if there is None else _image_file_kind_problem(there)
             if problem:
                 missing.append(f"texture {texture} (named by {library}) {problem}")
-    if missing:
-        warnings.warn(f"{path}: {', '.join(missing)}; the geometries that use "
-                      f"{'it' if len(missing) == 1 else 'them'} render with their base colour or grey",
-                      InputWarning, stacklevel=3)
+    _warn_left_out(path, missing)
+
+
+def _warn_unreadable_gltf_textures(path: Path) -> None:
+    """One warning naming the base colour textures of a glTF/GLB's materials that are missing or hold no
+    image (the reader drops them without a word). A file too broken to list them is the reader's to refuse."""
+    try:
+        header, binary = _gltf_parts(path)
+        textures = header.get("textures", [])
+        used = {m["pbrMetallicRoughness"]["baseColorTexture"]["index"] for m in header.get("materials", [])
+                if "baseColorTexture" in m.get("pbrMetallicRoughness", {})}
+        problems = []
+        for index in sorted({textures[t]["source"] for t in used if "source" in textures[t]}):
+            image = header["images"][index]
+            uri = image.get("uri", "")
+            data = _gltf_image_bytes(path, header, binary, image)
+            problem = "not found" if data is None else _image_bytes_problem(data, tga=uri.lower().endswith(".tga"))
+            if problem:
+                name = uri if uri and not uri.startswith("data:") else f"image {index}"
+                problems.append(f"texture {name} {problem}")
+    except (OSError, ValueError, LookupError, TypeError, AttributeError, struct.error):
+        return
+    _warn_left_out(path, problems)
+
+
+def _warn_left_out(path: Path, problems: list[str]) -> None:
+    """One warning, from ``mesh_parts_from_file``'s caller, listing the material files and textures of
+    ``path`` that are left out and why (nothing when the list is empty)."""
+    if problems:
+        warnings.warn(f"{path}: {', '.join(problems)}; the geometries that use "
+                      f"{'it' if len(problems) == 1 else 'them'} render with their base colour or grey",
+                      InputWarning, stacklevel=4)
+
+
+def _gltf_parts(path: Path) -> tuple[dict, bytes]:
+    """The JSON header of a glTF or GLB file and a GLB's binary chunk (``b""`` for a .gltf)."""
+    data = path.read_bytes()
+    if not data.startswith(b"glTF"):  # a .gltf: JSON text
+        return json.loads(data), b""
+    (size,) = struct.unpack_from("<I", data, 12)  # after the 12-byte file header: the JSON chunk's length, type
+    return json.loads(data[20:20 + size]), data[28 + size:]  # the BIN chunk's data, after its length and type
+
+
+def _gltf_image_bytes(path: Path, header: dict, binary: bytes, image: dict) -> bytes | None:
+    """The bytes of a glTF ``image``: in a buffer view or at its URI (None when the file it names is not there)."""
+    if "bufferView" not in image:
+        return _gltf_uri_bytes(path, image["uri"])
+    view = header["bufferViews"][image["bufferView"]]
+    uri = header["buffers"][view["buffer"]].get("uri")
+    data = binary if uri is None else _gltf_uri_bytes(path, uri)
+    start = view.get("byteOffset", 0)
+    return None if data is None else data[start:start + view["byteLength"]]
+
+
+def _gltf_uri_bytes(path: Path, uri: str) -> bytes | None:
+    """The bytes a glTF URI names, found as the reader finds them: base64 data, or a file in the folder of
+    ``path`` by its name as written (not percent-decoded) or its last part (None when there is none)."""
+    from trimesh.resolvers import FilePathResolver
+
+    if "base64," in uri:
+        return base64.b64decode(uri[uri.index("base64,") + len("base64,"):])
+    try:
+        return FilePathResolver(path).get(uri)
+    except (OSError, ValueError):  # not there, or outside the folder
+        return None
 
 
 # Leading bytes of the image files a texture may be: PNG, JPEG, TIFF (both byte orders), BMP, GIF, TGA
@@ -217,32 +337,37 @@ _IMAGE_SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"\xff\xd8", b"II*\x00", b"MM\x00*", 
 
 
 def _image_file_kind_problem(path: Path) -> str:
-    """Why ``path`` is no image file by its first bytes ("" when it may be one)."""
+    """Why the image file ``path`` will be dropped by the mesh reader ("" when it may be read)."""
     try:
-        with open(path, "rb") as f:
-            head = f.read(8)
+        data = path.read_bytes()
     except OSError as exc:
         return f"cannot be read ({exc.strerror or exc.__class__.__name__})"
-    if not head:
+    return _image_bytes_problem(data, tga=path.suffix.lower() == ".tga")
+
+
+def _image_bytes_problem(data: bytes, *, tga: bool) -> str:
+    """Why the image ``data`` will be dropped by the mesh reader ("" when it may be read); a TGA
+    (``tga``) has no leading signature."""
+    if not data:
         return "is empty"
-    if path.suffix.lower() != ".tga" and not head.startswith(_IMAGE_SIGNATURES):
+    if not tga and not data.startswith(_IMAGE_SIGNATURES):
         return "is no image file"
-    return _image_size_problem(path)
+    return _image_open_problem(data)
 
 
-def _image_size_problem(path: Path) -> str:
-    """Why the mesh reader will refuse to decode ``path`` for its size ("" when it will decode it):
-    Pillow, which trimesh reads textures with, stops at twice its ``MAX_IMAGE_PIXELS`` (a
-    decompression bomb) and trimesh then drops the texture."""
+def _image_open_problem(data: bytes) -> str:
+    """Why Pillow, which trimesh reads textures with, will not open the image ``data`` ("" when it
+    will): a header it cannot parse, or a size beyond twice its ``MAX_IMAGE_PIXELS`` (a decompression
+    bomb). trimesh then drops the texture; pixel data that fails later is refused by the reader."""
     from PIL import Image
 
     try:
-        with Image.open(path):
+        with Image.open(io.BytesIO(data)):
             return ""
     except Image.DecompressionBombError:  # raised on opening, from the header's size
         return f"is too large to be read (more than {2 * Image.MAX_IMAGE_PIXELS} pixels)"
-    except Exception:  # any other error of Pillow's is the reader's to report
-        return ""
+    except Exception:  # Pillow raises many kinds for a header it cannot parse
+        return "is a damaged image file"
 
 
 def _planar_uvs(positions: np.ndarray) -> np.ndarray:
@@ -257,9 +382,11 @@ def _placed(ctx: GeneratorContext, positions: np.ndarray, rotation: np.ndarray, 
         ctx.fail("scale", f"expected at most {FLOAT32_MAX:.3g} / {reach:.3g} (the mesh's reach in file units; "
                           f"the renderer stores float32 metres), got {ctx['scale']:g}")
     placed = (ctx["scale"] * positions) @ rotation.T + offset
-    if not float(np.abs(placed).max()) <= FLOAT32_MAX:
-        ctx.fail("position", f"expected the placed mesh within {FLOAT32_MAX:.3g} m of the origin (the renderer "
-                             f"stores float32), got {list(ctx['position'])}")
+    reach = float(np.abs(placed).max())
+    if not reach <= MAX_PLACED_REACH_M:
+        ctx.fail("position" if np.abs(offset).max() > MAX_PLACED_REACH_M else "scale",
+                 f"expected the placed mesh within {MAX_PLACED_REACH_M:.3g} m of the origin (float32 ray "
+                 f"tracing loses larger surfaces), got {reach:.3g} m")
     return placed
 
 

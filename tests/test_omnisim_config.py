@@ -331,7 +331,10 @@ def test_unreadable_mesh_file_is_one_line_error(tmp_path):
     ("1e37 0 0", "scale = 100", r"scene.toml: \[\[objects\]\] #2 \(mesh\) scale: expected at most 3.4e\+38 / 1e\+37 "
                                 r"\(the mesh's reach in file units; the renderer stores float32 metres\), got 100"),
     ("3e38 0 0", "position = [3e38, 0, 0]", r"scene.toml: \[\[objects\]\] #2 \(mesh\) position: expected the placed "
-                                          r"mesh within 3.4e\+38 m of the origin"),
+                                          r"mesh within 1e\+09 m of the origin \(float32 ray tracing loses larger "
+                                          r"surfaces\), got 6e\+38 m"),
+    ("0 0 0", "position = [4e9, 0, 0]", r"\(mesh\) position: expected the placed mesh within 1e\+09 m .*got 4e\+09 m"),
+    ("1 0 0", "scale = 1e30", r"\(mesh\) scale: expected the placed mesh within 1e\+09 m .*got 1e\+30 m"),
     ("0 0 0", "scale = 1e300", r"scene.toml: \[\[objects\]\] #2 \(mesh\) scale: expected magnitudes <= 3.403e\+38 "
                                r"\(the renderer stores float32\), got 1e\+300"),
 ])
@@ -433,6 +436,7 @@ def test_obj_whose_material_files_are_missing_warns_in_one_line(tmp_path):
     bomb = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 20000, 20000, 8, 2, 0, 0, 0))
             + chunk(b"IDAT", zlib.compress(bytes(64))) + chunk(b"IEND", b""))
     for content, problem in ((b"", "is empty"), (b"not a picture", "is no image file"),
+                             (b"\x89PNG\r\n\x1a\ngarbage!", "is a damaged image file"),  # a header Pillow cannot parse
                              (bomb, r"is too large to be read \(more than \d+ pixels\)")):
         (tmp_path / "wood grain.png").write_bytes(content)
         # (after options the name is shown as its last word)
@@ -451,6 +455,105 @@ def test_obj_that_is_not_utf8_is_read(tmp_path):
     (tmp_path / "latin.obj").write_bytes(b"# Modell f\xfcr Tests\nv 0 0 0\nv 2 0 0\nv 0 3 0\nf 1 2 3\n")
     (part,) = mesh_parts_from_file(tmp_path / "latin.obj")
     np.testing.assert_allclose(np.ptp(part.positions, axis=0), [2.0, 3.0, 0.0])
+
+
+OBJ_HEAD = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\n"
+
+
+@pytest.mark.parametrize("face", ["f 0 1 2", "f 1/1 2/2 0/3", "f 1//1 0//1 2//1", "f 1/1/1 2/0/1 3/3/1"])
+def test_obj_face_index_zero_is_refused(tmp_path, face):
+    """OBJ counts from 1: the reader took index 0 for the last vertex (or dropped it) and the render
+    finished with exit 0."""
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "zero.obj").write_text(OBJ_HEAD + face + "\n")
+    with pytest.raises(InputError, match=rf"zero.obj: line 8 \('{face}'\): expected face indices from 1 \(OBJ "
+                                         r"counts from 1, negative ones back from the last\), got 0"):
+        mesh_parts_from_file(tmp_path / "zero.obj")
+
+
+def test_obj_negative_face_indices_are_read(tmp_path):
+    import numpy as np
+
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "back.obj").write_text(OBJ_HEAD + "f -3/-3 -2/-2 -1/-1\n")
+    (part,) = mesh_parts_from_file(tmp_path / "back.obj")
+    np.testing.assert_allclose(part.positions[part.faces[0]], [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+
+
+@pytest.mark.parametrize("lines, partial, rows", [(8 + 5, "", "8 vertex and 5 face"),
+                                                  (8 + 5, "3 4", "8 vertex and 6 face"),
+                                                  (5, "", "5 vertex and 0 face")])
+def test_ascii_ply_that_ends_early_is_refused(tmp_path, lines, partial, rows):
+    """The reader kept the rows that were there: a box cut after 5 of its 12 faces rendered with exit 0."""
+    trimesh = pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    box = trimesh.creation.box()
+    header, body = _ascii_ply(box.vertices.tolist(), box.faces.tolist()).split("end_header\n")
+    (tmp_path / "cut.ply").write_text(header + "end_header\n" + "".join(body.splitlines(True)[:lines]) + partial)
+    with pytest.raises(InputError, match=rf"cut.ply: expected 8 vertex and 12 face rows \(as its header says\), "
+                                         rf"the file ends after {rows} rows"):
+        mesh_parts_from_file(tmp_path / "cut.ply")
+
+
+def test_binary_ply_that_ends_early_is_refused(tmp_path):
+    """The binary reader finds the file too short itself."""
+    trimesh = pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "cut.ply").write_bytes(trimesh.creation.box().export(file_type="ply")[:-40])
+    with pytest.raises(InputError, match=r"cut.ply: cannot read mesh file"):
+        mesh_parts_from_file(tmp_path / "cut.ply")
+
+
+@pytest.mark.parametrize("name, uri, content, problem", [
+    ("quad.gltf", "gone.png", None, "texture gone.png not found"),
+    ("quad.gltf", "wood grain.png", b"not a picture", "texture wood grain.png is no image file"),
+    ("quad.gltf", "cut.png", b"\x89PNG\r\n\x1a\ngarbage!", "texture cut.png is a damaged image file"),
+    ("quad.glb", None, b"not a picture", "texture image 0 is no image file"),
+])
+def test_gltf_texture_that_cannot_be_read_warns_in_one_line(tmp_path, name, uri, content, problem):
+    """The reader dropped such a texture without a word; the quad renders with its base colour."""
+    import json
+    import warnings
+
+    import numpy as np
+
+    trimesh = pytest.importorskip("trimesh")
+    from PIL import Image
+
+    from ifmi.errors import InputWarning
+    from omnisim.meshes import mesh_parts_from_file
+
+    image = Image.fromarray(np.full((4, 4, 3), 200, np.uint8))
+    quad = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]], process=False,
+                           visual=trimesh.visual.TextureVisuals(uv=[[0, 0], [1, 0], [1, 1], [0, 1]], image=image))
+    files = quad.export(file_type="gltf")  # the image is a buffer of its own
+    for file, data in files.items():
+        (tmp_path / file).write_bytes(data)
+    tree = json.loads(files["model.gltf"])
+    png = files[tree["buffers"][tree["bufferViews"][tree["images"][0]["bufferView"]]["buffer"]]["uri"]]
+    glb = quad.export(file_type="glb")
+    (tmp_path / "quad.glb").write_bytes(glb.replace(png, content.ljust(len(png), b" ")) if uri is None else glb)
+    tree["images"] = [{"uri": uri}]
+    (tmp_path / "quad.gltf").write_text(json.dumps(tree))
+    if uri is not None:  # first the intact image at that name: nothing is said
+        (tmp_path / uri).write_bytes(png)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", InputWarning)
+            (part,) = mesh_parts_from_file(tmp_path / name)
+        assert part.image is not None
+        (tmp_path / uri).unlink()
+        if content is not None:
+            (tmp_path / uri).write_bytes(content)
+    with pytest.warns(InputWarning, match=rf"{name}: {problem}; the geometries that use it render with their "
+                                          r"base colour or grey"):
+        (part,) = mesh_parts_from_file(tmp_path / name)
+    assert part.image is None
 
 
 def test_capture_must_end_by_the_next_frame(tmp_path):
