@@ -26,7 +26,8 @@ class MaterialSettings:
     """One ``[materials.NAME]`` table."""
 
     type: str = setting("diffuse", "BSDF", choices=MATERIAL_TYPES)
-    color: tuple[float, float, float] = setting((0.5, 0.5, 0.5), "linear RGB reflectance", minimum=0.0)
+    color: tuple[float, float, float] = setting((0.5, 0.5, 0.5), "linear RGB reflectance",
+                                                minimum=0.0, maximum=1.0)
     texture: str = setting("", "name of a [textures.*] entry (replaces color)")
     tile: float = setting(1.0, "texture repeat length, metres", above=0.0)
     vertex_color: bool = setting(False, "per-vertex colours from the generator or mesh file (diffuse only)")

@@ -151,8 +151,10 @@ class NoiseTexture:
     size: int = setting(256, "texture side in pixels", minimum=2, maximum=MAX_NOISE_SIZE)
     octaves: int = setting(5, "number of frequency doublings", minimum=1, maximum=16)
     cells: int = setting(4, "lattice cells across the texture at the lowest frequency", minimum=1)
-    color_a: tuple[float, float, float] = setting((0.2, 0.2, 0.2), "linear RGB at noise 0", minimum=0.0)
-    color_b: tuple[float, float, float] = setting((0.8, 0.8, 0.8), "linear RGB at noise 1", minimum=0.0)
+    color_a: tuple[float, float, float] = setting((0.2, 0.2, 0.2), "linear RGB reflectance at noise 0",
+                                                  minimum=0.0, maximum=1.0)
+    color_b: tuple[float, float, float] = setting((0.8, 0.8, 0.8), "linear RGB reflectance at noise 1",
+                                                  minimum=0.0, maximum=1.0)
     seed: int = setting(0, "texture seed, offset by the scene's layout seed", minimum=0)
 
     def __post_init__(self):

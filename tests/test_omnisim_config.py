@@ -98,6 +98,17 @@ def test_unknown_texture_source_and_key(tmp_path):
         load_scene_config(write_scene(tmp_path, BASE + '[textures.t]\nsource = "photo"\nname = "moonlight"\n'))
 
 
+@pytest.mark.parametrize("table, message", [
+    ('[textures.t]\nsource = "noise"\ncolor_b = [1.5, 0.8, 0.8]',
+     r"scene.toml: \[textures.t\] color_b: expected <= 1.0, got \[1.5, 0.8, 0.8\]"),
+    ('[materials.glow]\ncolor = [0.5, 1.2, 0.5]', r"scene.toml: \[materials.glow\] color: expected <= 1.0, got \[0.5, 1.2"),
+])
+def test_reflectance_above_one_is_refused(tmp_path, table, message):
+    """A surface that reflects more light than reaches it makes light; the render gave no sign."""
+    with pytest.raises(InputError, match=message):
+        load_scene_config(write_scene(tmp_path, BASE + table + "\n"))
+
+
 @pytest.mark.parametrize("keys, message", [
     ("size = 100000", r"\[textures.t\] size: expected <= 8192, got 100000"),
     ("cells = 100000000\noctaves = 16", r"\[textures.t\] cells: expected cells \* 2\^\(octaves - 1\) <= size = 256 "
