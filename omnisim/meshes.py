@@ -24,6 +24,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import stat
 import struct
 import warnings
 from dataclasses import dataclass
@@ -247,9 +248,22 @@ def _named_files(path: Path, keyword: str) -> list[tuple[str, Path | None]]:
             continue
         rest = line.strip()[len(keyword):].strip()
         tails = [" ".join(words[k:]) for k in range(1, len(words))]  # the name after any options
+        for tail in tails:
+            _check_not_special(path, path.parent / tail)
         found = next((path.parent / n for n in tails if (path.parent / n).is_file()), None)
         named.append((words[-1] if rest.startswith("-") else rest, found))
     return named
+
+
+def _check_not_special(path: Path, named: Path) -> None:
+    """Refuse a side file of ``path`` that exists but is no regular file or folder: the reader would
+    wait forever on a FIFO or a terminal (a material library that was a FIFO hung the render)."""
+    try:
+        mode = named.stat().st_mode
+    except (OSError, ValueError):  # not there (or a name the OS refuses): the callers report it
+        return
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        raise InputError(path, f"names {named.name}, which is not a regular file; expected a file to read")
 
 
 def _warn_missing_obj_files(path: Path) -> None:
@@ -272,6 +286,13 @@ def _warn_unreadable_gltf_textures(path: Path) -> None:
     image (the reader drops them without a word). A file too broken to list them is the reader's to refuse."""
     try:
         header, binary = _gltf_parts(path)
+        side_files = [item.get("uri", "") for item in header.get("buffers", []) + header.get("images", [])]
+    except (OSError, ValueError, LookupError, TypeError, AttributeError, struct.error):
+        return
+    for uri in side_files:
+        if isinstance(uri, str) and uri and not uri.startswith("data:"):
+            _check_not_special(path, path.parent / uri)
+    try:
         textures = header.get("textures", [])
         used = {m["pbrMetallicRoughness"]["baseColorTexture"]["index"] for m in header.get("materials", [])
                 if "baseColorTexture" in m.get("pbrMetallicRoughness", {})}

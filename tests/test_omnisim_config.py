@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 
 import pytest
@@ -482,6 +483,22 @@ def test_obj_face_index_zero_is_refused(tmp_path, face):
     with pytest.raises(InputError, match=rf"zero.obj: line 8 \('{face}'\): expected face indices from 1 \(OBJ "
                                          r"counts from 1, negative ones back from the last\), got 0"):
         mesh_parts_from_file(tmp_path / "zero.obj")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+@pytest.mark.parametrize("name, text", [
+    ("box.obj", "mtllib side.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
+    ("box.gltf", '{"asset": {"version": "2.0"}, "images": [{"uri": "side.mtl"}]}'),
+])
+def test_side_file_that_is_a_fifo_is_refused(tmp_path, name, text):
+    """A material library or texture that is a FIFO made the reader wait forever."""
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    os.mkfifo(tmp_path / "side.mtl")
+    (tmp_path / name).write_text(text)
+    with pytest.raises(InputError, match=rf"{name}: names side.mtl, which is not a regular file"):
+        mesh_parts_from_file(tmp_path / name)
 
 
 def test_obj_negative_face_indices_are_read(tmp_path):
