@@ -209,7 +209,8 @@ def _interrupts_deferred():
     worker threads exist, as the kernel hands it to one of them. So the
     handler is replaced by one that only records the interrupt.
     """
-    if threading.current_thread() is not threading.main_thread():
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is signal.SIG_IGN):
         yield
         return
     received = []

@@ -1,6 +1,8 @@
-"""Shared fixtures: a seeded random generator and the rotation assertion of ifmi.testing."""
+"""Shared fixtures: a seeded random generator, the rotation assertion of ifmi.testing, Python's SIGINT handler."""
 
 from __future__ import annotations
+
+import signal
 
 import numpy as np
 import pytest
@@ -21,3 +23,12 @@ def rng() -> np.random.Generator:
 def assert_rotation_close():
     """:func:`ifmi.testing.assert_rotation_close`, for tests that prefer a fixture to an import."""
     return testing.assert_rotation_close
+
+
+@pytest.fixture
+def default_sigint():
+    """Python's own SIGINT handler for the test, whatever the runner was started with (a background
+    job of a script starts with SIGINT ignored, and the command lines then leave it so)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)

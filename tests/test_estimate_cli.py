@@ -316,7 +316,7 @@ def test_camera_imaging_no_full_ring_is_an_error_naming_its_calibration(tmp_path
     assert f"{root / 'camera.yaml'}: the camera model images no full ring of rays about its axis" in err
 
 
-def test_interrupt_while_the_library_imports_is_one_line_exit_130(monkeypatch, capsys):
+def test_interrupt_while_the_library_imports_is_one_line_exit_130(monkeypatch, capsys, default_sigint):
     import ifmi.cli
 
     def interrupted_build():
@@ -327,7 +327,7 @@ def test_interrupt_while_the_library_imports_is_one_line_exit_130(monkeypatch, c
     assert code == 130 and capsys.readouterr().err == "ifmi: interrupted\n"
 
 
-def test_interrupt_swallowed_by_library_code_still_exits_130(dataset, tmp_path, monkeypatch, capsys):
+def test_interrupt_swallowed_by_library_code_still_exits_130(dataset, tmp_path, monkeypatch, capsys, default_sigint):
     """An interrupt that library code catches (or turns into another error) is not lost: the
     estimate it lets finish is written, and the exit status says it was interrupted."""
     import ifmi.cli.estimate

@@ -172,9 +172,11 @@ def test_open_output_folder_raises_output_error_naming_the_folder(tmp_path):
 
 
 def _cli_process(args, tmp_path):
+    """``python -m omnisim ARGS`` with SIGINT as a terminal gives it (the runner may ignore SIGINT)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     return subprocess.Popen([sys.executable, "-m", "omnisim", *args], cwd=tmp_path, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 @pytest.mark.skipif(importlib.util.find_spec("ctypes") is None or __import__("ctypes.util").util.find_library("cuda")
@@ -208,7 +210,7 @@ def test_sigint_during_import_or_first_frame_is_one_line_exit_130(tmp_path, dela
     assert len(lines) == 1 and lines[0].endswith(": interrupted (rerun the same command to resume)"), err
 
 
-def test_interrupt_while_mitsuba_loads_is_raised_when_it_is_done():
+def test_interrupt_while_mitsuba_loads_is_raised_when_it_is_done(default_sigint):
     from omnisim.llvm import _interrupts_deferred
 
     before, reached_end = signal.getsignal(signal.SIGINT), False
@@ -219,7 +221,21 @@ def test_interrupt_while_mitsuba_loads_is_raised_when_it_is_done():
     assert reached_end and signal.getsignal(signal.SIGINT) is before
 
 
-def test_interrupt_swallowed_by_library_code_still_exits_130(monkeypatch, capsys):
+def test_a_process_started_with_sigint_ignored_keeps_ignoring_it():
+    from ifmi.cli.interrupts import interrupts_recorded
+    from omnisim.llvm import _interrupts_deferred
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with interrupts_recorded() as flag, _interrupts_deferred():
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+            signal.raise_signal(signal.SIGINT)
+        assert not flag.seen and signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_interrupt_swallowed_by_library_code_still_exits_130(monkeypatch, capsys, default_sigint):
     from omnisim import cli
 
     def swallowing_command(args):

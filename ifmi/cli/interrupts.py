@@ -36,12 +36,14 @@ class InterruptFlag:
 def interrupts_recorded() -> Iterator[InterruptFlag]:
     """Install an :class:`InterruptFlag` as the SIGINT handler for the block, then restore the old one.
 
-    Outside the main thread (where Python cannot set handlers) the flag is
-    yielded but never set.
+    Outside the main thread (where Python cannot set handlers), or in a
+    process started with SIGINT ignored (``nohup``, a background job of a
+    script), the flag is yielded but never set and SIGINT stays as it was.
     """
     flag = InterruptFlag()
-    in_main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, flag) if in_main_thread else None
+    takes_interrupts = (threading.current_thread() is threading.main_thread()
+                        and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN)
+    previous = signal.signal(signal.SIGINT, flag) if takes_interrupts else None
     try:
         yield flag
     finally:
