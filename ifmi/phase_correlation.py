@@ -21,6 +21,7 @@ __all__ = [
     "hann_window",
     "windowed_spectra",
     "gaussian_lowpass",
+    "gaussian_highpass",
     "normalized_cross_power",
     "correlation_surface",
     "Peaks",
@@ -104,9 +105,39 @@ def gaussian_lowpass(shape: tuple[int, int], sigma: float) -> np.ndarray:
     return weight
 
 
+@lru_cache(maxsize=16)
+def gaussian_highpass(shape: tuple[int, int], bins: float) -> np.ndarray:
+    """Gaussian high-pass weight of the ``rfft2`` half plane, ``1 - exp(-|k|^2 / (2 bins^2))``.
+
+    ``k`` is the frequency in samples of the spectrum (cycles per image
+    side), so the weight takes away the same few lowest frequencies whatever
+    the image size: those the window's own spectrum (about 2 samples wide
+    for a Hann window) and structures larger than the image fill.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        ``(rows, cols)`` of the images.
+    bins : float
+        Standard deviation in frequency samples (> 0).
+
+    Returns
+    -------
+    (rows, cols // 2 + 1) float32 ndarray
+        0 at the zero frequency; read-only (shared between calls).
+    """
+    if not bins > 0:
+        raise ValueError(f"expected bins > 0 frequency samples, got {bins}")
+    kr = scipy.fft.fftfreq(shape[0], d=1.0 / shape[0])[:, None]
+    kc = scipy.fft.rfftfreq(shape[1], d=1.0 / shape[1])[None, :]
+    weight = (-np.expm1(-0.5 * (kr * kr + kc * kc) / (bins * bins))).astype(np.float32)
+    weight.flags.writeable = False
+    return weight
+
+
 def normalized_cross_power(spectra_a: np.ndarray, spectra_b: np.ndarray, *,
-                           lowpass_sigma: float | None = None) -> np.ndarray:
-    """Phase-only cross-power spectrum ``conj(A) B / |A B|``, optionally low-passed.
+                           lowpass_sigma: float | None = None, highpass_bins: float = 0.0) -> np.ndarray:
+    """Phase-only cross-power spectrum ``conj(A) B / |A B|``, optionally band-passed.
 
     Parameters
     ----------
@@ -116,6 +147,9 @@ def normalized_cross_power(spectra_a: np.ndarray, spectra_b: np.ndarray, *,
         When given, the spectrum is weighted by :func:`gaussian_lowpass` of
         this standard deviation (cycles per pixel); the peak stays where it
         is and its value drops below 1.
+    highpass_bins : float, keyword-only
+        When > 0, the spectrum is also weighted by :func:`gaussian_highpass`
+        of this standard deviation (frequency samples).
 
     Returns
     -------
@@ -128,8 +162,11 @@ def normalized_cross_power(spectra_a: np.ndarray, spectra_b: np.ndarray, *,
     np.maximum(magnitude, floor, out=magnitude)
     # Multiplying by the real reciprocal is several times faster than a complex division.
     np.reciprocal(magnitude, out=magnitude)
+    shape = (cross.shape[-2], 2 * (cross.shape[-1] - 1))
     if lowpass_sigma is not None:
-        magnitude *= gaussian_lowpass((cross.shape[-2], 2 * (cross.shape[-1] - 1)), lowpass_sigma)
+        magnitude *= gaussian_lowpass(shape, lowpass_sigma)
+    if highpass_bins > 0:
+        magnitude *= gaussian_highpass(shape, highpass_bins)
     cross *= magnitude
     return cross
 

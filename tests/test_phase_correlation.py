@@ -412,6 +412,20 @@ def test_gaussian_lowpass_weights_the_half_plane_by_frequency():
         gaussian_lowpass((16, 16), 0.0)
 
 
+def test_gaussian_highpass_weights_the_half_plane_by_frequency_sample():
+    from ifmi.phase_correlation import gaussian_highpass
+
+    weight = gaussian_highpass((16, 12), 1.5)
+    assert weight.shape == (16, 7) and weight.dtype == np.float32 and not weight.flags.writeable
+    assert weight[0, 0] == 0.0
+    # Row sample 2, column sample 3, whatever the image size: |k|^2 = 4 + 9.
+    assert weight[2, 3] == pytest.approx(1.0 - np.exp(-0.5 * 13.0 / 2.25), rel=1e-6)
+    assert weight[14, 3] == weight[2, 3]  # negative row sample -2
+    assert gaussian_highpass((32, 32), 1.5)[2, 3] == weight[2, 3]
+    with pytest.raises(ValueError, match="bins > 0"):
+        gaussian_highpass((16, 16), 0.0)
+
+
 def test_lowpassed_surface_is_the_plain_surface_convolved_with_the_kernel():
     from ifmi.phase_correlation import correlation_surface, gaussian_lowpass, normalized_cross_power
 
@@ -439,17 +453,18 @@ def test_lowpass_keeps_noisy_low_contrast_tiles_and_finds_their_shift():
     b_source = b_source + rng.normal(0.0, noise, b_source.shape)
     origins_b = np.stack([np.arange(count) * (n + 2 * pad) + pad, np.full(count, pad)], axis=1) + motion
     kept = {}
-    for sigma in (None, 0.15):
-        engine = FourierMellin(n, count, config=FourierMellinConfig(correlation_lowpass=sigma))
+    for sigma, bins in ((None, 0.0), (0.15, 0.0), (0.15, 1.0)):
+        engine = FourierMellin(n, count, config=FourierMellinConfig(correlation_lowpass=sigma,
+                                                                    correlation_highpass_bins=bins))
         m = _register_predicted(engine, engine.spectra(a.astype(np.float32)), b_source.astype(np.float32),
                                 origins_b, np.ones(count), np.zeros(count))
         errors = np.hypot(*(m.translation - motion)[m.valid].T)
-        # Measured: every kept tile within 0.37 and 0.51 px (rms 0.14 and 0.20 px: faint, noisy tiles);
+        # Measured: every kept tile within 0.37, 0.51 and 0.52 px (rms 0.14, 0.20 and 0.20 px: faint, noisy tiles);
         # an error of a pixel or more would be a wrong peak.
-        assert errors.max() < 1.0, (sigma, errors.max())
-        kept[sigma] = int(m.valid.sum())
-    # Measured: 14 tiles kept without the low-pass, 25 with it.
-    assert kept[0.15] >= 1.5 * kept[None], kept
+        assert errors.max() < 1.0, (sigma, bins, errors.max())
+        kept[sigma, bins] = int(m.valid.sum())
+    # Measured: 14 tiles kept without the low-pass, 25 with it, 24 with the band-pass (high-pass 1 bin).
+    assert kept[0.15, 0.0] >= 1.5 * kept[None, 0.0] and kept[0.15, 1.0] >= 1.5 * kept[None, 0.0], kept
 
 
 def test_lowpass_accepts_no_more_unrelated_photo_tiles():
@@ -467,16 +482,23 @@ def test_lowpass_accepts_no_more_unrelated_photo_tiles():
     b = np.stack([cut() for _ in range(count)])
     origins = np.stack([np.arange(count) * n, np.zeros(count)], axis=1)
     accepted = {}
-    for sigma in (None, 0.15):
-        engine = FourierMellin(n, count, config=FourierMellinConfig(correlation_lowpass=sigma))
-        accepted[sigma] = int(engine.register(engine.spectra(a), engine.spectra(b), np.concatenate(list(b)),
-                                              origins).valid.sum())
-    # Measured: 8 and 0 of 300. Chance peaks that pass both filters are rare either way; the
+    for sigma, bins in ((None, 0.0), (0.15, 0.0), (0.15, 1.0)):
+        engine = FourierMellin(n, count, config=FourierMellinConfig(correlation_lowpass=sigma,
+                                                                    correlation_highpass_bins=bins))
+        accepted[sigma, bins] = int(engine.register(engine.spectra(a), engine.spectra(b), np.concatenate(list(b)),
+                                                    origins).valid.sum())
+    # Measured: 8, 0 and 0 of 300. Chance peaks that pass both filters are rare either way; the
     # smoothed surface's peak-to-noise filter is the stricter one.
-    assert accepted[0.15] <= accepted[None] <= 0.05 * count, accepted
+    assert max(accepted[0.15, 0.0], accepted[0.15, 1.0]) <= accepted[None, 0.0] <= 0.05 * count, accepted
 
 
 def test_config_rejects_a_lowpass_outside_the_frequency_range():
     for bad in (0.0, -0.1, 0.6, float("nan")):
         with pytest.raises(ValueError, match="correlation_lowpass"):
             FourierMellinConfig(correlation_lowpass=bad)
+
+
+def test_config_rejects_a_negative_or_undefined_highpass():
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="correlation_highpass_bins"):
+            FourierMellinConfig(correlation_highpass_bins=bad)
