@@ -36,13 +36,14 @@ class InterruptFlag:
 def interrupts_recorded() -> Iterator[InterruptFlag]:
     """Install an :class:`InterruptFlag` as the SIGINT handler for the block, then restore the old one.
 
-    Outside the main thread (where Python cannot set handlers), or in a
-    process started with SIGINT ignored (``nohup``, a background job of a
-    script), the flag is yielded but never set and SIGINT stays as it was.
+    Outside the main thread (where Python cannot set handlers), in a process
+    started with SIGINT ignored (``nohup``, a background job of a script), or
+    where native code handles SIGINT (``getsignal`` gives None), the flag is
+    yielded but never set and SIGINT stays as it was.
     """
     flag = InterruptFlag()
     takes_interrupts = (threading.current_thread() is threading.main_thread()
-                        and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN)
+                        and signal.getsignal(signal.SIGINT) not in (signal.SIG_IGN, None))
     previous = signal.signal(signal.SIGINT, flag) if takes_interrupts else None
     try:
         yield flag
