@@ -171,7 +171,7 @@ def _check_geometry(path: Path, number: int, mesh) -> None:
         faces = np.asarray(mesh.faces)
     except (TypeError, ValueError) as exc:  # ragged rows: a vertex line with two coordinates, ...
         raise InputError(path, f"geometry {number}: vertices or faces are no table of numbers "
-                               f"({str(exc).splitlines()[0]})") from None
+                               f"({first_line(exc)})") from None
     if vertices.ndim != 2 or vertices.shape[1] != 3:
         raise InputError(path, f"geometry {number}: expected 3 coordinates per vertex, got an array of "
                                f"shape {vertices.shape}")
@@ -281,13 +281,17 @@ def _warn_missing_obj_files(path: Path) -> None:
     _warn_left_out(path, missing)
 
 
+# What a glTF/GLB too broken to list its side files raises while it is read here; the reader refuses it.
+_GLTF_UNREADABLE = (OSError, ValueError, LookupError, TypeError, AttributeError, struct.error)
+
+
 def _warn_unreadable_gltf_textures(path: Path) -> None:
     """One warning naming the base colour textures of a glTF/GLB's materials that are missing or hold no
     image (the reader drops them without a word). A file too broken to list them is the reader's to refuse."""
     try:
         header, binary = _gltf_parts(path)
         side_files = [item.get("uri", "") for item in header.get("buffers", []) + header.get("images", [])]
-    except (OSError, ValueError, LookupError, TypeError, AttributeError, struct.error):
+    except _GLTF_UNREADABLE:
         return
     for uri in side_files:
         if isinstance(uri, str) and uri and not uri.startswith("data:"):
@@ -305,7 +309,7 @@ def _warn_unreadable_gltf_textures(path: Path) -> None:
             if problem:
                 name = uri if uri and not uri.startswith("data:") else f"image {index}"
                 problems.append(f"texture {name} {problem}")
-    except (OSError, ValueError, LookupError, TypeError, AttributeError, struct.error):
+    except _GLTF_UNREADABLE:
         return
     _warn_left_out(path, problems)
 

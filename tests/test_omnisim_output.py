@@ -198,8 +198,9 @@ def test_sigint_during_import_or_first_frame_is_one_line_exit_130(tmp_path, dela
     before the signal.
 
     Before SIGINT was deferred while drjit builds its modules, 16 of 151 tries between 0.3 and
-    1.8 s were aborted (status -6) and one in CI ran on to the end (status 0); 151 of 151 now end
-    with status 130. The two tests below pin the two mechanisms without timing.
+    1.8 s were aborted (status -6); 151 of 151 now end with status 130. One try in CI ran on to
+    the end (status 0), most likely because the child inherited an ignored SIGINT from the runner
+    (``_cli_process`` now gives it the default). The tests below pin the mechanisms without timing.
     """
     scene = _scene(tmp_path, frames=500)
     # The delays count from the end of the interpreter's own start-up, which takes longer on a

@@ -56,13 +56,13 @@ def main(argv: list[str] | None = None) -> int:
             args = build_parser().parse_args(argv)  # imports the library
             command = f"ifmi {args.command}"
             status = _run(args, command)
+            if flag.seen:  # library code caught the KeyboardInterrupt, or turned it into an error
+                raise KeyboardInterrupt
+            return status
         except BaseException as exc:
             if flag.seen or caused_by_interrupt(exc):
                 return report_interrupt(f"{command}: interrupted")
             raise
-        if flag.seen:  # library code caught the KeyboardInterrupt, or turned it into an error
-            return report_interrupt(f"{command}: interrupted")
-        return status
 
 
 def _run(args, command: str) -> int:
