@@ -6,7 +6,7 @@ import argparse
 import re
 import sys
 
-from ifmi.cli.interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
+from ifmi.interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
 from ifmi.cli.warning_lines import input_warnings_as_lines
 from ifmi.errors import InputError, OutputError
 

@@ -12,14 +12,12 @@ import glob
 import importlib
 import os
 import re
-import signal
 import subprocess
 import sys
-import threading
-from contextlib import contextmanager
 from pathlib import Path
 
 from ifmi.errors import first_line
+from ifmi.interrupts import interrupts_deferred
 
 __all__ = [
     "BackendError",
@@ -196,34 +194,6 @@ def cuda_available() -> bool:
     return ctypes.util.find_library("cuda") is not None
 
 
-@contextmanager
-def _interrupts_deferred():
-    """Defer SIGINT while Mitsuba's native libraries load; it is raised again when they are done.
-
-    Python runs a SIGINT handler in the main thread at its next bytecode, and
-    while drjit builds its modules that bytecode can be inside a C++ callback:
-    a KeyboardInterrupt there aborts the process, by ``std::terminate`` at once
-    or at exit (16 of 151 interrupts between 0.3 and 1.8 s after a render's
-    start; 0 of 227 with this deferral). Blocking the signal in this thread
-    alone does not help once numpy's worker threads exist, as the kernel
-    hands it to one of them. So the handler is replaced by one that only
-    records the interrupt. SIGINT ignored, or handled by native code
-    (``getsignal`` gives None), is left alone.
-    """
-    if (threading.current_thread() is not threading.main_thread()
-            or signal.getsignal(signal.SIGINT) in (signal.SIG_IGN, None)):
-        yield
-        return
-    received = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-        if received:
-            signal.raise_signal(signal.SIGINT)
-
-
 def _cuda_works(mi) -> str:
     """Empty when ``cuda_ad_rgb`` is set and a CUDA device computes, else the reason it does not."""
     try:
@@ -239,7 +209,7 @@ def _cuda_works(mi) -> str:
 
 def import_mitsuba(variant: str | None = None):
     """Import Mitsuba with a usable LLVM and set a vectorised variant (see :func:`_import_mitsuba`)."""
-    with _interrupts_deferred():
+    with interrupts_deferred():
         return _import_mitsuba(variant)
 
 

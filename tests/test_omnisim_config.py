@@ -280,19 +280,6 @@ def test_cli_bogus_variant_is_one_line_exit_2(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-def test_interrupt_is_recognised_through_exception_chains():
-    from ifmi.cli.interrupts import caused_by_interrupt
-
-    try:
-        try:
-            raise KeyboardInterrupt
-        except KeyboardInterrupt as inner:
-            raise RuntimeError("drjit.custom(): error while performing a custom operation") from inner
-    except RuntimeError as exc:
-        assert caused_by_interrupt(exc)
-    assert not caused_by_interrupt(RuntimeError("plain failure"))
-
-
 def test_mesh_parts_keep_each_file_appearance(tmp_path):
     """STL: mid grey; PLY face colours: each face its own vertices and colour; vertex colours / 255."""
     import numpy as np

@@ -217,31 +217,6 @@ def test_sigint_during_import_or_first_frame_is_one_line_exit_130(tmp_path, dela
     assert len(lines) == 1 and lines[0].endswith(": interrupted (rerun the same command to resume)"), err
 
 
-def test_interrupt_while_mitsuba_loads_is_raised_when_it_is_done(default_sigint):
-    from omnisim.llvm import _interrupts_deferred
-
-    before, reached_end = signal.getsignal(signal.SIGINT), False
-    with pytest.raises(KeyboardInterrupt):
-        with _interrupts_deferred():
-            signal.raise_signal(signal.SIGINT)
-            reached_end = True  # the handler only recorded the signal
-    assert reached_end and signal.getsignal(signal.SIGINT) is before
-
-
-def test_a_process_started_with_sigint_ignored_keeps_ignoring_it():
-    from ifmi.cli.interrupts import interrupts_recorded
-    from omnisim.llvm import _interrupts_deferred
-
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        with interrupts_recorded() as flag, _interrupts_deferred():
-            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
-            signal.raise_signal(signal.SIGINT)
-        assert not flag.seen and signal.getsignal(signal.SIGINT) is signal.SIG_IGN
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def test_interrupt_swallowed_by_library_code_still_exits_130(monkeypatch, capsys, default_sigint):
     from omnisim import cli
 

@@ -13,7 +13,7 @@ import os
 import sys
 
 from ..errors import InputError, OutputError
-from .interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
+from ..interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
 from .warning_lines import input_warnings_as_lines
 
 __all__ = ["main"]
