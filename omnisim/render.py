@@ -43,8 +43,8 @@ from .scene import build_scene_dict, mitsuba_reason
 from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
 
 __all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
-           "check_output_folder", "open_output_folder", "pending_images", "set_sensor_pose", "FramePlan",
-           "FrameRenderer", "frame_file_names", "render_frame_files", "frame_plan", "frame_results",
+           "check_output_folder", "open_output_folder", "pending_images", "frame_file_matches", "set_sensor_pose",
+           "FramePlan", "FrameRenderer", "frame_file_names", "render_frame_files", "frame_plan", "frame_results",
            "poses_in_model_frame", "write_row_poses"]
 
 # Format version of meta.json; bumped when its meaning changes.
@@ -303,15 +303,41 @@ def pending_images(out_dir: Path, meta: dict, names: list) -> list:
     """Indices of the image ``names`` still to write: missing, or not matching the recorded SHA-256.
 
     Stale records are dropped from ``meta["images"]``.
+
+    Raises
+    ------
+    InputError
+        A folder, FIFO or device in the place of a frame file (:func:`frame_file_matches`).
     """
     todo = []
     for k, name in enumerate(names):
-        path = out_dir / "images" / name
-        recorded = meta["images"].get(name)
-        if recorded is None or not path.exists() or sha256_file(path) != recorded:
+        if not frame_file_matches(out_dir / "images" / name, meta["images"].get(name)):
             meta["images"].pop(name, None)
             todo.append(k)
     return todo
+
+
+def frame_file_matches(path: Path, recorded: str | None) -> bool:
+    """Whether the frame file ``path`` of an output folder holds the bytes ``meta.json`` records.
+
+    Parameters
+    ----------
+    path : Path
+        A frame's file (``images/000003.png``, ``depth/000003.npy``); it may be missing.
+    recorded : str or None
+        Its SHA-256 in ``meta.json``, None when none is recorded.
+
+    Raises
+    ------
+    InputError
+        Something else than a regular file stands at ``path`` (a folder, a
+        FIFO, a device): it is neither read (a FIFO would block) nor replaced.
+    """
+    if path.exists() and not path.is_file():
+        kind = "a folder" if path.is_dir() else "a FIFO, device or socket"
+        raise InputError(path, f"is {kind} where the output folder's frame file belongs; remove it or "
+                               "choose another --out")
+    return recorded is not None and path.exists() and sha256_file(path) == recorded
 
 
 @dataclass(frozen=True)
@@ -486,9 +512,7 @@ def _pending_jobs(out_dir: Path, meta: dict, frames: int, kinds: tuple) -> list:
         for kind in kinds:
             rel = frame_file_names(k)[kind]
             name = rel.split("/", 1)[1]
-            recorded = meta.setdefault(kind, {}).get(name)
-            path = out_dir / rel
-            if recorded is None or not path.exists() or sha256_file(path) != recorded:
+            if not frame_file_matches(out_dir / rel, meta.setdefault(kind, {}).get(name)):
                 meta[kind].pop(name, None)
                 missing.append(kind)
         if missing:
