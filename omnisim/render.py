@@ -242,8 +242,8 @@ def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
     InputError
         The folder holds anything else: frames made with a different
         identity (the message names the settings that differ), an unreadable
-        ``meta.json`` or one omnisim did not write (no identity), or files
-        without one.
+        ``meta.json`` (a FIFO in its place is not read) or one omnisim did not
+        write (no identity), or files without one.
     """
     meta_path = out_dir / "meta.json"
     if not out_dir.exists():
@@ -251,6 +251,9 @@ def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
     if not out_dir.is_dir():
         raise InputError(out_dir, "exists and is not a folder")
     if meta_path.exists():
+        if not (meta_path.is_file() or meta_path.is_dir()):  # a FIFO would block the read
+            raise InputError(meta_path, "is a FIFO, device or socket, not a meta.json file; remove it or "
+                                        "choose another --out")
         try:
             meta = json.loads(meta_path.read_text(encoding="utf-8"))
         except (OSError, ValueError):

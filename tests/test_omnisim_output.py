@@ -201,6 +201,22 @@ def test_frame_file_replaced_by_a_folder_or_fifo_is_one_line_exit_2(tmp_path, ki
     assert frame.is_dir() if kind == "folder" else frame.is_fifo()
 
 
+def test_meta_json_that_is_a_fifo_is_one_line_exit_2(tmp_path):
+    """A FIFO named meta.json in the output folder made the run wait forever reading it."""
+    (tmp_path / "out").mkdir()
+    os.mkfifo(tmp_path / "out" / "meta.json")
+    process = _cli_process(["render", str(_scene(tmp_path)), "--out", str(tmp_path / "out"), "--no-progress"],
+                           tmp_path)
+    try:
+        _, err = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == 2 and err.strip().splitlines() == [
+        f"omnisim render: error: {tmp_path / 'out' / 'meta.json'}: is a FIFO, device or socket, not a "
+        "meta.json file; remove it or choose another --out"], err
+    assert (tmp_path / "out" / "meta.json").is_fifo()
+
+
 @pytest.mark.skipif(importlib.util.find_spec("ctypes") is None or __import__("ctypes.util").util.find_library("cuda")
                     is not None, reason="a CUDA driver is present")
 def test_cuda_variant_without_gpu_is_one_line_exit_1(tmp_path):
