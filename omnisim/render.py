@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import platform
 import time
 import warnings
@@ -310,7 +311,8 @@ def pending_images(out_dir: Path, meta: dict, names: list) -> list:
     Raises
     ------
     InputError
-        A folder, FIFO or device in the place of a frame file (:func:`frame_file_matches`).
+        A folder, FIFO or device in the place of a frame file, or a symbolic
+        link to a file other than the frame (:func:`frame_file_matches`).
     """
     todo = []
     for k, name in enumerate(names):
@@ -335,12 +337,20 @@ def frame_file_matches(path: Path, recorded: str | None) -> bool:
     InputError
         Something else than a regular file stands at ``path`` (a folder, a
         FIFO, a device): it is neither read (a FIFO would block) nor replaced.
+        Or ``path`` is a symbolic link whose file does not hold the recorded
+        bytes (or that leads nowhere): a write would go through it and
+        replace a file outside the output folder.
     """
     if path.exists() and not path.is_file():
         kind = "a folder" if path.is_dir() else "a FIFO, device or socket"
         raise InputError(path, f"is {kind} where the output folder's frame file belongs; remove it or "
                                "choose another --out")
-    return recorded is not None and path.exists() and sha256_file(path) == recorded
+    matches = recorded is not None and path.exists() and sha256_file(path) == recorded
+    if not matches and path.is_symlink():
+        raise InputError(path, f"is a symbolic link to {os.path.realpath(path)}, which does not hold the frame "
+                               "meta.json records; refusing to write through it (remove the link or choose "
+                               "another --out)")
+    return matches
 
 
 @dataclass(frozen=True)

@@ -201,6 +201,23 @@ def test_frame_file_replaced_by_a_folder_or_fifo_is_one_line_exit_2(tmp_path, ki
     assert frame.is_dir() if kind == "folder" else frame.is_fifo()
 
 
+def test_frame_file_linked_to_another_file_is_refused_and_that_file_kept(tmp_path):
+    """A frame file that was a symbolic link to another file: the resume wrote the frame through
+    the link, replacing the file it led to (outside the output folder)."""
+    from omnisim.render import render_dataset
+
+    scene = _scene(tmp_path)
+    render_dataset(scene, tmp_path / "out", progress=False)
+    (tmp_path / "mine.png").write_bytes(b"mine")
+    frame = tmp_path / "out" / "images" / "000001.png"
+    frame.unlink()
+    frame.symlink_to(tmp_path / "mine.png")
+    with pytest.raises(InputError, match=r"000001.png: is a symbolic link to .*mine.png, which does not hold "
+                                         r"the frame meta.json records; refusing to write through it"):
+        render_dataset(scene, tmp_path / "out", progress=False)
+    assert (tmp_path / "mine.png").read_bytes() == b"mine" and frame.is_symlink()
+
+
 def test_meta_json_that_is_a_fifo_is_one_line_exit_2(tmp_path):
     """A FIFO named meta.json in the output folder made the run wait forever reading it."""
     (tmp_path / "out").mkdir()
