@@ -194,6 +194,8 @@ class CameraTable:
             for key in ("pol", "center", "size"):
                 if getattr(self, key) is None:
                     raise SettingError(key, "missing (give either 'calib' or 'pol', 'center', 'size')")
+        if self.pol == ():
+            raise SettingError("pol", "expected at least one coefficient (lowest degree first), got []")
         if self.radius_max is not None and self.radius_max <= self.radius_min:
             raise SettingError("radius_max", f"expected > radius_min = {self.radius_min}, got {self.radius_max}")
 

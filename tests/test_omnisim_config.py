@@ -74,6 +74,8 @@ def test_base_scene_loads_with_declared_defaults(tmp_path):
     (("frames = 2", "frames = 2\n[effects]\njpeg = 50"), r"\[effects\] jpeg: unknown key; accepted keys: noise_sigma"),
     (("radius_max = 61.5", "radius_max = 5.0"), r"\[camera\] radius_max: expected > radius_min = 10.0, got 5.0"),
     (("center = [64.35, 63.3]\n", ""), r"\[camera\] center: missing \(give either 'calib' or 'pol'"),
+    (("pol = [-20.0, 0.0, 1.28e-2, -1.76e-5, 2.56e-7]", "pol = []"),
+     r"\[camera\] pol: expected at least one coefficient \(lowest degree first\), got \[\]"),
     # Mitsuba stores scene values as float32: beyond its range a value turns into inf there.
     (("frames = 2", "frames = 2\nposition = [1e300, 0, 1.2]"),
      r"\[trajectory\] position: expected magnitudes <= 3.403e\+38 \(the renderer stores float32\), "
