@@ -221,7 +221,8 @@ class SceneConfig:
     MaterialSettings; lights : light settings in file order; objects :
     ObjectSpec in file order; mitsuba_xml : absolute path of the Mitsuba
     scene file or ""; assets : (path, sha256) of every file the scene reads
-    besides itself (mesh, image and Mitsuba files it names).
+    besides itself (mesh, image and Mitsuba files it names, and the material
+    and texture files beside its meshes).
     """
 
     path: str
@@ -442,12 +443,14 @@ def _objects(path: Path, data: dict, materials: dict) -> tuple:
 
 
 def _asset_files(objects: tuple, lights: tuple, mitsuba_xml: str, tum: str) -> list[str]:
-    """Files the scene reads besides itself, in a fixed order: trajectory, Mitsuba file, meshes, images."""
+    """Files the scene reads besides itself, in a fixed order: trajectory, Mitsuba file, meshes (each
+    followed by its material and texture files, :func:`omnisim.meshes.mesh_side_files`), images."""
     files = [f for f in (tum, mitsuba_xml) if f]
     generators = registered_generators()
     for obj in objects:
-        files += [obj.params[p.name] for p in generators[obj.generator].params
-                  if p.kind == "file" and obj.params[p.name] is not None]
+        for name in [obj.params[p.name] for p in generators[obj.generator].params
+                     if p.kind == "file" and obj.params[p.name] is not None]:
+            files += [name] + meshes.mesh_side_files(name)
     files += [light.file for light in lights if isinstance(light, EnvmapLight)]
     return files
 

@@ -219,6 +219,23 @@ def test_asset_files_are_part_of_the_identity(tmp_path):
     assert first["assets"][0][0] == "m.ply" and first["assets"] != second["assets"]
 
 
+@pytest.mark.parametrize("edited", ["a.mtl", "wood.png", "b.bin"])
+def test_mesh_side_files_are_part_of_the_identity(tmp_path, edited):
+    """An OBJ's material library and texture, a glTF's buffer: editing one between an interrupted
+    render and its resume left the identity as it was, and the resumed frames used the new file."""
+    (tmp_path / "a.obj").write_text("mtllib a.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nusemtl m\nf 1/1 2/1 3/1\n")
+    (tmp_path / "a.mtl").write_text("newmtl m\nmap_Kd wood.png\n")
+    (tmp_path / "wood.png").write_bytes(b"texture")
+    (tmp_path / "b.gltf").write_text('{"buffers": [{"uri": "b.bin", "byteLength": 3}]}')
+    (tmp_path / "b.bin").write_bytes(b"abc")
+    text = BASE + "".join(f'[[objects]]\ngenerator = "mesh"\nfile = "{name}"\n' for name in ("a.obj", "b.gltf"))
+    first = load_scene_config(write_scene(tmp_path, text)).settings_dict()["assets"]
+    (tmp_path / edited).write_bytes(b"changed")
+    second = load_scene_config(write_scene(tmp_path, text)).settings_dict()["assets"]
+    assert [name for name, _ in first] == ["a.obj", "a.mtl", "wood.png", "b.gltf", "b.bin"]
+    assert first != second
+
+
 def test_settings_check_themselves_when_built_in_code():
     with pytest.raises(SettingError, match=r"rolling_shutter: expected <= 1.0, got 2.0"):
         CaptureSettings(rolling_shutter=2.0)
