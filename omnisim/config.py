@@ -442,10 +442,42 @@ def _objects(path: Path, data: dict, materials: dict) -> tuple:
                  for index, table in enumerate(_array_of_tables(path, data, "objects")))
 
 
+def _mitsuba_side_files(xml_path: str, seen: frozenset = frozenset()) -> list[str]:
+    """Files a Mitsuba scene file names (``<string name="filename">``, ``<include>``), in file order.
+
+    Names are relative to the file's folder, as Mitsuba finds them; only
+    files that are there are listed (Mitsuba refuses a missing one when it
+    loads the scene), included files with the files they name. A name
+    built from a ``$parameter`` is not followed; an unreadable file names
+    nothing (its loading refuses it).
+    """
+    from xml.etree import ElementTree
+
+    try:
+        root = ElementTree.parse(xml_path).getroot()
+    except (ElementTree.ParseError, OSError):
+        return []
+    found = []
+    for element in root.iter():
+        name = element.get("filename") if element.tag == "include" else (
+            element.get("value") if element.tag == "string" and element.get("name") == "filename" else None)
+        if not name or "$" in name:
+            continue
+        file = Path(name) if Path(name).is_absolute() else Path(xml_path).parent / name
+        if file.is_file() and str(file.absolute()) not in seen | {xml_path}:
+            found.append(str(file.absolute()))
+            if element.tag == "include":
+                found += _mitsuba_side_files(found[-1], seen | {xml_path})
+    return list(dict.fromkeys(found))
+
+
 def _asset_files(objects: tuple, lights: tuple, mitsuba_xml: str, tum: str) -> list[str]:
-    """Files the scene reads besides itself, in a fixed order: trajectory, Mitsuba file, meshes (each
-    followed by its material and texture files, :func:`omnisim.meshes.mesh_side_files`), images."""
-    files = [f for f in (tum, mitsuba_xml) if f]
+    """Files the scene reads besides itself, in a fixed order: trajectory, Mitsuba file (and the files
+    it names), meshes (each followed by its material and texture files,
+    :func:`omnisim.meshes.mesh_side_files`), images."""
+    files = [tum] if tum else []
+    if mitsuba_xml:
+        files += [mitsuba_xml] + _mitsuba_side_files(mitsuba_xml)
     generators = registered_generators()
     for obj in objects:
         for name in [obj.params[p.name] for p in generators[obj.generator].params

@@ -236,6 +236,19 @@ def test_mesh_side_files_are_part_of_the_identity(tmp_path, edited):
     assert first != second
 
 
+def test_files_a_mitsuba_scene_names_are_part_of_the_identity(tmp_path):
+    """A mesh a [scene] mitsuba_xml file names: editing it between an interrupted render and its
+    resume left the identity as it was, and the resumed frames used the new mesh."""
+    (tmp_path / "room.xml").write_text('<scene version="3.0.0"><shape type="ply">'
+                                       '<string name="filename" value="wall.ply"/></shape></scene>')
+    (tmp_path / "wall.ply").write_bytes(b"first")
+    text = BASE.replace('name = "t"', 'name = "t"\nmitsuba_xml = "room.xml"')
+    first = load_scene_config(write_scene(tmp_path, text)).settings_dict()["assets"]
+    (tmp_path / "wall.ply").write_bytes(b"changed")
+    second = load_scene_config(write_scene(tmp_path, text)).settings_dict()["assets"]
+    assert [name for name, _ in first] == ["room.xml", "wall.ply"] and first != second
+
+
 def test_settings_check_themselves_when_built_in_code():
     with pytest.raises(SettingError, match=r"rolling_shutter: expected <= 1.0, got 2.0"):
         CaptureSettings(rolling_shutter=2.0)
