@@ -36,7 +36,7 @@ from ifmi.io.tum import format_tum, write_tum
 
 from .aov import AOV_NAMES, aov_integrator_dict, aov_names_from_text, aov_sensor_dict, depth_normal_from_aov, npy_bytes
 from .capture import ground_truth_time, row_mid_times, sensor_timing_props, vignetting_from_pixels
-from .config import SceneConfig, load_scene_config
+from .config import MAX_FRAMES, SceneConfig, load_scene_config
 from .effects import apply_effects, exposure_gains, srgb_uint8_from_linear
 from .motion import (WorldPoses, poses_at_times, poses_for_settings, relative_trajectory, trajectory_in_camera,
                      world_trajectory)
@@ -462,6 +462,10 @@ def _trajectory_samples(config: SceneConfig, seed: int) -> WorldPoses:
     settings = config.trajectory
     if not config.capture.timed:
         return poses_in_model_frame(poses_for_settings(settings, seed=seed), config.camera.model)
+    if settings.frames >= MAX_FRAMES:  # the pose after the last frame would be one beyond the bound
+        raise InputError(config.path, f"frames: expected at most {MAX_FRAMES - 1} with [capture] exposure or "
+                                      "rolling_shutter (they interpolate towards the pose after the last frame), "
+                                      f"got {settings.frames}")
     try:
         poses = poses_for_settings(replace(settings, frames=settings.frames + 1), seed=seed)
         return poses_in_model_frame(poses, config.camera.model)
