@@ -28,7 +28,7 @@ from . import meshes, procedural  # noqa: F401  (register the built-in generator
 from .generators import object_from_table, registered_generators
 from .lights import ENVIRONMENT_LIGHT_TYPES, LIGHT_TYPES, EnvmapLight
 from .materials import MaterialSettings
-from .settings import SettingError, check_fields, setting, settings_from_table
+from .settings import FLOAT32_MAX, SettingError, check_fields, setting, settings_from_table
 from .textures import TEXTURE_SOURCES
 
 if sys.version_info >= (3, 11):
@@ -114,6 +114,14 @@ class TrajectorySettings:
 
     def __post_init__(self):
         check_fields(self)
+        if self.translation_step_m > 0 and not self.tum:
+            # The walk stays within translation_radius_m of position; with a radius of 0 it is unbounded.
+            key = "translation_radius_m" if self.translation_radius_m > 0 else "translation_step_m"
+            reach = self.translation_radius_m or (self.frames - 1) * self.translation_step_m
+            if max(abs(p) for p in self.position) + reach > FLOAT32_MAX:
+                raise SettingError(key, f"expected the camera to stay within {FLOAT32_MAX:.4g} m of the origin "
+                                        f"(the renderer stores float32), got position {list(self.position)} and "
+                                        f"a walk of up to {reach:.4g} m from it")
 
 
 @dataclass(frozen=True)
