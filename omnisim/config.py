@@ -28,7 +28,7 @@ from . import meshes, procedural  # noqa: F401  (register the built-in generator
 from .generators import object_from_table, registered_generators
 from .lights import ENVIRONMENT_LIGHT_TYPES, LIGHT_TYPES, EnvmapLight
 from .materials import MaterialSettings
-from .settings import SettingError, check_fields, setting, settings_from_table
+from .settings import FLOAT32_MAX, SettingError, check_fields, setting, settings_from_table
 from .textures import TEXTURE_SOURCES
 
 if sys.version_info >= (3, 11):
@@ -114,6 +114,14 @@ class TrajectorySettings:
 
     def __post_init__(self):
         check_fields(self)
+        if self.translation_step_m > 0 and not self.tum:
+            # The walk stays within translation_radius_m of position; with a radius of 0 it is unbounded.
+            key = "translation_radius_m" if self.translation_radius_m > 0 else "translation_step_m"
+            reach = self.translation_radius_m or (self.frames - 1) * self.translation_step_m
+            if max(abs(p) for p in self.position) + reach > FLOAT32_MAX:
+                raise SettingError(key, f"expected the camera to stay within {FLOAT32_MAX:.4g} m of the origin "
+                                        f"(the renderer stores float32), got position {list(self.position)} and "
+                                        f"a walk of up to {reach:.4g} m from it")
 
 
 @dataclass(frozen=True)
@@ -194,6 +202,8 @@ class CameraTable:
             for key in ("pol", "center", "size"):
                 if getattr(self, key) is None:
                     raise SettingError(key, "missing (give either 'calib' or 'pol', 'center', 'size')")
+        if self.pol == ():
+            raise SettingError("pol", "expected at least one coefficient (lowest degree first), got []")
         if self.radius_max is not None and self.radius_max <= self.radius_min:
             raise SettingError("radius_max", f"expected > radius_min = {self.radius_min}, got {self.radius_max}")
 
@@ -219,7 +229,8 @@ class SceneConfig:
     MaterialSettings; lights : light settings in file order; objects :
     ObjectSpec in file order; mitsuba_xml : absolute path of the Mitsuba
     scene file or ""; assets : (path, sha256) of every file the scene reads
-    besides itself (mesh, image and Mitsuba files it names).
+    besides itself (mesh, image and Mitsuba files it names, and the material
+    and texture files beside its meshes).
     """
 
     path: str
@@ -439,13 +450,47 @@ def _objects(path: Path, data: dict, materials: dict) -> tuple:
                  for index, table in enumerate(_array_of_tables(path, data, "objects")))
 
 
+def _mitsuba_side_files(xml_path: str, seen: frozenset = frozenset()) -> list[str]:
+    """Files a Mitsuba scene file names (``<string name="filename">``, ``<include>``), in file order.
+
+    Names are relative to the file's folder, as Mitsuba finds them; only
+    files that are there are listed (Mitsuba refuses a missing one when it
+    loads the scene), included files with the files they name. A name
+    built from a ``$parameter`` is not followed; an unreadable file names
+    nothing (its loading refuses it).
+    """
+    from xml.etree import ElementTree
+
+    try:
+        root = ElementTree.parse(xml_path).getroot()
+    except (ElementTree.ParseError, OSError):
+        return []
+    found = []
+    for element in root.iter():
+        name = element.get("filename") if element.tag == "include" else (
+            element.get("value") if element.tag == "string" and element.get("name") == "filename" else None)
+        if not name or "$" in name:
+            continue
+        file = Path(name) if Path(name).is_absolute() else Path(xml_path).parent / name
+        if file.is_file() and str(file.absolute()) not in seen | {xml_path}:
+            found.append(str(file.absolute()))
+            if element.tag == "include":
+                found += _mitsuba_side_files(found[-1], seen | {xml_path})
+    return list(dict.fromkeys(found))
+
+
 def _asset_files(objects: tuple, lights: tuple, mitsuba_xml: str, tum: str) -> list[str]:
-    """Files the scene reads besides itself, in a fixed order: trajectory, Mitsuba file, meshes, images."""
-    files = [f for f in (tum, mitsuba_xml) if f]
+    """Files the scene reads besides itself, in a fixed order: trajectory, Mitsuba file (and the files
+    it names), meshes (each followed by its material and texture files,
+    :func:`omnisim.meshes.mesh_side_files`), images."""
+    files = [tum] if tum else []
+    if mitsuba_xml:
+        files += [mitsuba_xml] + _mitsuba_side_files(mitsuba_xml)
     generators = registered_generators()
     for obj in objects:
-        files += [obj.params[p.name] for p in generators[obj.generator].params
-                  if p.kind == "file" and obj.params[p.name] is not None]
+        for name in [obj.params[p.name] for p in generators[obj.generator].params
+                     if p.kind == "file" and obj.params[p.name] is not None]:
+            files += [name] + meshes.mesh_side_files(name)
     files += [light.file for light in lights if isinstance(light, EnvmapLight)]
     return files
 

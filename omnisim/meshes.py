@@ -44,7 +44,7 @@ from .settings import FLOAT32_MAX  # largest coordinate a mesh file may scale to
 MAX_PLACED_REACH_M = 1e9
 from .textures import linear_texture_from_image
 
-__all__ = ["MeshPart", "mesh_parts_from_file"]
+__all__ = ["MeshPart", "mesh_parts_from_file", "mesh_side_files"]
 
 # Reflectance of a geometry that carries no appearance (STL).
 DEFAULT_GREY = (0.5, 0.5, 0.5)
@@ -279,6 +279,49 @@ def _warn_missing_obj_files(path: Path) -> None:
             if problem:
                 missing.append(f"texture {texture} (named by {library}) {problem}")
     _warn_left_out(path, missing)
+
+
+def mesh_side_files(path) -> list[str]:
+    """The files beside a mesh file that its reader takes pixels from, in the order it names them.
+
+    An OBJ's material libraries (``mtllib``) and the diffuse textures they
+    name (``map_Kd``); a glTF's or GLB's buffers and images given by a URI.
+    Only files that are there are listed (:func:`mesh_parts_from_file` warns
+    about missing ones); other mesh formats have none.
+
+    Parameters
+    ----------
+    path : str or path
+        The mesh file.
+
+    Returns
+    -------
+    list of str
+        Absolute paths, each once.
+
+    Raises
+    ------
+    InputError
+        A side file that is no regular file (a FIFO, a device).
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    found = []
+    if suffix == ".obj":
+        for _, library in _named_files(path, "mtllib"):
+            if library is not None:
+                found += [library] + [texture for _, texture in _named_files(library, "map_Kd") if texture]
+    elif suffix in (".gltf", ".glb"):
+        try:
+            header, _ = _gltf_parts(path)
+            uris = [item.get("uri", "") for item in header.get("buffers", []) + header.get("images", [])]
+        except _GLTF_UNREADABLE:
+            return []  # the reader refuses the file
+        for uri in uris:
+            if isinstance(uri, str) and uri and not uri.startswith("data:"):
+                _check_not_special(path, path.parent / uri)
+                found += [f for f in (path.parent / uri, path.parent / Path(uri).name) if f.is_file()][:1]
+    return list(dict.fromkeys(str(f.absolute()) for f in found))
 
 
 # What a glTF/GLB too broken to list its side files raises while it is read here; the reader refuses it.

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import platform
 import time
 import warnings
@@ -35,7 +36,7 @@ from ifmi.io.tum import format_tum, write_tum
 
 from .aov import AOV_NAMES, aov_integrator_dict, aov_names_from_text, aov_sensor_dict, depth_normal_from_aov, npy_bytes
 from .capture import ground_truth_time, row_mid_times, sensor_timing_props, vignetting_from_pixels
-from .config import SceneConfig, load_scene_config
+from .config import MAX_FRAMES, SceneConfig, load_scene_config
 from .effects import apply_effects, exposure_gains, srgb_uint8_from_linear
 from .motion import (WorldPoses, poses_at_times, poses_for_settings, relative_trajectory, trajectory_in_camera,
                      world_trajectory)
@@ -43,8 +44,8 @@ from .scene import build_scene_dict, mitsuba_reason
 from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
 
 __all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
-           "check_output_folder", "open_output_folder", "pending_images", "set_sensor_pose", "FramePlan",
-           "FrameRenderer", "frame_file_names", "render_frame_files", "frame_plan", "frame_results",
+           "check_output_folder", "open_output_folder", "pending_images", "frame_file_matches", "set_sensor_pose",
+           "FramePlan", "FrameRenderer", "frame_file_names", "render_frame_files", "frame_plan", "frame_results",
            "poses_in_model_frame", "write_row_poses"]
 
 # Format version of meta.json; bumped when its meaning changes.
@@ -242,8 +243,8 @@ def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
     InputError
         The folder holds anything else: frames made with a different
         identity (the message names the settings that differ), an unreadable
-        ``meta.json`` or one omnisim did not write (no identity), or files
-        without one.
+        ``meta.json`` (a FIFO in its place is not read) or one omnisim did not
+        write (no identity), or files without one.
     """
     meta_path = out_dir / "meta.json"
     if not out_dir.exists():
@@ -251,6 +252,9 @@ def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
     if not out_dir.is_dir():
         raise InputError(out_dir, "exists and is not a folder")
     if meta_path.exists():
+        if not (meta_path.is_file() or meta_path.is_dir()):  # a FIFO would block the read
+            raise InputError(meta_path, "is a FIFO, device or socket, not a meta.json file; remove it or "
+                                        "choose another --out")
         try:
             meta = json.loads(meta_path.read_text(encoding="utf-8"))
         except (OSError, ValueError):
@@ -303,15 +307,50 @@ def pending_images(out_dir: Path, meta: dict, names: list) -> list:
     """Indices of the image ``names`` still to write: missing, or not matching the recorded SHA-256.
 
     Stale records are dropped from ``meta["images"]``.
+
+    Raises
+    ------
+    InputError
+        A folder, FIFO or device in the place of a frame file, or a symbolic
+        link to a file other than the frame (:func:`frame_file_matches`).
     """
     todo = []
     for k, name in enumerate(names):
-        path = out_dir / "images" / name
-        recorded = meta["images"].get(name)
-        if recorded is None or not path.exists() or sha256_file(path) != recorded:
+        if not frame_file_matches(out_dir / "images" / name, meta["images"].get(name)):
             meta["images"].pop(name, None)
             todo.append(k)
     return todo
+
+
+def frame_file_matches(path: Path, recorded: str | None) -> bool:
+    """Whether the frame file ``path`` of an output folder holds the bytes ``meta.json`` records.
+
+    Parameters
+    ----------
+    path : Path
+        A frame's file (``images/000003.png``, ``depth/000003.npy``); it may be missing.
+    recorded : str or None
+        Its SHA-256 in ``meta.json``, None when none is recorded.
+
+    Raises
+    ------
+    InputError
+        Something else than a regular file stands at ``path`` (a folder, a
+        FIFO, a device): it is neither read (a FIFO would block) nor replaced.
+        Or ``path`` is a symbolic link whose file does not hold the recorded
+        bytes (or that leads nowhere): a write would go through it and
+        replace a file outside the output folder.
+    """
+    if path.exists() and not path.is_file():
+        kind = "a folder" if path.is_dir() else "a FIFO, device or socket"
+        raise InputError(path, f"is {kind} where the output folder's frame file belongs; remove it or "
+                               "choose another --out")
+    matches = recorded is not None and path.exists() and sha256_file(path) == recorded
+    if not matches and path.is_symlink():
+        raise InputError(path, f"is a symbolic link to {os.path.realpath(path)}, which does not hold the frame "
+                               "meta.json records; refusing to write through it (remove the link or choose "
+                               "another --out)")
+    return matches
 
 
 @dataclass(frozen=True)
@@ -423,6 +462,10 @@ def _trajectory_samples(config: SceneConfig, seed: int) -> WorldPoses:
     settings = config.trajectory
     if not config.capture.timed:
         return poses_in_model_frame(poses_for_settings(settings, seed=seed), config.camera.model)
+    if settings.frames >= MAX_FRAMES:  # the pose after the last frame would be one beyond the bound
+        raise InputError(config.path, f"frames: expected at most {MAX_FRAMES - 1} with [capture] exposure or "
+                                      "rolling_shutter (they interpolate towards the pose after the last frame), "
+                                      f"got {settings.frames}")
     try:
         poses = poses_for_settings(replace(settings, frames=settings.frames + 1), seed=seed)
         return poses_in_model_frame(poses, config.camera.model)
@@ -486,9 +529,7 @@ def _pending_jobs(out_dir: Path, meta: dict, frames: int, kinds: tuple) -> list:
         for kind in kinds:
             rel = frame_file_names(k)[kind]
             name = rel.split("/", 1)[1]
-            recorded = meta.setdefault(kind, {}).get(name)
-            path = out_dir / rel
-            if recorded is None or not path.exists() or sha256_file(path) != recorded:
+            if not frame_file_matches(out_dir / rel, meta.setdefault(kind, {}).get(name)):
                 meta[kind].pop(name, None)
                 missing.append(kind)
         if missing:

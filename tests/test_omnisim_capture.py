@@ -277,3 +277,17 @@ def test_bad_capture_values_are_one_line_errors(tmp_path, table, message):
                     f"[render]\nresolution = 64\n[capture]\n{table}\n")
     with pytest.raises(InputError, match=message):
         load_scene_config(path)
+
+
+def test_timed_capture_with_the_most_frames_is_one_line_error(tmp_path):
+    """A timed capture needs the pose after the last frame: with [trajectory] frames at its bound
+    that one pose more failed the bound inside the render and ended in a traceback (SettingError)."""
+    from omnisim.config import MAX_FRAMES
+    from omnisim.render import frame_plan
+
+    path = tmp_path / "cap.toml"
+    path.write_text(f"[camera]\npol = [-20.0, 0.0, 0.01]\ncenter = [32, 32]\nsize = [64, 64]\n"
+                    f"[render]\nresolution = 64\n[trajectory]\nframes = {MAX_FRAMES}\n[capture]\nexposure = 0.5\n")
+    with pytest.raises(InputError, match=rf"cap.toml: frames: expected at most {MAX_FRAMES - 1} with \[capture\] "
+                                         rf"exposure or rolling_shutter .*, got {MAX_FRAMES}$"):
+        frame_plan(path)

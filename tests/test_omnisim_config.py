@@ -74,11 +74,16 @@ def test_base_scene_loads_with_declared_defaults(tmp_path):
     (("frames = 2", "frames = 2\n[effects]\njpeg = 50"), r"\[effects\] jpeg: unknown key; accepted keys: noise_sigma"),
     (("radius_max = 61.5", "radius_max = 5.0"), r"\[camera\] radius_max: expected > radius_min = 10.0, got 5.0"),
     (("center = [64.35, 63.3]\n", ""), r"\[camera\] center: missing \(give either 'calib' or 'pol'"),
+    (("pol = [-20.0, 0.0, 1.28e-2, -1.76e-5, 2.56e-7]", "pol = []"),
+     r"\[camera\] pol: expected at least one coefficient \(lowest degree first\), got \[\]"),
     # Mitsuba stores scene values as float32: beyond its range a value turns into inf there.
     (("frames = 2", "frames = 2\nposition = [1e300, 0, 1.2]"),
      r"\[trajectory\] position: expected magnitudes <= 3.403e\+38 \(the renderer stores float32\), "
      r"got \[1e\+300, 0.0, 1.2\]"),
     (("count = 3", "count = 3\nregion = [0.5, 1e39]"), r"\(boxes\) region: expected magnitudes <= 3.403e\+38"),
+    (("frames = 2", "frames = 20\ntranslation_step_m = 3e38\ntranslation_radius_m = 0"),
+     r"\[trajectory\] translation_step_m: expected the camera to stay within 3.403e\+38 m of the origin "
+     r"\(the renderer stores float32\), got position \[0.0, 0.0, 1.2\] and a walk of up to 5.7e\+39 m"),
 ])
 def test_bad_scene_is_one_line_naming_section_and_key(tmp_path, edit, message):
     old, new = edit
@@ -215,6 +220,36 @@ def test_asset_files_are_part_of_the_identity(tmp_path):
     (tmp_path / "m.ply").write_bytes(b"changed")
     second = load_scene_config(write_scene(tmp_path, text)).settings_dict()
     assert first["assets"][0][0] == "m.ply" and first["assets"] != second["assets"]
+
+
+@pytest.mark.parametrize("edited", ["a.mtl", "wood.png", "b.bin"])
+def test_mesh_side_files_are_part_of_the_identity(tmp_path, edited):
+    """An OBJ's material library and texture, a glTF's buffer: editing one between an interrupted
+    render and its resume left the identity as it was, and the resumed frames used the new file."""
+    (tmp_path / "a.obj").write_text("mtllib a.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nusemtl m\nf 1/1 2/1 3/1\n")
+    (tmp_path / "a.mtl").write_text("newmtl m\nmap_Kd wood.png\n")
+    (tmp_path / "wood.png").write_bytes(b"texture")
+    (tmp_path / "b.gltf").write_text('{"buffers": [{"uri": "b.bin", "byteLength": 3}]}')
+    (tmp_path / "b.bin").write_bytes(b"abc")
+    text = BASE + "".join(f'[[objects]]\ngenerator = "mesh"\nfile = "{name}"\n' for name in ("a.obj", "b.gltf"))
+    first = load_scene_config(write_scene(tmp_path, text)).settings_dict()["assets"]
+    (tmp_path / edited).write_bytes(b"changed")
+    second = load_scene_config(write_scene(tmp_path, text)).settings_dict()["assets"]
+    assert [name for name, _ in first] == ["a.obj", "a.mtl", "wood.png", "b.gltf", "b.bin"]
+    assert first != second
+
+
+def test_files_a_mitsuba_scene_names_are_part_of_the_identity(tmp_path):
+    """A mesh a [scene] mitsuba_xml file names: editing it between an interrupted render and its
+    resume left the identity as it was, and the resumed frames used the new mesh."""
+    (tmp_path / "room.xml").write_text('<scene version="3.0.0"><shape type="ply">'
+                                       '<string name="filename" value="wall.ply"/></shape></scene>')
+    (tmp_path / "wall.ply").write_bytes(b"first")
+    text = BASE.replace('name = "t"', 'name = "t"\nmitsuba_xml = "room.xml"')
+    first = load_scene_config(write_scene(tmp_path, text)).settings_dict()["assets"]
+    (tmp_path / "wall.ply").write_bytes(b"changed")
+    second = load_scene_config(write_scene(tmp_path, text)).settings_dict()["assets"]
+    assert [name for name, _ in first] == ["room.xml", "wall.ply"] and first != second
 
 
 def test_settings_check_themselves_when_built_in_code():

@@ -179,6 +179,61 @@ def _cli_process(args, tmp_path):
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
+@pytest.mark.parametrize("kind", ["folder", "fifo"])
+def test_frame_file_replaced_by_a_folder_or_fifo_is_one_line_exit_2(tmp_path, kind):
+    """A frame's file in the output folder that is no regular file: the resume gave a traceback
+    (a folder) or waited forever reading it (a FIFO)."""
+    from omnisim.render import render_dataset
+
+    scene = _scene(tmp_path)
+    render_dataset(scene, tmp_path / "out", progress=False)
+    frame = tmp_path / "out" / "images" / "000001.png"
+    frame.unlink()
+    frame.mkdir() if kind == "folder" else os.mkfifo(frame)
+    process = _cli_process(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"], tmp_path)
+    try:
+        _, err = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == 2 and err.strip().splitlines() == [
+        f"omnisim render: error: {frame}: is {'a folder' if kind == 'folder' else 'a FIFO, device or socket'} "
+        "where the output folder's frame file belongs; remove it or choose another --out"], err
+    assert frame.is_dir() if kind == "folder" else frame.is_fifo()
+
+
+def test_frame_file_linked_to_another_file_is_refused_and_that_file_kept(tmp_path):
+    """A frame file that was a symbolic link to another file: the resume wrote the frame through
+    the link, replacing the file it led to (outside the output folder)."""
+    from omnisim.render import render_dataset
+
+    scene = _scene(tmp_path)
+    render_dataset(scene, tmp_path / "out", progress=False)
+    (tmp_path / "mine.png").write_bytes(b"mine")
+    frame = tmp_path / "out" / "images" / "000001.png"
+    frame.unlink()
+    frame.symlink_to(tmp_path / "mine.png")
+    with pytest.raises(InputError, match=r"000001.png: is a symbolic link to .*mine.png, which does not hold "
+                                         r"the frame meta.json records; refusing to write through it"):
+        render_dataset(scene, tmp_path / "out", progress=False)
+    assert (tmp_path / "mine.png").read_bytes() == b"mine" and frame.is_symlink()
+
+
+def test_meta_json_that_is_a_fifo_is_one_line_exit_2(tmp_path):
+    """A FIFO named meta.json in the output folder made the run wait forever reading it."""
+    (tmp_path / "out").mkdir()
+    os.mkfifo(tmp_path / "out" / "meta.json")
+    process = _cli_process(["render", str(_scene(tmp_path)), "--out", str(tmp_path / "out"), "--no-progress"],
+                           tmp_path)
+    try:
+        _, err = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == 2 and err.strip().splitlines() == [
+        f"omnisim render: error: {tmp_path / 'out' / 'meta.json'}: is a FIFO, device or socket, not a "
+        "meta.json file; remove it or choose another --out"], err
+    assert (tmp_path / "out" / "meta.json").is_fifo()
+
+
 @pytest.mark.skipif(importlib.util.find_spec("ctypes") is None or __import__("ctypes.util").util.find_library("cuda")
                     is not None, reason="a CUDA driver is present")
 def test_cuda_variant_without_gpu_is_one_line_exit_1(tmp_path):
