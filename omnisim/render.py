@@ -202,7 +202,13 @@ class DatasetResult:
 
 
 def _differences(previous, current, prefix: str = "") -> list[str]:
-    """Dotted names of the entries where two identity dicts differ, with both values."""
+    """Dotted names of the entries where two identity dicts differ, with both values.
+
+    Lists of ``[name, value]`` pairs with distinct names (the assets and their
+    SHA-256) are compared as dicts, so a changed file is named.
+    """
+    if _named_pairs(previous) and _named_pairs(current):
+        previous, current = dict(previous), dict(current)
     if isinstance(previous, dict) and isinstance(current, dict):
         out = []
         for key in sorted(set(previous) | set(current), key=str):
@@ -211,6 +217,13 @@ def _differences(previous, current, prefix: str = "") -> list[str]:
     if previous == current:
         return []
     return [f"{prefix[:-1]} (folder: {_shortened(previous)}, now: {_shortened(current)})"]
+
+
+def _named_pairs(value) -> bool:
+    """True for a list of ``[name, value]`` pairs whose names are distinct strings."""
+    return (isinstance(value, list) and all(isinstance(p, list) and len(p) == 2 and isinstance(p[0], str)
+                                            for p in value)
+            and len({p[0] for p in value}) == len(value))
 
 
 # Most differences named in a refusal, and the longest value shown (characters).

@@ -328,3 +328,13 @@ def test_frames_with_no_light_are_warned_about(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", InputWarning)
         render_dataset(_scene(tmp_path), tmp_path / "lit", progress=False)
+
+
+def test_refusal_names_the_asset_file_that_changed(tmp_path):
+    from omnisim.render import check_output_folder
+
+    identity = {"format": 1, "settings": {"assets": [["a.obj", "1" * 64], ["wood.png", "2" * 64]]}}
+    (tmp_path / "meta.json").write_text(json.dumps({"identity": identity, "images": {"000000.png": "0" * 64}}))
+    edited = {"format": 1, "settings": {"assets": [["a.obj", "1" * 64], ["wood.png", "3" * 64]]}}
+    with pytest.raises(InputError, match=r"different settings.assets.wood.png \(folder: \"2222"):
+        check_output_folder(tmp_path, edited)
