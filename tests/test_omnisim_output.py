@@ -179,6 +179,16 @@ def _cli_process(args, tmp_path):
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
+def _cli_run(args, tmp_path):
+    """Exit status and stderr lines of ``python -m omnisim ARGS`` run to its end (killed after 120 s)."""
+    process = _cli_process(args, tmp_path)
+    try:
+        _, err = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    return process.returncode, err.strip().splitlines()
+
+
 @pytest.mark.parametrize("kind", ["folder", "fifo"])
 def test_frame_file_replaced_by_a_folder_or_fifo_is_one_line_exit_2(tmp_path, kind):
     """A frame's file in the output folder that is no regular file: the resume gave a traceback
@@ -190,14 +200,10 @@ def test_frame_file_replaced_by_a_folder_or_fifo_is_one_line_exit_2(tmp_path, ki
     frame = tmp_path / "out" / "images" / "000001.png"
     frame.unlink()
     frame.mkdir() if kind == "folder" else os.mkfifo(frame)
-    process = _cli_process(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"], tmp_path)
-    try:
-        _, err = process.communicate(timeout=120)
-    finally:
-        process.kill()
-    assert process.returncode == 2 and err.strip().splitlines() == [
+    status, lines = _cli_run(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"], tmp_path)
+    assert status == 2 and lines == [
         f"omnisim render: error: {frame}: is {'a folder' if kind == 'folder' else 'a FIFO, device or socket'} "
-        "where the output folder's frame file belongs; remove it or choose another --out"], err
+        "where the output folder's frame file belongs; remove it or choose another --out"], lines
     assert frame.is_dir() if kind == "folder" else frame.is_fifo()
 
 
@@ -222,26 +228,20 @@ def test_meta_json_that_is_a_fifo_is_one_line_exit_2(tmp_path):
     """A FIFO named meta.json in the output folder made the run wait forever reading it."""
     (tmp_path / "out").mkdir()
     os.mkfifo(tmp_path / "out" / "meta.json")
-    process = _cli_process(["render", str(_scene(tmp_path)), "--out", str(tmp_path / "out"), "--no-progress"],
-                           tmp_path)
-    try:
-        _, err = process.communicate(timeout=120)
-    finally:
-        process.kill()
-    assert process.returncode == 2 and err.strip().splitlines() == [
+    status, lines = _cli_run(["render", str(_scene(tmp_path)), "--out", str(tmp_path / "out"), "--no-progress"],
+                             tmp_path)
+    assert status == 2 and lines == [
         f"omnisim render: error: {tmp_path / 'out' / 'meta.json'}: is a FIFO, device or socket, not a "
-        "meta.json file; remove it or choose another --out"], err
+        "meta.json file; remove it or choose another --out"], lines
     assert (tmp_path / "out" / "meta.json").is_fifo()
 
 
 @pytest.mark.skipif(importlib.util.find_spec("ctypes") is None or __import__("ctypes.util").util.find_library("cuda")
                     is not None, reason="a CUDA driver is present")
 def test_cuda_variant_without_gpu_is_one_line_exit_1(tmp_path):
-    process = _cli_process(["render", str(_scene(tmp_path)), "--out", str(tmp_path / "out"),
-                            "--variant", "cuda_ad_rgb", "--no-progress"], tmp_path)
-    _, err = process.communicate(timeout=120)
-    assert process.returncode == 1, err
-    assert len(err.strip().splitlines()) == 1 and "cuda_ad_rgb needs a working CUDA GPU" in err
+    status, lines = _cli_run(["render", str(_scene(tmp_path)), "--out", str(tmp_path / "out"),
+                              "--variant", "cuda_ad_rgb", "--no-progress"], tmp_path)
+    assert status == 1 and len(lines) == 1 and "cuda_ad_rgb needs a working CUDA GPU" in lines[0], lines
     assert not (tmp_path / "out").exists()
 
 
