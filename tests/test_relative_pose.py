@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -591,3 +593,41 @@ def test_two_agreeing_measurements_are_too_few_however_many_rays_they_hold():
 def test_min_inlier_measurements_below_one_is_refused():
     with pytest.raises(ValueError, match="min_inlier_measurements >= 1, got 8, 0"):
         RelativePoseOptions(min_inlier_measurements=0)
+
+
+def _random_ray_pairs(n, seed):
+    """``n`` unrelated ray pairs, uniform on the sphere: no motion relates them."""
+    rays = np.random.default_rng(seed).normal(size=(2, n, 3))
+    return rays / np.linalg.norm(rays, axis=2, keepdims=True)
+
+
+@pytest.mark.parametrize("n, threshold", [(200, 0.02), (1000, 0.01), (2000, 0.003)])
+def test_unrelated_rays_fail_as_chance_consensus(n, threshold):
+    failed_as_chance = 0
+    for seed in range(4):
+        rays = _random_ray_pairs(n, seed)
+        options = RelativePoseOptions(ransac_threshold_rad=threshold, seed=seed)
+        pose, info = relative_pose_from_rays(rays[0], rays[1], options=options)
+        assert not info.success and np.array_equal(pose.rotation, np.eye(3))
+        failed_as_chance += "look like chance" in info.reason
+        # Without the check, 5-point models of chance inliers pass every other test.
+        _, unchecked = relative_pose_from_rays(rays[0], rays[1], options=replace(options, min_draw_success=0.0))
+        assert unchecked.success == ("look like chance" in info.reason)
+    assert failed_as_chance >= 2
+
+
+def test_many_true_matches_among_many_outliers_pass():
+    # 100 matches of a pure rotation among 1900 unrelated ones (5 % inliers): the rotation model's
+    # 200 two-ray samples hold an outlier-free one with probability 0.39, below min_draw_success,
+    # but chance pairings explain far fewer inliers.
+    rays_a, rays_b, rotation, *_ = _scene(n=2000, outliers=1900, translation=(0.0, 0.0, 0.0), seed=2)
+    pose, info = relative_pose_from_rays(rays_a, rays_b, options=_options(seed=1))
+    assert info.success and info.model == "rotation" and info.n_inliers >= 100
+    assert geodesic_angle(pose.rotation, rotation) < 1e-6
+
+
+@pytest.mark.parametrize("field, value", [("min_draw_success", -0.1), ("min_draw_success", 1.5),
+                                          ("max_chance_false_alarms", -1.0)])
+def test_chance_check_options_are_validated(field, value):
+    with pytest.raises(ValueError, match=field):
+        RelativePoseOptions(**{field: value})
