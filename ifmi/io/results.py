@@ -476,7 +476,8 @@ def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.Pat
     ----------
     path : path
         The TUM file (``DIR/NAME.txt``); a path ending in a separator names
-        a folder, not a file, and is refused.
+        a folder, not a file, and is refused, as is a path without a file
+        name (``""``, ``"."``).
     dataset_dir : path, optional, keyword-only
         The input dataset; no output may replace one of its files.
     input_files : tuple of path, keyword-only
@@ -506,6 +507,10 @@ def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.Pat
     if str(path).endswith(("/", os.sep)):
         raise OutputError(path, "expected the estimate's file path (DIR/NAME.txt), got a folder path "
                                 "ending in a separator")
+    if not Path(path).name:
+        # "" and "." name the current folder: there is no NAME to give the side files.
+        raise OutputError(repr(str(path)), "expected the estimate's file path (DIR/NAME.txt), got a path "
+                                           "without a file name")
     outputs = (Path(path), *side_file_paths(path))
     for output, kind in zip(outputs, ("trajectory", "frames", "config")):
         target = probe_writable(output)
