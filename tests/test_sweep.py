@@ -221,6 +221,17 @@ def test_sweep_cli_rejects_zero_workers(datasets, tmp_path, capsys):
     assert "expected an integer >= 1, got 0" in capsys.readouterr().err
 
 
+def test_sweep_cli_rejects_more_workers_than_cpus(datasets, tmp_path, capsys):
+    good, _ = datasets
+    with pytest.raises(SystemExit) as exc:
+        # With the synchronous scheduler a missing check runs the cell instead of starting workers.
+        main(["sweep", str(good), "--tile-size", "32", "--overlap", "0", "--workers", "1000000",
+              "--scheduler", "synchronous", "--no-progress", "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    assert "workers (the CPUs this process may use), got 1000000" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_sweep_options_reject_zero_workers():
     with pytest.raises(ValueError, match="n_workers >= 1"):
         SweepOptions(n_workers=0)
