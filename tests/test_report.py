@@ -333,6 +333,18 @@ def test_per_frame_arrays_that_do_not_fit_the_summary_are_one_line_error(tmp_pat
     assert _report_error(tmp_path, capsys, root) == f"ifmi report: error: {npz}: {expected}"
 
 
+def test_frame_count_past_64_bits_is_one_line_error(tmp_path, capsys):
+    root = _make_results(tmp_path, scenes=("office",))
+    doc_path = root / "eval" / "office" / "orb" / "evaluation.json"
+    doc = json.loads(doc_path.read_text())
+    doc["summary"]["frames"]["associated"] = 10 ** 30
+    doc_path.write_text(json.dumps(doc))
+    npz = doc_path.with_name("per_frame.npz")
+    assert _report_error(tmp_path, capsys, root) == (
+        f"ifmi report: error: {npz}: array timestamp: 15 frames, but evaluation.json has {10 ** 30} "
+        "associated frames; expected one row per associated frame")
+
+
 @pytest.mark.parametrize("edit, expected", [
     (lambda d: d.update(dataset_meta="oops"),
      'field dataset_meta: expected an object {...} or null, got a string "oops"'),

@@ -15,8 +15,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import InputError
 from ..metrics import AXES
 
@@ -64,7 +62,10 @@ def _is_number(value) -> bool:
 
 
 def _is_count(value) -> bool:
-    return _is_number(value) and np.isfinite(value) and value >= 0 and value == int(value)
+    # An int is compared as an int: one too large for a float (10**400) has no finite float value.
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value >= 0
+    return isinstance(value, float) and value >= 0 and value.is_integer()
 
 
 def _object(path: Path, parent: dict, key: str, where: str, *, optional: bool = False) -> dict | None:
