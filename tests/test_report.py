@@ -362,6 +362,9 @@ def test_frame_count_past_64_bits_is_one_line_error(tmp_path, capsys):
                                                 "object {...}"),
     (lambda d: d["summary"]["axes"]["roll"].update(rmse="small"),
      'field summary.axes.roll.rmse: expected a number or null, got a string "small"'),
+    (lambda d: d["summary"]["geodesic"].update(rmse=-1.0),
+     "field summary.geodesic.rmse: expected a number >= 0 (errors and times are never negative) or "
+     "null, got a number -1.0"),
     (lambda d: d["summary"].update(failures=2),
      "field summary.failures: expected an object {...} or null, got a number 2"),
     (lambda d: d["summary"]["time"].update(mean_s=[0.1]),

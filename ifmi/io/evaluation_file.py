@@ -82,13 +82,17 @@ def _object(path: Path, parent: dict, key: str, where: str, *, optional: bool = 
 
 
 def _numbers(path: Path, parent: dict, keys, where: str) -> None:
-    """Each of ``keys`` of ``parent`` is a number, or null (NaN written out)."""
+    """Each of ``keys`` of ``parent`` is a number >= 0 (an error statistic of absolute errors, or
+    a time), or null (NaN written out)."""
     for key in keys:
         if key not in parent:
             raise InputError(path, f"field {where}.{key}: missing; expected a number or null")
         value = parent[key]
         if value is not None and not _is_number(value):
             raise _refuse(path, f"{where}.{key}", "a number or null", value)
+        if value is not None and value < 0:
+            raise _refuse(path, f"{where}.{key}", "a number >= 0 (errors and times are never negative) "
+                                                  "or null", value)
 
 
 def _count(path: Path, parent: dict, key: str, where: str, *, optional: bool = False) -> None:
@@ -141,7 +145,7 @@ def check_evaluation_document(path: str | Path, doc: dict) -> None:
     ------
     InputError
         ``summary`` or one of its statistics, pose counts, ``failures`` or
-        ``time`` missing or of the wrong kind; ``method`` or ``scene`` not a
+        ``time`` missing or of the wrong kind, or a statistic or time below 0; ``method`` or ``scene`` not a
         name usable as a folder name (a string without ``/``); ``dataset``,
         ``dataset_path`` or ``groundtruth_path`` not a string;
         ``dataset_meta`` not an object. Optional entries may be null or
