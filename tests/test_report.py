@@ -337,7 +337,7 @@ def test_frame_count_past_64_bits_is_one_line_error(tmp_path, capsys):
     root = _make_results(tmp_path, scenes=("office",))
     doc_path = root / "eval" / "office" / "orb" / "evaluation.json"
     doc = json.loads(doc_path.read_text())
-    doc["summary"]["frames"]["associated"] = 10 ** 30
+    doc["summary"]["frames"].update(ground_truth=10 ** 30, estimate=10 ** 30, associated=10 ** 30)
     doc_path.write_text(json.dumps(doc))
     npz = doc_path.with_name("per_frame.npz")
     assert _report_error(tmp_path, capsys, root) == (
@@ -365,6 +365,10 @@ def test_frame_count_past_64_bits_is_one_line_error(tmp_path, capsys):
     (lambda d: d["summary"]["geodesic"].update(rmse=-1.0),
      "field summary.geodesic.rmse: expected a number >= 0 (errors and times are never negative) or "
      "null, got a number -1.0"),
+    (lambda d: d["summary"]["failures"].update(count=50),
+     "field summary.failures.count: expected at most summary.failures.frames (15), got a number 50"),
+    (lambda d: d["summary"]["frames"].update(associated=16),
+     "field summary.frames.associated: expected at most summary.frames.ground_truth (15), got a number 16"),
     (lambda d: d["summary"].update(failures=2),
      "field summary.failures: expected an object {...} or null, got a number 2"),
     (lambda d: d["summary"]["time"].update(mean_s=[0.1]),

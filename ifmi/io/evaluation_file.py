@@ -105,6 +105,12 @@ def _count(path: Path, parent: dict, key: str, where: str, *, optional: bool = F
     raise _refuse(path, f"{where}.{key}", expected, value)
 
 
+def _at_most(path: Path, parent: dict, key: str, bound: str, where: str) -> None:
+    """The count ``parent[key]`` is at most the count ``parent[bound]`` (both checked counts)."""
+    if parent[key] > parent[bound]:
+        raise _refuse(path, f"{where}.{key}", f"at most {where}.{bound} ({parent[bound]})", parent[key])
+
+
 def _stats(path: Path, parent: dict, key: str, where: str) -> None:
     stats = _object(path, parent, key, where)
     _numbers(path, stats, _STATS_NUMBERS, f"{where}.{key}")
@@ -121,10 +127,13 @@ def _check_summary(path: Path, doc: dict) -> None:
     frames = _object(path, summary, "frames", "summary")
     for key in _FRAME_COUNTS:
         _count(path, frames, key, "summary.frames")
+    for key in ("ground_truth", "estimate"):
+        _at_most(path, frames, "associated", key, "summary.frames")
     failures = _object(path, summary, "failures", "summary", optional=True)
     if failures is not None:
         for key in ("count", "frames"):
             _count(path, failures, key, "summary.failures")
+        _at_most(path, failures, "count", "frames", "summary.failures")
     time = _object(path, summary, "time", "summary", optional=True)
     if time is not None:
         _numbers(path, time, _TIME_NUMBERS, "summary.time")
@@ -145,7 +154,9 @@ def check_evaluation_document(path: str | Path, doc: dict) -> None:
     ------
     InputError
         ``summary`` or one of its statistics, pose counts, ``failures`` or
-        ``time`` missing or of the wrong kind, or a statistic or time below 0; ``method`` or ``scene`` not a
+        ``time`` missing or of the wrong kind; a statistic or time below 0;
+        more associated poses than either file has, or more failed frames
+        than frames; ``method`` or ``scene`` not a
         name usable as a folder name (a string without ``/``); ``dataset``,
         ``dataset_path`` or ``groundtruth_path`` not a string;
         ``dataset_meta`` not an object. Optional entries may be null or
