@@ -321,6 +321,8 @@ def test_sweep_cli_refuses_a_grid_value_given_twice(datasets, tmp_path, capsys, 
     ("rmse_geodesic_rad", "0.1", 'rmse_geodesic_rad: expected a number or null, got "0.1"'),
     ("tile_size", None, "tile_size: expected a number, got null"),
     ("status", 1, "status: expected text, got 1"),
+    pytest.param("tile_size", 10 ** 400, f"tile_size: expected a finite number, got {str(10 ** 400)[:40]}...",
+                 id="tile_size-past-float"),
 ])
 def test_cell_record_of_the_wrong_kind_is_named_recomputed_and_left_out_of_reports(
         datasets, tmp_path, capsys, key, value, expected):
