@@ -279,8 +279,8 @@ def _float_of(value) -> float | None:
 
 def _record_type_problem(record: dict) -> str:
     """What is of the wrong kind in a cell record ("" when nothing): text keys, the grid's numbers
-    (finite), and the measured numbers (``*_rad``, ``*_s``, counts; null and NaN allowed, no
-    integer too large for a float) of a finished cell."""
+    (finite), and the measured numbers (``*_rad``, ``*_s``, counts: not negative; null and NaN
+    allowed, no integer too large for a float) of a finished cell."""
     for key in ("cell_id", "dataset", "method", "status"):
         if not isinstance(record[key], str):
             return f"{key}: expected text, got {_shown(record[key])}"
@@ -297,6 +297,9 @@ def _record_type_problem(record: dict) -> str:
             return f"{key}: expected a number or null, got {_shown(value)}"
         if value is not None and _float_of(value) is None:
             return f"{key}: expected a number a float holds (up to about 1.8e308) or null, got {_shown(value)}"
+        if value is not None and value < 0:
+            return (f"{key}: expected a number >= 0 or null (errors, times and counts are never "
+                    f"negative), got {_shown(value)}")
     return ""
 
 

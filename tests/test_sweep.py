@@ -323,6 +323,8 @@ def test_sweep_cli_refuses_a_grid_value_given_twice(datasets, tmp_path, capsys, 
     ("status", 1, "status: expected text, got 1"),
     pytest.param("tile_size", 10 ** 400, f"tile_size: expected a finite number, got {str(10 ** 400)[:40]}...",
                  id="tile_size-past-float"),
+    ("rmse_mean_rad", -1.0, "rmse_mean_rad: expected a number >= 0 or null (errors, times and counts are never "
+                            "negative), got -1.0"),
 ])
 def test_cell_record_of_the_wrong_kind_is_named_recomputed_and_left_out_of_reports(
         datasets, tmp_path, capsys, key, value, expected):
