@@ -184,7 +184,8 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
     ------
     InputError
         Missing or unreadable file, missing required column, a row of the
-        wrong length, a ``frame`` that is not a whole number >= 0, a
+        wrong length, a ``frame`` that is not a whole number from 0 to
+        ``2**63 - 1`` (a 64-bit frame index), a
         ``reference_frame`` that is not a whole number, or a
         ``seconds`` value that is not a time >= 0 (each naming the line).
     """
@@ -237,7 +238,8 @@ def _whole_number(value: float) -> bool:
 # Columns of frames.csv that evaluations read, with the values each accepts: (test, what is
 # expected, whether an empty or NaN field is accepted).
 _CHECKED_FRAME_COLUMNS = {
-    "frame": (lambda v: _whole_number(v) and v >= 0, "a frame number (a whole number >= 0)", False),
+    "frame": (lambda v: _whole_number(v) and 0 <= v < 2 ** 63,
+              "a frame number (a whole number from 0 to 2**63 - 1)", False),
     "reference_frame": (_whole_number, "a frame number (a whole number; empty for none)", True),
     "seconds": (lambda v: np.isfinite(v) and v >= 0,
                 "a time in seconds >= 0 (empty when not recorded)", True),
