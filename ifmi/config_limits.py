@@ -14,7 +14,7 @@ import numpy as np
 from .camera import OcamModel, max_image_radius
 from .errors import InputError
 from .tiling import MIN_TILE_SIZE_PX, tile_size_px
-from .unwarp import off_axis_band, panorama_mapping, radius_band
+from .unwarp import angular_pixel_size_in_band, off_axis_band, panorama_mapping, radius_band
 
 __all__ = ["check_config_for_model"]
 
@@ -40,6 +40,7 @@ def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=No
     is reported by the front end, naming the calibration), and a feature
     front end's ``radius_band`` lies inside the image. Explicit band radii in ``config`` (e.g. decided from the frames)
     are the band checked. A bundle-adjustment window needs a global shutter.
+    A RANSAC threshold in pixels converts to under pi radians.
 
     Parameters
     ----------
@@ -92,6 +93,24 @@ def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=No
     log_polar = registration.log_polar_angles is not None or registration.log_polar_radii is not None
     if method == "ifmi" and (fraction or log_polar):
         _check_tiles(config, panorama_mapping(model, config=pano))
+    _check_pixel_threshold(config, model)
+
+
+def _check_pixel_threshold(config, model) -> None:
+    """A RANSAC threshold in pixels must convert to under pi radians for this camera.
+
+    Rays are at most pi apart, so :class:`~ifmi.relative_pose.RelativePoseOptions`
+    takes a radian threshold in (0, pi) only; the pixel threshold is converted
+    with the angle a pixel of the camera's band subtends.
+    """
+    pose = config.relative_pose
+    if pose.ransac_threshold_rad is not None:
+        return
+    pixel = angular_pixel_size_in_band(model, config=config.ifmi.panorama)
+    if np.isfinite(pixel) and pixel > 0 and not pose.ransac_threshold_px * pixel < np.pi:
+        raise InputError("relative_pose.ransac_threshold_px",
+                         f"expected under {np.pi / pixel:.4g} px for this camera (pi rad at {pixel:.3g} rad "
+                         f"per pixel of its band), got {pose.ransac_threshold_px:g}")
 
 
 def _check_radii(config, model: OcamModel) -> None:

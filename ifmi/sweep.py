@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import re
 import sys
@@ -74,6 +75,8 @@ __all__ = [
 _ID_DIGITS = 12
 # Allocations up to this size stay on the heap in local-cluster workers (see run_sweep).
 _WORKER_MMAP_THRESHOLD_BYTES = 64 * 2**20
+# Longest part of a cell record's value quoted in a warning.
+_SHOWN_CHARS = 40
 # Marker stored in sweep.json so that sweep folders can be recognised.
 SWEEP_KIND = "ifmi-sweep"
 # Keys of every sweep.json, also of one written without SWEEP_KIND.
@@ -260,19 +263,43 @@ def _is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+def _shown(value) -> str:
+    """``value`` as JSON for a message, cut after :data:`_SHOWN_CHARS` characters."""
+    text = json.dumps(value)
+    return text if len(text) <= _SHOWN_CHARS else text[:_SHOWN_CHARS] + "..."
+
+
+def _float_of(value) -> float | None:
+    """A JSON number as a float; None for an integer too large for one (10**400)."""
+    try:
+        return float(value)
+    except OverflowError:
+        return None
+
+
 def _record_type_problem(record: dict) -> str:
-    """What is of the wrong kind in a cell record ("" when nothing): text keys, the grid's numbers,
-    and the measured numbers (``*_rad``, ``*_s``, counts; null allowed) of a finished cell."""
+    """What is of the wrong kind in a cell record ("" when nothing): text keys, the grid's numbers
+    (finite), and the measured numbers (``*_rad``, ``*_s``, counts: not negative; null and NaN
+    allowed, no integer too large for a float) of a finished cell."""
     for key in ("cell_id", "dataset", "method", "status"):
         if not isinstance(record[key], str):
-            return f"{key}: expected text, got {json.dumps(record[key])}"
+            return f"{key}: expected text, got {_shown(record[key])}"
     for key in ("tile_size", "overlap"):
         if not _is_number(record[key]):
-            return f"{key}: expected a number, got {json.dumps(record[key])}"
+            return f"{key}: expected a number, got {_shown(record[key])}"
+        number = _float_of(record[key])
+        if number is None or not math.isfinite(number):
+            return f"{key}: expected a finite number, got {_shown(record[key])}"
     measured = [k for k in record if k.endswith(("_rad", "_s")) or k in ("failures", "frames")]
     for key in measured:
-        if record[key] is not None and not _is_number(record[key]):
-            return f"{key}: expected a number or null, got {json.dumps(record[key])}"
+        value = record[key]
+        if value is not None and not _is_number(value):
+            return f"{key}: expected a number or null, got {_shown(value)}"
+        if value is not None and _float_of(value) is None:
+            return f"{key}: expected a number a float holds (up to about 1.8e308) or null, got {_shown(value)}"
+        if value is not None and value < 0:
+            return (f"{key}: expected a number >= 0 or null (errors, times and counts are never "
+                    f"negative), got {_shown(value)}")
     return ""
 
 

@@ -309,3 +309,11 @@ def test_bundle_window_option_is_saved_with_the_run(dataset, tmp_path):
 def test_bad_bundle_window_is_refused(dataset, tmp_path, capsys, extra, message):
     assert main(["estimate", str(dataset), *extra, "--out", str(tmp_path / "e.txt"), *QUIET]) == 2
     assert _one_line_error(capsys).endswith(message)
+
+
+def test_pixel_threshold_past_half_a_turn_is_refused(dataset, tmp_path, capsys):
+    out = tmp_path / "e.txt"
+    assert main(["estimate", str(dataset), "--ransac-threshold-px", "1e30", "--out", str(out), *QUIET]) == 2
+    assert _one_line_error(capsys).startswith(
+        "ifmi estimate: error: --ransac-threshold-px: relative_pose.ransac_threshold_px: expected under ")
+    assert not out.exists()

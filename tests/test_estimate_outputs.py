@@ -417,6 +417,15 @@ def test_estimate_to_a_folder_path_is_refused(dataset, tmp_path, capsys):
     assert not (tmp_path / "runs").exists()
 
 
+def test_estimate_to_a_path_without_a_file_name_is_refused(dataset, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["estimate", str(dataset), "--out", ".", *FAST]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["ifmi estimate: error: cannot write '.': expected the estimate's file path (DIR/NAME.txt), "
+                   "got a path without a file name"]
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize(("first", "second"), [("e.txt", "e"), ("e", "e.txt"), ("e.txt", "e.tum")])
 def test_estimate_refuses_the_side_files_of_another_estimate_of_the_same_name(dataset, tmp_path, capsys,
                                                                               first, second):

@@ -406,10 +406,12 @@ def test_frames_csv_with_some_times_missing_times_the_others(tmp_path, capsys):
     ("seconds", "-1", "column seconds: expected a time in seconds >= 0 (empty when not recorded), "
                       "got '-1'"),
     ("seconds", "inf", "column seconds: expected a time in seconds >= 0"),
-    ("frame", "", "column frame: expected a frame number (a whole number >= 0), got ''"),
-    ("frame", "-3", "column frame: expected a frame number (a whole number >= 0), got '-3'"),
-    ("frame", "2.5", "column frame: expected a frame number (a whole number >= 0), got '2.5'"),
-    ("frame", "1_4", "column frame: expected a frame number (a whole number >= 0), got '1_4'"),
+    ("frame", "", "column frame: expected a frame number (a whole number from 0 to 2**63 - 1), got ''"),
+    ("frame", "-3", "column frame: expected a frame number (a whole number from 0 to 2**63 - 1), got '-3'"),
+    ("frame", "2.5", "column frame: expected a frame number (a whole number from 0 to 2**63 - 1), got '2.5'"),
+    ("frame", "1_4", "column frame: expected a frame number (a whole number from 0 to 2**63 - 1), got '1_4'"),
+    ("frame", "99999999999999999999999", "column frame: expected a frame number (a whole number from 0 to "
+                                         "2**63 - 1), got '99999999999999999999999'"),
     ("reference_frame", "1.5", "column reference_frame: expected a frame number (a whole number; "
                                "empty for none), got '1.5'"),
 ])

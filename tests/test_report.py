@@ -333,6 +333,18 @@ def test_per_frame_arrays_that_do_not_fit_the_summary_are_one_line_error(tmp_pat
     assert _report_error(tmp_path, capsys, root) == f"ifmi report: error: {npz}: {expected}"
 
 
+def test_frame_count_past_64_bits_is_one_line_error(tmp_path, capsys):
+    root = _make_results(tmp_path, scenes=("office",))
+    doc_path = root / "eval" / "office" / "orb" / "evaluation.json"
+    doc = json.loads(doc_path.read_text())
+    doc["summary"]["frames"].update(ground_truth=10 ** 30, estimate=10 ** 30, associated=10 ** 30)
+    doc_path.write_text(json.dumps(doc))
+    npz = doc_path.with_name("per_frame.npz")
+    assert _report_error(tmp_path, capsys, root) == (
+        f"ifmi report: error: {npz}: array timestamp: 15 frames, but evaluation.json has {10 ** 30} "
+        "associated frames; expected one row per associated frame")
+
+
 @pytest.mark.parametrize("edit, expected", [
     (lambda d: d.update(dataset_meta="oops"),
      'field dataset_meta: expected an object {...} or null, got a string "oops"'),
@@ -350,6 +362,13 @@ def test_per_frame_arrays_that_do_not_fit_the_summary_are_one_line_error(tmp_pat
                                                 "object {...}"),
     (lambda d: d["summary"]["axes"]["roll"].update(rmse="small"),
      'field summary.axes.roll.rmse: expected a number or null, got a string "small"'),
+    (lambda d: d["summary"]["geodesic"].update(rmse=-1.0),
+     "field summary.geodesic.rmse: expected a number >= 0 (errors and times are never negative) or "
+     "null, got a number -1.0"),
+    (lambda d: d["summary"]["failures"].update(count=50),
+     "field summary.failures.count: expected at most summary.failures.frames (15), got a number 50"),
+    (lambda d: d["summary"]["frames"].update(associated=16),
+     "field summary.frames.associated: expected at most summary.frames.ground_truth (15), got a number 16"),
     (lambda d: d["summary"].update(failures=2),
      "field summary.failures: expected an object {...} or null, got a number 2"),
     (lambda d: d["summary"]["time"].update(mean_s=[0.1]),

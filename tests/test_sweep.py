@@ -221,6 +221,17 @@ def test_sweep_cli_rejects_zero_workers(datasets, tmp_path, capsys):
     assert "expected an integer >= 1, got 0" in capsys.readouterr().err
 
 
+def test_sweep_cli_rejects_more_workers_than_cpus(datasets, tmp_path, capsys):
+    good, _ = datasets
+    with pytest.raises(SystemExit) as exc:
+        # With the synchronous scheduler a missing check runs the cell instead of starting workers.
+        main(["sweep", str(good), "--tile-size", "32", "--overlap", "0", "--workers", "1000000",
+              "--scheduler", "synchronous", "--no-progress", "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    assert "workers (the CPUs this process may use), got 1000000" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_sweep_options_reject_zero_workers():
     with pytest.raises(ValueError, match="n_workers >= 1"):
         SweepOptions(n_workers=0)
@@ -310,6 +321,10 @@ def test_sweep_cli_refuses_a_grid_value_given_twice(datasets, tmp_path, capsys, 
     ("rmse_geodesic_rad", "0.1", 'rmse_geodesic_rad: expected a number or null, got "0.1"'),
     ("tile_size", None, "tile_size: expected a number, got null"),
     ("status", 1, "status: expected text, got 1"),
+    pytest.param("tile_size", 10 ** 400, f"tile_size: expected a finite number, got {str(10 ** 400)[:40]}...",
+                 id="tile_size-past-float"),
+    ("rmse_mean_rad", -1.0, "rmse_mean_rad: expected a number >= 0 or null (errors, times and counts are never "
+                            "negative), got -1.0"),
 ])
 def test_cell_record_of_the_wrong_kind_is_named_recomputed_and_left_out_of_reports(
         datasets, tmp_path, capsys, key, value, expected):

@@ -15,8 +15,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import InputError
 from ..metrics import AXES
 
@@ -64,7 +62,10 @@ def _is_number(value) -> bool:
 
 
 def _is_count(value) -> bool:
-    return _is_number(value) and np.isfinite(value) and value >= 0 and value == int(value)
+    # An int is compared as an int: one too large for a float (10**400) has no finite float value.
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value >= 0
+    return isinstance(value, float) and value >= 0 and value.is_integer()
 
 
 def _object(path: Path, parent: dict, key: str, where: str, *, optional: bool = False) -> dict | None:
@@ -81,13 +82,17 @@ def _object(path: Path, parent: dict, key: str, where: str, *, optional: bool = 
 
 
 def _numbers(path: Path, parent: dict, keys, where: str) -> None:
-    """Each of ``keys`` of ``parent`` is a number, or null (NaN written out)."""
+    """Each of ``keys`` of ``parent`` is a number >= 0 (an error statistic of absolute errors, or
+    a time), or null (NaN written out)."""
     for key in keys:
         if key not in parent:
             raise InputError(path, f"field {where}.{key}: missing; expected a number or null")
         value = parent[key]
         if value is not None and not _is_number(value):
             raise _refuse(path, f"{where}.{key}", "a number or null", value)
+        if value is not None and value < 0:
+            raise _refuse(path, f"{where}.{key}", "a number >= 0 (errors and times are never negative) "
+                                                  "or null", value)
 
 
 def _count(path: Path, parent: dict, key: str, where: str, *, optional: bool = False) -> None:
@@ -98,6 +103,12 @@ def _count(path: Path, parent: dict, key: str, where: str, *, optional: bool = F
     if key not in parent:
         raise InputError(path, f"field {where}.{key}: missing; expected {expected}")
     raise _refuse(path, f"{where}.{key}", expected, value)
+
+
+def _at_most(path: Path, parent: dict, key: str, bound: str, where: str) -> None:
+    """The count ``parent[key]`` is at most the count ``parent[bound]`` (both checked counts)."""
+    if parent[key] > parent[bound]:
+        raise _refuse(path, f"{where}.{key}", f"at most {where}.{bound} ({parent[bound]})", parent[key])
 
 
 def _stats(path: Path, parent: dict, key: str, where: str) -> None:
@@ -116,10 +127,13 @@ def _check_summary(path: Path, doc: dict) -> None:
     frames = _object(path, summary, "frames", "summary")
     for key in _FRAME_COUNTS:
         _count(path, frames, key, "summary.frames")
+    for key in ("ground_truth", "estimate"):
+        _at_most(path, frames, "associated", key, "summary.frames")
     failures = _object(path, summary, "failures", "summary", optional=True)
     if failures is not None:
         for key in ("count", "frames"):
             _count(path, failures, key, "summary.failures")
+        _at_most(path, failures, "count", "frames", "summary.failures")
     time = _object(path, summary, "time", "summary", optional=True)
     if time is not None:
         _numbers(path, time, _TIME_NUMBERS, "summary.time")
@@ -140,7 +154,9 @@ def check_evaluation_document(path: str | Path, doc: dict) -> None:
     ------
     InputError
         ``summary`` or one of its statistics, pose counts, ``failures`` or
-        ``time`` missing or of the wrong kind; ``method`` or ``scene`` not a
+        ``time`` missing or of the wrong kind; a statistic or time below 0;
+        more associated poses than either file has, or more failed frames
+        than frames; ``method`` or ``scene`` not a
         name usable as a folder name (a string without ``/``); ``dataset``,
         ``dataset_path`` or ``groundtruth_path`` not a string;
         ``dataset_meta`` not an object. Optional entries may be null or

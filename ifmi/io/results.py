@@ -184,7 +184,8 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
     ------
     InputError
         Missing or unreadable file, missing required column, a row of the
-        wrong length, a ``frame`` that is not a whole number >= 0, a
+        wrong length, a ``frame`` that is not a whole number from 0 to
+        ``2**63 - 1`` (a 64-bit frame index), a
         ``reference_frame`` that is not a whole number, or a
         ``seconds`` value that is not a time >= 0 (each naming the line).
     """
@@ -237,7 +238,8 @@ def _whole_number(value: float) -> bool:
 # Columns of frames.csv that evaluations read, with the values each accepts: (test, what is
 # expected, whether an empty or NaN field is accepted).
 _CHECKED_FRAME_COLUMNS = {
-    "frame": (lambda v: _whole_number(v) and v >= 0, "a frame number (a whole number >= 0)", False),
+    "frame": (lambda v: _whole_number(v) and 0 <= v < 2 ** 63,
+              "a frame number (a whole number from 0 to 2**63 - 1)", False),
     "reference_frame": (_whole_number, "a frame number (a whole number; empty for none)", True),
     "seconds": (lambda v: np.isfinite(v) and v >= 0,
                 "a time in seconds >= 0 (empty when not recorded)", True),
@@ -476,7 +478,8 @@ def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.Pat
     ----------
     path : path
         The TUM file (``DIR/NAME.txt``); a path ending in a separator names
-        a folder, not a file, and is refused.
+        a folder, not a file, and is refused, as is a path without a file
+        name (``""``, ``"."``).
     dataset_dir : path, optional, keyword-only
         The input dataset; no output may replace one of its files.
     input_files : tuple of path, keyword-only
@@ -506,6 +509,10 @@ def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.Pat
     if str(path).endswith(("/", os.sep)):
         raise OutputError(path, "expected the estimate's file path (DIR/NAME.txt), got a folder path "
                                 "ending in a separator")
+    if not Path(path).name:
+        # "" and "." name the current folder: there is no NAME to give the side files.
+        raise OutputError(repr(str(path)), "expected the estimate's file path (DIR/NAME.txt), got a path "
+                                           "without a file name")
     outputs = (Path(path), *side_file_paths(path))
     for output, kind in zip(outputs, ("trajectory", "frames", "config")):
         target = probe_writable(output)
