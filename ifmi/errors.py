@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-__all__ = ["InputError", "InputWarning", "CalibrationFitError", "OutputError", "first_line", "one_line"]
+import json
+
+__all__ = ["InputError", "InputWarning", "CalibrationFitError", "OutputError", "first_line", "one_line",
+           "json_excerpt"]
 
 
 class InputError(ValueError):
@@ -79,3 +82,12 @@ def one_line(exc: BaseException) -> str:
         return type(exc).__name__
     first = text.splitlines()[0]
     return f"{type(exc).__name__}: {first}{' ...' if first != text else ''}"
+
+
+def json_excerpt(value, *, max_chars: int = 40) -> str:
+    """``value`` as JSON text for a one-line message, cut to ``max_chars`` characters ending in ``...``.
+
+    Values JSON cannot write are shown by ``str``.
+    """
+    text = json.dumps(value, default=str)
+    return text if len(text) <= max_chars else text[:max_chars - 3] + "..."

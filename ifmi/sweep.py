@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 from .dataset_names import dataset_folder_id, dataset_labels, resolved_folder
-from .errors import InputError, OutputError, one_line
+from .errors import InputError, OutputError, json_excerpt, one_line
 from .io.atomic import (atomic_write_bytes, atomic_write_json, atomic_write_text, check_output_folder,
                         folder_of_kind, probe_writable, write_folder)
 
@@ -75,8 +75,6 @@ __all__ = [
 _ID_DIGITS = 12
 # Allocations up to this size stay on the heap in local-cluster workers (see run_sweep).
 _WORKER_MMAP_THRESHOLD_BYTES = 64 * 2**20
-# Longest part of a cell record's value quoted in a warning.
-_SHOWN_CHARS = 40
 # Marker stored in sweep.json so that sweep folders can be recognised.
 SWEEP_KIND = "ifmi-sweep"
 # Keys of every sweep.json, also of one written without SWEEP_KIND.
@@ -263,12 +261,6 @@ def _is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
-def _shown(value) -> str:
-    """``value`` as JSON for a message, cut after :data:`_SHOWN_CHARS` characters."""
-    text = json.dumps(value)
-    return text if len(text) <= _SHOWN_CHARS else text[:_SHOWN_CHARS] + "..."
-
-
 def _float_of(value) -> float | None:
     """A JSON number as a float; None for an integer too large for one (10**400)."""
     try:
@@ -283,23 +275,23 @@ def _record_type_problem(record: dict) -> str:
     allowed, no integer too large for a float) of a finished cell."""
     for key in ("cell_id", "dataset", "method", "status"):
         if not isinstance(record[key], str):
-            return f"{key}: expected text, got {_shown(record[key])}"
+            return f"{key}: expected text, got {json_excerpt(record[key])}"
     for key in ("tile_size", "overlap"):
         if not _is_number(record[key]):
-            return f"{key}: expected a number, got {_shown(record[key])}"
+            return f"{key}: expected a number, got {json_excerpt(record[key])}"
         number = _float_of(record[key])
         if number is None or not math.isfinite(number):
-            return f"{key}: expected a finite number, got {_shown(record[key])}"
+            return f"{key}: expected a finite number, got {json_excerpt(record[key])}"
     measured = [k for k in record if k.endswith(("_rad", "_s")) or k in ("failures", "frames")]
     for key in measured:
         value = record[key]
         if value is not None and not _is_number(value):
-            return f"{key}: expected a number or null, got {_shown(value)}"
+            return f"{key}: expected a number or null, got {json_excerpt(value)}"
         if value is not None and _float_of(value) is None:
-            return f"{key}: expected a number a float holds (up to about 1.8e308) or null, got {_shown(value)}"
+            return f"{key}: expected a number a float holds (up to about 1.8e308) or null, got {json_excerpt(value)}"
         if value is not None and value < 0:
             return (f"{key}: expected a number >= 0 or null (errors, times and counts are never "
-                    f"negative), got {_shown(value)}")
+                    f"negative), got {json_excerpt(value)}")
     return ""
 
 

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ifmi.errors import InputError, InputWarning, OutputError
+from ifmi.errors import InputError, InputWarning, OutputError, json_excerpt
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
 from ifmi.io.camera_file import write_camera
 from ifmi.io.provenance import package_versions
@@ -216,7 +216,7 @@ def _differences(previous, current, prefix: str = "") -> list[str]:
         return out
     if previous == current:
         return []
-    return [f"{prefix[:-1]} (folder: {_shortened(previous)}, now: {_shortened(current)})"]
+    return [f"{prefix[:-1]} (folder: {json_excerpt(previous)}, now: {json_excerpt(current)})"]
 
 
 def _named_pairs(value) -> bool:
@@ -226,14 +226,8 @@ def _named_pairs(value) -> bool:
             and len({p[0] for p in value}) == len(value))
 
 
-# Most differences named in a refusal, and the longest value shown (characters).
+# Most differences named in a refusal.
 SHOWN_DIFFERENCES = 3
-SHOWN_VALUE_CHARS = 40
-
-
-def _shortened(value) -> str:
-    text = json.dumps(value)
-    return text if len(text) <= SHOWN_VALUE_CHARS else text[:SHOWN_VALUE_CHARS - 3] + "..."
 
 
 def _has_written_frames(out_dir: Path, meta: dict | None) -> bool:

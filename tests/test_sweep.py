@@ -321,7 +321,7 @@ def test_sweep_cli_refuses_a_grid_value_given_twice(datasets, tmp_path, capsys, 
     ("rmse_geodesic_rad", "0.1", 'rmse_geodesic_rad: expected a number or null, got "0.1"'),
     ("tile_size", None, "tile_size: expected a number, got null"),
     ("status", 1, "status: expected text, got 1"),
-    pytest.param("tile_size", 10 ** 400, f"tile_size: expected a finite number, got {str(10 ** 400)[:40]}...",
+    pytest.param("tile_size", 10 ** 400, f"tile_size: expected a finite number, got {str(10 ** 400)[:37]}...",
                  id="tile_size-past-float"),
     ("rmse_mean_rad", -1.0, "rmse_mean_rad: expected a number >= 0 or null (errors, times and counts are never "
                             "negative), got -1.0"),

@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, json_excerpt
 from ..metrics import AXES
 
 __all__ = ["check_evaluation_document", "check_per_frame_arrays", "check_run_config",
@@ -37,8 +37,6 @@ _NAME = "a name (a string without / or \\) or null"
 _TEXT_FIELDS = ("dataset", "dataset_path", "groundtruth_path")
 # Per-frame arrays a report draws (orientation over frames).
 PER_FRAME_REQUIRED = ("timestamp",) + tuple(f"{a}_{k}" for a in AXES for k in ("gt", "est"))
-# Longest part of a value quoted in a message.
-_SHOWN_CHARS = 40
 
 
 def _describe(value) -> str:
@@ -49,8 +47,7 @@ def _describe(value) -> str:
         return json.dumps(value)
     kind = ("a string" if isinstance(value, str) else "a number" if isinstance(value, (int, float))
             else "an array" if isinstance(value, list) else "an object")
-    text = json.dumps(value, default=str)
-    return f"{kind} {text if len(text) <= _SHOWN_CHARS else text[:_SHOWN_CHARS] + '...'}"
+    return f"{kind} {json_excerpt(value)}"
 
 
 def _refuse(path: Path, field: str, expected: str, value) -> InputError:
