@@ -113,13 +113,15 @@ def _render(args) -> int:
 
 
 def _warp(args) -> int:
+    from ifmi.options import OptionError
+
     from .warp import WarpSettings, warp_dataset
 
     try:
         settings = WarpSettings(frames=args.frames, seed=args.seed, max_step_deg=args.max_step_deg,
                                 max_tilt_deg=args.max_tilt_deg, rolling_shutter=args.rolling_shutter)
-    except ValueError as exc:
-        raise InputError(args.image, str(exc)) from None
+    except OptionError as exc:  # named by its option: --max-step-deg for max_step_deg
+        raise InputError("--" + exc.key.replace("_", "-"), exc.problem) from None
     result = warp_dataset(args.image, args.calib, args.out, settings=settings, progress=not args.no_progress)
     print(f"{result.out_dir}: {result.frames} frames ({result.written} written now)")
     return 0

@@ -61,6 +61,7 @@ from ifmi.io.camera_file import camera_file_name, read_camera
 from ifmi.io.dataset import read_image
 from ifmi.io.provenance import package_versions
 from ifmi.io.tum import write_tum
+from ifmi.options import OptionError
 from ifmi.rolling_shutter import row_time_offsets
 from ifmi.trajectory import Trajectory
 from ifmi.unwarp import PanoramaConfig, gray_from_image, lit_off_axis_band, panorama_axis_rotation, radius_band
@@ -107,15 +108,16 @@ class WarpSettings:
     rolling_shutter: float = 0.0
 
     def __post_init__(self) -> None:
-        if not 1 <= self.frames <= MAX_FRAMES or self.seed < 0:
-            raise ValueError(f"expected 1 <= frames <= {MAX_FRAMES} (as a render) and seed >= 0, got "
-                             f"{self.frames}, {self.seed}")
-        if not 0 < self.max_step_deg <= 90 or not 0 <= self.max_tilt_deg <= 45:
-            raise ValueError(f"expected 0 < max_step_deg <= 90 and 0 <= max_tilt_deg <= 45, got "
-                             f"{self.max_step_deg}, {self.max_tilt_deg}")
-        if not 0 <= self.rolling_shutter <= 1:  # also refuses NaN
-            raise ValueError(f"expected 0 <= rolling_shutter <= 1 (a fraction of the frame interval), got "
-                             f"{self.rolling_shutter}")
+        """Raises :class:`ifmi.options.OptionError` naming the first field out of range (NaN included)."""
+        checks = (("frames", 1 <= self.frames <= MAX_FRAMES, f"1 <= frames <= {MAX_FRAMES} (as a render)"),
+                  ("seed", self.seed >= 0, "seed >= 0"),
+                  ("max_step_deg", 0 < self.max_step_deg <= 90, "0 < max_step_deg <= 90"),
+                  ("max_tilt_deg", 0 <= self.max_tilt_deg <= 45, "0 <= max_tilt_deg <= 45"),
+                  ("rolling_shutter", 0 <= self.rolling_shutter <= 1,
+                   "0 <= rolling_shutter <= 1 (a fraction of the frame interval)"))
+        for name, ok, expected in checks:
+            if not ok:
+                raise OptionError(name, f"expected {expected}, got {getattr(self, name)}")
 
     def identity(self) -> dict:
         """The settings that make an output folder: a global shutter is left out, as before it existed."""

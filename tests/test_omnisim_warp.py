@@ -127,7 +127,7 @@ def test_cli_errors_name_the_file(tmp_path, source_files, capsys):
     assert code == 2 and "frames" in capsys.readouterr().err
     code = main(["warp", str(source_files[0]), "--calib", str(source_files[1]), "--out", str(tmp_path / "o"),
                  "--frames", "100000000", "--no-progress"])
-    assert code == 2 and "1 <= frames <= 1000000" in capsys.readouterr().err
+    assert code == 2 and "error: --frames: expected 1 <= frames <= 1000000" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
     code = main(["warp", str(source_files[0]), "--calib", str(tmp_path / "missing.txt"),
                  "--out", str(tmp_path / "o"), "--frames", "2", "--no-progress"])
@@ -302,8 +302,8 @@ def test_rolling_shutter_out_of_range_is_a_one_line_error(tmp_path, source_files
                  "--frames", "2", "--rolling-shutter", value, "--no-progress"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
-    assert err.endswith(f"expected 0 <= rolling_shutter <= 1 (a fraction of the frame interval), got "
-                        f"{float(value)}")
+    assert err == (f"omnisim warp: error: --rolling-shutter: expected 0 <= rolling_shutter <= 1 (a fraction "
+                   f"of the frame interval), got {float(value)}")
 
 
 def test_image_too_small_for_a_round_trip_is_a_one_line_error(tmp_path, capsys):
@@ -323,3 +323,18 @@ def test_image_too_small_for_a_round_trip_is_a_one_line_error(tmp_path, capsys):
                                  "warp: no pixel of its valid band lies 6 px inside the band and the image "
                                  "edges (expected a larger image)"]
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("option, value, expected", [
+    ("--max-step-deg", "0", "expected 0 < max_step_deg <= 90, got 0.0"),
+    ("--max-tilt-deg", "100", "expected 0 <= max_tilt_deg <= 45, got 100.0"),
+    ("--seed", "-1", "expected seed >= 0, got -1"),
+])
+def test_warp_option_out_of_range_is_named_by_its_option(tmp_path, source_files, capsys, option, value, expected):
+    """The message named the image, and both motion bounds at once, whichever was wrong."""
+    from omnisim.cli import main
+
+    code = main(["warp", str(source_files[0]), "--calib", str(source_files[1]), "--out", str(tmp_path / "w"),
+                 "--frames", "2", option, value, "--no-progress"])
+    assert code == 2 and capsys.readouterr().err.strip() == f"omnisim warp: error: {option}: {expected}"
+    assert not (tmp_path / "w").exists()
