@@ -224,6 +224,41 @@ def _check_ply_rows(path: Path, mesh) -> None:
         declared = " and ".join(f"{expected} {name}" for name, expected, _ in rows)
         found = " and ".join(f"{got} {name}" for name, _, got in rows)
         raise InputError(path, f"expected {declared} rows (as its header says), the file ends after {found} rows")
+    last = [(name, e["properties"]) for name, e in elements.items() if e.get("length") and "properties" in e]
+    if last and _is_ascii_ply(path):
+        _check_ply_last_row(path, *last[-1])
+
+
+# Bytes at the end of an ASCII PLY file read to find its last row.
+_PLY_TAIL_BYTES = 1 << 16
+
+
+def _is_ascii_ply(path: Path) -> bool:
+    with open(path, "rb") as f:
+        return b"format ascii" in f.read(256)
+
+
+def _check_ply_last_row(path: Path, element: str, properties) -> None:
+    """Refuse an ASCII PLY file whose last row has fewer values than its element's properties take:
+    the reader drops a face cut inside its row (``3 1 3`` of ``3 1 3 2``) and renders the rest."""
+    with open(path, "rb") as f:
+        f.seek(max(0, f.seek(0, 2) - _PLY_TAIL_BYTES))
+        lines = [line for line in f.read().split(b"\n") if line.strip()]
+    tokens = lines[-1].split() if lines else []
+    needed = 0
+    for dtype in properties.values():
+        if "$LIST" not in str(dtype):
+            needed += 1
+        elif needed < len(tokens):  # a count, then that many values
+            try:
+                needed += 1 + int(float(tokens[needed]))
+            except (ValueError, OverflowError):  # not a count: the reader refuses or reads the row itself
+                return
+        else:
+            needed += 1
+    if len(tokens) < needed:
+        raise InputError(path, f"its last {element} row holds {len(tokens)} of the {needed} values its "
+                               "properties take: the file ends inside that row")
 
 
 def _rows_read(data) -> int:

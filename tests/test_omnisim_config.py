@@ -550,6 +550,23 @@ def test_ascii_ply_that_ends_early_is_refused(tmp_path, lines, partial, rows):
         mesh_parts_from_file(tmp_path / "cut.ply")
 
 
+def test_ascii_ply_cut_inside_its_last_row_is_refused(tmp_path):
+    """The reader dropped a face whose row the file ended inside (its last index gone), and the row
+    counts matched the header: the mesh rendered with a face missing and exit 0."""
+    trimesh = pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    box = trimesh.creation.box()
+    text = _ascii_ply(box.vertices.tolist(), box.faces.tolist())
+    last = text.rstrip("\n").rsplit("\n", 1)[1]
+    (tmp_path / "cut.ply").write_text(text.rstrip("\n")[:-len(last)] + last.rsplit(" ", 1)[0] + "\n")
+    with pytest.raises(InputError, match=r"cut.ply: its last face row holds 3 of the 4 values its properties "
+                                         r"take: the file ends inside that row"):
+        mesh_parts_from_file(tmp_path / "cut.ply")
+    (tmp_path / "whole.ply").write_text(text)
+    assert len(mesh_parts_from_file(tmp_path / "whole.ply")) == 1
+
+
 def test_binary_ply_that_ends_early_is_refused(tmp_path):
     """The binary reader finds the file too short itself."""
     trimesh = pytest.importorskip("trimesh")
