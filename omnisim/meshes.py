@@ -435,8 +435,9 @@ def _gltf_uri_bytes(path: Path, uri: str) -> bytes | None:
 
 
 # Leading bytes of the image files a texture may be: PNG, JPEG, TIFF (both byte orders), BMP, GIF, TGA
-# has none (so any non-empty .tga passes).
+# has none (so any non-empty .tga passes). WebP: a RIFF file (bytes 0-3) of form WEBP (bytes 8-11).
 _IMAGE_SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"\xff\xd8", b"II*\x00", b"MM\x00*", b"BM", b"GIF8")
+_WEBP_RIFF, _WEBP_FORM = b"RIFF", b"WEBP"
 
 
 def _image_file_kind_problem(path: Path) -> str:
@@ -453,7 +454,8 @@ def _image_bytes_problem(data: bytes, *, tga: bool) -> str:
     (``tga``) has no leading signature."""
     if not data:
         return "is empty"
-    if not tga and not data.startswith(_IMAGE_SIGNATURES):
+    webp = data.startswith(_WEBP_RIFF) and data[8:12] == _WEBP_FORM
+    if not tga and not webp and not data.startswith(_IMAGE_SIGNATURES):
         return "is no image file"
     return _image_open_problem(data)
 

@@ -577,6 +577,37 @@ def test_binary_ply_that_ends_early_is_refused(tmp_path):
         mesh_parts_from_file(tmp_path / "cut.ply")
 
 
+def test_gltf_webp_texture_is_read_without_a_warning(tmp_path):
+    """Pillow reads WebP, and so the mesh reader took the texture, but it was warned about as no image file."""
+    import json
+    import warnings
+
+    import numpy as np
+
+    trimesh = pytest.importorskip("trimesh")
+    from PIL import Image, features
+
+    from ifmi.errors import InputWarning
+    from omnisim.meshes import mesh_parts_from_file
+
+    if not features.check("webp"):
+        pytest.skip("this Pillow reads no WebP")
+    image = Image.fromarray(np.full((4, 4, 3), 200, np.uint8))
+    image.save(tmp_path / "wood.webp")
+    quad = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 1, 2]], process=False,
+                           visual=trimesh.visual.TextureVisuals(uv=[[0, 0], [1, 0], [1, 1]], image=image))
+    files = quad.export(file_type="gltf")
+    for file, data in files.items():
+        (tmp_path / file).write_bytes(data)
+    tree = json.loads(files["model.gltf"])
+    tree["images"] = [{"uri": "wood.webp"}]
+    (tmp_path / "quad.gltf").write_text(json.dumps(tree))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", InputWarning)
+        (part,) = mesh_parts_from_file(tmp_path / "quad.gltf")
+    assert part.image is not None
+
+
 @pytest.mark.parametrize("name, uri, content, problem", [
     ("quad.gltf", "gone.png", None, "texture gone.png not found"),
     ("quad.gltf", "wood grain.png", b"not a picture", "texture wood grain.png is no image file"),
