@@ -216,7 +216,8 @@ def _check_obj_face_indices(path: Path) -> None:
 
 def _check_ply_rows(path: Path, mesh) -> None:
     """Refuse a PLY file that ends before the rows its header declares: the ASCII reader keeps the rows
-    that are there (a box cut after 5 of its 12 faces rendered with exit 0). Other files pass."""
+    that are there (a box cut after 5 of its 12 faces rendered with exit 0), or inside its last row
+    (:func:`_check_ply_last_row`). Other files pass."""
     elements = mesh.metadata.get("_ply_raw") or {}  # the PLY reader's header counts and the rows it read
     rows = [(name, e["length"], _rows_read(e["data"])) for name, e in elements.items()
             if e.get("length") and "data" in e]
@@ -234,6 +235,7 @@ _PLY_TAIL_BYTES = 1 << 16
 
 
 def _is_ascii_ply(path: Path) -> bool:
+    """Whether the PLY file's header (in its first bytes) declares the ASCII format."""
     with open(path, "rb") as f:
         return b"format ascii" in f.read(256)
 
