@@ -315,6 +315,16 @@ def test_cli_bogus_variant_is_one_line_exit_2(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_cli_more_workers_than_cpus_is_refused(tmp_path, capsys):
+    """``--workers 1000000`` started that many local Dask processes, each loading Mitsuba."""
+    from omnisim.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["render", str(write_scene(tmp_path, BASE)), "--out", str(tmp_path / "out"), "--workers", "1000000"])
+    assert exc.value.code == 2
+    assert "--workers: expected at most" in capsys.readouterr().err and not (tmp_path / "out").exists()
+
+
 def test_mesh_parts_keep_each_file_appearance(tmp_path):
     """STL: mid grey; PLY face colours: each face its own vertices and colour; vertex colours / 255."""
     import numpy as np

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
@@ -11,6 +10,7 @@ from ..errors import InputError
 from ..sweep import SweepOptions, run_sweep, sweep_cells
 from ..tiling import TilingConfig
 from .estimate import chosen_method
+from .worker_count import DEFAULT_LOCAL_WORKERS, local_worker_count
 
 __all__ = ["add_parser", "run"]
 
@@ -28,38 +28,6 @@ def _overlap(text: str) -> float:
     value = float(text)
     if not 0 <= value < 1:
         raise argparse.ArgumentTypeError(f"overlap must be in [0, 1), got {text}")
-    return value
-
-
-# The default number of local workers, allowed on any machine.
-_DEFAULT_WORKERS = 2
-
-
-def _usable_cpus() -> int:
-    """CPUs this process may run on (its affinity where the system tells it), at least 1."""
-    try:
-        return len(os.sched_getaffinity(0)) or 1
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
-
-
-def _workers(text: str) -> int:
-    """A local cluster's worker count: from 1 to the usable CPUs (at least the default).
-
-    Each worker runs one single-threaded estimate, so more workers than
-    CPUs only compete for them, and a count such as 100000 would start that
-    many processes.
-    """
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
-    limit = max(_DEFAULT_WORKERS, _usable_cpus())
-    if value > limit:
-        raise argparse.ArgumentTypeError(f"expected at most {limit} workers (the CPUs this process may "
-                                         f"use), got {value}")
     return value
 
 
@@ -91,7 +59,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="address of a running Dask scheduler, or 'synchronous' to run in this "
                         "process (default: a local cluster)")
-    p.add_argument("--workers", type=_workers, default=_DEFAULT_WORKERS,
+    p.add_argument("--workers", type=local_worker_count, default=DEFAULT_LOCAL_WORKERS,
                    help="worker processes of the local cluster (default 2, 1 thread each; at most "
                         "the CPUs this process may use)")
     p.add_argument("--out", required=True, metavar="DIR",
