@@ -7,7 +7,6 @@ import re
 import sys
 
 from ifmi.cli.warning_lines import input_warnings_as_lines
-from ifmi.cli.worker_count import local_worker_count
 from ifmi.errors import InputError, OutputError
 from ifmi.interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
 
@@ -51,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--aov", default="", metavar="NAMES",
                         help="per-pixel ground truth to write, comma-separated: depth, normal")
     parallel = render.add_mutually_exclusive_group()
-    parallel.add_argument("--workers", type=local_worker_count,
+    parallel.add_argument("--workers", type=int,
                           help="render on a local Dask cluster of N processes (at most the CPUs this "
                                "process may use)")
     parallel.add_argument("--scheduler", metavar="ADDRESS", help="render on the Dask cluster at ADDRESS")

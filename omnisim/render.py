@@ -33,6 +33,7 @@ from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_t
 from ifmi.io.camera_file import write_camera
 from ifmi.io.provenance import package_versions
 from ifmi.io.tum import format_tum, write_tum
+from ifmi.local_workers import max_local_workers
 
 from .aov import AOV_NAMES, aov_integrator_dict, aov_names_from_text, aov_sensor_dict, depth_normal_from_aov, npy_bytes
 from .capture import ground_truth_time, row_mid_times, sensor_timing_props, vignetting_from_pixels
@@ -635,7 +636,8 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     aovs : str or sequence of str, keyword-only
         Per-pixel ground truth to write beside the images: "depth", "normal" (:mod:`omnisim.aov`).
     workers : int, optional, keyword-only
-        Render on a local Dask cluster of this many worker processes.
+        Render on a local Dask cluster of this many worker processes, 1 to
+        :func:`ifmi.local_workers.max_local_workers`.
     scheduler : str, optional, keyword-only
         Render on the Dask cluster at this scheduler address (workers must see the scene's files).
 
@@ -651,8 +653,9 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     OutputError
         A file cannot be written (the message names it and the OS reason).
     """
-    if workers is not None and workers < 1:
-        raise InputError(scene_path, f"--workers: expected >= 1, got {workers}")
+    if workers is not None and not 1 <= workers <= max_local_workers():
+        raise InputError(scene_path, f"--workers: expected >= 1 and at most {max_local_workers()} (the CPUs this "
+                                     f"process may use), got {workers}")
     plan = frame_plan(scene_path, frames=frames, seed=seed, spp=spp, resolution=resolution,
                       variant=variant, aovs=aovs)
     config, seed, aovs, n = plan.config, plan.seed, plan.aovs, plan.config.trajectory.frames

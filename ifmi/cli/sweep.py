@@ -7,10 +7,10 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ..local_workers import DEFAULT_LOCAL_WORKERS, max_local_workers
 from ..sweep import SweepOptions, run_sweep, sweep_cells
 from ..tiling import TilingConfig
 from .estimate import chosen_method
-from .worker_count import DEFAULT_LOCAL_WORKERS, local_worker_count
 
 __all__ = ["add_parser", "run"]
 
@@ -30,6 +30,21 @@ def _overlap(text: str) -> float:
         raise argparse.ArgumentTypeError(f"overlap must be in [0, 1), got {text}")
     return value
 
+
+
+def _workers(text: str) -> int:
+    """A local cluster's worker count: from 1 to :func:`ifmi.local_workers.max_local_workers`."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    limit = max_local_workers()
+    if value > limit:
+        raise argparse.ArgumentTypeError(f"expected at most {limit} workers (the CPUs this process may "
+                                         f"use), got {value}")
+    return value
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
@@ -59,7 +74,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="address of a running Dask scheduler, or 'synchronous' to run in this "
                         "process (default: a local cluster)")
-    p.add_argument("--workers", type=local_worker_count, default=DEFAULT_LOCAL_WORKERS,
+    p.add_argument("--workers", type=_workers, default=DEFAULT_LOCAL_WORKERS,
                    help="worker processes of the local cluster (default 2, 1 thread each; at most "
                         "the CPUs this process may use)")
     p.add_argument("--out", required=True, metavar="DIR",
