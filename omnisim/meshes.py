@@ -307,15 +307,36 @@ def _warn_missing_obj_files(path: Path) -> None:
     """One warning naming the material libraries and diffuse textures an OBJ needs that are not there,
     or that are there but hold no image (the reader then drops them without a word)."""
     missing = []
-    for library, found in _named_files(path, "mtllib"):
+    for library, found, textures in _obj_material_files(path):
         if found is None:
             missing.append(f"material library {library} not found")
             continue
-        for texture, there in _named_files(found, "map_Kd"):
+        for texture, there in textures:
             problem = "not found" if there is None else _image_file_kind_problem(there)
             if problem:
                 missing.append(f"texture {texture} (named by {library}) {problem}")
     _warn_left_out(path, missing)
+
+
+def _obj_material_files(path: Path) -> list[tuple[str, Path | None, list[tuple[str, Path | None]]]]:
+    """``(name, file or None, textures)`` of each material library (``mtllib``) an OBJ names; the
+    textures are the ``(name, file or None)`` of the diffuse maps (``map_Kd``) a found library names."""
+    return [(library, found, _named_files(found, "map_Kd") if found is not None else [])
+            for library, found in _named_files(path, "mtllib")]
+
+
+def _gltf_file_uris(path: Path, header) -> list[str]:
+    """URIs of the buffers and images a glTF/GLB header names as files beside ``path`` (not ``data:``),
+    each checked to be no FIFO or device (:func:`_check_not_special`, whose InputError passes through);
+    none from a header too broken to list them (the reader refuses it)."""
+    try:
+        uris = [item.get("uri", "") for item in header.get("buffers", []) + header.get("images", [])]
+    except _GLTF_UNREADABLE:
+        return []
+    uris = [uri for uri in uris if isinstance(uri, str) and uri and not uri.startswith("data:")]
+    for uri in uris:
+        _check_not_special(path, path.parent / uri)
+    return uris
 
 
 def mesh_side_files(path) -> list[str]:
@@ -345,19 +366,16 @@ def mesh_side_files(path) -> list[str]:
     suffix = path.suffix.lower()
     found = []
     if suffix == ".obj":
-        for _, library in _named_files(path, "mtllib"):
+        for _, library, textures in _obj_material_files(path):
             if library is not None:
-                found += [library] + [texture for _, texture in _named_files(library, "map_Kd") if texture]
+                found += [library] + [texture for _, texture in textures if texture]
     elif suffix in (".gltf", ".glb"):
         try:
             header, _ = _gltf_parts(path)
-            uris = [item.get("uri", "") for item in header.get("buffers", []) + header.get("images", [])]
         except _GLTF_UNREADABLE:
             return []  # the reader refuses the file
-        for uri in uris:
-            if isinstance(uri, str) and uri and not uri.startswith("data:"):
-                _check_not_special(path, path.parent / uri)
-                found += [f for f in (path.parent / uri, path.parent / Path(uri).name) if f.is_file()][:1]
+        for uri in _gltf_file_uris(path, header):
+            found += [f for f in (path.parent / uri, path.parent / Path(uri).name) if f.is_file()][:1]
     return list(dict.fromkeys(str(f.absolute()) for f in found))
 
 
@@ -370,12 +388,9 @@ def _warn_unreadable_gltf_textures(path: Path) -> None:
     image (the reader drops them without a word). A file too broken to list them is the reader's to refuse."""
     try:
         header, binary = _gltf_parts(path)
-        side_files = [item.get("uri", "") for item in header.get("buffers", []) + header.get("images", [])]
     except _GLTF_UNREADABLE:
         return
-    for uri in side_files:
-        if isinstance(uri, str) and uri and not uri.startswith("data:"):
-            _check_not_special(path, path.parent / uri)
+    _gltf_file_uris(path, header)
     try:
         textures = header.get("textures", [])
         used = {m["pbrMetallicRoughness"]["baseColorTexture"]["index"] for m in header.get("materials", [])
