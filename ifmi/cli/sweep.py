@@ -31,7 +31,6 @@ def _overlap(text: str) -> float:
     return value
 
 
-
 def _workers(text: str) -> int:
     """A local cluster's worker count: from 1 to :func:`ifmi.local_workers.max_local_workers`."""
     try:
@@ -45,6 +44,7 @@ def _workers(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected at most {limit} workers (the CPUs this process may "
                                          f"use), got {value}")
     return value
+
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
