@@ -454,3 +454,36 @@ def test_perturbed_copy_moves_each_sample_by_at_most_one_level_and_repeats_with_
     capsys.readouterr()
     assert perturb.main([str(source), str(tmp_path / "a"), "--seed", "1"]) == 2
     assert capsys.readouterr().err == f"error: {tmp_path / 'a'}: output folder exists; choose a new one\n"
+
+
+def test_grey_zone_benchmark_solves_both_ray_sets_and_leaves_the_track_alone(tmp_path, monkeypatch, capsys):
+    from ifmi.pipeline import EstimateConfig, estimate_dataset
+
+    grey = _benchmark_module("dense_retry_grey_zone", monkeypatch)
+    data = _write_dataset(tmp_path / "office", seed=5, max_step_rad=0.03)
+    # A grey zone up to every tile: each pair the default does not retry is recorded.
+    rows, estimate = grey.grey_zone_rows(str(data), mode="frame", seed=0, upper=1.0)
+    default = estimate_dataset(data, method="ifmi", config=EstimateConfig(), prefetch=False)
+    np.testing.assert_array_equal(estimate.trajectory.rotations, default.trajectory.rotations)
+    assert [(r["a"], r["b"]) for r in rows] == [(0, 1), (1, 2), (2, 3)]
+    # Noise-free pure rotation: both ray sets give it back within a quarter pixel of the 256 px
+    # panorama (0.025 rad per pixel), as in the retry stability test above.
+    for r in rows:
+        assert r["regular"]["model"] and r["dense"]["model"]
+        assert r["regular"]["error"] < 6e-3 and r["dense"]["error"] < 6e-3
+    grey.print_summary(rows)
+    assert "office" in capsys.readouterr().out
+
+
+def test_parallax_benchmark_records_both_fits_of_each_pair(tmp_path, monkeypatch, capsys):
+    parallax = _benchmark_module("rotation_model_parallax", monkeypatch)
+    data = _write_dataset(tmp_path / "office", seed=5, max_step_rad=0.03)
+    rows = parallax.model_fits(str(data))
+    assert [(r["a"], r["b"]) for r in rows] == [(0, 1), (1, 2), (2, 3)]
+    # Noise-free pure rotation: the rotation model is chosen and both fits' rotations are within a
+    # quarter pixel of the truth (0.025 rad per panorama pixel, as in the tests above).
+    for r in rows:
+        assert r["chosen"] == "rotation"
+        assert r["error_rotation"] < 6e-3 and r["error_5pt"] < 6e-3 and np.isfinite(r["disagreement"])
+    parallax.print_summary(rows)
+    assert "3 / 3" in capsys.readouterr().out
