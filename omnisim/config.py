@@ -56,6 +56,15 @@ MAX_FRAMES = 1_000_000
 # samples per signal (roll and pitch use 4x the length, 4 sigma each side); beyond a thousand
 # frames the motion is a constant rate over any sequence rendered.
 MAX_SMOOTHNESS_FRAMES = 1000.0
+# Largest noise standard deviation, 8-bit grey levels: the whole 8-bit range; a wider Gaussian only
+# saturates the frame to black and white.
+MAX_NOISE_SIGMA = 255.0
+# Largest exposure drift, stops: 8-bit sRGB spans log2(255 * 12.92) = 11.7 stops from its darkest
+# non-zero level to white, so a gain of 2**12 turns every lit pixel white and 2**-12 every pixel black.
+MAX_EXPOSURE_STOPS = 12.0
+# Largest vignetting strength v: the fall-off (1 + v**2)**-2 at the band's outer edge is then
+# 2**-MAX_EXPOSURE_STOPS, the darkest level 8 bits hold; a stronger one blackens the outer band.
+MAX_VIGNETTING = (2.0 ** (MAX_EXPOSURE_STOPS / 2) - 1.0) ** 0.5
 
 
 @dataclass(frozen=True)
@@ -128,15 +137,20 @@ class TrajectorySettings:
 class EffectsSettings:
     """``[effects]`` (and ``omnisim degrade``): sensor effects on the 8-bit image; all off by default.
 
-    noise_sigma : Gaussian noise standard deviation in 8-bit grey levels;
-    exposure_stops : largest exposure change from frame 0, in stops (f-stops);
-    exposure_step_stops : largest change between consecutive frames, in stops;
+    noise_sigma : Gaussian noise standard deviation in 8-bit grey levels, at most 255 (the whole range);
+    exposure_stops : largest exposure change from frame 0, in stops (f-stops), at most 12 (beyond the
+    11.7 stops 8-bit sRGB spans, every frame is black or white);
+    exposure_step_stops : largest change between consecutive frames, in stops, at most 24 (the walk's span);
     jpeg_quality : 1..100 to pass frames through JPEG compression, 0 for off.
     """
 
-    noise_sigma: float = setting(0.0, "Gaussian noise, standard deviation in 8-bit grey levels", minimum=0.0)
-    exposure_stops: float = setting(0.0, "bound of the exposure random walk, stops (0 = off)", minimum=0.0)
-    exposure_step_stops: float = setting(0.1, "largest exposure change between frames, stops", minimum=0.0)
+    noise_sigma: float = setting(0.0, "Gaussian noise, standard deviation in 8-bit grey levels (0..255)",
+                                 minimum=0.0, maximum=MAX_NOISE_SIGMA)
+    exposure_stops: float = setting(0.0, "bound of the exposure random walk, stops (0 = off; at most 12)",
+                                    minimum=0.0, maximum=MAX_EXPOSURE_STOPS)
+    # A step may cross the walk's whole span, from -exposure_stops to +exposure_stops.
+    exposure_step_stops: float = setting(0.1, "largest exposure change between frames, stops (at most 24)",
+                                         minimum=0.0, maximum=2 * MAX_EXPOSURE_STOPS)
     jpeg_quality: int = setting(0, "JPEG quality 1..100 the frames pass through; 0 = off", minimum=0,
                                 maximum=100)
 
@@ -150,14 +164,16 @@ class CaptureSettings:
 
     exposure : open-shutter time as a fraction of the frame interval, 0..1 (motion blur);
     rolling_shutter : readout time of the rows (top to bottom) as a fraction of the frame interval, 0..1;
-    vignetting : strength ``v >= 0`` of the radial fall-off ``(1 + (v * rho / rho_max)**2)**-2``.
+    vignetting : strength ``v >= 0`` of the radial fall-off ``(1 + (v * rho / rho_max)**2)**-2``, at most
+    ``sqrt(2**6 - 1)`` = 7.9, where the band's outer edge falls 12 stops (below the darkest 8-bit level).
     A frame's capture must end by the next frame: ``exposure + rolling_shutter <= 1``.
     """
 
     exposure: float = setting(0.0, "open-shutter time, fraction of the frame interval", minimum=0.0, maximum=1.0)
     rolling_shutter: float = setting(0.0, "row readout time, fraction of the frame interval",
                                      minimum=0.0, maximum=1.0)
-    vignetting: float = setting(0.0, "radial fall-off strength (0 = none)", minimum=0.0)
+    vignetting: float = setting(0.0, "radial fall-off strength (0 = none; at most 7.9, where the band's "
+                                     "outer edge falls 12 stops)", minimum=0.0, maximum=MAX_VIGNETTING)
 
     def __post_init__(self):
         check_fields(self)

@@ -34,14 +34,9 @@ import numpy as np
 
 from ifmi.errors import InputError, InputWarning, first_line
 
-from .generators import GeneratorContext, Param, register_generator
+from .generators import MAX_PLACED_REACH_M, GeneratorContext, Param, register_generator
 from .materials import Appearance, MaterialSettings
 from .settings import FLOAT32_MAX  # largest coordinate a mesh file may scale to: Mitsuba stores float32
-
-# Largest coordinate of a placed mesh, metres. Measured: a floor 2 m under the camera renders
-# right up to a half-width of 2e9 m, black from 4e9 m and not at all from 4e18 m, with no error
-# from Mitsuba; half the largest good size is allowed.
-MAX_PLACED_REACH_M = 1e9
 from .textures import linear_texture_from_image
 
 __all__ = ["MeshPart", "mesh_parts_from_file", "mesh_side_files"]

@@ -21,8 +21,9 @@ from ifmi.errors import InputError
 from .config import SceneConfig
 from .generators import GeneratorContext, registered_generators
 from .geometry import MeshGroup
-from .lights import emitter_dict
+from .lights import EnvmapLight, emitter_dict
 from .materials import Appearance, bsdf_dict
+from .settings import MAX_RADIANCE
 from .textures import texture_image
 
 __all__ = ["scene_meshes", "mitsuba_file_entries", "build_scene_dict", "RADIANCE_INTEGRATORS", "mitsuba_reason"]
@@ -182,4 +183,24 @@ def build_scene_dict(config: SceneConfig, mi, *, sensor: dict) -> dict:
         except RuntimeError as exc:
             source = getattr(light, "file", path)
             raise InputError(source, f"[[lights]] #{index + 1}: {mitsuba_reason(exc)}") from None
+        if isinstance(light, EnvmapLight):
+            _check_envmap_pixels(mi, scene[f"light_{index}"], light, index=index)
     return scene
+
+
+def _check_envmap_pixels(mi, emitter, light: EnvmapLight, *, index: int) -> None:
+    """Refuse an environment image whose radiance the renderer cannot sum: a pixel that is NaN,
+    infinite or negative, or brighter than :data:`~omnisim.settings.MAX_RADIANCE` times its scale.
+
+    Checked on the image Mitsuba loaded, so the file is read once: its ``data`` holds the file's
+    rows, each padded with the opposite edge's pixel on either side (wrapping around the azimuth).
+    Raises InputError naming the file and the first bad pixel (row, column of the file).
+    """
+    data = np.asarray(mi.traverse(emitter)["data"], dtype=np.float64)[:, 1:-1]
+    bad = ~(np.isfinite(data) & (data >= 0.0) & (data * light.scale <= MAX_RADIANCE))
+    if bad.any():
+        row, col, _ = np.unravel_index(int(np.argmax(bad)), bad.shape)
+        value = [float(f"{v:.6g}") for v in data[row, col]]
+        raise InputError(light.file, f"[[lights]] #{index + 1} (envmap): expected finite pixel values >= 0 "
+                                     f"(linear radiance; times scale {light.scale:g} at most {MAX_RADIANCE:g}), "
+                                     f"got {value} at row {row}, column {col}")

@@ -72,6 +72,7 @@ def test_base_scene_loads_with_declared_defaults(tmp_path):
     (('generator = "boxes"', 'generator = "spaceship"'), r"#1 generator: expected one of boxes, "),
     (("frames = 2", "frames = 2\n[capture]\nexposure = 1.5"), r"\[capture\] exposure: expected <= 1.0, got 1.5"),
     (("frames = 2", "frames = 2\n[effects]\njpeg = 50"), r"\[effects\] jpeg: unknown key; accepted keys: noise_sigma"),
+    (("frames = 2", "frames = 2\n[effects]\nnoise_sigma = 1e30"), r"\[effects\] noise_sigma: expected <= 255.0, got 1e\+30"),
     (("radius_max = 61.5", "radius_max = 5.0"), r"\[camera\] radius_max: expected > radius_min = 10.0, got 5.0"),
     (("center = [64.35, 63.3]\n", ""), r"\[camera\] center: missing \(give either 'calib' or 'pol'"),
     (("pol = [-20.0, 0.0, 1.28e-2, -1.76e-5, 2.56e-7]", "pol = []"),
@@ -125,6 +126,32 @@ def test_noise_texture_too_large_to_make_is_one_line(tmp_path, keys, message):
         load_scene_config(write_scene(tmp_path, BASE + f'[textures.t]\nsource = "noise"\n{keys}\n'))
     assert re.search(message, str(info.value)), str(info.value)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("table, message", [
+    # Radiance past MAX_RADIANCE overflowed the film's float32 sums to NaN: black sky, exit 0.
+    ('type = "constant"\nradiance = [3e38, 3e38, 3e38]',
+     r"\[\[lights\]\] #1 \(constant\) radiance: expected <= 1e\+27, got \[3e\+38, 3e\+38, 3e\+38\]"),
+    ('type = "sun"\nirradiance = [1e30, 1, 1]', r"\[\[lights\]\] #1 \(sun\) irradiance: expected <= 1e\+27"),
+    ('type = "sky"\nscale = 1e20\nzenith = [1e10, 1, 1]',
+     r"\[\[lights\]\] #1 \(sky\) scale: expected scale times the brightest radiance <= 1e\+27 \(the renderer "
+     r"sums samples in float32\), got 1e\+30"),
+    ('type = "envmap"\nfile = "scene.toml"\nscale = 3e38', r"\[\[lights\]\] #1 \(envmap\) scale: expected <= 1e\+27"),
+])
+def test_light_brighter_than_the_film_can_sum_is_one_line(tmp_path, table, message):
+    with pytest.raises(InputError) as info:
+        load_scene_config(write_scene(tmp_path, BASE + f"[[lights]]\n{table}\n"))
+    assert re.search(message, str(info.value)), str(info.value)
+    assert str(info.value).startswith(str(tmp_path / "scene.toml")) and "\n" not in str(info.value)
+
+
+def test_photo_gain_past_white_is_one_line(tmp_path):
+    """tint 3e38 and brightness 3e38 overflowed float32 to NaN texels (a numpy warning, exit 0)."""
+    table = '[textures.t]\nsource = "photo"\nname = "grass"\nbrightness = 3e38\ntint = [3e38, 1, 1]\n'
+    with pytest.raises(InputError) as info:
+        load_scene_config(write_scene(tmp_path, BASE + table))
+    assert str(info.value) == (f"{tmp_path / 'scene.toml'}: [textures.t] brightness: expected brightness times "
+                               "the largest tint <= 3294.6 (beyond it every non-black pixel is white), got 9e+76")
 
 
 def test_unknown_photo_and_missing_mesh_file_are_found_before_rendering(tmp_path):

@@ -298,6 +298,26 @@ def test_broken_envmap_file_fails_before_the_output_folder_exists(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_envmap_with_a_nan_pixel_is_one_line_before_the_output_folder_exists(tmp_path, capsys):
+    """An EXR whose top half is NaN rendered black frames with exit 0 (NaN spreads through the
+    light sampling); inf, negative and too bright pixels likewise made black or dark pixels."""
+    import numpy as np
+
+    from omnisim.llvm import import_mitsuba
+
+    image = np.full((8, 16, 3), 0.5, np.float32)
+    image[2, 5] = np.nan
+    import_mitsuba().Bitmap(image).write(str(tmp_path / "sky.exr"))
+    scene = _scene(tmp_path)
+    scene.write_text(scene.read_text().replace('type = "constant"', 'type = "envmap"\nfile = "sky.exr"'))
+    code, err = _run_cli(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"], capsys)
+    assert code == 2
+    assert err == (f"omnisim render: error: {tmp_path / 'sky.exr'}: [[lights]] #1 (envmap): expected finite pixel "
+                   "values >= 0 (linear radiance; times scale 1 at most 1e+27), got [nan, nan, nan] at row 2, "
+                   "column 5")
+    assert not (tmp_path / "out").exists()
+
+
 def test_spp_the_sampler_rounds_up_is_rendered_as_the_rounded_count_and_recorded(tmp_path):
     """multijitter renders 6 samples when asked for 5: said once, recorded, and the images are those
     of spp 6 (Mitsuba is asked for the rounded count, so it does not log the rounding per frame)."""
