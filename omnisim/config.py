@@ -23,6 +23,7 @@ from pathlib import Path
 from ifmi.camera import (OcamModel, check_affine, check_center_inside, check_image_size, max_image_radius,
                          model_from_direct_polynomial)
 from ifmi.errors import InputError, first_line
+from ifmi.io.text_file import refuse_special_file
 
 from . import meshes, procedural  # noqa: F401  (register the built-in generators)
 from .generators import object_from_table, registered_generators
@@ -307,6 +308,7 @@ SECTIONS = {
 
 
 def _read_toml(path: Path) -> tuple[bytes, dict]:
+    refuse_special_file(path, what="scene file")
     try:
         raw = path.read_bytes()
     except FileNotFoundError:

@@ -183,6 +183,22 @@ def _check_geometry(path: Path, number: int, mesh) -> None:
         face = int(np.argmax(outside.any(axis=1)))
         raise InputError(path, f"geometry {number} face {face}: vertex indices {faces[face].tolist()}, "
                                f"expected 0 to {len(vertices) - 1} (the mesh has {len(vertices)} vertices)")
+    _check_uvs(path, number, mesh)
+
+
+def _check_uvs(path: Path, number: int, mesh) -> None:
+    """Refuse texture coordinates that are not finite, where a geometry's texture uses them (one per
+    vertex, as :func:`_texture_part` takes them): an OBJ ``vt nan 0`` rendered black texels, exit 0."""
+    visual = mesh.visual
+    uvs = getattr(visual, "uv", None) if getattr(visual, "kind", None) == "texture" else None
+    if uvs is None or len(uvs) != len(mesh.vertices):
+        return
+    uvs = np.asarray(uvs, dtype=np.float64)
+    bad = ~np.isfinite(uvs).all(axis=1)
+    if bad.any():
+        index = int(np.argmax(bad))
+        raise InputError(path, f"geometry {number} vertex {index}: expected finite texture coordinates, "
+                               f"got {uvs[index].tolist()}")
 
 
 def _check_obj_face_indices(path: Path) -> None:

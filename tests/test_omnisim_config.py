@@ -446,6 +446,20 @@ def test_mesh_faces_naming_missing_vertices_are_refused(tmp_path, name, text, me
         mesh_parts_from_file(tmp_path / name)
 
 
+def test_cli_obj_with_a_nan_texture_coordinate_is_one_line_exit_2(tmp_path, capsys):
+    """``vt nan 0`` passed the reader; the NaN texture lookups rendered black pixels with exit 0."""
+    pytest.importorskip("trimesh")
+    from omnisim.cli import main
+
+    (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt nan 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n")
+    scene = write_scene(tmp_path, BASE + '[[objects]]\ngenerator = "mesh"\nfile = "tri.obj"\n')
+    code = main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"])
+    assert code == 2
+    assert capsys.readouterr().err.strip() == (f"omnisim render: error: {tmp_path / 'tri.obj'}: geometry 0 vertex 0: "
+                                               "expected finite texture coordinates, got [nan, 0.0]")
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("content", ["[]", "{\"images\": []}", "{broken"])
 def test_meta_json_that_is_not_a_dataset_record_is_refused_in_one_line(tmp_path, content):
     from omnisim.render import check_output_folder
