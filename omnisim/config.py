@@ -20,8 +20,8 @@ import sys
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
-from ifmi.camera import (OcamModel, check_affine, check_center_inside, check_image_size, max_image_radius,
-                         model_from_direct_polynomial)
+from ifmi.camera import (INVERSE_TOLERANCE_PX, OcamModel, check_affine, check_center_inside, check_image_size,
+                         max_image_radius, model_from_direct_polynomial)
 from ifmi.errors import InputError, first_line
 from ifmi.io.text_file import refuse_special_file
 
@@ -363,7 +363,25 @@ def _camera(path: Path, table, resolution, *, key: str = "[render] resolution") 
     if abs(factor_h - 1.0) > 1e-12:
         model = model.scaled(factor_h)
         radius_min, radius_max = radius_min * factor_h, radius_max * factor_h
+    _check_written_inverse(path, model, "[camera] calib" if spec.calib else "[camera] pol")
     return CameraSettings(model=model, radius_min=radius_min, radius_max=radius_max)
+
+
+def _check_written_inverse(path: Path, model: OcamModel, where: str) -> None:
+    """Refuse a calibration, at the size rendered, that the dataset's readers would refuse: its inverse
+    polynomial off its direct one by more than :data:`ifmi.camera.INVERSE_TOLERANCE_PX` (the check of
+    :func:`ifmi.io.calib.read_calib`). ``pol = [-1e-30, 0, 1e-30]`` rendered with exit 0 a dataset
+    whose calib_results.txt no reader took (its fitted inverse was 20 px off)."""
+    from ifmi.unwarp import inverse_polynomial_error
+
+    try:
+        error, radius = inverse_polynomial_error(model)
+    except ValueError as exc:
+        raise InputError(path, f"{where}: {exc}") from None
+    if not error <= INVERSE_TOLERANCE_PX:
+        raise InputError(path, f"{where}: expected an inverse polynomial within {INVERSE_TOLERANCE_PX} px of the "
+                               f"direct one at the {model.height}x{model.width} rendered (as readers of the "
+                               f"dataset check), got a round-trip error of {error:.3g} px at radius {radius:.1f} px")
 
 
 def _polynomial_camera(path: Path, spec: CameraTable) -> OcamModel:

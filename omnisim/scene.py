@@ -26,6 +26,9 @@ from .materials import Appearance, bsdf_dict
 from .settings import MAX_RADIANCE
 from .textures import texture_image
 
+# Parameters of a Mitsuba emitter that hold the light it gives (:func:`_check_file_values`).
+EMITTED_KEYS = ("radiance.value", "irradiance.value", "intensity.value", "data", "scale")
+
 __all__ = ["scene_meshes", "mitsuba_file_entries", "build_scene_dict", "RADIANCE_INTEGRATORS", "mitsuba_reason"]
 
 
@@ -132,11 +135,42 @@ def mitsuba_file_entries(mi, xml_path) -> tuple[dict, object | None]:
         resolver.clear()
         for folder in saved:
             resolver.append(folder)
+    _check_file_values(mi, loaded, xml_path)
     entries = {f"xml_shape_{k}": shape for k, shape in enumerate(loaded.shapes())}
     # Area lights come with their shapes; only the others are added on their own.
     emitters = [e for e in loaded.emitters() if not mi.has_flag(e.flags(), mi.EmitterFlags.Surface)]
     entries.update({f"xml_emitter_{k}": emitter for k, emitter in enumerate(emitters)})
     return entries, (loaded.integrator() if has_integrator else None)
+
+
+def _check_file_values(mi, loaded, xml_path: Path) -> None:
+    """Refuse the values of a Mitsuba file's emitters and materials that render as garbage.
+
+    Every number of an emitter's or a shape's BSDF parameters must be finite (a NaN radiance or
+    reflectance rendered black pixels with exit 0), and the light an emitter gives (its
+    ``EMITTED_KEYS``) at least 0 and at most :data:`~omnisim.settings.MAX_RADIANCE`, as the scene
+    file's lights. Transforms are left out (Mitsuba checks them).
+
+    Raises
+    ------
+    InputError
+        Naming the file, the element (with its id if it has one) and the parameter.
+    """
+    objects = [("emitter", e) for e in loaded.emitters()] + [("bsdf", shape.bsdf()) for shape in loaded.shapes()]
+    for kind, obj in objects:
+        params = mi.traverse(obj)
+        for key in params.keys():
+            try:
+                values = np.asarray(params[key], dtype=np.float64)
+            except (TypeError, ValueError):  # a transform
+                continue
+            emitted = kind == "emitter" and key.endswith(EMITTED_KEYS)
+            if np.isfinite(values).all() and not (emitted and not 0.0 <= values.min() <= values.max() <= MAX_RADIANCE):
+                continue
+            expected = f"values from 0 to {MAX_RADIANCE:g} (emitted light)" if emitted else "finite values"
+            shown = [float(f"{v:.6g}") for v in values.ravel()[:3]]
+            element = f"<{kind} id={obj.id()!r}>" if obj.id() else f"<{kind}>"
+            raise InputError(xml_path, f"{element} {key}: expected {expected}, got {shown}")
 
 
 def build_scene_dict(config: SceneConfig, mi, *, sensor: dict) -> dict:
