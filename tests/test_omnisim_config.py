@@ -149,6 +149,15 @@ def test_light_brighter_than_the_film_can_sum_is_one_line(tmp_path, table, messa
     assert str(info.value).startswith(str(tmp_path / "scene.toml")) and "\n" not in str(info.value)
 
 
+def test_material_tile_shorter_than_a_micrometre_is_one_line(tmp_path):
+    """tile = 1e-30 passed (> 0) and lost every texel: black pixels where the texture was, exit 0."""
+    table = '[textures.t]\nsource = "noise"\n[materials.wood]\ntexture = "t"\ntile = 1e-30\n'
+    with pytest.raises(InputError) as info:
+        load_scene_config(write_scene(tmp_path, BASE.replace("[materials.wood]\ncolor = [0.5, 0.35, 0.2]\n", "")
+                                      + table))
+    assert str(info.value) == f"{tmp_path / 'scene.toml'}: [materials.wood] tile: expected >= 1e-06, got 1e-30"
+
+
 def test_photo_gain_past_white_is_one_line(tmp_path):
     """tint 3e38 and brightness 3e38 overflowed float32 to NaN texels (a numpy warning, exit 0)."""
     table = '[textures.t]\nsource = "photo"\nname = "grass"\nbrightness = 3e38\ntint = [3e38, 1, 1]\n'
