@@ -34,7 +34,8 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 # larger one can overflow to inf, which comes out as NaN -- black pixels.
 MAX_RADIANCE = 1e27
 
-__all__ = ["FLOAT32_MAX", "MAX_RADIANCE", "SettingError", "setting", "check_fields", "check_value", "check_bounds", "settings_from_table",
+__all__ = ["FLOAT32_MAX", "MAX_RADIANCE", "SettingError", "setting", "check_fields", "check_value", "check_bounds",
+           "settings_from_table",
            "type_name", "field_docs"]
 
 
