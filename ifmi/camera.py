@@ -34,6 +34,7 @@ This module is pure math: reading and writing calibration files lives in
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Protocol, runtime_checkable
@@ -584,7 +585,10 @@ def fit_inverse_polynomial(pol, radius_max: float, *, tolerance_px: float = 1e-4
     r, theta = r[:stop], theta[:stop]
     best, best_err = None, np.inf
     for degree in range(2, max_degree + 1):
-        series = np.polynomial.Polynomial.fit(theta, r, degree)
+        with warnings.catch_warnings():
+            # numpy's RankWarning: the error measured below judges the fit (and the readers check it).
+            warnings.filterwarnings("ignore", message="The fit may be poorly conditioned")
+            series = np.polynomial.Polynomial.fit(theta, r, degree)
         err = np.abs(series(theta) - r).max()
         if err < best_err:
             best, best_err = series, err

@@ -64,6 +64,24 @@ def _run_on_worker(factory, run, plan, key: str, job):
     return run(plugin.state(key, factory, plan), job)
 
 
+def _connect(client_class, scheduler: str):
+    """A Dask client of the scheduler at ``scheduler``.
+
+    Raises
+    ------
+    InputError
+        Named ``--scheduler``: an address Dask cannot parse (``ValueError``, e.g. an unknown
+        scheme) or a scheduler it cannot reach in its connect timeout (``OSError``).
+    """
+    from ifmi.errors import InputError, first_line
+
+    try:
+        return client_class(scheduler)
+    except (ValueError, OSError) as exc:
+        raise InputError("--scheduler", f"cannot connect to a Dask scheduler at {scheduler!r}: "
+                                        f"{first_line(exc)}") from None
+
+
 def map_on_cluster(factory, run, plan, jobs: list, *, key: str, variant: str,
                    workers: int | None = None, scheduler: str | None = None):
     """Run ``run(factory(plan), job)`` for every job on Dask workers; yield results as they finish.
@@ -99,7 +117,7 @@ def map_on_cluster(factory, run, plan, jobs: list, *, key: str, variant: str,
 
     threads = None
     if scheduler:
-        cluster, client = None, Client(scheduler)
+        cluster, client = None, _connect(Client, scheduler)
     else:
         threads = max(1, (os.cpu_count() or 1) // int(workers))
         cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,

@@ -20,9 +20,10 @@ import sys
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
-from ifmi.camera import (OcamModel, check_affine, check_center_inside, check_image_size, max_image_radius,
-                         model_from_direct_polynomial)
+from ifmi.camera import (INVERSE_TOLERANCE_PX, OcamModel, check_affine, check_center_inside, check_image_size,
+                         max_image_radius, model_from_direct_polynomial)
 from ifmi.errors import InputError, first_line
+from ifmi.io.text_file import refuse_special_file
 
 from . import meshes, procedural  # noqa: F401  (register the built-in generators)
 from .generators import object_from_table, registered_generators
@@ -56,6 +57,15 @@ MAX_FRAMES = 1_000_000
 # samples per signal (roll and pitch use 4x the length, 4 sigma each side); beyond a thousand
 # frames the motion is a constant rate over any sequence rendered.
 MAX_SMOOTHNESS_FRAMES = 1000.0
+# Largest noise standard deviation, 8-bit grey levels: the whole 8-bit range; a wider Gaussian only
+# saturates the frame to black and white.
+MAX_NOISE_SIGMA = 255.0
+# Largest exposure drift, stops: 8-bit sRGB spans log2(255 * 12.92) = 11.7 stops from its darkest
+# non-zero level to white, so a gain of 2**12 turns every lit pixel white and 2**-12 every pixel black.
+MAX_EXPOSURE_STOPS = 12.0
+# Largest vignetting strength v: the fall-off (1 + v**2)**-2 at the band's outer edge is then
+# 2**-MAX_EXPOSURE_STOPS, the darkest level 8 bits hold; a stronger one blackens the outer band.
+MAX_VIGNETTING = (2.0 ** (MAX_EXPOSURE_STOPS / 2) - 1.0) ** 0.5
 
 
 @dataclass(frozen=True)
@@ -128,15 +138,20 @@ class TrajectorySettings:
 class EffectsSettings:
     """``[effects]`` (and ``omnisim degrade``): sensor effects on the 8-bit image; all off by default.
 
-    noise_sigma : Gaussian noise standard deviation in 8-bit grey levels;
-    exposure_stops : largest exposure change from frame 0, in stops (f-stops);
-    exposure_step_stops : largest change between consecutive frames, in stops;
+    noise_sigma : Gaussian noise standard deviation in 8-bit grey levels, at most 255 (the whole range);
+    exposure_stops : largest exposure change from frame 0, in stops (f-stops), at most 12 (beyond the
+    11.7 stops 8-bit sRGB spans, every frame is black or white);
+    exposure_step_stops : largest change between consecutive frames, in stops, at most 24 (the walk's span);
     jpeg_quality : 1..100 to pass frames through JPEG compression, 0 for off.
     """
 
-    noise_sigma: float = setting(0.0, "Gaussian noise, standard deviation in 8-bit grey levels", minimum=0.0)
-    exposure_stops: float = setting(0.0, "bound of the exposure random walk, stops (0 = off)", minimum=0.0)
-    exposure_step_stops: float = setting(0.1, "largest exposure change between frames, stops", minimum=0.0)
+    noise_sigma: float = setting(0.0, "Gaussian noise, standard deviation in 8-bit grey levels (0..255)",
+                                 minimum=0.0, maximum=MAX_NOISE_SIGMA)
+    exposure_stops: float = setting(0.0, "bound of the exposure random walk, stops (0 = off; at most 12)",
+                                    minimum=0.0, maximum=MAX_EXPOSURE_STOPS)
+    # A step may cross the walk's whole span, from -exposure_stops to +exposure_stops.
+    exposure_step_stops: float = setting(0.1, "largest exposure change between frames, stops (at most 24)",
+                                         minimum=0.0, maximum=2 * MAX_EXPOSURE_STOPS)
     jpeg_quality: int = setting(0, "JPEG quality 1..100 the frames pass through; 0 = off", minimum=0,
                                 maximum=100)
 
@@ -150,14 +165,16 @@ class CaptureSettings:
 
     exposure : open-shutter time as a fraction of the frame interval, 0..1 (motion blur);
     rolling_shutter : readout time of the rows (top to bottom) as a fraction of the frame interval, 0..1;
-    vignetting : strength ``v >= 0`` of the radial fall-off ``(1 + (v * rho / rho_max)**2)**-2``.
+    vignetting : strength ``v >= 0`` of the radial fall-off ``(1 + (v * rho / rho_max)**2)**-2``, at most
+    ``sqrt(2**6 - 1)`` = 7.9, where the band's outer edge falls 12 stops (below the darkest 8-bit level).
     A frame's capture must end by the next frame: ``exposure + rolling_shutter <= 1``.
     """
 
     exposure: float = setting(0.0, "open-shutter time, fraction of the frame interval", minimum=0.0, maximum=1.0)
     rolling_shutter: float = setting(0.0, "row readout time, fraction of the frame interval",
                                      minimum=0.0, maximum=1.0)
-    vignetting: float = setting(0.0, "radial fall-off strength (0 = none)", minimum=0.0)
+    vignetting: float = setting(0.0, "radial fall-off strength (0 = none; at most 7.9, where the band's "
+                                     "outer edge falls 12 stops)", minimum=0.0, maximum=MAX_VIGNETTING)
 
     def __post_init__(self):
         check_fields(self)
@@ -291,6 +308,7 @@ SECTIONS = {
 
 
 def _read_toml(path: Path) -> tuple[bytes, dict]:
+    refuse_special_file(path, what="scene file")
     try:
         raw = path.read_bytes()
     except FileNotFoundError:
@@ -345,7 +363,25 @@ def _camera(path: Path, table, resolution, *, key: str = "[render] resolution") 
     if abs(factor_h - 1.0) > 1e-12:
         model = model.scaled(factor_h)
         radius_min, radius_max = radius_min * factor_h, radius_max * factor_h
+    _check_written_inverse(path, model, "[camera] calib" if spec.calib else "[camera] pol")
     return CameraSettings(model=model, radius_min=radius_min, radius_max=radius_max)
+
+
+def _check_written_inverse(path: Path, model: OcamModel, where: str) -> None:
+    """Refuse a calibration, at the size rendered, that the dataset's readers would refuse: its inverse
+    polynomial off its direct one by more than :data:`ifmi.camera.INVERSE_TOLERANCE_PX` (the check of
+    :func:`ifmi.io.calib.read_calib`). ``pol = [-1e-30, 0, 1e-30]`` rendered with exit 0 a dataset
+    whose calib_results.txt no reader took (its fitted inverse was 20 px off)."""
+    from ifmi.unwarp import inverse_polynomial_error
+
+    try:
+        error, radius = inverse_polynomial_error(model)
+    except ValueError as exc:
+        raise InputError(path, f"{where}: {exc}") from None
+    if not error <= INVERSE_TOLERANCE_PX:
+        raise InputError(path, f"{where}: expected an inverse polynomial within {INVERSE_TOLERANCE_PX} px of the "
+                               f"direct one at the {model.height}x{model.width} rendered (as readers of the "
+                               f"dataset check), got a round-trip error of {error:.3g} px at radius {radius:.1f} px")
 
 
 def _polynomial_camera(path: Path, spec: CameraTable) -> OcamModel:

@@ -27,6 +27,7 @@ from ifmi.errors import InputError
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_json
 from ifmi.io.dataset import read_dataset, read_image
 from ifmi.io.provenance import package_versions
+from ifmi.io.text_file import read_failure
 
 from .config import EffectsSettings
 from .effects import apply_effects, exposure_gains, linear_from_srgb_uint8, srgb_uint8_from_linear
@@ -87,6 +88,24 @@ def _frame_sha256(path: Path) -> str:
         raise InputError(path, f"cannot read the frame ({exc.strerror or exc.__class__.__name__})") from None
 
 
+def _source_file_bytes(path: Path, what: str) -> bytes:
+    """The bytes of a source dataset's file that is copied as it is (calibration, ground truth, meta.json).
+
+    Raises
+    ------
+    InputError
+        Named ``path``: a folder, FIFO, device or dangling link stands there (a folder's read
+        was a traceback, a FIFO's blocked forever), or the file cannot be read.
+    """
+    if not path.is_file():
+        kind = "a folder" if path.is_dir() else "no regular file (a FIFO, device, socket or broken link)"
+        raise InputError(path, f"is {kind}; expected the source dataset's {what}")
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise read_failure(path, exc, what=what) from None
+
+
 def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int = 0,
                     progress: bool = True) -> DegradeResult:
     """Write a copy of a dataset folder with capture effects applied to every image.
@@ -144,12 +163,12 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
     meta.update({"source": str(dataset.root.resolve()), "effects": asdict(effects), "seed": int(seed),
                  "frames": len(names), "versions": package_versions(("numpy", "opencv-python-headless",
                                                                      "omnisim-ifmi"))})
-    atomic_write_bytes(out_dir / dataset.calib_path.name, dataset.calib_path.read_bytes())
+    atomic_write_bytes(out_dir / dataset.calib_path.name, _source_file_bytes(dataset.calib_path, "calibration file"))
     if dataset.groundtruth_path is not None:
-        atomic_write_bytes(out_dir / "groundtruth.txt", dataset.groundtruth_path.read_bytes())
+        atomic_write_bytes(out_dir / "groundtruth.txt", _source_file_bytes(dataset.groundtruth_path, "trajectory file"))
     source_meta = dataset.root / "meta.json"
     if source_meta.exists():
-        atomic_write_bytes(out_dir / "source_meta.json", source_meta.read_bytes())
+        atomic_write_bytes(out_dir / "source_meta.json", _source_file_bytes(source_meta, "meta.json file"))
     atomic_write_json(out_dir / "meta.json", meta)
 
     out_names = [Path(name).with_suffix(".png").name for name in names]

@@ -36,6 +36,7 @@ from .settings import SettingError, check_bounds, check_value
 from .textures import BUNDLED_PHOTOS
 
 __all__ = ["Param", "Relation", "Generator", "GeneratorContext", "ObjectSpec", "MAX_COUNT", "MAX_ENTRY_TRIANGLES",
+           "MAX_PLACED_REACH_M",
            "register_generator", "registered_generators", "object_from_table", "not_below",
            "describe_generators"]
 
@@ -50,6 +51,10 @@ MAX_COUNT = 10_000
 # x boards x books, a long street's poles, a mesh file): MAX_COUNT of the heaviest object, about
 # 13 million triangles and 7 GiB while built (see above), with room for a detailed mesh file.
 MAX_ENTRY_TRIANGLES = 20_000_000
+# Largest coordinate of any generated or placed geometry, metres. Measured: a floor 2 m under the
+# camera renders right up to a half-width of 2e9 m, black from 4e9 m and not at all from 4e18 m,
+# with no error from Mitsuba; half the largest good size is allowed.
+MAX_PLACED_REACH_M = 1e9
 
 _SCALAR_TYPES = {"int": int, "float": float, "bool": bool, "str": str, "material": str, "file": str}
 _LIST_TYPES = {"str[]": str, "material[]": str, "photo[]": str}
@@ -340,12 +345,18 @@ class GeneratorContext:
     def add(self, appearance: str, mesh, color=(1.0, 1.0, 1.0)) -> None:
         """Append ``mesh = (positions, faces, uvs)`` to the group of ``appearance`` with ``color``.
 
-        Raises InputError once the entry's meshes exceed :data:`MAX_ENTRY_TRIANGLES` triangles.
+        Raises InputError once the entry's meshes exceed :data:`MAX_ENTRY_TRIANGLES` triangles, or
+        when a vertex lies farther than :data:`MAX_PLACED_REACH_M` from the origin (or is not finite).
         """
         self.triangles += len(mesh[1])
         if self.triangles > MAX_ENTRY_TRIANGLES:
             raise InputError(self.path, f"{self.spec.where()}: makes more than {MAX_ENTRY_TRIANGLES} triangles; "
                                         "expected fewer (lower its counts or sizes, or split the mesh file)")
+        reach = float(np.abs(mesh[0]).max()) if len(mesh[0]) else 0.0
+        if not reach <= MAX_PLACED_REACH_M:
+            raise InputError(self.path, f"{self.spec.where()}: expected geometry within {MAX_PLACED_REACH_M:.3g} m "
+                                        f"of the origin (float32 ray tracing loses larger surfaces; lower its "
+                                        f"sizes or distances), got {reach:.3g} m")
         self.groups.setdefault(appearance, MeshGroup()).add(*mesh, color=color)
 
     def add_appearance(self, name: str, appearance: Appearance) -> None:

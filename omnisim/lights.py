@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 
-from .settings import check_fields, setting
+from .settings import MAX_RADIANCE, SettingError, check_fields, setting
 
 __all__ = ["SkyLight", "SunLight", "ConstantLight", "EnvmapLight", "LIGHT_TYPES", "ENVIRONMENT_LIGHT_TYPES", "sky_image",
            "emitter_dict"]
@@ -35,15 +35,19 @@ class SkyLight:
     """``type = "sky"``: a gradient from the horizon to the zenith colour, uniform ground below."""
 
     zenith: tuple[float, float, float] = setting((0.25, 0.45, 0.9), "linear RGB radiance straight up",
-                                                 minimum=0.0)
+                                                 minimum=0.0, maximum=MAX_RADIANCE)
     horizon: tuple[float, float, float] = setting((0.8, 0.85, 0.95), "linear RGB radiance at the horizon",
-                                                  minimum=0.0)
+                                                  minimum=0.0, maximum=MAX_RADIANCE)
     ground: tuple[float, float, float] = setting((0.3, 0.3, 0.3), "linear RGB radiance below the horizon",
-                                                 minimum=0.0)
-    scale: float = setting(1.0, "radiance multiplier", minimum=0.0)
+                                                 minimum=0.0, maximum=MAX_RADIANCE)
+    scale: float = setting(1.0, "radiance multiplier", minimum=0.0, maximum=MAX_RADIANCE)
 
     def __post_init__(self):
         check_fields(self)
+        brightest = self.scale * max(self.zenith + self.horizon + self.ground)
+        if brightest > MAX_RADIANCE:
+            raise SettingError("scale", f"expected scale times the brightest radiance <= {MAX_RADIANCE:g} "
+                                        f"(the renderer sums samples in float32), got {brightest:.4g}")
 
 
 @dataclass(frozen=True)
@@ -52,7 +56,8 @@ class SunLight:
 
     azimuth_deg: float = setting(40.0, "direction towards the sun, degrees from +x towards +y")
     elevation_deg: float = setting(45.0, "sun height above the horizon, degrees", minimum=-90.0, maximum=90.0)
-    irradiance: tuple[float, float, float] = setting((3.0, 2.9, 2.7), "linear RGB irradiance", minimum=0.0)
+    irradiance: tuple[float, float, float] = setting((3.0, 2.9, 2.7), "linear RGB irradiance", minimum=0.0,
+                                                     maximum=MAX_RADIANCE)
 
     def __post_init__(self):
         check_fields(self)
@@ -62,7 +67,8 @@ class SunLight:
 class ConstantLight:
     """``type = "constant"``: the same radiance from every direction."""
 
-    radiance: tuple[float, float, float] = setting((0.2, 0.2, 0.2), "linear RGB radiance", minimum=0.0)
+    radiance: tuple[float, float, float] = setting((0.2, 0.2, 0.2), "linear RGB radiance", minimum=0.0,
+                                                   maximum=MAX_RADIANCE)
 
     def __post_init__(self):
         check_fields(self)
@@ -73,7 +79,8 @@ class EnvmapLight:
     """``type = "envmap"``: a latitude-longitude environment image (HDR, EXR or PNG)."""
 
     file: str = setting(doc="image file, relative to the scene file")
-    scale: float = setting(1.0, "radiance multiplier", minimum=0.0)
+    scale: float = setting(1.0, "radiance multiplier (times the brightest pixel at most 1e27)", minimum=0.0,
+                           maximum=MAX_RADIANCE)
     rotation_deg: tuple[float, float, float] = setting((0.0, 0.0, 0.0),
                                                        "[roll, pitch, yaw] about world x, y, z, degrees")
 

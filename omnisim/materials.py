@@ -19,6 +19,9 @@ from .settings import SettingError, check_fields, setting
 __all__ = ["MATERIAL_TYPES", "MaterialSettings", "Appearance", "bsdf_dict"]
 
 MATERIAL_TYPES = ("diffuse", "plastic", "roughplastic", "conductor")
+# Shortest texture repeat length, metres, as the generators' ``tile``: texture coordinates are
+# metres / tile, and a tile of 1e-30 m made them lose every texel (black pixels, exit 0).
+MIN_TILE_M = 1e-6
 
 
 @dataclass(frozen=True)
@@ -29,7 +32,7 @@ class MaterialSettings:
     color: tuple[float, float, float] = setting((0.5, 0.5, 0.5), "linear RGB reflectance",
                                                 minimum=0.0, maximum=1.0)
     texture: str = setting("", "name of a [textures.*] entry (replaces color)")
-    tile: float = setting(1.0, "texture repeat length, metres", above=0.0)
+    tile: float = setting(1.0, "texture repeat length, metres", minimum=MIN_TILE_M)
     vertex_color: bool = setting(False, "per-vertex colours from the generator or mesh file (diffuse only)")
     roughness: float = setting(0.2, "roughplastic: GGX roughness alpha", above=0.0, maximum=1.0)
     conductor: str = setting("Al", "conductor: Mitsuba's material name (Al, Au, Cu, ...)")

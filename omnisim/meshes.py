@@ -34,14 +34,9 @@ import numpy as np
 
 from ifmi.errors import InputError, InputWarning, first_line
 
-from .generators import GeneratorContext, Param, register_generator
+from .generators import MAX_PLACED_REACH_M, GeneratorContext, Param, register_generator
 from .materials import Appearance, MaterialSettings
 from .settings import FLOAT32_MAX  # largest coordinate a mesh file may scale to: Mitsuba stores float32
-
-# Largest coordinate of a placed mesh, metres. Measured: a floor 2 m under the camera renders
-# right up to a half-width of 2e9 m, black from 4e9 m and not at all from 4e18 m, with no error
-# from Mitsuba; half the largest good size is allowed.
-MAX_PLACED_REACH_M = 1e9
 from .textures import linear_texture_from_image
 
 __all__ = ["MeshPart", "mesh_parts_from_file", "mesh_side_files"]
@@ -143,8 +138,10 @@ def mesh_parts_from_file(path) -> list[MeshPart]:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".obj":
-        _check_obj_face_indices(path)
-        _warn_missing_obj_files(path)
+        data = _bytes_or_none(path)  # one read serves both scans; an unreadable file is the reader's to report
+        if data is not None:
+            _check_obj_face_indices(path, data)
+            _warn_missing_obj_files(path, data)
     elif suffix in (".gltf", ".glb"):
         _warn_unreadable_gltf_textures(path)
     try:
@@ -188,18 +185,39 @@ def _check_geometry(path: Path, number: int, mesh) -> None:
         face = int(np.argmax(outside.any(axis=1)))
         raise InputError(path, f"geometry {number} face {face}: vertex indices {faces[face].tolist()}, "
                                f"expected 0 to {len(vertices) - 1} (the mesh has {len(vertices)} vertices)")
+    _check_uvs(path, number, mesh)
 
 
-def _check_obj_face_indices(path: Path) -> None:
+def _check_uvs(path: Path, number: int, mesh) -> None:
+    """Refuse texture coordinates that are not finite, where a geometry's texture uses them (one per
+    vertex, as :func:`_texture_part` takes them): an OBJ ``vt nan 0`` rendered black texels, exit 0."""
+    visual = mesh.visual
+    uvs = getattr(visual, "uv", None) if getattr(visual, "kind", None) == "texture" else None
+    if uvs is None or len(uvs) != len(mesh.vertices):
+        return
+    uvs = np.asarray(uvs, dtype=np.float64)
+    bad = ~np.isfinite(uvs).all(axis=1)
+    if bad.any():
+        index = int(np.argmax(bad))
+        raise InputError(path, f"geometry {number} vertex {index}: expected finite texture coordinates, "
+                               f"got {uvs[index].tolist()}")
+
+
+def _bytes_or_none(path: Path) -> bytes | None:
+    """The bytes of ``path``, or None when it cannot be read."""
+    try:
+        return path.read_bytes()
+    except OSError:
+        return None
+
+
+def _check_obj_face_indices(path: Path, data: bytes) -> None:
     """Refuse an OBJ whose face lines (``f`` first on the line, as the reader finds them) name index 0 in
     any form (``0``, ``0/1``, ``1/0``, ``1//0``): OBJ counts from 1, negative indices count back from the
     last, and the reader turns 0 into the last element without a word. Lone zeros are found with numpy
-    (a scan takes a fraction of the reader's time); their face lines are then split to confirm them. An
-    unreadable file is the reader's to report."""
-    try:
-        data = b"\n" + path.read_bytes() + b"\n"
-    except OSError:
-        return
+    (a scan takes a fraction of the reader's time) in the file's bytes ``data``; their face lines are
+    then split to confirm them."""
+    data = b"\n" + data + b"\n"
     text = np.frombuffer(data, dtype=np.uint8)
     zeros = np.flatnonzero(text == ord("0"))
     zeros = zeros[np.isin(text[zeros - 1], list(b" \t/")) & np.isin(text[zeros + 1], list(b" \t/\r\n#"))]
@@ -269,15 +287,16 @@ def _rows_read(data) -> int:
     return len(next(iter(data.values()), ())) if isinstance(data, dict) else len(data)
 
 
-def _named_files(path: Path, keyword: str) -> list[tuple[str, Path | None]]:
+def _named_files(path: Path, keyword: str, data: bytes | None = None) -> list[tuple[str, Path | None]]:
     """``(name, file or None if missing)`` of each file that a line starting with ``keyword`` names in
-    the text file ``path``, relative to it. Options come first (``map_Kd -s 1 1 1 wood.png``) and
-    names may hold spaces, so every tail of the line is tried; a missing name is shown as the rest
-    of the line, or its last word after options. An unreadable file names nothing."""
-    try:
-        lines = path.read_bytes().decode("utf-8", errors="replace").splitlines()
-    except OSError:
+    the text file ``path`` (whose bytes are ``data`` when already read), relative to it. Options come
+    first (``map_Kd -s 1 1 1 wood.png``) and names may hold spaces, so every tail of the line is tried;
+    a missing name is shown as the rest of the line, or its last word after options. An unreadable
+    file names nothing."""
+    data = _bytes_or_none(path) if data is None else data
+    if data is None:
         return []
+    lines = data.decode("utf-8", errors="replace").splitlines()
     named = []
     for line in lines:
         words = line.split()
@@ -303,11 +322,12 @@ def _check_not_special(path: Path, named: Path) -> None:
         raise InputError(path, f"names {named.name}, which is not a regular file; expected a file to read")
 
 
-def _warn_missing_obj_files(path: Path) -> None:
-    """One warning naming the material libraries and diffuse textures an OBJ needs that are not there,
-    or that are there but hold no image (the reader then drops them without a word)."""
+def _warn_missing_obj_files(path: Path, data: bytes) -> None:
+    """One warning naming the material libraries and diffuse textures the OBJ ``path`` (bytes ``data``)
+    needs that are not there, or that are there but hold no image (the reader then drops them without
+    a word)."""
     missing = []
-    for library, found, textures in _obj_material_files(path):
+    for library, found, textures in _obj_material_files(path, data):
         if found is None:
             missing.append(f"material library {library} not found")
             continue
@@ -318,11 +338,13 @@ def _warn_missing_obj_files(path: Path) -> None:
     _warn_left_out(path, missing)
 
 
-def _obj_material_files(path: Path) -> list[tuple[str, Path | None, list[tuple[str, Path | None]]]]:
-    """``(name, file or None, textures)`` of each material library (``mtllib``) an OBJ names; the
-    textures are the ``(name, file or None)`` of the diffuse maps (``map_Kd``) a found library names."""
+def _obj_material_files(path: Path, data: bytes | None = None) -> list[tuple[str, Path | None,
+                                                                         list[tuple[str, Path | None]]]]:
+    """``(name, file or None, textures)`` of each material library (``mtllib``) an OBJ names (its bytes
+    ``data`` when already read); the textures are the ``(name, file or None)`` of the diffuse maps
+    (``map_Kd``) a found library names."""
     return [(library, found, _named_files(found, "map_Kd") if found is not None else [])
-            for library, found in _named_files(path, "mtllib")]
+            for library, found in _named_files(path, "mtllib", data)]
 
 
 def _gltf_file_uris(path: Path, header) -> list[str]:

@@ -17,6 +17,7 @@ import numpy as np
 from .generators import MAX_COUNT, GeneratorContext, Param, Relation, not_below, register_generator
 from .geometry import box_mesh, cylinder_mesh, heightfield_mesh, quad_mesh, rotation_z, sphere_mesh
 from .materials import Appearance, MaterialSettings
+from .settings import MAX_RADIANCE
 from .textures import noise_texture
 
 __all__: list[str] = []
@@ -302,7 +303,8 @@ def _grid_count(params) -> str | None:
           above=0.0),
     Param("grid", "int[2]", (2, 2), "rows (along x) and columns (along y) of lights", minimum=1),
     Param("size", "float[2]", (1.2, 0.3), "x, y extent of one light, metres", above=0.0),
-    Param("radiance", "float[3]", (6.0, 6.0, 5.5), "emitted linear RGB radiance", minimum=0.0),
+    Param("radiance", "float[3]", (6.0, 6.0, 5.5), "emitted linear RGB radiance", minimum=0.0,
+          maximum=MAX_RADIANCE),
     relations=(Relation("grid", f"rows x cols <= {MAX_COUNT}", _grid_count),),
 )
 def _ceiling_lights(ctx: GeneratorContext):

@@ -270,6 +270,11 @@ def check_output_folder(out_dir: Path, identity: dict) -> dict | None:
         if not isinstance(meta, dict) or not isinstance(meta.get("images", {}), dict):
             raise InputError(meta_path, "expected a JSON object with an 'images' table; remove the folder "
                                         "or choose another --out")
+        for kind in AOV_NAMES:  # the per-pixel ground truth's tables are read as the images' are
+            if not isinstance(meta.get(kind, {}), dict):
+                raise InputError(meta_path, f"expected its {kind!r} entry to be a table (file name: sha256), "
+                                            f"got {type(meta[kind]).__name__}; remove the folder or choose "
+                                            "another --out")
         previous = meta.get("identity")
         if not isinstance(previous, dict) or "format" not in previous:
             # Not written by omnisim: a user's meta.json (and the files beside it) is never replaced.

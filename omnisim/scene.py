@@ -21,9 +21,13 @@ from ifmi.errors import InputError
 from .config import SceneConfig
 from .generators import GeneratorContext, registered_generators
 from .geometry import MeshGroup
-from .lights import emitter_dict
+from .lights import EnvmapLight, emitter_dict
 from .materials import Appearance, bsdf_dict
+from .settings import MAX_RADIANCE
 from .textures import texture_image
+
+# Parameters of a Mitsuba emitter that hold the light it gives (:func:`_check_file_values`).
+EMITTED_KEYS = ("radiance.value", "irradiance.value", "intensity.value", "data", "scale")
 
 __all__ = ["scene_meshes", "mitsuba_file_entries", "build_scene_dict", "RADIANCE_INTEGRATORS", "mitsuba_reason"]
 
@@ -131,11 +135,42 @@ def mitsuba_file_entries(mi, xml_path) -> tuple[dict, object | None]:
         resolver.clear()
         for folder in saved:
             resolver.append(folder)
+    _check_file_values(mi, loaded, xml_path)
     entries = {f"xml_shape_{k}": shape for k, shape in enumerate(loaded.shapes())}
     # Area lights come with their shapes; only the others are added on their own.
     emitters = [e for e in loaded.emitters() if not mi.has_flag(e.flags(), mi.EmitterFlags.Surface)]
     entries.update({f"xml_emitter_{k}": emitter for k, emitter in enumerate(emitters)})
     return entries, (loaded.integrator() if has_integrator else None)
+
+
+def _check_file_values(mi, loaded, xml_path: Path) -> None:
+    """Refuse the values of a Mitsuba file's emitters and materials that render as garbage.
+
+    Every number of an emitter's or a shape's BSDF parameters must be finite (a NaN radiance or
+    reflectance rendered black pixels with exit 0), and the light an emitter gives (its
+    ``EMITTED_KEYS``) at least 0 and at most :data:`~omnisim.settings.MAX_RADIANCE`, as the scene
+    file's lights. Transforms are left out (Mitsuba checks them).
+
+    Raises
+    ------
+    InputError
+        Naming the file, the element (with its id if it has one) and the parameter.
+    """
+    objects = [("emitter", e) for e in loaded.emitters()] + [("bsdf", shape.bsdf()) for shape in loaded.shapes()]
+    for kind, obj in objects:
+        params = mi.traverse(obj)
+        for key in params.keys():
+            try:
+                values = np.asarray(params[key], dtype=np.float64)
+            except (TypeError, ValueError):  # a transform
+                continue
+            emitted = kind == "emitter" and key.endswith(EMITTED_KEYS)
+            if np.isfinite(values).all() and not (emitted and not 0.0 <= values.min() <= values.max() <= MAX_RADIANCE):
+                continue
+            expected = f"values from 0 to {MAX_RADIANCE:g} (emitted light)" if emitted else "finite values"
+            shown = [float(f"{v:.6g}") for v in values.ravel()[:3]]
+            element = f"<{kind} id={obj.id()!r}>" if obj.id() else f"<{kind}>"
+            raise InputError(xml_path, f"{element} {key}: expected {expected}, got {shown}")
 
 
 def build_scene_dict(config: SceneConfig, mi, *, sensor: dict) -> dict:
@@ -182,4 +217,24 @@ def build_scene_dict(config: SceneConfig, mi, *, sensor: dict) -> dict:
         except RuntimeError as exc:
             source = getattr(light, "file", path)
             raise InputError(source, f"[[lights]] #{index + 1}: {mitsuba_reason(exc)}") from None
+        if isinstance(light, EnvmapLight):
+            _check_envmap_pixels(mi, scene[f"light_{index}"], light, index=index)
     return scene
+
+
+def _check_envmap_pixels(mi, emitter, light: EnvmapLight, *, index: int) -> None:
+    """Refuse an environment image whose radiance the renderer cannot sum: a pixel that is NaN,
+    infinite or negative, or brighter than :data:`~omnisim.settings.MAX_RADIANCE` times its scale.
+
+    Checked on the image Mitsuba loaded, so the file is read once: its ``data`` holds the file's
+    rows, each padded with the opposite edge's pixel on either side (wrapping around the azimuth).
+    Raises InputError naming the file and the first bad pixel (row, column of the file).
+    """
+    data = np.asarray(mi.traverse(emitter)["data"], dtype=np.float64)[:, 1:-1]
+    bad = ~(np.isfinite(data) & (data >= 0.0) & (data * light.scale <= MAX_RADIANCE))
+    if bad.any():
+        row, col, _ = np.unravel_index(int(np.argmax(bad)), bad.shape)
+        value = [float(f"{v:.6g}") for v in data[row, col]]
+        raise InputError(light.file, f"[[lights]] #{index + 1} (envmap): expected finite pixel values >= 0 "
+                                     f"(linear radiance; times scale {light.scale:g} at most {MAX_RADIANCE:g}), "
+                                     f"got {value} at row {row}, column {col}")

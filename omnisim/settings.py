@@ -28,8 +28,14 @@ from ifmi.errors import InputError
 # Largest magnitude of a decimal setting: Mitsuba stores scene values as float32, whose largest
 # finite value this is; a larger one turns into inf there (garbage pixels, or a NaN pose).
 FLOAT32_MAX = float(np.finfo(np.float32).max)
+# Largest radiance (or irradiance) of a light, times its scale, linear RGB. The film sums a pixel's
+# samples in float32: up to 2**30 samples (the spp bound) of paths of up to 64 bounces (the
+# max_depth bound), so contributions below FLOAT32_MAX / 2**36 = 4.9e27 keep the sum finite; a
+# larger one can overflow to inf, which comes out as NaN -- black pixels.
+MAX_RADIANCE = 1e27
 
-__all__ = ["FLOAT32_MAX", "SettingError", "setting", "check_fields", "check_value", "check_bounds", "settings_from_table",
+__all__ = ["FLOAT32_MAX", "MAX_RADIANCE", "SettingError", "setting", "check_fields", "check_value", "check_bounds",
+           "settings_from_table",
            "type_name", "field_docs"]
 
 

@@ -24,6 +24,10 @@ BUNDLED_PHOTOS = ("grass", "brick", "gravel", "camera", "astronaut", "coffee", "
 # Largest noise texture side, pixels: the noise is summed in a float64 (size, size) array and
 # kept as float32 RGB, 512 MiB + 768 MiB at 8192 px (textures here are 256 px).
 MAX_NOISE_SIZE = 8192
+# Largest gain (brightness times a tint) of a photograph: its darkest non-black 8-bit sRGB level is
+# 1 / (255 * 12.92) in linear values, which are clipped to [0, 1]; beyond this gain every non-black
+# pixel is white (and gains near float32's range overflowed to NaN texels).
+MAX_PHOTO_GAIN = 255 * 12.92
 
 
 def _as_rgb(image: np.ndarray) -> np.ndarray:
@@ -142,6 +146,10 @@ class PhotoTexture:
 
     def __post_init__(self):
         check_fields(self)
+        gain = self.brightness * max(self.tint)
+        if gain > MAX_PHOTO_GAIN:
+            raise SettingError("brightness", f"expected brightness times the largest tint <= {MAX_PHOTO_GAIN:g} "
+                                             f"(beyond it every non-black pixel is white), got {gain:.4g}")
 
 
 @dataclass(frozen=True)

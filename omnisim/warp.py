@@ -324,13 +324,15 @@ def rotations_in_camera_frame(model, walk: np.ndarray) -> np.ndarray:
     return axis @ walk @ axis.T
 
 
-def _row_times(model, settings: WarpSettings) -> np.ndarray | None:
-    """Time of every row of every frame, (frames, H) frame intervals, or None for a global shutter."""
-    if settings.rolling_shutter == 0:
-        return None
+def _frame_rows(model, settings: WarpSettings, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Time (H,) in frame intervals and orientation ``R_0r`` (H, 3, 3) of every row of frame ``k``.
+
+    One frame at a time: all frames' rows at once grow with frames x rows (a million frames of
+    480 rows are 35 GB of matrices).
+    """
     height = model.size[0]
-    offsets = row_time_offsets(np.arange(height), height=height, readout=settings.rolling_shutter)
-    return np.arange(settings.frames)[:, None] + offsets[None, :]
+    times = k + row_time_offsets(np.arange(height), height=height, readout=settings.rolling_shutter)
+    return times, rotations_in_camera_frame(model, rotation_walk(settings, times))
 
 
 def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = WarpSettings(),
@@ -384,14 +386,11 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
               Trajectory(timestamps=np.arange(settings.frames, dtype=np.float64),
                          positions=np.zeros((settings.frames, 3)), rotations=rotations),
               header=f"omnisim warp of {image_path.name}: T_0k, pure rotation")
-    row_times, row_rotations = _row_times(model, settings), None
-    if row_times is not None:
-        # R_0r of every row of every frame, (frames, H, 3, 3).
-        row_rotations = rotations_in_camera_frame(model, rotation_walk(settings, row_times.ravel())).reshape(
-            row_times.shape + (3, 3))
+    rolling = settings.rolling_shutter > 0
+    if rolling:
         meta["rolling_shutter"] = write_row_poses(
             out_dir, (Trajectory(timestamps=times, positions=np.zeros((len(times), 3)), rotations=rows)
-                      for times, rows in zip(row_times, row_rotations)),
+                      for times, rows in (_frame_rows(model, settings, k) for k in range(settings.frames))),
             header=lambda k: f"omnisim warp of {image_path.name}, frame {k}: line r = row r, T_0r in camera 0 "
                              "of groundtruth.txt; time in frames")
     names = [f"{k:06d}.png" for k in range(settings.frames)]
@@ -401,14 +400,14 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
     bar = tqdm(total=len(names), initial=len(names) - len(todo), disable=not progress, unit="frame",
                desc="warp")
     for k in todo:
-        data = encode_png(warp_image(source, model, rotations[k] if row_rotations is None else row_rotations[k],
-                                     band=band))
+        orientation = _frame_rows(model, settings, k)[1] if rolling else rotations[k]
+        data = encode_png(warp_image(source, model, orientation, band=band))
         atomic_write_bytes(out_dir / "images" / names[k], data)
         meta["images"][names[k]] = hashlib.sha256(data).hexdigest()
         atomic_write_json(out_dir / "meta.json", meta)
         bar.update(1)
     bar.close()
-    if settings.frames > 1 and row_rotations is None:  # a rolling-shutter frame has no single back-warp
+    if settings.frames > 1 and not rolling:  # a rolling-shutter frame has no single back-warp
         last = read_image(out_dir / "images" / names[-1], size=model.size, gray=False)
         rms, fraction = round_trip_error(source, last, model, rotations[-1], band=band)
         meta["round_trip_last_frame"] = {"rms_gray_levels": rms, "compared_fraction": fraction}

@@ -267,6 +267,7 @@ radiance = [{radiance}, {radiance}, {radiance}]
     ("exposure = 1.5", r"\[capture\] exposure: expected <= 1.0"),
     ("exposure = 0.7\nrolling_shutter = 0.5", r"\[capture\] exposure \+ rolling_shutter: expected <= 1"),
     ("vignetting = -1", r"\[capture\] vignetting: expected >= 0.0"),
+    ("vignetting = 1e30", r"\[capture\] vignetting: expected <= 7.93\d*, got 1e\+30"),
     ("exposure = 'long'", r"\[capture\] exposure: expected a number"),
 ])
 def test_bad_capture_values_are_one_line_errors(tmp_path, table, message):

@@ -52,3 +52,16 @@ def test_existing_scheduler_renders_the_same_bytes(tmp_path):
                                 scheduler=cluster.scheduler_address)
     assert result.rendered == 2
     assert _files(tmp_path / "remote") == _files(tmp_path / "single")
+
+
+def test_scheduler_address_dask_cannot_use_is_one_line(tmp_path, capsys):
+    """--scheduler nonsense://x ended in Dask's ValueError traceback (an unreachable one, after 30 s,
+    in an OSError traceback)."""
+    from omnisim.cli import main
+
+    scene = _scene(tmp_path, frames=1, size=16)
+    assert main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress",
+                 "--scheduler", "nonsense://x"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("omnisim render: error: --scheduler: cannot connect to a Dask scheduler at "
+                          "'nonsense://x': unknown address scheme 'nonsense'") and "\n" not in err

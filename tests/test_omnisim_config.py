@@ -72,10 +72,16 @@ def test_base_scene_loads_with_declared_defaults(tmp_path):
     (('generator = "boxes"', 'generator = "spaceship"'), r"#1 generator: expected one of boxes, "),
     (("frames = 2", "frames = 2\n[capture]\nexposure = 1.5"), r"\[capture\] exposure: expected <= 1.0, got 1.5"),
     (("frames = 2", "frames = 2\n[effects]\njpeg = 50"), r"\[effects\] jpeg: unknown key; accepted keys: noise_sigma"),
+    (("frames = 2", "frames = 2\n[effects]\nnoise_sigma = 1e30"),
+     r"\[effects\] noise_sigma: expected <= 255.0, got 1e\+30"),
     (("radius_max = 61.5", "radius_max = 5.0"), r"\[camera\] radius_max: expected > radius_min = 10.0, got 5.0"),
     (("center = [64.35, 63.3]\n", ""), r"\[camera\] center: missing \(give either 'calib' or 'pol'"),
     (("pol = [-20.0, 0.0, 1.28e-2, -1.76e-5, 2.56e-7]", "pol = []"),
      r"\[camera\] pol: expected at least one coefficient \(lowest degree first\), got \[\]"),
+    # Its fitted inverse was 20 px off: the dataset rendered with exit 0, its calib_results.txt refused by readers.
+    (("pol = [-20.0, 0.0, 1.28e-2, -1.76e-5, 2.56e-7]", "pol = [-1e-30, 0.0, 1e-30]"),
+     r"\[camera\] pol: expected an inverse polynomial within 0.1 px of the direct one at the 64x64 rendered \(as "
+     r"readers of the dataset check\), got a round-trip error of 19.7 px at radius 3.1 px"),
     # Mitsuba stores scene values as float32: beyond its range a value turns into inf there.
     (("frames = 2", "frames = 2\nposition = [1e300, 0, 1.2]"),
      r"\[trajectory\] position: expected magnitudes <= 3.403e\+38 \(the renderer stores float32\), "
@@ -125,6 +131,41 @@ def test_noise_texture_too_large_to_make_is_one_line(tmp_path, keys, message):
         load_scene_config(write_scene(tmp_path, BASE + f'[textures.t]\nsource = "noise"\n{keys}\n'))
     assert re.search(message, str(info.value)), str(info.value)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("table, message", [
+    # Radiance past MAX_RADIANCE overflowed the film's float32 sums to NaN: black sky, exit 0.
+    ('type = "constant"\nradiance = [3e38, 3e38, 3e38]',
+     r"\[\[lights\]\] #1 \(constant\) radiance: expected <= 1e\+27, got \[3e\+38, 3e\+38, 3e\+38\]"),
+    ('type = "sun"\nirradiance = [1e30, 1, 1]', r"\[\[lights\]\] #1 \(sun\) irradiance: expected <= 1e\+27"),
+    ('type = "sky"\nscale = 1e20\nzenith = [1e10, 1, 1]',
+     r"\[\[lights\]\] #1 \(sky\) scale: expected scale times the brightest radiance <= 1e\+27 \(the renderer "
+     r"sums samples in float32\), got 1e\+30"),
+    ('type = "envmap"\nfile = "scene.toml"\nscale = 3e38', r"\[\[lights\]\] #1 \(envmap\) scale: expected <= 1e\+27"),
+])
+def test_light_brighter_than_the_film_can_sum_is_one_line(tmp_path, table, message):
+    with pytest.raises(InputError) as info:
+        load_scene_config(write_scene(tmp_path, BASE + f"[[lights]]\n{table}\n"))
+    assert re.search(message, str(info.value)), str(info.value)
+    assert str(info.value).startswith(str(tmp_path / "scene.toml")) and "\n" not in str(info.value)
+
+
+def test_material_tile_shorter_than_a_micrometre_is_one_line(tmp_path):
+    """tile = 1e-30 passed (> 0) and lost every texel: black pixels where the texture was, exit 0."""
+    table = '[textures.t]\nsource = "noise"\n[materials.wood]\ntexture = "t"\ntile = 1e-30\n'
+    with pytest.raises(InputError) as info:
+        load_scene_config(write_scene(tmp_path, BASE.replace("[materials.wood]\ncolor = [0.5, 0.35, 0.2]\n", "")
+                                      + table))
+    assert str(info.value) == f"{tmp_path / 'scene.toml'}: [materials.wood] tile: expected >= 1e-06, got 1e-30"
+
+
+def test_photo_gain_past_white_is_one_line(tmp_path):
+    """tint 3e38 and brightness 3e38 overflowed float32 to NaN texels (a numpy warning, exit 0)."""
+    table = '[textures.t]\nsource = "photo"\nname = "grass"\nbrightness = 3e38\ntint = [3e38, 1, 1]\n'
+    with pytest.raises(InputError) as info:
+        load_scene_config(write_scene(tmp_path, BASE + table))
+    assert str(info.value) == (f"{tmp_path / 'scene.toml'}: [textures.t] brightness: expected brightness times "
+                               "the largest tint <= 3294.6 (beyond it every non-black pixel is white), got 9e+76")
 
 
 def test_unknown_photo_and_missing_mesh_file_are_found_before_rendering(tmp_path):
@@ -419,6 +460,20 @@ def test_mesh_faces_naming_missing_vertices_are_refused(tmp_path, name, text, me
         mesh_parts_from_file(tmp_path / name)
 
 
+def test_cli_obj_with_a_nan_texture_coordinate_is_one_line_exit_2(tmp_path, capsys):
+    """``vt nan 0`` passed the reader; the NaN texture lookups rendered black pixels with exit 0."""
+    pytest.importorskip("trimesh")
+    from omnisim.cli import main
+
+    (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt nan 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n")
+    scene = write_scene(tmp_path, BASE + '[[objects]]\ngenerator = "mesh"\nfile = "tri.obj"\n')
+    code = main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"])
+    assert code == 2
+    assert capsys.readouterr().err.strip() == (f"omnisim render: error: {tmp_path / 'tri.obj'}: geometry 0 vertex 0: "
+                                               "expected finite texture coordinates, got [nan, 0.0]")
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("content", ["[]", "{\"images\": []}", "{broken"])
 def test_meta_json_that_is_not_a_dataset_record_is_refused_in_one_line(tmp_path, content):
     from omnisim.render import check_output_folder
@@ -442,6 +497,21 @@ def test_hand_written_obj_with_two_materials_gives_two_base_coloured_parts(tmp_p
     colors = sorted(tuple(np.round(p.colors[0], 2)) for p in parts)
     assert colors == [(0.1, 0.2, 0.9), (0.8, 0.1, 0.1)]
     assert all(len(p.faces) == 2 and np.allclose(p.colors, p.colors[0], atol=1 / 255) for p in parts)
+
+
+def test_obj_checks_before_the_reader_share_one_read_of_the_file(tmp_path, monkeypatch):
+    """The face-index scan and the material-library scan each read the OBJ again before the reader did."""
+    import pathlib
+
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "two.mtl").write_text("newmtl red\nKd 0.8 0.1 0.1\n")
+    (tmp_path / "two.obj").write_text("mtllib two.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nusemtl red\nf 1 2 3\n")
+    reads, read_bytes = [], pathlib.Path.read_bytes
+    monkeypatch.setattr(pathlib.Path, "read_bytes", lambda self: reads.append(self.name) or read_bytes(self))
+    (part,) = mesh_parts_from_file(tmp_path / "two.obj")
+    assert reads.count("two.obj") == 1 and len(part.faces) == 1
 
 
 def test_obj_whose_material_files_are_missing_warns_in_one_line(tmp_path):

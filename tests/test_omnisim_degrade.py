@@ -101,6 +101,37 @@ def test_cli_reports_bad_settings_in_one_line(source, tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "jpeg_quality" in err and "got 101" in err
 
 
+@pytest.mark.parametrize("option, value, expected", [
+    ("--noise-sigma", "1e30", "noise_sigma: expected <= 255.0, got 1e+30"),
+    ("--exposure-stops", "40", "exposure_stops: expected <= 12.0, got 40.0"),
+    ("--exposure-step-stops", "1e9", "exposure_step_stops: expected <= 24.0, got 1000000000.0"),
+])
+def test_cli_refuses_effects_past_what_8_bits_show(source, tmp_path, capsys, option, value, expected):
+    """Noise far wider than the 8-bit range, or exposure past its 11.7 stops, wrote saturated frames."""
+    assert omnisim_main(["degrade", str(source), "--out", str(tmp_path / "q"), option, value]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"omnisim degrade: error: {option}: {expected}"
+    assert not (tmp_path / "q").exists()
+
+
+@pytest.mark.parametrize("kind", ["folder", "fifo"])
+def test_source_meta_json_that_is_no_file_is_one_line(source, tmp_path, capsys, kind):
+    """A folder named meta.json in the source ended the copy in an IsADirectoryError traceback; a
+    FIFO made degrade wait forever (reading the dataset's provenance, then copying it)."""
+    import os
+
+    if kind == "fifo" and not hasattr(os, "mkfifo"):
+        pytest.skip("no FIFOs on this system")
+    copy = tmp_path / "copy"
+    shutil.copytree(source, copy)
+    (copy / "meta.json").unlink(missing_ok=True)
+    (copy / "meta.json").mkdir() if kind == "folder" else os.mkfifo(copy / "meta.json")
+    assert omnisim_main(["degrade", str(copy), "--out", str(tmp_path / "q"), "--no-progress"]) == 2
+    shown = "a folder" if kind == "folder" else "no regular file (a FIFO, device, socket or broken link)"
+    assert capsys.readouterr().err.strip() == (f"omnisim degrade: error: {copy / 'meta.json'}: is {shown}; "
+                                               "expected the source dataset's meta.json file")
+
+
 def test_cli_reports_a_missing_dataset_in_one_line(tmp_path, capsys):
     assert omnisim_main(["degrade", str(tmp_path / "none"), "--out", str(tmp_path / "q")]) == 2
     err = capsys.readouterr().err.strip()

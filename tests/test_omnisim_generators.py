@@ -61,6 +61,8 @@ STREET = {"road": "painted", "sidewalk": "painted", "marking": "painted"}
     (_object("ceiling_lights", size=[0.0, 1.0]), r"\(ceiling_lights\) size: expected > 0.0, got \[0.0, 1.0\]"),
     (_object("street", road_width=0.0, **STREET), r"\(street\) road_width: expected > 0.0, got 0.0"),
     (_object("ceiling_lights", grid=[0, 0]), r"\(ceiling_lights\) grid: expected >= 1, got \[0, 0\]"),
+    (_object("ceiling_lights", radiance=[3e38, 1.0, 1.0]),
+     r"\(ceiling_lights\) radiance: expected <= 1e\+27, got \[3e\+38, 1.0, 1.0\]"),
     # Places the objects could never have.
     (_object("boxes", region=[2.0, 2.0], clear_radius=5.0, **PAINTED),
      r"\(boxes\) clear_radius: expected <= 1.414 \(half the diagonal of region \[2.0, 2.0\]: no place in it is "
@@ -130,6 +132,21 @@ def test_an_entry_whose_counts_multiply_past_the_triangle_budget_is_refused(tmp_
         scene_meshes(load_scene_config(write_scene(tmp_path, BASE + table)))
     monkeypatch.setattr(generators, "MAX_ENTRY_TRIANGLES", made)  # exactly what it makes: built
     scene_meshes(load_scene_config(write_scene(tmp_path, BASE + table)))
+
+
+def test_generated_geometry_beyond_float32_ray_tracing_is_refused(tmp_path, capsys):
+    """A room 3e38 m wide had its walls and ceiling lost by Mitsuba's float32 ray tracing: the closed
+    room rendered as an open floor under the sky, with exit 0. Every generator's vertices are bounded
+    as a mesh file's are."""
+    from omnisim.cli import main as omnisim_main
+
+    table = _object("room", size=[3e38, 3e38, 3e38], floor="painted", walls="painted", ceiling="painted")
+    scene = write_scene(tmp_path, BASE + table)
+    assert omnisim_main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"omnisim render: error: {scene}: [[objects]] #1 (room): expected geometry within 1e+09 m of the "
+        "origin (float32 ray tracing loses larger surfaces; lower its sizes or distances), got 1.5e+38 m")
+    assert not (tmp_path / "out").exists()
 
 
 def test_generator_listing_states_the_bounds_that_are_checked():

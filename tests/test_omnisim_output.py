@@ -236,6 +236,18 @@ def test_meta_json_that_is_a_fifo_is_one_line_exit_2(tmp_path):
     assert (tmp_path / "out" / "meta.json").is_fifo()
 
 
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_scene_file_that_is_a_fifo_is_one_line_exit_2(tmp_path):
+    """omnisim render FIFO waited forever reading the scene file."""
+    os.mkfifo(tmp_path / "scene.toml")
+    status, lines = _cli_run(["render", str(tmp_path / "scene.toml"), "--out", str(tmp_path / "out"),
+                              "--no-progress"], tmp_path)
+    assert status == 2 and lines == [
+        f"omnisim render: error: {tmp_path / 'scene.toml'}: is a FIFO, device or socket, not a regular file "
+        "(scene file expected)"], lines
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.skipif(importlib.util.find_spec("ctypes") is None or __import__("ctypes.util").util.find_library("cuda")
                     is not None, reason="a CUDA driver is present")
 def test_cuda_variant_without_gpu_is_one_line_exit_1(tmp_path):
@@ -296,6 +308,40 @@ def test_broken_envmap_file_fails_before_the_output_folder_exists(tmp_path):
     with pytest.raises(InputError, match=r"sky.exr: \[\[lights\]\] #1"):
         render_dataset(scene, tmp_path / "out", progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_envmap_with_a_nan_pixel_is_one_line_before_the_output_folder_exists(tmp_path, capsys):
+    """An EXR whose top half is NaN rendered black frames with exit 0 (NaN spreads through the
+    light sampling); inf, negative and too bright pixels likewise made black or dark pixels."""
+    import numpy as np
+
+    from omnisim.llvm import import_mitsuba
+
+    image = np.full((8, 16, 3), 0.5, np.float32)
+    image[2, 5] = np.nan
+    import_mitsuba().Bitmap(image).write(str(tmp_path / "sky.exr"))
+    scene = _scene(tmp_path)
+    scene.write_text(scene.read_text().replace('type = "constant"', 'type = "envmap"\nfile = "sky.exr"'))
+    code, err = _run_cli(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"], capsys)
+    assert code == 2
+    assert err == (f"omnisim render: error: {tmp_path / 'sky.exr'}: [[lights]] #1 (envmap): expected finite pixel "
+                   "values >= 0 (linear radiance; times scale 1 at most 1e+27), got [nan, nan, nan] at row 2, "
+                   "column 5")
+    assert not (tmp_path / "out").exists()
+
+
+def test_resumed_folder_whose_meta_depth_is_no_table_is_one_line(tmp_path, capsys):
+    """A meta.json edited to "depth": [] (its own identity kept) ended a resume in an AttributeError traceback."""
+    scene, out = _scene(tmp_path, frames=1), tmp_path / "out"
+    assert _run_cli(["render", str(scene), "--out", str(out), "--no-progress", "--aov", "depth"], capsys)[0] == 0
+    meta = json.loads((out / "meta.json").read_text())
+    meta["depth"] = []
+    (out / "meta.json").write_text(json.dumps(meta))
+    code, err = _run_cli(["render", str(scene), "--out", str(out), "--no-progress", "--aov", "depth"], capsys)
+    assert code == 2
+    assert err == (f"omnisim render: error: {out / 'meta.json'}: expected its 'depth' entry to be a table (file name: "
+                   "sha256), got list; remove the folder or choose another --out")
+    assert json.loads((out / "meta.json").read_text()) == meta  # the user's folder is left as it is
 
 
 def test_spp_the_sampler_rounds_up_is_rendered_as_the_rounded_count_and_recorded(tmp_path):

@@ -235,6 +235,26 @@ def test_broken_mitsuba_xml_is_one_line_error_before_the_folder_exists(tmp_path)
         render_dataset(scene, tmp_path / "out", progress=False)
 
 
+@pytest.mark.parametrize("old, new, message", [
+    ('<rgb name="radiance" value="4.0"/>', '<rgb name="radiance" value="nan"/>',
+     "<emitter> radiance.value: expected values from 0 to 1e+27 (emitted light), got [nan, nan, nan]"),
+    ('<bsdf type="diffuse"><texture type="bitmap" name="reflectance">\n      <string name="filename" '
+     'value="textures/walls.png"/>\n    </texture></bsdf>', '<bsdf type="diffuse"><rgb name="reflectance" value="nan"/>'
+     '</bsdf>', "<bsdf id='walls'> brdf_0.reflectance.value: expected finite values, got [nan, nan, nan]"),
+])
+def test_mitsuba_xml_nan_light_or_colour_is_one_line_exit_2(tmp_path, capsys, old, new, message):
+    """A NaN (or infinite, or negative) radiance or a NaN reflectance in the Mitsuba file rendered
+    black pixels with exit 0 (a NaN light: all-black frames, said only as "the camera sees no light")."""
+    from omnisim.cli import main
+
+    scene = _xml_scene(tmp_path)
+    assert old in XML_SCENE
+    (tmp_path / "room.xml").write_text(XML_SCENE.replace(old, new))
+    assert main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    assert capsys.readouterr().err.strip() == f"omnisim render: error: {tmp_path / 'room.xml'}: {message}"
+    assert not (tmp_path / "out").exists()
+
+
 def _render_one(tmp_path, extra, *, position=(0.0, 0.0, 0.0), spp=4, name="one"):
     """Render frame 0 of a scene and return (linear RGB image, model, camera-to-world rotation)."""
     import cv2

@@ -282,6 +282,21 @@ def test_rolling_shutter_warp_writes_every_rows_pose(tmp_path, source_files):
     assert "round_trip_last_frame" not in meta
 
 
+def test_rolling_shutter_rows_are_made_one_frame_at_a_time(tmp_path, source_files, monkeypatch):
+    """--frames 1000000 --rolling-shutter 0.5 built every row's matrix of every frame at once (35 GB
+    for 480 rows) and died of a MemoryError traceback after writing part of the folder. The walk is
+    now read for one frame's rows at a time."""
+    import omnisim.warp as warp
+
+    sizes = []
+    walk = warp.rotation_walk
+    monkeypatch.setattr(warp, "rotation_walk", lambda settings, times=None: sizes.append(
+        settings.frames if times is None else len(times)) or walk(settings, times))
+    settings = warp.WarpSettings(frames=4, seed=2, rolling_shutter=0.5)
+    warp.warp_dataset(*source_files, tmp_path / "rs", settings=settings, progress=False)
+    assert max(size for size in sizes) == max(SIZE, settings.frames)
+
+
 def test_global_shutter_warp_keeps_its_folder_identity(tmp_path, source_files):
     """A folder written before the option existed resumes: a global shutter is not part of its settings."""
     import json
@@ -337,4 +352,23 @@ def test_warp_option_out_of_range_is_named_by_its_option(tmp_path, source_files,
     code = main(["warp", str(source_files[0]), "--calib", str(source_files[1]), "--out", str(tmp_path / "w"),
                  "--frames", "2", option, value, "--no-progress"])
     assert code == 2 and capsys.readouterr().err.strip() == f"omnisim warp: error: {option}: {expected}"
+    assert not (tmp_path / "w").exists()
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "mkfifo"), reason="no FIFOs on this system")
+@pytest.mark.parametrize("which, what", [("image", "image file"), ("calib", "calibration file")])
+def test_warp_input_that_is_a_fifo_is_one_line(tmp_path, source_files, capsys, which, what):
+    """A FIFO given as the image or the calibration made warp wait forever reading it."""
+    import os
+
+    from omnisim.cli import main
+
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    image, calib = (fifo, source_files[1]) if which == "image" else (source_files[0], fifo)
+    code = main(["warp", str(image), "--calib", str(calib), "--out", str(tmp_path / "w"), "--frames", "2",
+                 "--no-progress"])
+    assert code == 2
+    assert capsys.readouterr().err.strip() == (f"omnisim warp: error: {fifo}: is a FIFO, device or socket, not a "
+                                               f"regular file ({what} expected)")
     assert not (tmp_path / "w").exists()

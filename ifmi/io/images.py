@@ -33,6 +33,7 @@ import numpy as np
 
 from ..errors import InputError, InputWarning
 from .native_stderr import call_with_captured_stderr
+from .text_file import refuse_special_file
 
 __all__ = ["read_image", "IMAGE_SUFFIXES", "SENSOR_BIT_DEPTHS", "image_file_problem", "image_header_size",
            "sensor_bit_depth", "size_problem"]
@@ -345,6 +346,7 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
         command line).
     """
     path = Path(path)
+    refuse_special_file(path, what="image file")
     try:
         data = path.read_bytes()
     except FileNotFoundError:

@@ -7,7 +7,20 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["read_text_file", "read_failure", "number_from_text"]
+__all__ = ["read_text_file", "read_failure", "refuse_special_file", "number_from_text"]
+
+
+def refuse_special_file(path: Path, *, what: str) -> None:
+    """Refuse a FIFO, device or socket at ``path``: reading one waits for a writer, or never ends.
+
+    Raises
+    ------
+    InputError
+        Naming ``path`` and the ``what`` expected there (a missing file or a folder is left
+        to the read, whose errors say so).
+    """
+    if path.exists() and not (path.is_file() or path.is_dir()):
+        raise InputError(path, f"is a FIFO, device or socket, not a regular file ({what} expected)")
 
 
 def read_text_file(path: str | os.PathLike, *, what: str, encoding: str = "utf-8",
@@ -29,9 +42,10 @@ def read_text_file(path: str | os.PathLike, *, what: str, encoding: str = "utf-8
     Raises
     ------
     InputError
-        As :func:`read_failure` words it.
+        A FIFO, device or socket (:func:`refuse_special_file`), or as :func:`read_failure` words it.
     """
     path = Path(path)
+    refuse_special_file(path, what=what)
     try:
         return path.read_text(encoding=encoding, errors=errors)
     except (OSError, UnicodeDecodeError) as exc:
