@@ -29,7 +29,7 @@ from . import meshes, procedural  # noqa: F401  (register the built-in generator
 from .generators import object_from_table, registered_generators
 from .lights import ENVIRONMENT_LIGHT_TYPES, LIGHT_TYPES, EnvmapLight
 from .materials import MaterialSettings
-from .settings import FLOAT32_MAX, SettingError, check_fields, setting, settings_from_table
+from .settings import MAX_CAMERA_REACH_M, SettingError, check_fields, setting, settings_from_table
 from .textures import TEXTURE_SOURCES
 
 if sys.version_info >= (3, 11):
@@ -109,7 +109,7 @@ class TrajectorySettings:
     """``[trajectory]``: smooth random rotation (degrees) and optional translation (metres), or a TUM file."""
 
     frames: int = setting(200, "number of frames", minimum=1, maximum=MAX_FRAMES)
-    position: tuple[float, float, float] = setting((0.0, 0.0, 1.2), "camera centre in the world, metres")
+    position: tuple[float, float, float] = setting((0.0, 0.0, 1.2), "camera centre in the world, metres (within 1e4 m of the origin)")
     max_yaw_step_deg: float = setting(3.0, "peak yaw rate, degrees per frame", minimum=0.0, maximum=90.0)
     max_roll_deg: float = setting(15.0, "roll bound, degrees", minimum=0.0, maximum=90.0)
     max_pitch_deg: float = setting(15.0, "pitch bound, degrees", minimum=0.0, maximum=90.0)
@@ -124,14 +124,18 @@ class TrajectorySettings:
 
     def __post_init__(self):
         check_fields(self)
-        if self.translation_step_m > 0 and not self.tum:
-            # The walk stays within translation_radius_m of position; with a radius of 0 it is unbounded.
+        if self.tum:  # the file's positions, offset by position, are checked as it is read
+            return
+        # The walk stays within translation_radius_m of position; with a radius of 0 it is unbounded.
+        key, reach = "position", 0.0
+        if self.translation_step_m > 0:
             key = "translation_radius_m" if self.translation_radius_m > 0 else "translation_step_m"
             reach = self.translation_radius_m or (self.frames - 1) * self.translation_step_m
-            if max(abs(p) for p in self.position) + reach > FLOAT32_MAX:
-                raise SettingError(key, f"expected the camera to stay within {FLOAT32_MAX:.4g} m of the origin "
-                                        f"(the renderer stores float32), got position {list(self.position)} and "
-                                        f"a walk of up to {reach:.4g} m from it")
+        if max(abs(p) for p in self.position) + reach > MAX_CAMERA_REACH_M:
+            raise SettingError(key, f"expected the camera to stay within {MAX_CAMERA_REACH_M:.0e} m of the origin "
+                                    f"(the renderer places it in float32, to 0.5 mm there; move the scene's origin "
+                                    f"near the camera), got position {list(self.position)} and a walk of up to "
+                                    f"{reach:.4g} m from it")
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ from ifmi.io.tum import Trajectory, read_tum
 from ifmi.rotations import matrix_from_rpy
 
 from .config import TrajectorySettings
-from .settings import FLOAT32_MAX
+from .settings import MAX_CAMERA_REACH_M
 
 __all__ = ["WorldPoses", "smooth_noise", "random_trajectory", "poses_from_tum",
            "relative_trajectory", "world_trajectory", "poses_for_settings", "poses_at_times",
@@ -134,10 +134,12 @@ def poses_from_tum(path, *, frames: int, position) -> WorldPoses:
         raise InputError(path, f"pose {k} has timestamp {times[k]:g} after {times[k - 1]:g}; expected "
                                "increasing timestamps (the poses are rendered in line order, one per frame)")
     positions = traj.positions[:frames] + np.asarray(position, dtype=np.float64)
-    far = np.flatnonzero(~(np.abs(positions).max(axis=1) <= FLOAT32_MAX))
+    far = np.flatnonzero(~(np.abs(positions).max(axis=1) <= MAX_CAMERA_REACH_M))
     if far.size:
-        raise InputError(path, f"pose {int(far[0])}: expected positions of magnitude <= {FLOAT32_MAX:.4g} m "
-                               f"(the renderer stores float32), got {positions[far[0]].tolist()}")
+        raise InputError(path, f"pose {int(far[0])}: expected positions (plus [trajectory] position) of magnitude "
+                               f"<= {MAX_CAMERA_REACH_M:.0e} m (the renderer places the camera in float32, to "
+                               f"0.5 mm there; shift them with [trajectory] position), got "
+                               f"{positions[far[0]].tolist()}")
     return WorldPoses(rotations=traj.rotations[:frames].copy(), positions=positions)
 
 

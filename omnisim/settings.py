@@ -33,8 +33,14 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 # max_depth bound), so contributions below FLOAT32_MAX / 2**36 = 4.9e27 keep the sum finite; a
 # larger one can overflow to inf, which comes out as NaN -- black pixels.
 MAX_RADIANCE = 1e27
+# Farthest a camera may be from the world origin, metres. The renderer places the camera and the
+# geometry around it in float32, whose spacing at 1e4 m is 2**-10 m (0.98 mm): a camera there lies
+# within 0.5 mm of its ground-truth position, which a 1024 px frame cannot see at 1 m (6 mm per
+# pixel). The spacing doubles with each doubling of the distance (0.5 m at 1e7 m, as UTM
+# coordinates are), and at 1e8 m the ground under the camera renders as speckle, with no error.
+MAX_CAMERA_REACH_M = 1e4
 
-__all__ = ["FLOAT32_MAX", "MAX_RADIANCE", "SettingError", "setting", "check_fields", "check_value", "check_bounds",
+__all__ = ["FLOAT32_MAX", "MAX_CAMERA_REACH_M", "MAX_RADIANCE", "SettingError", "setting", "check_fields", "check_value", "check_bounds",
            "settings_from_table",
            "type_name", "field_docs"]
 

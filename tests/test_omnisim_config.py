@@ -88,8 +88,13 @@ def test_base_scene_loads_with_declared_defaults(tmp_path):
      r"got \[1e\+300, 0.0, 1.2\]"),
     (("count = 3", "count = 3\nregion = [0.5, 1e39]"), r"\(boxes\) region: expected magnitudes <= 3.403e\+38"),
     (("frames = 2", "frames = 20\ntranslation_step_m = 3e38\ntranslation_radius_m = 0"),
-     r"\[trajectory\] translation_step_m: expected the camera to stay within 3.403e\+38 m of the origin "
-     r"\(the renderer stores float32\), got position \[0.0, 0.0, 1.2\] and a walk of up to 5.7e\+39 m"),
+     r"\[trajectory\] translation_step_m: expected the camera to stay within 1e\+04 m of the origin "
+     r"\(the renderer places it in float32, to 0.5 mm there; move the scene's origin near the camera\), "
+     r"got position \[0.0, 0.0, 1.2\] and a walk of up to 5.7e\+39 m"),
+    # UTM-like coordinates: float32 places a camera at 5e6 m to 0.25 m, far from its ground truth.
+    (("frames = 2", "frames = 2\nposition = [5e6, 4e6, 1.2]"),
+     r"\[trajectory\] position: expected the camera to stay within 1e\+04 m of the origin .* got position "
+     r"\[5000000.0, 4000000.0, 1.2\] and a walk of up to 0 m from it"),
 ])
 def test_bad_scene_is_one_line_naming_section_and_key(tmp_path, edit, message):
     old, new = edit

@@ -130,9 +130,12 @@ def test_trajectory_file_out_of_order_or_out_of_range_is_refused(tmp_path):
         poses_from_tum(path, frames=4, position=(0.0, 0.0, 0.0))
     poses = poses_from_tum(path, frames=2, position=(0.0, 0.0, 1.0))  # the frames used are in order
     np.testing.assert_allclose(poses.positions, [[0, 0, 2], [0.1, 0, 2]])
-    path.write_text("0 0 0 1 0 0 0 1\n1 1e300 0 1 0 0 0 1\n")  # beyond the renderer's float32
-    with pytest.raises(InputError, match=r"walk.txt: pose 1: expected positions of magnitude <= 3.403e\+38 m"):
+    path.write_text("0 5e6 0 1 0 0 0 1\n1 5000000.1 0 1 0 0 0 1\n")  # UTM-like: float32 places it to 0.25 m
+    with pytest.raises(InputError, match=r"walk.txt: pose 0: expected positions \(plus \[trajectory\] position\) "
+                                         r"of magnitude <= 1e\+04 m .* got \[5000000.0, 0.0, 1.0\]"):
         poses_from_tum(path, frames=2, position=(0.0, 0.0, 0.0))
+    shifted = poses_from_tum(path, frames=2, position=(-5e6, 0.0, 0.0))  # the fix the message names
+    np.testing.assert_allclose(shifted.positions, [[0.0, 0.0, 1.0], [0.1, 0.0, 1.0]])
 
 
 MAPS_LINE = "7f1c2a000000-7f1c2b000000 r-xp 00000000 08:01 1234 {}\n"
