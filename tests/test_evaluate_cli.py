@@ -406,6 +406,9 @@ def test_frames_csv_with_some_times_missing_times_the_others(tmp_path, capsys):
     ("seconds", "-1", "column seconds: expected a time in seconds >= 0 (empty when not recorded), "
                       "got '-1'"),
     ("seconds", "inf", "column seconds: expected a time in seconds >= 0"),
+    # Finite, but past what a time per frame in milliseconds can show (the mean was inf ms).
+    ("seconds", "1e308", "column seconds: expected times that add up to at most 1.798e+305 s, got a "
+                         "total past it at this line"),
     ("frame", "", "column frame: expected a frame number (a whole number from 0 to 2**63 - 1), got ''"),
     ("frame", "-3", "column frame: expected a frame number (a whole number from 0 to 2**63 - 1), got '-3'"),
     ("frame", "2.5", "column frame: expected a frame number (a whole number from 0 to 2**63 - 1), got '2.5'"),

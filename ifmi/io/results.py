@@ -187,7 +187,8 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
         wrong length, a ``frame`` that is not a whole number from 0 to
         ``2**63 - 1`` (a 64-bit frame index), a
         ``reference_frame`` that is not a whole number, or a
-        ``seconds`` value that is not a time >= 0 (each naming the line).
+        ``seconds`` value that is not a time >= 0, or ``seconds`` whose total
+        overflows (each naming the line).
     """
     path = Path(path)
     # A byte-order mark (spreadsheets and Windows editors write one) is skipped, not a column name.
@@ -213,6 +214,8 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
                                      dtype=bool)
         elif name in _CHECKED_FRAME_COLUMNS:
             columns[name] = _checked_column(path, name, lines, values)
+            if name == "seconds":
+                _check_total_time(path, lines, columns[name])
         else:
             columns[name] = _optional_numeric_column(values)
     return FrameTable(columns=columns)
@@ -260,6 +263,27 @@ def _checked_column(path: Path, name: str, lines: list[int], values: list[str]) 
                                    f"got {text!r}")
         out[k] = value
     return out
+
+
+def _check_total_time(path: Path, lines: list[int], seconds: np.ndarray) -> None:
+    """Refuse per-frame times whose total is past what milliseconds can show.
+
+    Evaluations and reports give the time per frame in milliseconds; a total
+    past ``float max / 1000`` seconds would make its mean or sum infinite.
+
+    Raises
+    ------
+    InputError
+        Naming the line at which the running total of ``seconds`` goes past that bound.
+    """
+    milliseconds_per_second = 1e3
+    bound = np.finfo(np.float64).max / milliseconds_per_second
+    with np.errstate(over="ignore"):
+        total = np.cumsum(np.nan_to_num(seconds, nan=0.0))
+    past = np.flatnonzero(~(total <= bound))
+    if past.size:
+        raise InputError(path, f"line {lines[past[0]]}: column seconds: expected times that add up "
+                               f"to at most {bound:.4g} s, got a total past it at this line")
 
 
 def read_run_config(path: str | os.PathLike) -> dict:
