@@ -35,7 +35,7 @@ class EvaluateOptions:
     ----------
     max_time_difference : float
         Largest timestamp difference (timestamp units, frames or seconds)
-        for two poses to be associated.
+        for two poses to be associated; finite, >= 0.
     min_matched : float
         Smallest fraction of the ground-truth poses that must be associated
         with an estimate pose, and of the estimate poses that must be
@@ -56,8 +56,8 @@ class EvaluateOptions:
     origin_tolerance_rad: float = 1e-5
 
     def __post_init__(self) -> None:
-        if not self.max_time_difference >= 0:
-            raise ValueError(f"expected max_time_difference >= 0, got {self.max_time_difference}")
+        if not 0 <= self.max_time_difference < np.inf:
+            raise ValueError(f"expected max_time_difference finite and >= 0, got {self.max_time_difference}")
         if not 0 <= self.min_matched <= 1:
             raise ValueError(f"expected min_matched in [0, 1], got {self.min_matched}")
         if not self.origin_tolerance_rad > 0:

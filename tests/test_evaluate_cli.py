@@ -288,7 +288,7 @@ def test_evaluate_options_are_checked():
 
     with pytest.raises(ValueError, match="expected min_matched in \\[0, 1\\], got 1.5"):
         EvaluateOptions(min_matched=1.5)
-    with pytest.raises(ValueError, match="expected max_time_difference >= 0, got -1"):
+    with pytest.raises(ValueError, match="expected max_time_difference finite and >= 0, got -1"):
         EvaluateOptions(max_time_difference=-1)
     with pytest.raises(ValueError, match="expected origin_tolerance_rad > 0, got 0"):
         EvaluateOptions(origin_tolerance_rad=0)
@@ -298,6 +298,17 @@ def test_evaluate_cli_rejects_bad_min_matched(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(_gate(tmp_path, "--min-matched", "1.5"))
     assert exc.value.code == 2 and "expected a fraction in [0, 1], got 1.5" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["inf", "-1"])
+def test_evaluate_cli_rejects_an_infinite_or_negative_time_difference(tmp_path, capsys, value):
+    # With inf every pose was "within inf" yet the shortfall message said only some were.
+    with pytest.raises(SystemExit) as exc:
+        main(_gate(tmp_path, "--max-time-difference", value))
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert exc.value.code == 2 and err == ("ifmi evaluate: error: argument --max-time-difference: "
+                                           "expected a finite time difference >= 0 in the timestamps' "
+                                           f"unit, got {value}")
 
 
 def test_gate_fails_on_nan_rmse():
