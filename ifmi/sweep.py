@@ -240,7 +240,7 @@ def read_cell_record(path: Path, *, action: str) -> dict | None:
         record = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         return None
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deeply
         _warn(f"{path}: unreadable sweep cell ({type(exc).__name__}); {action}")
         return None
     if not isinstance(record, dict):

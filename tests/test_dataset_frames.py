@@ -91,7 +91,8 @@ def test_dataset_marked_incomplete_warns_with_the_count(tmp_path):
     (root / "meta.json").write_text(meta % "false")
     with pytest.warns(InputWarning, match=r"meta.json: the dataset is marked incomplete \(2 of 5 frames written\)"):
         read_dataset(root)
-    for text in (meta % "true", "[1, 2]", "{broken"):  # complete, or provenance that says nothing
+    # Complete, or provenance that says nothing (the last, nested too deeply, was a RecursionError).
+    for text in (meta % "true", "[1, 2]", "{broken", "[" * 100_000 + "]" * 100_000):
         (root / "meta.json").write_text(text)
         with warnings.catch_warnings():
             warnings.simplefilter("error")

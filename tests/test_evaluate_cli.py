@@ -183,6 +183,33 @@ def test_motion_flow_sample_of_real_frames_and_evaluation_stays_pure(tmp_path):
     assert abs(np.median(d[:, 0])) < 0.25
 
 
+# JSON nested past Python's recursion limit (the decoder raised RecursionError, printed as a traceback).
+DEEP_JSON = '{"a": ' * 100_000 + "1" + "}" * 100_000
+
+
+@pytest.mark.parametrize("text, problem", [
+    (DEEP_JSON, "invalid JSON: nested too deeply"),
+    ('{"method": "orb", "n": ' + "9" * 5000 + "}", "invalid JSON: an integer of 5000 digits; expected at most 4300"),
+])
+def test_config_json_nested_too_deeply_or_of_a_huge_integer_is_one_line_error(tmp_path, capsys, text,
+                                                                              problem):
+    _write_run(tmp_path)
+    (tmp_path / "est.config.json").write_text(text)
+    code, err = _run_error(_gate(tmp_path, "--out", str(tmp_path / "eval")), capsys)
+    assert code == 2 and err == f"ifmi evaluate: error: {tmp_path / 'est.config.json'}: {problem}"
+    assert not (tmp_path / "eval").exists()
+
+
+def test_out_folder_whose_evaluation_json_is_nested_too_deeply_is_refused(tmp_path, capsys):
+    _write_run(tmp_path)
+    (tmp_path / "eval").mkdir()
+    (tmp_path / "eval" / "evaluation.json").write_text(DEEP_JSON)
+    code, err = _run_error(_gate(tmp_path, "--out", str(tmp_path / "eval")), capsys)
+    assert code == 1 and len(err.splitlines()) == 1
+    assert "eval: holds evaluation.json but is not an evaluation folder written by ifmi evaluate" in err
+    assert (tmp_path / "eval" / "evaluation.json").read_text() == DEEP_JSON
+
+
 def _gate(tmp_path, *extra):
     return ["evaluate", "--gt", str(tmp_path / "groundtruth.txt"), "--est", str(tmp_path / "est.txt"),
             *extra]

@@ -206,9 +206,11 @@ def test_truncated_sweep_cell_is_skipped_with_a_warning(tmp_path, capsys):
     (root / "sweep" / "cells" / "c1.json").write_text('{"cell_id": "c1", "dat')
     (root / "sweep" / "cells" / "c2.json").write_text("[]")
     (root / "sweep" / "cells" / "c3.json").write_text('{"cell_id": "c3", "status": "ok"}')
+    (root / "sweep" / "cells" / "c4.json").write_text("[" * 100_000 + "]" * 100_000)  # was a RecursionError
     assert main(["report", str(root / "sweep"), "--out", str(tmp_path / "r")]) == 0
     err = capsys.readouterr().err
     assert "c1.json: unreadable sweep cell" in err and "c2.json: expected a JSON object" in err
+    assert "c4.json: unreadable sweep cell (RecursionError); skipped" in err
     assert "c3.json: sweep cell without dataset, method, tile_size, overlap; skipped" in err
     doc = json.loads((tmp_path / "r" / "report.json").read_text())
     assert len(doc["sweeps"][0]["cells"]) == 1
@@ -382,6 +384,15 @@ def test_evaluation_json_field_of_the_wrong_kind_is_one_line_error(tmp_path, cap
     edit(doc)
     doc_path.write_text(json.dumps(doc))
     assert _report_error(tmp_path, capsys, root) == f"ifmi report: error: {doc_path}: {expected}"
+
+
+def test_evaluation_json_nested_too_deeply_is_one_line_error(tmp_path, capsys):
+    # The JSON decoder's RecursionError was a traceback.
+    root = _make_results(tmp_path, scenes=("office",))
+    doc_path = root / "eval" / "office" / "orb" / "evaluation.json"
+    doc_path.write_text("[" * 100_000 + "]" * 100_000)
+    assert (_report_error(tmp_path, capsys, root)
+            == f"ifmi report: error: {doc_path}: invalid JSON: nested too deeply")
 
 
 def test_evaluation_with_a_time_stored_as_null_reads_as_unknown(tmp_path):

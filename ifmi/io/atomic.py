@@ -375,7 +375,7 @@ def folder_of_kind(path: str | os.PathLike, file_name: str, kind: str, *,
     """
     try:
         document = json.loads((Path(path) / file_name).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):  # RecursionError: nested too deeply
         return False
     if not isinstance(document, dict):
         return False

@@ -135,7 +135,7 @@ def dataset_meta(dataset_dir: str | os.PathLike) -> dict | None:
     JSON object (it is optional provenance, never required to read a dataset)."""
     try:
         meta = json.loads((Path(dataset_dir) / "meta.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # RecursionError: JSON nested too deeply
         return None
     return meta if isinstance(meta, dict) else None
 

@@ -37,10 +37,11 @@ from ..errors import InputError, OutputError
 from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
                      check_output_folder, folder_of_kind, json_text, probe_writable, write_folder)
 from .camera_file import calibration_path
+from .config import read_json_object
 from .evaluation_file import (check_evaluation_document, check_per_frame_arrays,
                               check_run_config)
 from .provenance import package_versions
-from .text_file import number_from_text, read_failure, read_text_file
+from .text_file import number_from_text, read_text_file
 
 __all__ = [
     "EVALUATION_KIND",
@@ -292,18 +293,11 @@ def read_run_config(path: str | os.PathLike) -> dict:
     Raises
     ------
     InputError
-        Missing file, invalid JSON or a JSON value that is not an object.
+        Missing file, invalid JSON (also nested too deeply, or an integer
+        of too many digits) or a JSON value that is not an object
+        (:func:`~ifmi.io.config.read_json_object`).
     """
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8-sig"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise read_failure(path, exc, what="config file") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"invalid JSON at line {exc.lineno}: {exc.msg}") from None
-    if not isinstance(data, dict):
-        raise InputError(path, f"expected a JSON object, got {type(data).__name__}")
-    return data
+    return read_json_object(path, what="config file")
 
 
 def read_estimate_side_files(estimate_path: str | os.PathLike) -> EstimateSideFiles:
@@ -589,7 +583,7 @@ def _earlier_estimate_output(path: Path, kind: str) -> bool:
             return isinstance(data, dict) and {"method", "config", "versions"} <= data.keys()
         with open(path, "rb") as f:
             first = f.read(_SNIFF_BYTES).split(b"\n", 1)[0].decode("utf-8", errors="replace")
-    except (OSError, UnicodeDecodeError, ValueError):
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):  # RecursionError: JSON nested too deeply
         return False
     if kind == "trajectory":
         return first.startswith(f"# {ESTIMATE_HEADER}")
