@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .dataset_names import display_name
 from .errors import InputError, InputWarning, OutputError
 from .io.dataset import dataset_meta, refuse_output_in_datasets
 from .io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
@@ -78,7 +79,9 @@ def dataset_label(dataset_dir: str | os.PathLike | None) -> tuple[str, str]:
 
     The dataset name is the folder name; the scene is the ``scene_name`` (or
     ``scene``: a string, or a mapping with ``name``) entry of its
-    ``meta.json`` when present, otherwise the dataset name.
+    ``meta.json`` when present, otherwise the dataset name. Bytes of a
+    folder name that are not UTF-8 show as U+FFFD
+    (:func:`~ifmi.dataset_names.display_name`).
     """
     if dataset_dir is None:
         return "unknown", "unknown"
@@ -91,7 +94,7 @@ def dataset_label(dataset_dir: str | os.PathLike | None) -> tuple[str, str]:
         value = value.get("name")
     if isinstance(value, str) and value:
         scene = Path(value).stem
-    return name, scene
+    return display_name(name), display_name(scene)
 
 
 # Entries of a dataset's meta.json carried into evaluations (provenance shown in reports).

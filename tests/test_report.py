@@ -375,6 +375,9 @@ def test_frame_count_past_64_bits_is_one_line_error(tmp_path, capsys):
      "field summary.failures: expected an object {...} or null, got a number 2"),
     (lambda d: d["summary"]["time"].update(mean_s=[0.1]),
      "field summary.time.mean_s: expected a number or null, got an array [0.1]"),
+    # Figures cannot draw it (Matplotlib raised TypeError).
+    (lambda d: d.update(scene="d\udcff"),
+     'field scene: expected a name without lone surrogates (\\ud800 to \\udfff), got a string "d\\udcff"'),
 ])
 def test_evaluation_json_field_of_the_wrong_kind_is_one_line_error(tmp_path, capsys, edit,
                                                                    expected):

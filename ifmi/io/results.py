@@ -35,7 +35,8 @@ import numpy as np
 
 from ..errors import InputError, OutputError
 from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
-                     check_output_folder, folder_of_kind, json_text, probe_writable, write_folder)
+                     check_output_folder, folder_of_kind, json_text, probe_writable, utf8_bytes,
+                     write_folder)
 from .camera_file import calibration_path
 from .config import read_json_object
 from .evaluation_file import (check_evaluation_document, check_per_frame_arrays,
@@ -648,9 +649,9 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
     config.update(extra or {})
     tum = format_tum(estimate.trajectory, header=f"{ESTIMATE_HEADER}, method {estimate.method}")
     atomic_write_files({
-        config_path: json_text(jsonable(config)).encode("utf-8"),
-        frames_path: frames_csv_text([r.to_row() for r in estimate.frames]).encode("utf-8"),
-        path: tum.encode("utf-8"),
+        config_path: utf8_bytes(json_text(jsonable(config))),
+        frames_path: utf8_bytes(frames_csv_text([r.to_row() for r in estimate.frames])),
+        path: utf8_bytes(tum),
     })
     return path
 
