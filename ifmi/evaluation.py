@@ -171,6 +171,17 @@ def _check_matched(gt_path: Path, est_path: Path, n_matched: int, n_gt: int, n_e
                                "measures nothing)")
 
 
+def _refuse_same_file(gt_path: Path, est_path: Path) -> None:
+    """Refuse an estimate that is the ground-truth file itself (its errors would all be 0)."""
+    try:
+        same = os.path.samefile(gt_path, est_path)
+    except OSError:  # both were just read; a file that went meanwhile is not the same
+        same = False
+    if same:
+        raise InputError(est_path, f"is the ground-truth file {gt_path} itself (every error would be 0); "
+                                   "expected an estimate")
+
+
 def _warn_if_rebased(gt_path: Path, est_path: Path, errors, options: EvaluateOptions) -> None:
     """Warn when the ground truth is not the identity at the first associated frame (re-based there)."""
     if errors.gt_origin_angle <= options.origin_tolerance_rad:
@@ -229,7 +240,8 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     Raises
     ------
     InputError
-        Missing or malformed input files, duplicate timestamps, side files
+        Missing or malformed input files, the estimate being the ground-truth
+        file itself, duplicate timestamps, side files
         that do not belong to the estimate, fewer associated poses than
         ``options.min_matched`` of the ground truth's or of the estimate's,
         or fewer than :data:`MIN_ASSOCIATED`.
@@ -239,6 +251,7 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     gt_path, est_path = Path(gt_path), Path(est_path)
     gt = read_tum(gt_path)
     est = read_tum(est_path)
+    _refuse_same_file(gt_path, est_path)
     _check_unique_timestamps(gt_path, gt)
     _check_unique_timestamps(est_path, est)
     side = read_estimate_side_files(est_path)

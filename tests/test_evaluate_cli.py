@@ -469,6 +469,16 @@ def test_bad_frames_csv_value_is_one_line_error_naming_the_line(tmp_path, capsys
     assert not (tmp_path / "eval").exists()
 
 
+def test_estimate_that_is_the_ground_truth_file_is_refused(tmp_path, capsys):
+    # Every error was 0 and the gate said PASS.
+    _write_run(tmp_path)
+    gt = tmp_path / "groundtruth.txt"
+    code, err = _run_error(["evaluate", "--gt", str(gt), "--est", str(gt), "--max-rmse", "0.001"], capsys)
+    assert code == 2 and err == (f"ifmi evaluate: error: {gt}: is the ground-truth file {gt} itself (every "
+                                 "error would be 0); expected an estimate")
+    assert "PASS" not in capsys.readouterr().out
+
+
 def test_repeated_frame_in_frames_csv_is_one_line_error(tmp_path, capsys):
     _write_run(tmp_path)
     _edit_frames(tmp_path, "frame", "3", rows=[5])
