@@ -469,6 +469,16 @@ def test_bad_frames_csv_value_is_one_line_error_naming_the_line(tmp_path, capsys
     assert not (tmp_path / "eval").exists()
 
 
+def test_column_named_twice_in_frames_csv_is_one_line_error(tmp_path, capsys):
+    # The later column replaced the earlier one: the times were read from whichever came last.
+    _write_run(tmp_path)
+    text = (tmp_path / "est.frames.csv").read_text()
+    (tmp_path / "est.frames.csv").write_text(text.replace("n_inliers", "seconds", 1))
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and err == (f"ifmi evaluate: error: {tmp_path / 'est.frames.csv'}: line 1: column "
+                                 "seconds given twice; expected each column once")
+
+
 def test_estimate_that_is_the_ground_truth_file_is_refused(tmp_path, capsys):
     # Every error was 0 and the gate said PASS.
     _write_run(tmp_path)

@@ -185,7 +185,8 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
     Raises
     ------
     InputError
-        Missing or unreadable file, missing required column, a row of the
+        Missing or unreadable file, missing required column, a column
+        named twice, a row of the
         wrong length, a ``frame`` that is not a whole number from 0 to
         ``2**63 - 1`` (a 64-bit frame index), a
         ``reference_frame`` that is not a whole number, or a
@@ -201,6 +202,10 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
     if not numbered:
         raise InputError(path, "empty frames file (expected a header line)")
     header = [h.strip() for h in numbered[0][1]]
+    repeated = next((h for k, h in enumerate(header) if h in header[:k]), None)
+    if repeated is not None:  # the later column would silently replace the earlier one
+        raise InputError(path, f"line {numbered[0][0]}: column {repeated} given twice; expected each "
+                               "column once")
     missing = [c for c in REQUIRED_FRAME_COLUMNS if c not in header]
     if missing:
         raise InputError(path, f"missing column(s) {', '.join(missing)}; got {', '.join(header)}")
