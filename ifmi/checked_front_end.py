@@ -186,14 +186,17 @@ def _diagnostics(value: Mapping, where: str) -> dict:
     Raises
     ------
     InputError
-        A key that is not one line of text, or a value that is not a number,
-        a 64-bit integer, true/false, null or one line of text.
+        A key that is not one line of text without surrounding spaces, or a
+        value that is not a number, a 64-bit integer, true/false, null or one
+        line of text.
     """
     out = {}
     for key, item in value.items():
-        if not isinstance(key, str) or len(key.splitlines()) > 1:
+        # frames.csv strips its column names: " seconds" would be read as the seconds column.
+        if not isinstance(key, str) or len(key.splitlines()) > 1 or key != key.strip():
             raise InputError(where, f"correspondences() returned a diagnostics key {_shown(key)}; "
-                                    "expected one line of text (a column name of frames.csv)")
+                                    "expected one line of text without surrounding spaces (a column "
+                                    "name of frames.csv)")
         problem = _diagnostic_problem(item)
         if problem:
             raise InputError(where, f"correspondences() returned diagnostics entry {_shown(key)}: {problem}; "

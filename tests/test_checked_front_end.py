@@ -66,6 +66,7 @@ complex_rays = _make(lambda c, k: replace(c, rays_a=c.rays_a + 0j))
 array_diagnostic = _make(lambda c, k: replace(c, diagnostics={"scores": np.arange(100)}))
 two_line_diagnostic = _make(lambda c, k: replace(c, diagnostics={"note": "first\\n# second"}))
 huge_int_diagnostic = _make(lambda c, k: replace(c, diagnostics={"big": 10 ** 5000}))
+spaced_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={" seconds": 1.0}))
 tuple_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={("a", "b"): 1}))
 float16_rays = _make(lambda c, k: replace(c, rays_a=c.rays_a.astype(np.float16), rays_b=c.rays_b.astype(np.float16)))
 
@@ -154,7 +155,10 @@ def _estimate(dataset, method, out, capsys):
     ("huge_int_diagnostic", "correspondences() returned diagnostics entry 'big': an integer of 16610 bits; "
                             "expected"),
     ("tuple_key_diagnostic", "correspondences() returned a diagnostics key of type tuple; expected one line "
-                             "of text (a column name of frames.csv)"),
+                             "of text without surrounding spaces (a column name of frames.csv)"),
+    # Read back as the seconds column (frames.csv strips column names), then refused as one named twice.
+    ("spaced_key_diagnostic", "correspondences() returned a diagnostics key ' seconds'; expected one line "
+                              "of text without surrounding spaces"),
 ])
 def test_breach_of_the_contract_is_one_line_naming_the_method(dataset, plugin, tmp_path, capsys, factory,
                                                               problem):
