@@ -20,7 +20,8 @@ from .errors import InputError, InputWarning, OutputError
 from .io.dataset import dataset_meta, refuse_output_in_datasets
 from .io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
 from .io.tum import read_tum
-from .metrics import AXES, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors, trajectory_errors
+from .metrics import (AXES, MAX_POSITION, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors,
+                      trajectory_errors)
 from .trajectory import Trajectory
 
 __all__ = ["EvaluateOptions", "GateVerdict", "MIN_ASSOCIATED", "default_evaluation_dir",
@@ -171,6 +172,16 @@ def _check_matched(gt_path: Path, est_path: Path, n_matched: int, n_gt: int, n_e
                                "measures nothing)")
 
 
+def _check_positions(path: Path, trajectory: Trajectory) -> None:
+    """Refuse a position coordinate beyond :data:`~ifmi.metrics.MAX_POSITION` (errors would overflow)."""
+    largest = np.abs(trajectory.positions).max(axis=1)
+    if largest.max() > MAX_POSITION:
+        k = int(np.argmax(largest > MAX_POSITION))
+        value = trajectory.positions[k][np.argmax(np.abs(trajectory.positions[k]))]
+        raise InputError(path, f"pose at timestamp {trajectory.timestamps[k]:g}: position coordinate "
+                               f"{value:g} out of range; expected at most {MAX_POSITION:.4g} in magnitude")
+
+
 def _refuse_same_file(gt_path: Path, est_path: Path) -> None:
     """Refuse an estimate that is the ground-truth file itself (its errors would all be 0)."""
     try:
@@ -241,7 +252,8 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     ------
     InputError
         Missing or malformed input files, the estimate being the ground-truth
-        file itself, duplicate timestamps, side files
+        file itself, a position coordinate beyond
+        :data:`~ifmi.metrics.MAX_POSITION`, duplicate timestamps, side files
         that do not belong to the estimate, fewer associated poses than
         ``options.min_matched`` of the ground truth's or of the estimate's,
         or fewer than :data:`MIN_ASSOCIATED`.
@@ -252,6 +264,8 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     gt = read_tum(gt_path)
     est = read_tum(est_path)
     _refuse_same_file(gt_path, est_path)
+    _check_positions(gt_path, gt)
+    _check_positions(est_path, est)
     _check_unique_timestamps(gt_path, gt)
     _check_unique_timestamps(est_path, est)
     side = read_estimate_side_files(est_path)

@@ -118,6 +118,19 @@ def test_malformed_groundtruth_is_one_line_error(tmp_path, capsys):
     assert code == 2 and len(err.splitlines()) == 1 and "expected 8 values" in err
 
 
+def test_position_out_of_range_in_groundtruth_is_one_line_error(tmp_path, capsys):
+    # 1e308 m: the translation-direction errors overflowed (NumPy warnings, then n/a) with exit 0.
+    _write_run(tmp_path)
+    lines = (tmp_path / "groundtruth.txt").read_text().splitlines()
+    fields = lines[3].split()
+    lines[3] = " ".join([fields[0], "1e308", *fields[2:]])
+    (tmp_path / "groundtruth.txt").write_text("\n".join(lines) + "\n")
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and err == (f"ifmi evaluate: error: {tmp_path / 'groundtruth.txt'}: pose at timestamp 2: "
+                                 "position coordinate 1e+308 out of range; expected at most 3.352e+153 in "
+                                 "magnitude")
+
+
 def test_malformed_frames_csv_is_one_line_error(tmp_path, capsys):
     _write_run(tmp_path)
     (tmp_path / "est.frames.csv").write_text("frame,success\n0,true\n")
