@@ -190,6 +190,8 @@ def dataset_digest(dataset: str | os.PathLike) -> str:
     h = hashlib.sha256()
     for name in ("meta.json", "calib_results.txt", "camera.yaml", "groundtruth.txt"):
         try:
+            if not (folder / name).is_file():  # a FIFO would block the read; the cell names it
+                raise FileNotFoundError(folder / name)
             h.update(name.encode() + b"\0" + (folder / name).read_bytes() + b"\0")
         except OSError:
             h.update(name.encode() + b"\0absent\0")

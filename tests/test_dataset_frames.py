@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import struct
 import warnings
@@ -83,6 +84,28 @@ def test_entries_that_are_not_frames_are_skipped_with_one_warning(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         read_dataset(_folder(tmp_path / "clean", ["000000.png"]))
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_calibration_that_is_a_fifo_is_one_line_error(tmp_path, capsys):
+    # Reading it waited for a writer forever.
+    root = _folder(tmp_path, ["000000.png", "000001.png"])
+    (root / "calib_results.txt").unlink()
+    os.mkfifo(root / "calib_results.txt")
+    assert main(["estimate", str(root), "--out", str(tmp_path / "e.txt"), "--no-progress"]) == 2
+    assert capsys.readouterr().err.strip() == (f"ifmi estimate: error: {root / 'calib_results.txt'}: is a "
+                                               "FIFO, device or socket, not a calibration file; expected a "
+                                               "regular file")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_meta_json_that_is_a_fifo_is_ignored(tmp_path):
+    # Optional provenance; reading it waited for a writer forever.
+    root = _folder(tmp_path, ["000000.png", "000001.png"])
+    os.mkfifo(root / "meta.json")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_dataset(root).frame_indices == (0, 1)
 
 
 def test_dataset_marked_incomplete_warns_with_the_count(tmp_path):
@@ -251,6 +274,19 @@ def test_bad_middle_frame_is_flagged_with_its_file_name(tmp_path, capfd):
     assert isinstance(frames[1], MissingFrame)
     assert frames[1].reason.startswith("000001.png: truncated PNG")
     assert capfd.readouterr().err == ""
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_frame_linked_to_a_fifo_is_flagged_not_waited_for(tmp_path):
+    # The read waited for a writer forever.
+    root = _folder(tmp_path, [f"{k:06d}.png" for k in range(3)])
+    os.mkfifo(tmp_path / "fifo")
+    (root / "images" / "000001.png").unlink()
+    (root / "images" / "000001.png").symlink_to(tmp_path / "fifo")
+    frames = list(read_dataset(root).iter_images(skip_unreadable=True))
+    assert isinstance(frames[1], MissingFrame)
+    assert frames[1].reason == ("000001.png: is a FIFO, device or socket, not an image file; expected a "
+                                "regular file")
 
 
 # --- estimates of datasets with gaps ------------------------------------------------

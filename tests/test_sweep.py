@@ -169,6 +169,18 @@ def test_dataset_folder_named_with_a_byte_that_is_not_utf8_is_swept_and_reported
     assert "| d\ufffd | ifmi | 32 | 0 | ok |" in (tmp_path / "report" / "README.md").read_text()
 
 
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_calibration_that_is_a_fifo_fails_its_cell_instead_of_blocking(tmp_path, capsys):
+    # The dataset digest read the FIFO's bytes and waited for a writer forever.
+    folder = _write_dataset(tmp_path / "ds", n=3, size=128, seed=5)
+    (folder / "calib_results.txt").unlink()
+    os.mkfifo(folder / "calib_results.txt")
+    assert main(["sweep", str(folder), "--tile-size", "32", "--overlap", "0", "--scheduler", "synchronous",
+                 "--out", str(tmp_path / "sweep"), "--no-progress"]) == 1
+    assert (f"InputError: {folder / 'calib_results.txt'}: is a FIFO, device or socket, not a calibration file"
+            in capsys.readouterr().err)
+
+
 def test_two_datasets_of_one_name_are_distinct_cells(tmp_path):
     a = _write_dataset(tmp_path / "site_a" / "office", n=4, size=128, seed=5, max_step_rad=0.03)
     b = _write_dataset(tmp_path / "site_b" / "office", n=4, size=128, seed=6, max_step_rad=0.06)

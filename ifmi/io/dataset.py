@@ -131,10 +131,14 @@ def _warn_skipped(image_dir: Path, skipped: tuple) -> None:
 
 
 def dataset_meta(dataset_dir: str | os.PathLike) -> dict | None:
-    """A dataset folder's ``meta.json`` as a mapping, or None when it is absent, unreadable or not a
-    JSON object (it is optional provenance, never required to read a dataset)."""
+    """A dataset folder's ``meta.json`` as a mapping, or None when it is absent, unreadable, not a
+    regular file (a FIFO would block the read) or not a JSON object (it is optional provenance,
+    never required to read a dataset)."""
+    path = Path(dataset_dir) / "meta.json"
+    if not path.is_file():
+        return None
     try:
-        meta = json.loads((Path(dataset_dir) / "meta.json").read_text(encoding="utf-8"))
+        meta = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError, RecursionError):  # RecursionError: JSON nested too deeply
         return None
     return meta if isinstance(meta, dict) else None

@@ -333,8 +333,8 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
     Raises
     ------
     InputError
-        Unreadable or damaged file (also damage only the decoder finds), or
-        wrong size.
+        Unreadable or damaged file (also damage only the decoder finds), a
+        FIFO, device or socket, or wrong size.
 
     Warns
     -----
@@ -345,6 +345,8 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
         command line).
     """
     path = Path(path)
+    if path.exists() and not (path.is_file() or path.is_dir()):  # e.g. a link to a FIFO: the read would block
+        raise InputError(path, "is a FIFO, device or socket, not an image file; expected a regular file")
     try:
         data = path.read_bytes()
     except FileNotFoundError:
