@@ -108,6 +108,18 @@ def test_meta_json_that_is_a_fifo_is_ignored(tmp_path):
         assert read_dataset(root).frame_indices == (0, 1)
 
 
+def test_frame_numbers_one_timestamp_cannot_tell_apart_are_refused(tmp_path, capsys):
+    # Nanosecond stamps 1 ns apart: the estimate was written with equal timestamps, exit 0.
+    root = _folder(tmp_path, [f"17000000000000000{k:02d}.png" for k in range(2)])
+    assert main(["estimate", str(root), "--out", str(tmp_path / "e.txt"), "--no-progress"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"ifmi estimate: error: {root / 'images'}: frames 1700000000000000000 (1700000000000000000.png) and "
+        "1700000000000000001 (1700000000000000001.png) get one timestamp, 1700000000000000000, in a "
+        "trajectory file (64-bit floats hold integers this large only to a multiple of 256); expected frame "
+        "numbers that differ by more")
+    assert not (tmp_path / "e.txt").exists()
+
+
 def test_dataset_marked_incomplete_warns_with_the_count(tmp_path):
     root = _folder(tmp_path, ["000000.png", "000001.png"])
     meta = '{"frames": 5, "images": {"000000.png": "x", "000001.png": "y"}, "complete": %s}'
