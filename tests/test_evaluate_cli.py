@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import warnings
 
 import numpy as np
@@ -129,6 +130,27 @@ def test_position_out_of_range_in_groundtruth_is_one_line_error(tmp_path, capsys
     assert code == 2 and err == (f"ifmi evaluate: error: {tmp_path / 'groundtruth.txt'}: pose at timestamp 2: "
                                  "position coordinate 1e+308 out of range; expected at most 3.352e+153 in "
                                  "magnitude")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_side_file_that_is_a_fifo_is_one_line_error(tmp_path, capsys):
+    # The read waited for a writer forever.
+    _write_run(tmp_path)
+    (tmp_path / "est.frames.csv").unlink()
+    os.mkfifo(tmp_path / "est.frames.csv")
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and err == (f"ifmi evaluate: error: {tmp_path / 'est.frames.csv'}: is a FIFO, device or "
+                                 "socket, not a frames file; expected a regular file")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_out_folder_whose_evaluation_json_is_a_fifo_is_refused(tmp_path, capsys):
+    _write_run(tmp_path)
+    (tmp_path / "eval").mkdir()
+    os.mkfifo(tmp_path / "eval" / "evaluation.json")
+    code, err = _run_error(_gate(tmp_path, "--out", str(tmp_path / "eval")), capsys)
+    assert code == 1 and len(err.splitlines()) == 1
+    assert "eval: holds evaluation.json but is not an evaluation folder written by ifmi evaluate" in err
 
 
 def test_malformed_frames_csv_is_one_line_error(tmp_path, capsys):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -387,6 +388,18 @@ def test_evaluation_json_field_of_the_wrong_kind_is_one_line_error(tmp_path, cap
     edit(doc)
     doc_path.write_text(json.dumps(doc))
     assert _report_error(tmp_path, capsys, root) == f"ifmi report: error: {doc_path}: {expected}"
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_file_of_an_evaluation_that_is_a_fifo_is_one_line_error(tmp_path, capsys):
+    # The read waited for a writer forever.
+    root = _make_results(tmp_path, scenes=("office",))
+    path = root / "eval" / "office" / "orb" / "per_frame.npz"
+    path.unlink()
+    os.mkfifo(path)
+    assert (_report_error(tmp_path, capsys, root)
+            == f"ifmi report: error: {path}: is a FIFO, device or socket, not a file of an evaluation; "
+               "expected a regular file")
 
 
 def test_evaluation_json_nested_too_deeply_is_one_line_error(tmp_path, capsys):

@@ -384,6 +384,8 @@ def folder_of_kind(path: str | os.PathLike, file_name: str, kind: str, *,
     bool
         False for a missing, unreadable or foreign record.
     """
+    if not (Path(path) / file_name).is_file():  # missing, or a FIFO whose read would block
+        return False
     try:
         document = json.loads((Path(path) / file_name).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError, RecursionError):  # RecursionError: nested too deeply

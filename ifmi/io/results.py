@@ -42,7 +42,7 @@ from .config import read_json_object
 from .evaluation_file import (check_evaluation_document, check_per_frame_arrays,
                               check_run_config)
 from .provenance import package_versions
-from .text_file import number_from_text, read_text_file
+from .text_file import number_from_text, read_text_file, refuse_special_file
 
 __all__ = [
     "EVALUATION_KIND",
@@ -313,10 +313,12 @@ def read_estimate_side_files(estimate_path: str | os.PathLike) -> EstimateSideFi
     ------
     InputError
         A malformed side file (:func:`read_frames_csv`, :func:`read_run_config`),
-        or a config whose ``method`` or ``dataset`` is of the wrong kind
+        one that is a FIFO, device or socket, or a config whose ``method`` or ``dataset`` is of the wrong kind
         (:func:`~ifmi.io.evaluation_file.check_run_config`).
     """
     frames_path, config_path = side_file_paths(estimate_path)
+    refuse_special_file(frames_path, what="frames file")
+    refuse_special_file(config_path, what="config file")
     frames = read_frames_csv(frames_path) if frames_path.exists() else None
     config = read_run_config(config_path) if config_path.exists() else None
     if config is not None:
@@ -452,6 +454,8 @@ def read_evaluation(path: str | os.PathLike) -> EvaluationRecord:
     """
     folder = Path(path)
     doc_path = folder / "evaluation.json"
+    for name in EVALUATION_FILES:
+        refuse_special_file(folder / name, what="file of an evaluation")
     meta = read_run_config(doc_path) if doc_path.exists() else None
     if meta is None:
         raise InputError(folder, "not an evaluation folder (no evaluation.json)")
