@@ -10,7 +10,9 @@ applies two rules:
   ``reason`` text, rays ``(N, 3)`` finite unit vectors (norms within
   :data:`RAY_NORM_TOLERANCE` of 1, then normalised), pixels ``(N, 2)``
   finite, both frames' arrays of one length, ``rays_per_measurement`` an
-  integer from 1 to N that divides N, ``diagnostics`` a mapping. These are
+  integer from 1 to N that divides N, ``diagnostics`` a mapping of one-line
+  names to JSON scalars (numbers, 64-bit integers, true/false, null or one
+  line of text: each is a column of the run's frames.csv). These are
   errors of the plugin's code, the same on every frame, and a wrong result
   (pixel coordinates passed as rays, say) would otherwise come out as a
   confident wrong trajectory.
@@ -40,6 +42,13 @@ RAY_NORM_TOLERANCE = 2e-3
 # Fields a front end's result must have (those of Correspondences).
 _FIELDS = ("pixels_a", "pixels_b", "rays_a", "rays_b", "diagnostics", "success", "reason",
            "rays_per_measurement")
+# NumPy dtype kinds of real numbers (signed, unsigned integer, float) accepted for rays and pixels.
+_REAL_KINDS = "iuf"
+# Bits of the largest integer a diagnostics entry may hold (that of a 64-bit integer; a longer one
+# is no measurement, and Python refuses to print one of over 4300 digits).
+_DIAGNOSTIC_INT_BITS = 64
+# Characters of a diagnostics key quoted in a message.
+_SHOWN_KEY_CHARS = 40
 
 
 @dataclass(frozen=True)
@@ -155,7 +164,7 @@ def checked_correspondences(result, *, method: str) -> Correspondences:
     if not isinstance(result.diagnostics, Mapping):
         raise InputError(where, f"correspondences() returned diagnostics of type "
                                 f"{type(result.diagnostics).__name__}; expected a dict")
-    diagnostics = dict(result.diagnostics)
+    diagnostics = _diagnostics(result.diagnostics, where)
     if not result.success:
         reason = " ".join(result.reason.split()) or "no reason given"
         return Correspondences.failed(f"{where}: {reason}", diagnostics)
@@ -171,13 +180,61 @@ def checked_correspondences(result, *, method: str) -> Correspondences:
                            rays_per_measurement=group)
 
 
+def _diagnostics(value: Mapping, where: str) -> dict:
+    """``value`` as a dict of one-line text keys to JSON scalars, each a column of frames.csv.
+
+    Raises
+    ------
+    InputError
+        A key that is not one line of text without surrounding spaces, or a
+        value that is not a number, a 64-bit integer, true/false, null or one
+        line of text.
+    """
+    out = {}
+    for key, item in value.items():
+        # frames.csv strips its column names: " seconds" would be read as the seconds column.
+        if not isinstance(key, str) or len(key.splitlines()) > 1 or key != key.strip():
+            raise InputError(where, f"correspondences() returned a diagnostics key {_shown(key)}; "
+                                    "expected one line of text without surrounding spaces (a column "
+                                    "name of frames.csv)")
+        problem = _diagnostic_problem(item)
+        if problem:
+            raise InputError(where, f"correspondences() returned diagnostics entry {_shown(key)}: {problem}; "
+                                    "expected a float, an integer of at most 64 bits, true/false, null or "
+                                    "one line of text (a column of frames.csv)")
+        out[key] = item
+    return out
+
+
+def _diagnostic_problem(item) -> str | None:
+    """Why ``item`` cannot be a frames.csv field, or None."""
+    if isinstance(item, (int, np.integer)) and not isinstance(item, (bool, np.bool_)):
+        bits = int(item).bit_length()
+        return None if bits <= _DIAGNOSTIC_INT_BITS else f"an integer of {bits} bits"
+    if item is None or isinstance(item, (bool, np.bool_, float, np.floating)):
+        return None
+    if isinstance(item, str):
+        lines = len(item.splitlines())
+        return None if lines <= 1 else f"text of {lines} lines"
+    return f"a value of type {type(item).__name__}"
+
+
+def _shown(key) -> str:
+    """``key`` for a message: its repr, on one line, cut short."""
+    text = repr(key) if isinstance(key, str) else f"of type {type(key).__name__}"
+    return text if len(text) <= _SHOWN_KEY_CHARS else text[:_SHOWN_KEY_CHARS - 3] + "..."
+
+
 def _array(value, name: str, columns: int, where: str) -> np.ndarray:
     """``value`` as a finite float64 ``(N, columns)`` array."""
     try:
-        array = np.asarray(value, dtype=np.float64)
+        array = np.asarray(value)
+        if array.dtype.kind not in _REAL_KINDS:  # complex, text, objects: float64 would drop or parse them
+            raise TypeError(f"values of type {array.dtype}")
+        array = array.astype(np.float64)
     except (TypeError, ValueError) as exc:
         raise InputError(where, f"correspondences() returned {name} that is no numeric array "
-                                f"({one_line(exc)}); expected (N, {columns}) numbers") from None
+                                f"({one_line(exc)}); expected (N, {columns}) real numbers") from None
     if array.ndim != 2 or array.shape[1] != columns:
         raise InputError(where, f"correspondences() returned {name} of shape {array.shape}; "
                                 f"expected (N, {columns})")

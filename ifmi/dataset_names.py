@@ -20,12 +20,25 @@ import re
 from pathlib import Path
 from typing import Sequence
 
-__all__ = ["dataset_folder_id", "dataset_labels", "resolved_folder"]
+__all__ = ["dataset_folder_id", "dataset_labels", "display_name", "resolved_folder"]
 
 # Hex digits of the digest of the resolved folder path in a folder id.
 _ID_DIGITS = 12
 # Characters that a folder id keeps; every other character becomes "_".
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.=-]")
+# Lone surrogates: Python's stand-ins for the bytes of a file name that are not UTF-8 (os.fsdecode).
+_SURROGATE = re.compile("[\ud800-\udfff]")
+# What a display name shows in place of such a byte (as ls and file managers do).
+_REPLACEMENT_CHARACTER = "\ufffd"
+
+
+def display_name(text: str) -> str:
+    """``text`` with every lone surrogate replaced by U+FFFD, for tables, figures and JSON.
+
+    A folder name with bytes that are not UTF-8 reaches Python with lone
+    surrogates, which neither UTF-8 files nor Matplotlib's text can hold.
+    """
+    return _SURROGATE.sub(_REPLACEMENT_CHARACTER, text)
 
 
 def resolved_folder(dataset: str | os.PathLike) -> str:
@@ -49,7 +62,7 @@ def dataset_folder_id(dataset: str | os.PathLike) -> str:
         digits and ``_.=-`` replaced by ``_``.
     """
     folder = resolved_folder(dataset)
-    digest = hashlib.sha256(folder.encode("utf-8")).hexdigest()[:_ID_DIGITS]
+    digest = hashlib.sha256(os.fsencode(folder)).hexdigest()[:_ID_DIGITS]  # the name's bytes, UTF-8 or not
     return _UNSAFE.sub("_", f"{Path(folder).name}-{digest}")
 
 
@@ -69,7 +82,7 @@ def dataset_labels(datasets: Sequence[str | os.PathLike]) -> dict[str, str]:
     folders = list(dict.fromkeys(resolved_folder(d) for d in datasets))
     depth = 1
     while True:
-        labels = {f: "/".join(Path(f).parts[-depth:]) for f in folders}
+        labels = {f: display_name("/".join(Path(f).parts[-depth:])) for f in folders}
         if len(set(labels.values())) == len(folders) or depth > max(len(Path(f).parts) for f in folders):
             return labels
         depth += 1

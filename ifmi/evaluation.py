@@ -15,11 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .dataset_names import display_name
 from .errors import InputError, InputWarning, OutputError
 from .io.dataset import dataset_meta, refuse_output_in_datasets
 from .io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
 from .io.tum import read_tum
-from .metrics import AXES, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors, trajectory_errors
+from .metrics import (AXES, MAX_POSITION, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors,
+                      trajectory_errors)
 from .trajectory import Trajectory
 
 __all__ = ["EvaluateOptions", "GateVerdict", "MIN_ASSOCIATED", "default_evaluation_dir",
@@ -35,7 +37,7 @@ class EvaluateOptions:
     ----------
     max_time_difference : float
         Largest timestamp difference (timestamp units, frames or seconds)
-        for two poses to be associated.
+        for two poses to be associated; finite, >= 0.
     min_matched : float
         Smallest fraction of the ground-truth poses that must be associated
         with an estimate pose, and of the estimate poses that must be
@@ -56,8 +58,8 @@ class EvaluateOptions:
     origin_tolerance_rad: float = 1e-5
 
     def __post_init__(self) -> None:
-        if not self.max_time_difference >= 0:
-            raise ValueError(f"expected max_time_difference >= 0, got {self.max_time_difference}")
+        if not 0 <= self.max_time_difference < np.inf:
+            raise ValueError(f"expected max_time_difference finite and >= 0, got {self.max_time_difference}")
         if not 0 <= self.min_matched <= 1:
             raise ValueError(f"expected min_matched in [0, 1], got {self.min_matched}")
         if not self.origin_tolerance_rad > 0:
@@ -78,7 +80,9 @@ def dataset_label(dataset_dir: str | os.PathLike | None) -> tuple[str, str]:
 
     The dataset name is the folder name; the scene is the ``scene_name`` (or
     ``scene``: a string, or a mapping with ``name``) entry of its
-    ``meta.json`` when present, otherwise the dataset name.
+    ``meta.json`` when present, otherwise the dataset name. Bytes of a
+    folder name that are not UTF-8 show as U+FFFD
+    (:func:`~ifmi.dataset_names.display_name`).
     """
     if dataset_dir is None:
         return "unknown", "unknown"
@@ -91,7 +95,7 @@ def dataset_label(dataset_dir: str | os.PathLike | None) -> tuple[str, str]:
         value = value.get("name")
     if isinstance(value, str) and value:
         scene = Path(value).stem
-    return name, scene
+    return display_name(name), display_name(scene)
 
 
 # Entries of a dataset's meta.json carried into evaluations (provenance shown in reports).
@@ -168,6 +172,27 @@ def _check_matched(gt_path: Path, est_path: Path, n_matched: int, n_gt: int, n_e
                                "measures nothing)")
 
 
+def _check_positions(path: Path, trajectory: Trajectory) -> None:
+    """Refuse a position coordinate beyond :data:`~ifmi.metrics.MAX_POSITION` (errors would overflow)."""
+    largest = np.abs(trajectory.positions).max(axis=1)
+    if largest.max() > MAX_POSITION:
+        k = int(np.argmax(largest > MAX_POSITION))
+        value = trajectory.positions[k][np.argmax(np.abs(trajectory.positions[k]))]
+        raise InputError(path, f"pose at timestamp {trajectory.timestamps[k]:g}: position coordinate "
+                               f"{value:g} out of range; expected at most {MAX_POSITION:.4g} in magnitude")
+
+
+def _refuse_same_file(gt_path: Path, est_path: Path) -> None:
+    """Refuse an estimate that is the ground-truth file itself (its errors would all be 0)."""
+    try:
+        same = os.path.samefile(gt_path, est_path)
+    except OSError:  # both were just read; a file that went meanwhile is not the same
+        same = False
+    if same:
+        raise InputError(est_path, f"is the ground-truth file {gt_path} itself (every error would be 0); "
+                                   "expected an estimate")
+
+
 def _warn_if_rebased(gt_path: Path, est_path: Path, errors, options: EvaluateOptions) -> None:
     """Warn when the ground truth is not the identity at the first associated frame (re-based there)."""
     if errors.gt_origin_angle <= options.origin_tolerance_rad:
@@ -226,7 +251,9 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     Raises
     ------
     InputError
-        Missing or malformed input files, duplicate timestamps, side files
+        Missing or malformed input files, the estimate being the ground-truth
+        file itself, a position coordinate beyond
+        :data:`~ifmi.metrics.MAX_POSITION`, duplicate timestamps, side files
         that do not belong to the estimate, fewer associated poses than
         ``options.min_matched`` of the ground truth's or of the estimate's,
         or fewer than :data:`MIN_ASSOCIATED`.
@@ -236,6 +263,9 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     gt_path, est_path = Path(gt_path), Path(est_path)
     gt = read_tum(gt_path)
     est = read_tum(est_path)
+    _refuse_same_file(gt_path, est_path)
+    _check_positions(gt_path, gt)
+    _check_positions(est_path, est)
     _check_unique_timestamps(gt_path, gt)
     _check_unique_timestamps(est_path, est)
     side = read_estimate_side_files(est_path)

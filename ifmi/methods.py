@@ -160,6 +160,9 @@ def _load_target(target: str, *, method: str) -> Callable:
     except Exception as exc:  # any error of a third-party module's import, reported in one line
         raise InputError(where, f"importing {module_name} failed: {type(exc).__name__}: "
                                 f"{exc}") from None
+    except SystemExit as exc:  # sys.exit(0) at import would end the run with status 0 and no output
+        raise InputError(where, f"importing {module_name} called sys.exit({exc.code!r}); a method's "
+                                "module must import without exiting") from None
     obj: Any = module
     for part in attribute.split("."):
         if not hasattr(obj, part):

@@ -26,6 +26,7 @@ from .rotations import geodesic_angle, rpy_from_matrix, wrap_angle
 __all__ = [
     "AXES",
     "MIN_ASSOCIATED",
+    "MAX_POSITION",
     "ErrorStats",
     "TrajectoryErrors",
     "associate_timestamps",
@@ -42,6 +43,10 @@ AXES = ("roll", "pitch", "yaw")
 # Fewest associated poses an evaluation accepts: one pose is a single sample, and when it is
 # frame 0 (the identity in both trajectories) its errors are zero whatever the estimate.
 MIN_ASSOCIATED = 2
+# Largest position coordinate (any unit) the errors take: a quarter of the square root of the
+# largest float, so that differences of positions, their squares and products of two such
+# lengths (translation_direction_errors) stay finite.
+MAX_POSITION = float(np.sqrt(np.finfo(np.float64).max)) / 4
 
 # Translation lengths below this (in the ground truth's units) count as "no
 # translation": the direction of such a motion is undefined.

@@ -487,17 +487,15 @@ def _sweep_names(sweeps: Sequence[Path]) -> dict:
 
 
 def _sweep_blocks(sweep_dir: Path, figures: Path, *, name: str) -> tuple[list, dict]:
-    import pandas as pd
-
     from .plots import sweep_heatmap
-    from .sweep import METRICS, read_cells
+    from .sweep import METRICS, read_cells, records_table
 
     records = read_cells(sweep_dir)
     blocks = [("h3", f"Sweep: {name}")]
     if not records:
         blocks.append(("p", "No finished cells."))
         return blocks, {"path": str(sweep_dir), "cells": []}
-    table = pd.DataFrame([{k: v for k, v in r.items() if k != "traceback"} for r in records])
+    table = records_table(records)
     header = ["dataset", "method", "tile size", "overlap", "status", "mean RMSE [rad]",
               "geodesic RMSE [rad]", "time/frame [ms]", "failed frames"]
     body = []

@@ -47,7 +47,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from .dataset_names import dataset_folder_id, dataset_labels, resolved_folder
+from .dataset_names import dataset_folder_id, dataset_labels, display_name, resolved_folder
 from .errors import InputError, OutputError, json_excerpt, one_line
 from .io.atomic import (atomic_write_bytes, atomic_write_json, atomic_write_text, check_output_folder,
                         folder_of_kind, probe_writable, write_folder)
@@ -64,6 +64,7 @@ __all__ = [
     "run_cell",
     "run_sweep",
     "read_cells",
+    "records_table",
     "read_cell_record",
     "write_sweep_table",
     "config_digest",
@@ -189,6 +190,8 @@ def dataset_digest(dataset: str | os.PathLike) -> str:
     h = hashlib.sha256()
     for name in ("meta.json", "calib_results.txt", "camera.yaml", "groundtruth.txt"):
         try:
+            if not (folder / name).is_file():  # a FIFO would block the read; the cell names it
+                raise FileNotFoundError(folder / name)
             h.update(name.encode() + b"\0" + (folder / name).read_bytes() + b"\0")
         except OSError:
             h.update(name.encode() + b"\0absent\0")
@@ -201,7 +204,7 @@ def dataset_digest(dataset: str | os.PathLike) -> str:
             st = entry.stat()
         except OSError:
             continue
-        h.update(f"{entry.name}\0{st.st_size}\0{st.st_mtime_ns}\0".encode())
+        h.update(os.fsencode(entry.name) + f"\0{st.st_size}\0{st.st_mtime_ns}\0".encode())
     return h.hexdigest()[:_ID_DIGITS]
 
 
@@ -240,7 +243,7 @@ def read_cell_record(path: Path, *, action: str) -> dict | None:
         record = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         return None
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deeply
         _warn(f"{path}: unreadable sweep cell ({type(exc).__name__}); {action}")
         return None
     if not isinstance(record, dict):
@@ -513,21 +516,34 @@ def read_cells(out_dir: str | os.PathLike, cells: Sequence[SweepCell] | None = N
     return [r for r in records if r is not None]
 
 
+def records_table(records: list[dict]):
+    """Cell records as a pandas DataFrame, one row each, without their tracebacks.
+
+    Text values are display names (:func:`~ifmi.dataset_names.display_name`):
+    a dataset path with bytes that are not UTF-8 holds lone surrogates, which
+    Arrow, CSV and figure titles cannot take (the exact path stays in the
+    cell's JSON).
+    """
+    import pandas as pd
+
+    return pd.DataFrame([{k: display_name(v) if isinstance(v, str) else v for k, v in r.items()
+                          if k != "traceback"} for r in records])
+
+
 def write_sweep_table(out_dir: str | os.PathLike, records: list[dict]) -> None:
     """Write ``sweep.csv``, ``sweep.parquet`` and the heatmaps of ``records`` into ``out_dir``.
 
-    Each file is written atomically, but not the files as a set, and
-    heatmaps already in ``out_dir`` are left: :func:`run_sweep` calls this on
-    a new temporary folder that it swaps in when complete.
+    Text values are written as :func:`records_table` gives them. Each file is
+    written atomically, but not the files as a set, and heatmaps already in
+    ``out_dir`` are left: :func:`run_sweep` calls this on a new temporary
+    folder that it swaps in when complete.
     """
     import io
-
-    import pandas as pd
 
     from .plots import sweep_heatmap
 
     out = Path(out_dir)
-    table = pd.DataFrame([{k: v for k, v in r.items() if k != "traceback"} for r in records])
+    table = records_table(records)
     first = [c for c in COLUMN_ORDER if c in table.columns]
     table = table[first + sorted(c for c in table.columns if c not in first)]
     atomic_write_text(out / "sweep.csv", table.to_csv(index=False))

@@ -62,6 +62,12 @@ group_of_7 = _make(lambda c, k: replace(c, rays_a=c.rays_a[:7 * (len(c.rays_a) /
                                         rays_per_measurement=7))
 success_text = _make(lambda c, k: replace(c, success="no"))
 returns_none = _make(lambda c, k: None)
+complex_rays = _make(lambda c, k: replace(c, rays_a=c.rays_a + 0j))
+array_diagnostic = _make(lambda c, k: replace(c, diagnostics={"scores": np.arange(100)}))
+two_line_diagnostic = _make(lambda c, k: replace(c, diagnostics={"note": "first\\n# second"}))
+huge_int_diagnostic = _make(lambda c, k: replace(c, diagnostics={"big": 10 ** 5000}))
+spaced_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={" seconds": 1.0}))
+tuple_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={("a", "b"): 1}))
 float16_rays = _make(lambda c, k: replace(c, rays_a=c.rays_a.astype(np.float16), rays_b=c.rays_b.astype(np.float16)))
 
 
@@ -137,6 +143,22 @@ def _estimate(dataset, method, out, capsys):
     ("returns_class", "factory returned the class Spoiled; expected an instance"),
     ("accept_raises", "accept_pose() raised ValueError: pose store is full"),
     ("prepare_fails_on_0", "prepare() of the first frame raised RuntimeError: no keypoints: ..."),
+    # Before: the imaginary parts were dropped with a NumPy warning and the run went on.
+    ("complex_rays", "correspondences() returned rays_a that is no numeric array (TypeError: values of type "
+                     "complex128); expected (N, 3) real numbers"),
+    # Before: written into frames.csv as text over lines (a line of it starting with # made evaluate
+    # read the file short), or a ValueError traceback for the integer.
+    ("array_diagnostic", "correspondences() returned diagnostics entry 'scores': a value of type ndarray; "
+                         "expected a float, an integer of at most 64 bits, true/false, null or one line of "
+                         "text (a column of frames.csv)"),
+    ("two_line_diagnostic", "correspondences() returned diagnostics entry 'note': text of 2 lines; expected"),
+    ("huge_int_diagnostic", "correspondences() returned diagnostics entry 'big': an integer of 16610 bits; "
+                            "expected"),
+    ("tuple_key_diagnostic", "correspondences() returned a diagnostics key of type tuple; expected one line "
+                             "of text without surrounding spaces (a column name of frames.csv)"),
+    # Read back as the seconds column (frames.csv strips column names), then refused as one named twice.
+    ("spaced_key_diagnostic", "correspondences() returned a diagnostics key ' seconds'; expected one line "
+                              "of text without surrounding spaces"),
 ])
 def test_breach_of_the_contract_is_one_line_naming_the_method(dataset, plugin, tmp_path, capsys, factory,
                                                               problem):

@@ -111,6 +111,30 @@ def test_convert_calib_command(tmp_path, capsys):
     assert isinstance(read_kalibr(out), object) and not isinstance(read_kalibr(out), ExtendedUnifiedModel)
 
 
+@pytest.mark.parametrize("source, target, out, problem", [
+    # Before: --force replaced the input calibration with the fit's approximation of it.
+    ("ds/calib_results.txt", "ocamcalib", "ds/calib_results.txt",
+     "is the input calibration {ds}/calib_results.txt; choose another output path"),
+    # Before: written; the dataset then held two calibrations, which ifmi estimate refuses.
+    ("ds", "ds", "ds/camera.yaml", "would put a second calibration into the dataset {ds}, which holds "
+                                   "calib_results.txt (a dataset holds one); choose another output path"),
+    ("ds", "ocamcalib", "ds/groundtruth.txt", "would replace groundtruth.txt of the input dataset {ds}; "
+                                              "choose another output path"),
+])
+def test_convert_calib_never_replaces_its_input_or_harms_its_dataset(tmp_path, capsys, source, target, out,
+                                                                     problem):
+    ds = tmp_path / "ds"
+    (ds / "images").mkdir(parents=True)
+    write_calib(ds / "calib_results.txt", paracatadioptric_model((240, 320), horizon_radius_px=100.0))
+    (ds / "groundtruth.txt").write_text("0 0 0 0 0 0 0 1\n")
+    before = {p.name: p.read_bytes() for p in ds.iterdir() if p.is_file()}
+    assert main(["convert-calib", str(tmp_path / source), "--to", target, "--out", str(tmp_path / out),
+                 "--force"]) == 1
+    assert capsys.readouterr().err.strip() == (f"ifmi convert-calib: error: cannot write {tmp_path / out}: "
+                                               + problem.format(ds=ds))
+    assert {p.name: p.read_bytes() for p in ds.iterdir() if p.is_file()} == before
+
+
 def test_image_given_as_calibration_is_said_to_be_no_text_calibration(tmp_path, capsys):
     from PIL import Image
 

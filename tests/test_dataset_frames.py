@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import struct
 import warnings
@@ -85,13 +86,48 @@ def test_entries_that_are_not_frames_are_skipped_with_one_warning(tmp_path):
         read_dataset(_folder(tmp_path / "clean", ["000000.png"]))
 
 
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_calibration_that_is_a_fifo_is_one_line_error(tmp_path, capsys):
+    # Reading it waited for a writer forever.
+    root = _folder(tmp_path, ["000000.png", "000001.png"])
+    (root / "calib_results.txt").unlink()
+    os.mkfifo(root / "calib_results.txt")
+    assert main(["estimate", str(root), "--out", str(tmp_path / "e.txt"), "--no-progress"]) == 2
+    assert capsys.readouterr().err.strip() == (f"ifmi estimate: error: {root / 'calib_results.txt'}: is a "
+                                               "FIFO, device or socket, not a calibration file; expected a "
+                                               "regular file")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_meta_json_that_is_a_fifo_is_ignored(tmp_path):
+    # Optional provenance; reading it waited for a writer forever.
+    root = _folder(tmp_path, ["000000.png", "000001.png"])
+    os.mkfifo(root / "meta.json")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_dataset(root).frame_indices == (0, 1)
+
+
+def test_frame_numbers_one_timestamp_cannot_tell_apart_are_refused(tmp_path, capsys):
+    # Nanosecond stamps 1 ns apart: the estimate was written with equal timestamps, exit 0.
+    root = _folder(tmp_path, [f"17000000000000000{k:02d}.png" for k in range(2)])
+    assert main(["estimate", str(root), "--out", str(tmp_path / "e.txt"), "--no-progress"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"ifmi estimate: error: {root / 'images'}: frames 1700000000000000000 (1700000000000000000.png) and "
+        "1700000000000000001 (1700000000000000001.png) get one timestamp, 1700000000000000000, in a "
+        "trajectory file (64-bit floats hold integers this large only to a multiple of 256); expected frame "
+        "numbers that differ by more")
+    assert not (tmp_path / "e.txt").exists()
+
+
 def test_dataset_marked_incomplete_warns_with_the_count(tmp_path):
     root = _folder(tmp_path, ["000000.png", "000001.png"])
     meta = '{"frames": 5, "images": {"000000.png": "x", "000001.png": "y"}, "complete": %s}'
     (root / "meta.json").write_text(meta % "false")
     with pytest.warns(InputWarning, match=r"meta.json: the dataset is marked incomplete \(2 of 5 frames written\)"):
         read_dataset(root)
-    for text in (meta % "true", "[1, 2]", "{broken"):  # complete, or provenance that says nothing
+    # Complete, or provenance that says nothing (the last, nested too deeply, was a RecursionError).
+    for text in (meta % "true", "[1, 2]", "{broken", "[" * 100_000 + "]" * 100_000):
         (root / "meta.json").write_text(text)
         with warnings.catch_warnings():
             warnings.simplefilter("error")
@@ -250,6 +286,19 @@ def test_bad_middle_frame_is_flagged_with_its_file_name(tmp_path, capfd):
     assert isinstance(frames[1], MissingFrame)
     assert frames[1].reason.startswith("000001.png: truncated PNG")
     assert capfd.readouterr().err == ""
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_frame_linked_to_a_fifo_is_flagged_not_waited_for(tmp_path):
+    # The read waited for a writer forever.
+    root = _folder(tmp_path, [f"{k:06d}.png" for k in range(3)])
+    os.mkfifo(tmp_path / "fifo")
+    (root / "images" / "000001.png").unlink()
+    (root / "images" / "000001.png").symlink_to(tmp_path / "fifo")
+    frames = list(read_dataset(root).iter_images(skip_unreadable=True))
+    assert isinstance(frames[1], MissingFrame)
+    assert frames[1].reason == ("000001.png: is a FIFO, device or socket, not an image file; expected a "
+                                "regular file")
 
 
 # --- estimates of datasets with gaps ------------------------------------------------

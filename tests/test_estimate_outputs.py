@@ -384,16 +384,34 @@ def test_limits_for_a_camera_model_other_than_ocamcalib():
         assert str(info.value).startswith(message)
 
 
-@pytest.mark.parametrize("name", ["e.txt", "e.frames.csv", "e.config.json"])
-def test_estimate_refuses_to_replace_a_file_no_estimate_wrote(dataset, tmp_path, capsys, name):
+def test_failure_reason_naming_a_file_with_a_byte_that_is_not_utf8_is_written(dataset, tmp_path, capsys):
+    # The frame's reason names the image, whose lone surrogate UTF-8 cannot hold: every frame was
+    # estimated, then writing frames.csv raised UnicodeEncodeError and nothing was written.
+    root = tmp_path / "ds"
+    shutil.copytree(dataset, root)
+    images = sorted((root / "images").iterdir())
+    for image in images:
+        image.rename(image.with_name(os.fsdecode(b"f\xff") + image.name))
+    damaged = root / "images" / (os.fsdecode(b"f\xff") + images[2].name)
+    damaged.write_bytes(damaged.read_bytes()[:300])
+    assert main(["estimate", str(root), "--out", str(tmp_path / "e.txt"), *FAST]) == 0
+    reasons = (tmp_path / "e.frames.csv").read_text(encoding="utf-8")
+    assert f"image: f\\udcff{images[2].name}: truncated PNG" in reasons
+
+
+@pytest.mark.parametrize("name, text", [("e.txt", "my own notes\n"), ("e.frames.csv", "my own notes\n"),
+                                        ("e.config.json", "my own notes\n"),
+                                        # JSON nested too deeply to decode (was a RecursionError)
+                                        ("e.config.json", "[" * 100_000 + "]" * 100_000)])
+def test_estimate_refuses_to_replace_a_file_no_estimate_wrote(dataset, tmp_path, capsys, name, text):
     """The user's own trajectory or notes at one of the three paths stay; --force replaces them."""
-    (tmp_path / name).write_text("my own notes\n")
+    (tmp_path / name).write_text(text)
     out = str(tmp_path / "e.txt")
     assert main(["estimate", str(dataset), "--out", out, *FAST]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"ifmi estimate: error: cannot write {tmp_path / name}: an existing file that no estimate "
                    f"wrote; choose another output path or pass --force to replace it"]
-    assert sorted(os.listdir(tmp_path)) == [name] and (tmp_path / name).read_text() == "my own notes\n"
+    assert sorted(os.listdir(tmp_path)) == [name] and (tmp_path / name).read_text() == text
     assert main(["estimate", str(dataset), "--out", out, "--force", *FAST]) == 0
     assert (tmp_path / "e.txt").read_text().startswith("# ifmi estimate, method ifmi\n")
 

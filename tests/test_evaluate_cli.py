@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import warnings
 
 import numpy as np
@@ -118,6 +119,40 @@ def test_malformed_groundtruth_is_one_line_error(tmp_path, capsys):
     assert code == 2 and len(err.splitlines()) == 1 and "expected 8 values" in err
 
 
+def test_position_out_of_range_in_groundtruth_is_one_line_error(tmp_path, capsys):
+    # 1e308 m: the translation-direction errors overflowed (NumPy warnings, then n/a) with exit 0.
+    _write_run(tmp_path)
+    lines = (tmp_path / "groundtruth.txt").read_text().splitlines()
+    fields = lines[3].split()
+    lines[3] = " ".join([fields[0], "1e308", *fields[2:]])
+    (tmp_path / "groundtruth.txt").write_text("\n".join(lines) + "\n")
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and err == (f"ifmi evaluate: error: {tmp_path / 'groundtruth.txt'}: pose at timestamp 2: "
+                                 "position coordinate 1e+308 out of range; expected at most 3.352e+153 in "
+                                 "magnitude")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_side_file_that_is_a_fifo_is_one_line_error(tmp_path, capsys):
+    # The read waited for a writer forever.
+    _write_run(tmp_path)
+    (tmp_path / "est.frames.csv").unlink()
+    os.mkfifo(tmp_path / "est.frames.csv")
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and err == (f"ifmi evaluate: error: {tmp_path / 'est.frames.csv'}: is a FIFO, device or "
+                                 "socket, not a frames file; expected a regular file")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_out_folder_whose_evaluation_json_is_a_fifo_is_refused(tmp_path, capsys):
+    _write_run(tmp_path)
+    (tmp_path / "eval").mkdir()
+    os.mkfifo(tmp_path / "eval" / "evaluation.json")
+    code, err = _run_error(_gate(tmp_path, "--out", str(tmp_path / "eval")), capsys)
+    assert code == 1 and len(err.splitlines()) == 1
+    assert "eval: holds evaluation.json but is not an evaluation folder written by ifmi evaluate" in err
+
+
 def test_malformed_frames_csv_is_one_line_error(tmp_path, capsys):
     _write_run(tmp_path)
     (tmp_path / "est.frames.csv").write_text("frame,success\n0,true\n")
@@ -181,6 +216,33 @@ def test_motion_flow_sample_of_real_frames_and_evaluation_stays_pure(tmp_path):
     # Tile flow is sub-pixel; the median over tiles is within a quarter pixel.
     assert abs(np.median(d[:, 1]) - expected) < 0.25
     assert abs(np.median(d[:, 0])) < 0.25
+
+
+# JSON nested past Python's recursion limit (the decoder raised RecursionError, printed as a traceback).
+DEEP_JSON = '{"a": ' * 100_000 + "1" + "}" * 100_000
+
+
+@pytest.mark.parametrize("text, problem", [
+    (DEEP_JSON, "invalid JSON: nested too deeply"),
+    ('{"method": "orb", "n": ' + "9" * 5000 + "}", "invalid JSON: an integer of 5000 digits; expected at most 4300"),
+])
+def test_config_json_nested_too_deeply_or_of_a_huge_integer_is_one_line_error(tmp_path, capsys, text,
+                                                                              problem):
+    _write_run(tmp_path)
+    (tmp_path / "est.config.json").write_text(text)
+    code, err = _run_error(_gate(tmp_path, "--out", str(tmp_path / "eval")), capsys)
+    assert code == 2 and err == f"ifmi evaluate: error: {tmp_path / 'est.config.json'}: {problem}"
+    assert not (tmp_path / "eval").exists()
+
+
+def test_out_folder_whose_evaluation_json_is_nested_too_deeply_is_refused(tmp_path, capsys):
+    _write_run(tmp_path)
+    (tmp_path / "eval").mkdir()
+    (tmp_path / "eval" / "evaluation.json").write_text(DEEP_JSON)
+    code, err = _run_error(_gate(tmp_path, "--out", str(tmp_path / "eval")), capsys)
+    assert code == 1 and len(err.splitlines()) == 1
+    assert "eval: holds evaluation.json but is not an evaluation folder written by ifmi evaluate" in err
+    assert (tmp_path / "eval" / "evaluation.json").read_text() == DEEP_JSON
 
 
 def _gate(tmp_path, *extra):
@@ -288,7 +350,7 @@ def test_evaluate_options_are_checked():
 
     with pytest.raises(ValueError, match="expected min_matched in \\[0, 1\\], got 1.5"):
         EvaluateOptions(min_matched=1.5)
-    with pytest.raises(ValueError, match="expected max_time_difference >= 0, got -1"):
+    with pytest.raises(ValueError, match="expected max_time_difference finite and >= 0, got -1"):
         EvaluateOptions(max_time_difference=-1)
     with pytest.raises(ValueError, match="expected origin_tolerance_rad > 0, got 0"):
         EvaluateOptions(origin_tolerance_rad=0)
@@ -298,6 +360,17 @@ def test_evaluate_cli_rejects_bad_min_matched(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(_gate(tmp_path, "--min-matched", "1.5"))
     assert exc.value.code == 2 and "expected a fraction in [0, 1], got 1.5" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["inf", "-1"])
+def test_evaluate_cli_rejects_an_infinite_or_negative_time_difference(tmp_path, capsys, value):
+    # With inf every pose was "within inf" yet the shortfall message said only some were.
+    with pytest.raises(SystemExit) as exc:
+        main(_gate(tmp_path, "--max-time-difference", value))
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert exc.value.code == 2 and err == ("ifmi evaluate: error: argument --max-time-difference: "
+                                           "expected a finite time difference >= 0 in the timestamps' "
+                                           f"unit, got {value}")
 
 
 def test_gate_fails_on_nan_rmse():
@@ -406,6 +479,9 @@ def test_frames_csv_with_some_times_missing_times_the_others(tmp_path, capsys):
     ("seconds", "-1", "column seconds: expected a time in seconds >= 0 (empty when not recorded), "
                       "got '-1'"),
     ("seconds", "inf", "column seconds: expected a time in seconds >= 0"),
+    # Finite, but past what a time per frame in milliseconds can show (the mean was inf ms).
+    ("seconds", "1e308", "column seconds: expected times that add up to at most 1.798e+305 s, got a "
+                         "total past it at this line"),
     ("frame", "", "column frame: expected a frame number (a whole number from 0 to 2**63 - 1), got ''"),
     ("frame", "-3", "column frame: expected a frame number (a whole number from 0 to 2**63 - 1), got '-3'"),
     ("frame", "2.5", "column frame: expected a frame number (a whole number from 0 to 2**63 - 1), got '2.5'"),
@@ -426,6 +502,26 @@ def test_bad_frames_csv_value_is_one_line_error_naming_the_line(tmp_path, capsys
     assert code == 2 and len(err.splitlines()) == 1
     assert f"est.frames.csv: line 7: {expected}" in err
     assert not (tmp_path / "eval").exists()
+
+
+def test_column_named_twice_in_frames_csv_is_one_line_error(tmp_path, capsys):
+    # The later column replaced the earlier one: the times were read from whichever came last.
+    _write_run(tmp_path)
+    text = (tmp_path / "est.frames.csv").read_text()
+    (tmp_path / "est.frames.csv").write_text(text.replace("n_inliers", "seconds", 1))
+    code, err = _run_error(_gate(tmp_path), capsys)
+    assert code == 2 and err == (f"ifmi evaluate: error: {tmp_path / 'est.frames.csv'}: line 1: column "
+                                 "seconds given twice; expected each column once")
+
+
+def test_estimate_that_is_the_ground_truth_file_is_refused(tmp_path, capsys):
+    # Every error was 0 and the gate said PASS.
+    _write_run(tmp_path)
+    gt = tmp_path / "groundtruth.txt"
+    code, err = _run_error(["evaluate", "--gt", str(gt), "--est", str(gt), "--max-rmse", "0.001"], capsys)
+    assert code == 2 and err == (f"ifmi evaluate: error: {gt}: is the ground-truth file {gt} itself (every "
+                                 "error would be 0); expected an estimate")
+    assert "PASS" not in capsys.readouterr().out
 
 
 def test_repeated_frame_in_frames_csv_is_one_line_error(tmp_path, capsys):

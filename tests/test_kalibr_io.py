@@ -103,6 +103,9 @@ def test_numbers_without_a_dot_are_read():
     (_cam0(resolution=None), "cam0.resolution: missing"),
     ("cam0: [1, 2\n", "not valid YAML at line"),
     ("cam0:\n  camera_model: omni\n intrinsics: [1]\n", "not valid YAML"),
+    # Both were tracebacks: a TypeError of the duplicate-key check, PyYAML's RecursionError.
+    ("cam0:\n  ? [1, 2]\n  : x\n", "not valid YAML at line 2, column 5: found unhashable key"),
+    ("cam0: " + "[" * 50_000 + "]" * 50_000 + "\n", "not valid YAML: nested too deeply"),
 ])
 def test_malformed_yaml_gives_one_line_error(tmp_path, text, message):
     path = tmp_path / "camera.yaml"

@@ -76,6 +76,7 @@ def plugin_dist(tmp_path, monkeypatch):
         f"[{ENTRY_POINT_GROUP}]\ndummy = fakeplug_methods:factory\n"
         "broken = fakeplug_missing:factory\norb = fakeplug_methods:factory\n")
     (root / "fakeplug_methods.py").write_text(PLUGIN_MODULE)
+    (root / "fakeplug_exits.py").write_text("import sys\n\nsys.exit(0)\n")
     monkeypatch.syspath_prepend(str(root))
     return root
 
@@ -116,6 +117,9 @@ def test_entry_point_plugin_is_listed_and_loaded(plugin_dist, capsys):
     ("fakeplug_methods:NOT_CALLABLE", "fakeplug_methods:NOT_CALLABLE is not callable (got int)"),
     ("fakeplug_methods:", "expected a method name or package.module:factory"),
     ("broken", "module fakeplug_missing not found"),
+    # Before: the run ended with status 0, nothing written and nothing said.
+    ("fakeplug_exits:factory", "importing fakeplug_exits called sys.exit(0); a method's module must import "
+                               "without exiting"),
 ])
 def test_bad_method_is_one_line_error(plugin_dist, dataset, tmp_path, capsys, method, problem):
     code = main(["estimate", str(dataset), "--method", method, "--out", str(tmp_path / "e.txt"),

@@ -243,8 +243,8 @@ def test_scene_file_that_is_a_fifo_is_one_line_exit_2(tmp_path):
     status, lines = _cli_run(["render", str(tmp_path / "scene.toml"), "--out", str(tmp_path / "out"),
                               "--no-progress"], tmp_path)
     assert status == 2 and lines == [
-        f"omnisim render: error: {tmp_path / 'scene.toml'}: is a FIFO, device or socket, not a regular file "
-        "(scene file expected)"], lines
+        f"omnisim render: error: {tmp_path / 'scene.toml'}: is a FIFO, device or socket, not a scene file; "
+        "expected a regular file"], lines
     assert not (tmp_path / "out").exists()
 
 

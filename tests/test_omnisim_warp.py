@@ -356,7 +356,7 @@ def test_warp_option_out_of_range_is_named_by_its_option(tmp_path, source_files,
 
 
 @pytest.mark.skipif(not hasattr(__import__("os"), "mkfifo"), reason="no FIFOs on this system")
-@pytest.mark.parametrize("which, what", [("image", "image file"), ("calib", "calibration file")])
+@pytest.mark.parametrize("which, what", [("image", "an image file"), ("calib", "a calibration file")])
 def test_warp_input_that_is_a_fifo_is_one_line(tmp_path, source_files, capsys, which, what):
     """A FIFO given as the image or the calibration made warp wait forever reading it."""
     import os
@@ -369,6 +369,6 @@ def test_warp_input_that_is_a_fifo_is_one_line(tmp_path, source_files, capsys, w
     code = main(["warp", str(image), "--calib", str(calib), "--out", str(tmp_path / "w"), "--frames", "2",
                  "--no-progress"])
     assert code == 2
-    assert capsys.readouterr().err.strip() == (f"omnisim warp: error: {fifo}: is a FIFO, device or socket, not a "
-                                               f"regular file ({what} expected)")
+    assert capsys.readouterr().err.strip() == (f"omnisim warp: error: {fifo}: is a FIFO, device or socket, not "
+                                               f"{what}; expected a regular file")
     assert not (tmp_path / "w").exists()

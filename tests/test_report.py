@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -206,9 +207,11 @@ def test_truncated_sweep_cell_is_skipped_with_a_warning(tmp_path, capsys):
     (root / "sweep" / "cells" / "c1.json").write_text('{"cell_id": "c1", "dat')
     (root / "sweep" / "cells" / "c2.json").write_text("[]")
     (root / "sweep" / "cells" / "c3.json").write_text('{"cell_id": "c3", "status": "ok"}')
+    (root / "sweep" / "cells" / "c4.json").write_text("[" * 100_000 + "]" * 100_000)  # was a RecursionError
     assert main(["report", str(root / "sweep"), "--out", str(tmp_path / "r")]) == 0
     err = capsys.readouterr().err
     assert "c1.json: unreadable sweep cell" in err and "c2.json: expected a JSON object" in err
+    assert "c4.json: unreadable sweep cell (RecursionError); skipped" in err
     assert "c3.json: sweep cell without dataset, method, tile_size, overlap; skipped" in err
     doc = json.loads((tmp_path / "r" / "report.json").read_text())
     assert len(doc["sweeps"][0]["cells"]) == 1
@@ -373,6 +376,9 @@ def test_frame_count_past_64_bits_is_one_line_error(tmp_path, capsys):
      "field summary.failures: expected an object {...} or null, got a number 2"),
     (lambda d: d["summary"]["time"].update(mean_s=[0.1]),
      "field summary.time.mean_s: expected a number or null, got an array [0.1]"),
+    # Figures cannot draw it (Matplotlib raised TypeError).
+    (lambda d: d.update(scene="d\udcff"),
+     'field scene: expected a name without lone surrogates (\\ud800 to \\udfff), got a string "d\\udcff"'),
 ])
 def test_evaluation_json_field_of_the_wrong_kind_is_one_line_error(tmp_path, capsys, edit,
                                                                    expected):
@@ -382,6 +388,27 @@ def test_evaluation_json_field_of_the_wrong_kind_is_one_line_error(tmp_path, cap
     edit(doc)
     doc_path.write_text(json.dumps(doc))
     assert _report_error(tmp_path, capsys, root) == f"ifmi report: error: {doc_path}: {expected}"
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_file_of_an_evaluation_that_is_a_fifo_is_one_line_error(tmp_path, capsys):
+    # The read waited for a writer forever.
+    root = _make_results(tmp_path, scenes=("office",))
+    path = root / "eval" / "office" / "orb" / "per_frame.npz"
+    path.unlink()
+    os.mkfifo(path)
+    assert (_report_error(tmp_path, capsys, root)
+            == f"ifmi report: error: {path}: is a FIFO, device or socket, not a file of an evaluation; "
+               "expected a regular file")
+
+
+def test_evaluation_json_nested_too_deeply_is_one_line_error(tmp_path, capsys):
+    # The JSON decoder's RecursionError was a traceback.
+    root = _make_results(tmp_path, scenes=("office",))
+    doc_path = root / "eval" / "office" / "orb" / "evaluation.json"
+    doc_path.write_text("[" * 100_000 + "]" * 100_000)
+    assert (_report_error(tmp_path, capsys, root)
+            == f"ifmi report: error: {doc_path}: invalid JSON: nested too deeply")
 
 
 def test_evaluation_with_a_time_stored_as_null_reads_as_unknown(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pandas as pd
@@ -154,6 +155,30 @@ def test_sweep_through_existing_scheduler_address(datasets, tmp_path):
                             options=SweepOptions(scheduler=cluster.scheduler_address,
                                                  progress=False))
     assert [r["status"] for r in records] == ["ok"]
+
+
+def test_dataset_folder_named_with_a_byte_that_is_not_utf8_is_swept_and_reported(tmp_path, capsys):
+    # Python holds the byte as a lone surrogate: pandas/Arrow, then Matplotlib, raised UnicodeEncodeError.
+    folder = tmp_path / os.fsdecode(b"d\xff")
+    _write_dataset(folder, n=4, size=128, seed=5)
+    out = tmp_path / "sweep"
+    assert main(["sweep", str(folder), "--tile-size", "32", "--overlap", "0", "--scheduler", "synchronous",
+                 "--out", str(out), "--no-progress"]) == 0
+    assert list(pd.read_parquet(out / "sweep.parquet")["dataset"]) == ["d\ufffd"]
+    assert main(["report", str(out), "--out", str(tmp_path / "report"), "--no-motion-flow"]) == 0
+    assert "| d\ufffd | ifmi | 32 | 0 | ok |" in (tmp_path / "report" / "README.md").read_text()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_calibration_that_is_a_fifo_fails_its_cell_instead_of_blocking(tmp_path, capsys):
+    # The dataset digest read the FIFO's bytes and waited for a writer forever.
+    folder = _write_dataset(tmp_path / "ds", n=3, size=128, seed=5)
+    (folder / "calib_results.txt").unlink()
+    os.mkfifo(folder / "calib_results.txt")
+    assert main(["sweep", str(folder), "--tile-size", "32", "--overlap", "0", "--scheduler", "synchronous",
+                 "--out", str(tmp_path / "sweep"), "--no-progress"]) == 1
+    assert (f"InputError: {folder / 'calib_results.txt'}: is a FIFO, device or socket, not a calibration file"
+            in capsys.readouterr().err)
 
 
 def test_two_datasets_of_one_name_are_distinct_cells(tmp_path):

@@ -34,6 +34,19 @@ def _non_negative(kind):
     return parse
 
 
+def _time_difference(text: str) -> float:
+    """A finite timestamp difference >= 0 (with ``inf`` every pose would be "within" it, yet each
+    ground-truth pose still pairs with one estimate pose: the shortfall messages would read wrong)."""
+    expected = "expected a finite time difference >= 0 in the timestamps' unit"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{expected}, got {text!r}") from None
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{expected}, got {text}")
+    return value
+
+
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "evaluate",
@@ -49,7 +62,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--out", metavar="DIR",
                    help="evaluation folder to write (new, empty or an earlier evaluation)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
-    p.add_argument("--max-time-difference", type=_non_negative(float), default=1e-3, metavar="T",
+    p.add_argument("--max-time-difference", type=_time_difference, default=1e-3, metavar="T",
                    help="largest timestamp difference for associating poses (default 1e-3)")
     p.add_argument("--min-matched", type=_fraction, default=0.5, metavar="FRACTION",
                    help="smallest fraction of the ground-truth poses, and of the estimate "

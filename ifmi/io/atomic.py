@@ -38,7 +38,7 @@ from ..errors import OutputError
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "atomic_write_files",
            "writable_target", "probe_writable", "json_text", "check_output_folder", "write_folder",
-           "folder_of_kind", "path_within"]
+           "folder_of_kind", "path_within", "utf8_bytes"]
 
 # Tries at a free backup name (names are random; a clash is already unlikely).
 _BACKUP_ATTEMPTS = 16
@@ -184,9 +184,20 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     atomic_write_files({path: data})
 
 
+def utf8_bytes(text: str) -> bytes:
+    """``text`` as UTF-8; a lone surrogate is written as its ``\\udcXX`` escape.
+
+    Python gives a byte of a file name that is not UTF-8 as a lone surrogate
+    (``os.fsdecode``), which UTF-8 cannot hold; a file name quoted in a
+    written text (a frame's failure reason, a report's command line) keeps it
+    visible that way instead of failing the write.
+    """
+    return text.encode("utf-8", errors="backslashreplace")
+
+
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write UTF-8 ``text`` to ``path`` atomically."""
-    atomic_write_bytes(path, text.encode("utf-8"))
+    """Write UTF-8 ``text`` to ``path`` atomically (lone surrogates escaped, :func:`utf8_bytes`)."""
+    atomic_write_bytes(path, utf8_bytes(text))
 
 
 def json_text(obj) -> str:
@@ -373,9 +384,11 @@ def folder_of_kind(path: str | os.PathLike, file_name: str, kind: str, *,
     bool
         False for a missing, unreadable or foreign record.
     """
+    if not (Path(path) / file_name).is_file():  # missing, or a FIFO whose read would block
+        return False
     try:
         document = json.loads((Path(path) / file_name).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):  # RecursionError: nested too deeply
         return False
     if not isinstance(document, dict):
         return False

@@ -30,7 +30,9 @@ def calibration_path(folder: str | os.PathLike) -> Path:
     Raises
     ------
     InputError
-        Neither or both of ``calib_results.txt`` and ``camera.yaml`` present.
+        Neither or both of ``calib_results.txt`` and ``camera.yaml`` present,
+        or the one present is a FIFO, device or socket (reading it would wait
+        for a writer that never comes).
     """
     folder = Path(folder)
     # Whatever exists under either name is the calibration: a folder of that name is then named as one.
@@ -40,6 +42,9 @@ def calibration_path(folder: str | os.PathLike) -> Path:
                                                   f"{OCAMCALIB_FILE} or {KALIBR_FILE})")
     if len(found) > 1:
         raise InputError(folder, f"holds both {OCAMCALIB_FILE} and {KALIBR_FILE}; keep exactly one")
+    if not (found[0].is_file() or found[0].is_dir()):  # a folder is named as one when it is read
+        raise InputError(found[0], "is a FIFO, device or socket, not a calibration file; expected a "
+                                   "regular file")
     return found[0]
 
 

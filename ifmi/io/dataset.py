@@ -91,7 +91,8 @@ def frame_files(image_dir: str | os.PathLike) -> FrameFiles:
     Raises
     ------
     InputError
-        Not a readable folder, no frame image, or two files with one index.
+        Not a readable folder, no frame image, two files with one index, or
+        two indices that one trajectory timestamp cannot tell apart.
     """
     image_dir = Path(image_dir)
     try:
@@ -118,7 +119,26 @@ def frame_files(image_dir: str | os.PathLike) -> FrameFiles:
         raise InputError(image_dir, f"no frame images in folder (expected files named by the frame "
                                     f"index, e.g. 000000.png; types {', '.join(IMAGE_SUFFIXES)}){found}")
     indices = tuple(sorted(by_index))
+    _check_distinct_timestamps(image_dir, indices, by_index)
     return FrameFiles(indices=indices, paths=tuple(by_index[k] for k in indices), skipped=tuple(skipped))
+
+
+def _check_distinct_timestamps(image_dir: Path, indices: tuple, by_index: dict) -> None:
+    """Refuse two frame numbers that one TUM timestamp (a 64-bit float) cannot tell apart.
+
+    Above 2**53 a float holds only every second, fourth, ... integer, so
+    nanosecond stamps a few ns apart would become one timestamp of the
+    estimate, which no evaluation can associate.
+    """
+    stamps = np.asarray(indices, dtype=np.float64)
+    same = np.flatnonzero(np.diff(stamps) == 0)
+    if same.size:
+        a, b = indices[same[0]], indices[same[0] + 1]
+        stamp = stamps[same[0]]
+        raise InputError(image_dir, f"frames {a} ({by_index[a].name}) and {b} ({by_index[b].name}) get one "
+                                    f"timestamp, {stamp:.0f}, in a trajectory file (64-bit floats hold "
+                                    f"integers this large only to a multiple of {np.spacing(stamp):.0f}); "
+                                    "expected frame numbers that differ by more")
 
 
 def _warn_skipped(image_dir: Path, skipped: tuple) -> None:
@@ -131,14 +151,15 @@ def _warn_skipped(image_dir: Path, skipped: tuple) -> None:
 
 
 def dataset_meta(dataset_dir: str | os.PathLike) -> dict | None:
-    """A dataset folder's ``meta.json`` as a mapping, or None when it is absent, unreadable or not a
-    JSON object (it is optional provenance, never required to read a dataset)."""
+    """A dataset folder's ``meta.json`` as a mapping, or None when it is absent, unreadable, not a
+    regular file (a FIFO would block the read) or not a JSON object (it is optional provenance,
+    never required to read a dataset)."""
     path = Path(dataset_dir) / "meta.json"
-    if not path.is_file():  # absent, a folder, or a FIFO, whose read would wait for a writer
+    if not path.is_file():
         return None
     try:
         meta = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # RecursionError: JSON nested too deeply
         return None
     return meta if isinstance(meta, dict) else None
 

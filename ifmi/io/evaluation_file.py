@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from ..dataset_names import display_name
 from ..errors import InputError, json_excerpt
 from ..metrics import AXES
 
@@ -195,6 +196,8 @@ def _check_top_level(path: Path, doc: dict, *, names, texts) -> None:
         value = doc.get(key)
         if value is not None and not _is_name(value):
             raise _refuse(path, key, _NAME, value)
+        if value is not None and value != display_name(value):  # figures cannot draw them
+            raise _refuse(path, key, "a name without lone surrogates (\\ud800 to \\udfff)", value)
     for key in texts:
         value = doc.get(key)
         if value is not None and not isinstance(value, str):

@@ -334,8 +334,8 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
     Raises
     ------
     InputError
-        Unreadable or damaged file (also damage only the decoder finds), or
-        wrong size.
+        Unreadable or damaged file (also damage only the decoder finds), a
+        FIFO, device or socket, or wrong size.
 
     Warns
     -----

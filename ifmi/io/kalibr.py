@@ -162,6 +162,11 @@ def _yaml_without_duplicate_keys(text: str):
             if key_node.tag == "tag:yaml.org,2002:merge":  # "<<: *anchor" entries may be overridden
                 continue
             key = loader.construct_object(key_node, deep=deep)
+            try:
+                hash(key)
+            except TypeError:  # "? [a, b]": what PyYAML's own mapping constructor says of it
+                raise yaml.constructor.ConstructorError("while constructing a mapping", node.start_mark,
+                                                        "found unhashable key", key_node.start_mark) from None
             if key in keys:
                 raise yaml.constructor.ConstructorError(
                     None, None, f"key {key!r} given twice in one mapping; expected each key once",
@@ -185,6 +190,8 @@ def _cam0(text: str, source) -> dict:
         raise InputError(source, f"not valid YAML{where}: {problem}") from None
     except ValueError as exc:  # Python refuses integers of more than 4300 digits
         raise InputError(source, f"not valid YAML: {str(exc).split(';')[0]}") from None
+    except RecursionError:  # PyYAML composes nested nodes recursively
+        raise InputError(source, "not valid YAML: nested too deeply") from None
     if not isinstance(data, dict) or not isinstance(data.get("cam0"), dict):
         raise InputError(source, "expected a Kalibr camchain with a 'cam0' mapping, found none")
     others = sorted((key for key in data if isinstance(key, str) and re.fullmatch(r"cam[1-9][0-9]*", key)),

@@ -35,12 +35,14 @@ import numpy as np
 
 from ..errors import InputError, OutputError
 from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
-                     check_output_folder, folder_of_kind, json_text, probe_writable, write_folder)
+                     check_output_folder, folder_of_kind, json_text, probe_writable, utf8_bytes,
+                     write_folder)
 from .camera_file import calibration_path
+from .config import read_json_object
 from .evaluation_file import (check_evaluation_document, check_per_frame_arrays,
                               check_run_config)
 from .provenance import package_versions
-from .text_file import number_from_text, read_failure, read_text_file
+from .text_file import number_from_text, read_text_file, refuse_special_file
 
 __all__ = [
     "EVALUATION_KIND",
@@ -183,11 +185,13 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
     Raises
     ------
     InputError
-        Missing or unreadable file, missing required column, a row of the
+        Missing or unreadable file, missing required column, a column
+        named twice, a row of the
         wrong length, a ``frame`` that is not a whole number from 0 to
         ``2**63 - 1`` (a 64-bit frame index), a
         ``reference_frame`` that is not a whole number, or a
-        ``seconds`` value that is not a time >= 0 (each naming the line).
+        ``seconds`` value that is not a time >= 0, or ``seconds`` whose total
+        overflows (each naming the line).
     """
     path = Path(path)
     # A byte-order mark (spreadsheets and Windows editors write one) is skipped, not a column name.
@@ -198,6 +202,10 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
     if not numbered:
         raise InputError(path, "empty frames file (expected a header line)")
     header = [h.strip() for h in numbered[0][1]]
+    repeated = next((h for k, h in enumerate(header) if h in header[:k]), None)
+    if repeated is not None:  # the later column would silently replace the earlier one
+        raise InputError(path, f"line {numbered[0][0]}: column {repeated} given twice; expected each "
+                               "column once")
     missing = [c for c in REQUIRED_FRAME_COLUMNS if c not in header]
     if missing:
         raise InputError(path, f"missing column(s) {', '.join(missing)}; got {', '.join(header)}")
@@ -213,6 +221,8 @@ def read_frames_csv(path: str | os.PathLike) -> FrameTable:
                                      dtype=bool)
         elif name in _CHECKED_FRAME_COLUMNS:
             columns[name] = _checked_column(path, name, lines, values)
+            if name == "seconds":
+                _check_total_time(path, lines, columns[name])
         else:
             columns[name] = _optional_numeric_column(values)
     return FrameTable(columns=columns)
@@ -262,24 +272,38 @@ def _checked_column(path: Path, name: str, lines: list[int], values: list[str]) 
     return out
 
 
+def _check_total_time(path: Path, lines: list[int], seconds: np.ndarray) -> None:
+    """Refuse per-frame times whose total is past what milliseconds can show.
+
+    Evaluations and reports give the time per frame in milliseconds; a total
+    past ``float max / 1000`` seconds would make its mean or sum infinite.
+
+    Raises
+    ------
+    InputError
+        Naming the line at which the running total of ``seconds`` goes past that bound.
+    """
+    milliseconds_per_second = 1e3
+    bound = np.finfo(np.float64).max / milliseconds_per_second
+    with np.errstate(over="ignore"):
+        total = np.cumsum(np.nan_to_num(seconds, nan=0.0))
+    past = np.flatnonzero(~(total <= bound))
+    if past.size:
+        raise InputError(path, f"line {lines[past[0]]}: column seconds: expected times that add up "
+                               f"to at most {bound:.4g} s, got a total past it at this line")
+
+
 def read_run_config(path: str | os.PathLike) -> dict:
     """Read an estimate run's ``config.json``.
 
     Raises
     ------
     InputError
-        Missing file, invalid JSON or a JSON value that is not an object.
+        Missing file, invalid JSON (also nested too deeply, or an integer
+        of too many digits) or a JSON value that is not an object
+        (:func:`~ifmi.io.config.read_json_object`).
     """
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8-sig"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise read_failure(path, exc, what="config file") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"invalid JSON at line {exc.lineno}: {exc.msg}") from None
-    if not isinstance(data, dict):
-        raise InputError(path, f"expected a JSON object, got {type(data).__name__}")
-    return data
+    return read_json_object(path, what="config file")
 
 
 def read_estimate_side_files(estimate_path: str | os.PathLike) -> EstimateSideFiles:
@@ -289,10 +313,12 @@ def read_estimate_side_files(estimate_path: str | os.PathLike) -> EstimateSideFi
     ------
     InputError
         A malformed side file (:func:`read_frames_csv`, :func:`read_run_config`),
-        or a config whose ``method`` or ``dataset`` is of the wrong kind
+        one that is a FIFO, device or socket, or a config whose ``method`` or ``dataset`` is of the wrong kind
         (:func:`~ifmi.io.evaluation_file.check_run_config`).
     """
     frames_path, config_path = side_file_paths(estimate_path)
+    refuse_special_file(frames_path, what="frames file")
+    refuse_special_file(config_path, what="config file")
     frames = read_frames_csv(frames_path) if frames_path.exists() else None
     config = read_run_config(config_path) if config_path.exists() else None
     if config is not None:
@@ -428,6 +454,8 @@ def read_evaluation(path: str | os.PathLike) -> EvaluationRecord:
     """
     folder = Path(path)
     doc_path = folder / "evaluation.json"
+    for name in EVALUATION_FILES:
+        refuse_special_file(folder / name, what="file of an evaluation")
     meta = read_run_config(doc_path) if doc_path.exists() else None
     if meta is None:
         raise InputError(folder, "not an evaluation folder (no evaluation.json)")
@@ -565,7 +593,7 @@ def _earlier_estimate_output(path: Path, kind: str) -> bool:
             return isinstance(data, dict) and {"method", "config", "versions"} <= data.keys()
         with open(path, "rb") as f:
             first = f.read(_SNIFF_BYTES).split(b"\n", 1)[0].decode("utf-8", errors="replace")
-    except (OSError, UnicodeDecodeError, ValueError):
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):  # RecursionError: JSON nested too deeply
         return False
     if kind == "trajectory":
         return first.startswith(f"# {ESTIMATE_HEADER}")
@@ -630,9 +658,9 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
     config.update(extra or {})
     tum = format_tum(estimate.trajectory, header=f"{ESTIMATE_HEADER}, method {estimate.method}")
     atomic_write_files({
-        config_path: json_text(jsonable(config)).encode("utf-8"),
-        frames_path: frames_csv_text([r.to_row() for r in estimate.frames]).encode("utf-8"),
-        path: tum.encode("utf-8"),
+        config_path: utf8_bytes(json_text(jsonable(config))),
+        frames_path: utf8_bytes(frames_csv_text([r.to_row() for r in estimate.frames])),
+        path: utf8_bytes(tum),
     })
     return path
 

@@ -7,20 +7,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["read_text_file", "read_failure", "refuse_special_file", "number_from_text"]
-
-
-def refuse_special_file(path: Path, *, what: str) -> None:
-    """Refuse a FIFO, device or socket at ``path``: reading one waits for a writer, or never ends.
-
-    Raises
-    ------
-    InputError
-        Naming ``path`` and the ``what`` expected there (a missing file or a folder is left
-        to the read, whose errors say so).
-    """
-    if path.exists() and not (path.is_file() or path.is_dir()):
-        raise InputError(path, f"is a FIFO, device or socket, not a regular file ({what} expected)")
+__all__ = ["read_text_file", "read_failure", "number_from_text", "refuse_special_file"]
 
 
 def read_text_file(path: str | os.PathLike, *, what: str, encoding: str = "utf-8",
@@ -50,6 +37,23 @@ def read_text_file(path: str | os.PathLike, *, what: str, encoding: str = "utf-8
         return path.read_text(encoding=encoding, errors=errors)
     except (OSError, UnicodeDecodeError) as exc:
         raise read_failure(path, exc, what=what, encoding=encoding) from None
+
+
+def refuse_special_file(path: str | os.PathLike, *, what: str) -> None:
+    """Refuse a ``path`` that exists but is a FIFO, device or socket (reading it could block forever).
+
+    For files a command finds by name (side files, files of a result folder),
+    not for files the user names, which may be pipes (``<(...)``).
+
+    Raises
+    ------
+    InputError
+        ``path`` is neither a regular file, a folder nor missing.
+    """
+    path = Path(path)
+    if path.exists() and not (path.is_file() or path.is_dir()):
+        article = "an" if what[:1].lower() in "aeiou" else "a"
+        raise InputError(path, f"is a FIFO, device or socket, not {article} {what}; expected a regular file")
 
 
 def read_failure(path, exc: Exception, *, what: str, encoding: str = "utf-8") -> InputError:
