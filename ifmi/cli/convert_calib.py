@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..calib_fit import TARGETS, percent_below
 from ..errors import InputError, OutputError
-from ..io.camera_file import calibration_path, convert_calibration_file
+from ..io.camera_file import KALIBR_FILE, OCAMCALIB_FILE, calibration_path, convert_calibration_file
 from ..io.dataset import refuse_output_in_datasets
 
 __all__ = ["add_parser", "run", "fit_summary", "check_out_suffix", "check_out_spares_inputs",
@@ -17,8 +17,6 @@ __all__ = ["add_parser", "run", "fit_summary", "check_out_suffix", "check_out_sp
 # Suffixes that ifmi.io.camera_file.read_camera reads as a Kalibr camchain (any other: OCamCalib
 # text); --out must carry one exactly when the target is a Kalibr model, so the file reads back.
 _KALIBR_SUFFIXES = (".yaml", ".yml")
-# Names of a dataset folder's calibration file (DESIGN.md: one of them, never both).
-_CALIBRATION_NAMES = ("calib_results.txt", "camera.yaml")
 
 
 def add_parser(subparsers) -> None:
@@ -90,7 +88,7 @@ def check_out_spares_inputs(source, out) -> None:
     if not (source.is_dir() or (dataset / "images").is_dir()):
         return
     real = Path(os.path.realpath(out))
-    second = real.name in _CALIBRATION_NAMES and not real.exists()
+    second = real.name in (OCAMCALIB_FILE, KALIBR_FILE) and not real.exists()
     if second and real.parent == Path(os.path.realpath(dataset)):
         raise OutputError(out, f"would put a second calibration into the dataset {dataset}, which holds "
                                f"{calib.name} (a dataset holds one); choose another output path")

@@ -14,6 +14,7 @@ from ..camera import OcamModel
 from ..errors import InputError
 from .calib import read_calib, write_calib
 from .kalibr import read_kalibr, write_kalibr
+from .text_file import refuse_special_file
 
 __all__ = ["OCAMCALIB_FILE", "KALIBR_FILE", "calibration_path", "read_camera", "write_camera",
            "camera_file_name", "convert_calibration_file"]
@@ -42,9 +43,7 @@ def calibration_path(folder: str | os.PathLike) -> Path:
                                                   f"{OCAMCALIB_FILE} or {KALIBR_FILE})")
     if len(found) > 1:
         raise InputError(folder, f"holds both {OCAMCALIB_FILE} and {KALIBR_FILE}; keep exactly one")
-    if not (found[0].is_file() or found[0].is_dir()):  # a folder is named as one when it is read
-        raise InputError(found[0], "is a FIFO, device or socket, not a calibration file; expected a "
-                                   "regular file")
+    refuse_special_file(found[0], what="calibration file")  # a folder is named as one when it is read
     return found[0]
 
 
