@@ -295,6 +295,12 @@ class Tracker:
         self._good_before_reset: list = []
 
     def _solve(self, reference: _Reference, state, predicted: np.ndarray, frame: int):
+        """``(pose, info, corr)`` of ``frame`` against ``reference``; ``(None, None, corr)`` when matching failed.
+
+        A front end with ``refine_correspondences`` is passed the solved
+        ``R_ab``; correspondences it returns are solved again and replace the
+        first solution when that succeeds.
+        """
         if getattr(self.front_end, "uses_prior_rotation", False):
             corr = self.front_end.correspondences(reference.state, state,
                                                   prior_rotation=reference.rotation.T @ predicted)
@@ -302,18 +308,28 @@ class Tracker:
             corr = self.front_end.correspondences(reference.state, state)
         if not corr.success:
             return None, None, corr
+        pose, info = self._solve_rays(reference, corr, frame)
+        refine = getattr(self.front_end, "refine_correspondences", None)
+        if refine is not None and info.success:
+            refined = refine(reference.state, state, corr, rotation_ab=pose.rotation)
+            if refined is not None:
+                pose_refined, info_refined = self._solve_rays(reference, refined, frame)
+                if info_refined.success:
+                    return pose_refined, info_refined, refined
+        return pose, info, corr
 
+    def _solve_rays(self, reference: _Reference, corr, frame: int) -> tuple:
+        """``(pose, info)`` of the back end on ``corr``'s rays (with the rolling-shutter model when set)."""
         def solve(rays_a, rays_b):
             return self.pose_solver(rays_a, rays_b, options=self.pose_options,
                                     rays_per_measurement=corr.rays_per_measurement)
 
         if self.rolling_shutter.readout == 0.0:
-            return *solve(corr.rays_a, corr.rays_b), corr
-        pose, info = relative_pose_rolling_shutter(
+            return solve(corr.rays_a, corr.rays_b)
+        return relative_pose_rolling_shutter(
             solve, corr.rays_a, corr.rays_b, corr.pixels_a[:, 0], corr.pixels_b[:, 0], height=self._height,
             velocities=lambda rotation_ab: self._velocities(reference, rotation_ab, frame),
             options=self.rolling_shutter)
-        return pose, info, corr
 
     def _velocities(self, reference: _Reference, rotation_ab: np.ndarray, frame: int) -> tuple:
         """Angular velocities at the read-outs of ``reference`` and ``frame`` given ``R_ab``.

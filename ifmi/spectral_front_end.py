@@ -119,6 +119,18 @@ class IfmiConfig:
         layout's tracked tiles. 0 disables it.
     dense_overlap : float
         Overlap of the denser layout (``TilingConfig.overlap``).
+    reregister_fraction : float
+        When at most this fraction of the layout's tiles passed and the back
+        end solved the pair, the reference's tiles are registered a second
+        time, directly at the solved rotation (no coarse stage), and the
+        pair is solved again from both registrations' rays pooled
+        (:meth:`IfmiFrontEnd.refine_correspondences`). The solved rotation
+        places the tiles better than the coarse stage did, and the second
+        registration samples them at other sub-pixel positions, so its
+        errors partly average out with the first's. Measured on 108 fast
+        sets and 12 warehouse sets (3 RANSAC seeds, both modes): the sets
+        where iFMI's ATE exceeded the better feature method's went from 25
+        to 13 (`reports/fast_motion`, thirteenth stop). 0 disables it.
     dense_tiles_per_column : int or None
         The retry registers only this many tiles of each column of the
         denser layout, those whose texture best fixes a shift in frame a
@@ -214,6 +226,7 @@ class IfmiConfig:
     max_tile_distortion: float = 1.25
     dense_retry_fraction: float = 0.33
     dense_overlap: float = 0.5
+    reregister_fraction: float = 0.6
     dense_tiles_per_column: int | None = None
     anchor_templates: bool = True
     curved_placement: bool = True
@@ -235,6 +248,8 @@ class IfmiConfig:
         if not 0 <= self.dense_retry_fraction <= 1 or not 0 <= self.dense_overlap < 1:
             raise ValueError(f"expected 0 <= dense_retry_fraction <= 1 and 0 <= dense_overlap < 1, got "
                              f"{self.dense_retry_fraction}, {self.dense_overlap}")
+        if not 0 <= self.reregister_fraction <= 1:
+            raise ValueError(f"expected 0 <= reregister_fraction <= 1, got {self.reregister_fraction}")
         if self.dense_tiles_per_column is not None and self.dense_tiles_per_column < 1:
             raise ValueError(f"expected dense_tiles_per_column >= 1 or None, got {self.dense_tiles_per_column}")
         if not self.landmark_gate_px > 0 or not 0 < self.landmark_weight <= 1:
@@ -928,52 +943,109 @@ class IfmiFrontEnd:
         -------
         Correspondences
         """
-        min_tiles = self.config.min_tiles
         if not self.config.use_prior:
             prior_rotation = None
         if prior_rotation is None:
             motion, origins_b = self.register(state_a, state_b)
             diagnostics = self._diagnostics(motion.reason, motion.peak_ratio, motion.peak_to_noise,
                                             self.layout.count)
-            valid = motion.valid
-        else:
-            match, diagnostics = self._match_predicted(state_a, state_b, (prior_rotation, None))
-            if match.placed.valid.sum() < min_tiles and self.global_stage is not None:
-                # Re-acquisition: the prediction may be far off after fast motion or a lost frame.
-                retry, retry_diagnostics = self._match_predicted(state_a, state_b, (None, prior_rotation))
-                if retry.placed.valid.sum() > match.placed.valid.sum():
-                    match, diagnostics = retry, {**retry_diagnostics, "reacquired": True}
-                match.restore_tracking(state_b)
-            if self._needs_wide_search(match, diagnostics):
-                wide = self._wide_match(state_a, state_b, match, diagnostics, prior_rotation)
-                if wide is not None:
-                    match, diagnostics = wide
-            offsets_a, linear_a, placed, rotation = match.offsets_a, match.linear_a, match.placed, match.rotation
-            curvature_a = state_a.reference_curvature
-            landmarks = state_a.reference_landmarks
-            valid = placed.valid
-            if self.dense_layout is not None and valid.sum() <= self.config.dense_retry_fraction * self.layout.count:
-                dense = self.register_dense(state_a, state_b, prior_rotation=rotation)
-                diagnostics = {**diagnostics, "n_tiles_kept_dense": int(dense[2].valid.sum())}
-                if dense[2].valid.sum() > valid.sum():
-                    offsets_a, linear_a, placed = dense
-                    curvature_a = landmarks = None
-                    valid = placed.valid
-        if valid.sum() < min_tiles:
-            return Correspondences.failed(
-                f"only {int(valid.sum())} of {self.layout.count} tiles passed the noise filters "
-                f"(need {min_tiles})", diagnostics)
-        if prior_rotation is None:
+            if motion.valid.sum() < self.config.min_tiles:
+                return self._too_few_tiles(motion.valid, diagnostics)
             pairs = flow_from_tile_motion(motion, self.layout, self.mapping, origins_b=origins_b,
                                           points_b=self._tile_points(state_b.spectra.centroid))
-        else:
-            pairs = flow_from_placements(offsets_a, linear_a, placed.offsets, placed.linear, valid, self.mapping,
-                                         points=self._tile_points(placed.template_centroid),
-                                         tile_size=self.layout.tile_size,
-                                         curvature_a=curvature_a, curvature_b=placed.last.curvature)
-            if landmarks is not None:
-                pairs, diagnostics["n_tiles_landmark"] = self._landmark_pairs(pairs, offsets_a[valid],
-                                                                              landmarks[valid], state_a.rotation)
+            return self._from_pairs(pairs, diagnostics)
+        match, diagnostics = self._match_predicted(state_a, state_b, (prior_rotation, None))
+        if match.placed.valid.sum() < self.config.min_tiles and self.global_stage is not None:
+            # Re-acquisition: the prediction may be far off after fast motion or a lost frame.
+            retry, retry_diagnostics = self._match_predicted(state_a, state_b, (None, prior_rotation))
+            if retry.placed.valid.sum() > match.placed.valid.sum():
+                match, diagnostics = retry, {**retry_diagnostics, "reacquired": True}
+            match.restore_tracking(state_b)
+        if self._needs_wide_search(match, diagnostics):
+            wide = self._wide_match(state_a, state_b, match, diagnostics, prior_rotation)
+            if wide is not None:
+                match, diagnostics = wide
+        return self._correspondences_from_match(state_a, state_b, match, diagnostics)
+
+    def _too_few_tiles(self, valid: np.ndarray, diagnostics: dict) -> Correspondences:
+        """A failed pair: fewer than ``config.min_tiles`` of the ``valid`` tiles passed."""
+        return Correspondences.failed(
+            f"only {int(valid.sum())} of {self.layout.count} tiles passed the noise filters "
+            f"(need {self.config.min_tiles})", diagnostics)
+
+    def _from_pairs(self, pairs, diagnostics: dict) -> Correspondences:
+        """Correspondences of the flow ``pairs`` (one measurement per tile)."""
         return Correspondences(pixels_a=pairs.pixels_a, pixels_b=pairs.pixels_b,
                                rays_a=pairs.rays_a, rays_b=pairs.rays_b, diagnostics=diagnostics,
                                rays_per_measurement=len(self._points_b))
+
+    def _correspondences_from_match(self, state_a: IfmiFrameState, state_b: IfmiFrameState, match: _TileMatch,
+                                    diagnostics: dict) -> Correspondences:
+        """Rays of a predicted registration ``match``, or of the dense retry at its rotation when
+        at most ``config.dense_retry_fraction`` of its tiles passed and the retry keeps more."""
+        offsets_a, linear_a, placed = match.offsets_a, match.linear_a, match.placed
+        curvature_a = state_a.reference_curvature
+        landmarks = state_a.reference_landmarks
+        valid = placed.valid
+        if self.dense_layout is not None and valid.sum() <= self.config.dense_retry_fraction * self.layout.count:
+            dense = self.register_dense(state_a, state_b, prior_rotation=match.rotation)
+            diagnostics = {**diagnostics, "n_tiles_kept_dense": int(dense[2].valid.sum())}
+            if dense[2].valid.sum() > valid.sum():
+                offsets_a, linear_a, placed = dense
+                curvature_a = landmarks = None
+                valid = placed.valid
+        if valid.sum() < self.config.min_tiles:
+            return self._too_few_tiles(valid, diagnostics)
+        pairs = flow_from_placements(offsets_a, linear_a, placed.offsets, placed.linear, valid, self.mapping,
+                                     points=self._tile_points(placed.template_centroid),
+                                     tile_size=self.layout.tile_size,
+                                     curvature_a=curvature_a, curvature_b=placed.last.curvature)
+        if landmarks is not None:
+            pairs, diagnostics["n_tiles_landmark"] = self._landmark_pairs(pairs, offsets_a[valid],
+                                                                          landmarks[valid], state_a.rotation)
+        return self._from_pairs(pairs, diagnostics)
+
+    def refine_correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, first: Correspondences, *,
+                               rotation_ab: np.ndarray) -> Correspondences | None:
+        """``first`` pooled with a second registration at the back end's solved rotation, or None.
+
+        Pairs whose registration kept at most ``config.reregister_fraction``
+        of the layout's tiles (as ``first``'s ``n_tiles_kept`` says) are
+        registered again where ``rotation_ab`` puts the reference's tiles,
+        without the coarse stage (the dense retry as for any registration);
+        frame b then keeps this registration's tracked tiles.
+
+        Parameters
+        ----------
+        state_a, state_b : IfmiFrameState
+            The pair ``first`` was matched from (reference a, frame b).
+        first : Correspondences
+            What :meth:`correspondences` returned for the pair.
+        rotation_ab : (3, 3) ndarray, keyword-only
+            ``R_ab`` the back end solved from ``first``.
+
+        Returns
+        -------
+        Correspondences or None
+            Both registrations' matches (``first``'s first), with
+            ``first``'s diagnostics and ``n_tiles_kept_reregistered``; None
+            when the pair is not registered again (enough tiles passed, no
+            prediction in use, ``reregister_fraction`` 0) or the second
+            registration failed.
+        """
+        kept = first.diagnostics.get("n_tiles_kept")
+        fraction = self.config.reregister_fraction
+        if (fraction == 0 or not first.success or not self.config.use_prior or kept is None
+                or kept > fraction * self.layout.count):
+            return None
+        match = self._tiles_at(state_a, state_b, np.asarray(rotation_ab, dtype=np.float64))
+        placed = match.placed
+        second = self._correspondences_from_match(
+            state_a, state_b, match, self._diagnostics(placed.reason, placed.peak_ratio, placed.peak_to_noise,
+                                                       match.n_new))
+        if not second.success:
+            return None
+        diagnostics = {**first.diagnostics, "n_tiles_kept_reregistered": second.diagnostics["n_tiles_kept"]}
+        return Correspondences(*(np.concatenate([getattr(first, name), getattr(second, name)])
+                                 for name in ("pixels_a", "pixels_b", "rays_a", "rays_b")),
+                               diagnostics=diagnostics, rays_per_measurement=first.rays_per_measurement)

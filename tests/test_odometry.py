@@ -264,3 +264,47 @@ def test_front_end_is_told_the_pose_of_every_successful_frame_only():
     for k, rotation in fe.accepted:
         assert np.array_equal(rotation, traj.rotations[k])
         assert geodesic_angle(truth[k], rotation) < 1e-9
+
+
+class RefiningFrontEnd(ExactFrontEnd):
+    """Rays of frame b turned by ``error`` (a biased first match); ``refine_correspondences`` gives
+    the exact rays (``refined`` of them, 80 at most), or None when ``refined`` is 0."""
+
+    def __init__(self, error, refined=80):
+        super().__init__()
+        self.error, self.refined, self.refine_calls = error, refined, []
+
+    def correspondences(self, state_a, state_b):
+        first = super().correspondences(state_a, state_b)
+        return Correspondences(first.pixels_a, first.pixels_b, first.rays_a, first.rays_b @ self.error.T,
+                               {"n_tiles": 1})
+
+    def refine_correspondences(self, state_a, state_b, first, *, rotation_ab):
+        self.refine_calls.append((state_a[0], state_b[0], rotation_ab))
+        if not self.refined:
+            return None
+        exact = super().correspondences(state_a, state_b)
+        n = self.refined
+        return Correspondences(exact.pixels_a[:n], exact.pixels_b[:n], exact.rays_a[:n], exact.rays_b[:n],
+                               {"n_tiles": 1, "refined": True})
+
+
+@pytest.mark.parametrize("refined", [80, 0, 3])
+def test_correspondences_refined_at_the_solved_pose_are_solved_again(refined):
+    # The first match is biased by 0.01 rad; the front end is passed the rotation solved from it
+    # and may return other rays, which replace the first solution when they solve (80 exact rays).
+    # None (0) or too few rays to solve (3) keep the first solution.
+    error = Rotation.from_rotvec([0.0, 0.01, 0.0]).as_matrix()
+    frames, truth = _frames(5)
+    fe = RefiningFrontEnd(error, refined=refined)
+    traj, records = track_sequence(frames, fe, pose_options=POSE)
+    assert all(r.success for r in records)
+    assert [(a, b) for a, b, _ in fe.refine_calls] == [(k - 1, k) for k in range(1, 5)]
+    for (a, b, rotation_ab) in fe.refine_calls:
+        assert abs(geodesic_angle(truth[a].T @ truth[b], rotation_ab) - 0.01) < 1e-6
+    relative = [geodesic_angle(truth[k - 1].T @ truth[k], traj.rotations[k - 1].T @ traj.rotations[k])
+                for k in range(1, 5)]
+    if refined == 80:
+        assert max(relative) < 1e-9 and all(r.diagnostics.get("refined") for r in records[1:])
+    else:
+        assert np.allclose(relative, 0.01, atol=1e-6) and not any(r.diagnostics.get("refined") for r in records)

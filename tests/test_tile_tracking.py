@@ -242,3 +242,44 @@ def test_dense_retry_options_are_validated():
         IfmiConfig(dense_overlap=1.0)
     with pytest.raises(ValueError, match="expected dense_tiles_per_column >= 1 or None, got 0"):
         IfmiConfig(dense_tiles_per_column=0)
+
+
+def test_a_weak_pair_is_registered_again_at_the_solved_rotation_and_both_rays_pooled(clean_frames):
+    from ifmi.front_end import Correspondences
+    from ifmi.relative_pose import rotation_from_rays
+    from ifmi.rotations import geodesic_angle
+
+    # Forced (fraction 1): the reference's tiles are registered a second time where the given
+    # R_ab puts them, here 0.02 rad (1.6 panorama pixels) off the truth; the tiles measure the
+    # rest, and the rays of both registrations come back, the first's first.
+    fe = IfmiFrontEnd(MODEL, replace(CONFIG, reregister_fraction=1.0, dense_retry_fraction=0.0))
+    s0, s1 = fe.prepare(clean_frames[0]), fe.prepare(clean_frames[1])
+    first = fe.correspondences(s0, s1, prior_rotation=STEP)
+    solved = STEP @ Rotation.from_rotvec([0.0, 0.0, 0.02]).as_matrix()
+    pooled = fe.refine_correspondences(s0, s1, first, rotation_ab=solved)
+    n = len(first.rays_a)
+    kept = pooled.diagnostics["n_tiles_kept_reregistered"]
+    assert kept > 0.8 * fe.layout.count
+    assert len(pooled.rays_a) == n + kept * pooled.rays_per_measurement
+    for name in ("pixels_a", "pixels_b", "rays_a", "rays_b"):
+        assert np.array_equal(getattr(pooled, name)[:n], getattr(first, name))
+    assert pooled.diagnostics["n_tiles_kept"] == first.diagnostics["n_tiles_kept"]
+    # Measured: 3.8e-4 rad from the second registration's rays alone (one panorama pixel:
+    # 1.2e-2 rad), at other sub-pixel placements than the first's (rays up to 1.5e-3 apart).
+    second = slice(n, None)
+    assert not np.array_equal(pooled.rays_b[second], first.rays_b)
+    assert geodesic_angle(rotation_from_rays(pooled.rays_a[second], pooled.rays_b[second]), STEP) < 1e-3
+    # Not registered again: off, more tiles kept than the fraction, a failed first match.
+    for fraction in (0.0, 0.5):
+        other = IfmiFrontEnd(MODEL, replace(CONFIG, reregister_fraction=fraction))
+        a, b = other.prepare(clean_frames[0]), other.prepare(clean_frames[1])
+        match = other.correspondences(a, b, prior_rotation=STEP)
+        assert match.diagnostics["n_tiles_kept"] > 0.5 * other.layout.count
+        assert other.refine_correspondences(a, b, match, rotation_ab=STEP) is None
+    failed = Correspondences.failed("no tiles", {"n_tiles_kept": 0})
+    assert fe.refine_correspondences(s0, s1, failed, rotation_ab=STEP) is None
+
+
+def test_reregister_fraction_is_validated():
+    with pytest.raises(ValueError, match="expected 0 <= reregister_fraction <= 1, got 1.5"):
+        IfmiConfig(reregister_fraction=1.5)
