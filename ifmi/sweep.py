@@ -55,6 +55,8 @@ from .io.atomic import (atomic_write_bytes, atomic_write_json, atomic_write_text
 __all__ = [
     "SweepCell",
     "SweepOptions",
+    "CELL_NAME_DIGITS",
+    "cell_value_name",
     "METRICS",
     "SWEEP_KIND",
     "SWEEP_RESULTS",
@@ -72,6 +74,9 @@ __all__ = [
     "dataset_labels",
 ]
 
+# Significant digits of a tile size or overlap in a cell's name (those of Python's "g" format, which
+# named the cells of earlier sweeps); values that agree to them share one cell record.
+CELL_NAME_DIGITS = 6
 # Hex digits of the digest that identifies a dataset's content.
 _ID_DIGITS = 12
 # Allocations up to this size stay on the heap in local-cluster workers (see run_sweep).
@@ -99,6 +104,11 @@ COLUMN_ORDER = ("dataset", "dataset_path", "method", "tile_size", "overlap", "st
                 "rmse_pitch_rad", "rmse_yaw_rad", "rmse_mean_rad", "rmse_geodesic_rad",
                 "max_geodesic_rad", "rmse_relative_rad", "time_per_frame_s", "failures", "frames",
                 "wall_s", "error", "cell_id")
+
+
+def cell_value_name(value: float) -> str:
+    """A tile size or overlap as a cell's name spells it (:data:`CELL_NAME_DIGITS` significant digits)."""
+    return f"{value:.{CELL_NAME_DIGITS}g}"
 
 
 @dataclass(frozen=True)
@@ -133,7 +143,7 @@ class SweepCell:
     @property
     def cell_id(self) -> str:
         """File-name-safe identifier, unique per dataset folder (resolved path), method and tiling."""
-        raw = f"{self.method}__tile{self.tile_size:g}__overlap{self.overlap:g}"
+        raw = f"{self.method}__tile{cell_value_name(self.tile_size)}__overlap{cell_value_name(self.overlap)}"
         return f"{dataset_folder_id(self.dataset)}__{re.sub(r'[^A-Za-z0-9_.=-]', '_', raw)}"
 
 
@@ -431,8 +441,15 @@ def run_sweep(cells: Iterable[SweepCell], *, out_dir: str | os.PathLike, base_co
         a rerun.
     InputError
         A Dask scheduler that cannot be reached.
+    ValueError
+        Two cells of one name (:attr:`SweepCell.cell_id`), which would share one record.
     """
     cells = list(cells)
+    names = [c.cell_id for c in cells]
+    if len(set(names)) < len(names):
+        twice = next(name for name in names if names.count(name) > 1)
+        raise ValueError(f"cell {twice} given twice; expected cells of distinct datasets, methods and "
+                         f"tilings (tile sizes and overlaps that differ in {CELL_NAME_DIGITS} significant digits)")
     document = {"kind": SWEEP_KIND, "cells": [c.__dict__ for c in cells],
                 "base_config": base_config, "scheduler": options.scheduler or "local-cluster"}
     out = _prepare_output(out_dir, document)
