@@ -336,6 +336,32 @@ def test_per_frame_arrays_that_do_not_fit_the_summary_are_one_line_error(tmp_pat
     assert _report_error(tmp_path, capsys, root) == f"ifmi report: error: {npz}: {expected}"
 
 
+def _with_row(array, row, value):
+    out = np.array(array, dtype=np.float64)
+    out[row] = value
+    return out
+
+
+@pytest.mark.parametrize("edit, expected", [
+    (lambda a: {**a, "timestamp": _with_row(a["timestamp"], 3, np.inf)},
+     "array timestamp: value inf at row 3; expected finite numbers"),
+    (lambda a: {**a, "roll_est": _with_row(a["roll_est"], 2, np.nan)},
+     "array roll_est: value nan at row 2; expected finite numbers"),
+    (lambda a: {**a, "timestamp": _with_row(a["timestamp"], 4, a["timestamp"][2])},
+     "array timestamp: 2 at row 4 follows 3; expected increasing timestamps"),
+    (lambda a: {**a, "yaw_gt": _with_row(a["yaw_gt"], 5, 90.0)},
+     "array yaw_gt: 90 at row 5; expected an angle in radians within [-pi, pi]"),
+])
+def test_per_frame_arrays_a_report_cannot_draw_are_one_line_error(tmp_path, capsys, edit, expected):
+    # They were drawn as gaps, zigzags or a flat line at 90 "rad" under a sound summary, with exit 0.
+    root = _make_results(tmp_path, scenes=("office",))
+    npz = root / "eval" / "office" / "orb" / "per_frame.npz"
+    with np.load(npz) as data:
+        arrays = {k: data[k] for k in data.files}
+    np.savez(npz, **edit(arrays))
+    assert _report_error(tmp_path, capsys, root).startswith(f"ifmi report: error: {npz}: {expected}")
+
+
 def test_frame_count_past_64_bits_is_one_line_error(tmp_path, capsys):
     root = _make_results(tmp_path, scenes=("office",))
     doc_path = root / "eval" / "office" / "orb" / "evaluation.json"
