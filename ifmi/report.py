@@ -488,9 +488,9 @@ def _sweep_names(sweeps: Sequence[Path]) -> dict:
 
 def _sweep_blocks(sweep_dir: Path, figures: Path, *, name: str) -> tuple[list, dict]:
     from .plots import sweep_heatmap
-    from .sweep import METRICS, read_cells, records_table
+    from .sweep import METRICS, records_table, sweep_records
 
-    records = read_cells(sweep_dir)
+    records = sweep_records(sweep_dir)
     blocks = [("h3", f"Sweep: {name}")]
     if not records:
         blocks.append(("p", "No finished cells."))

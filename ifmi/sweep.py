@@ -66,6 +66,7 @@ __all__ = [
     "run_cell",
     "run_sweep",
     "read_cells",
+    "sweep_records",
     "records_table",
     "read_cell_record",
     "write_sweep_table",
@@ -531,6 +532,79 @@ def read_cells(out_dir: str | os.PathLike, cells: Sequence[SweepCell] | None = N
         paths = [_cell_path(out, c) for c in cells]
     records = [read_cell_record(path, action="skipped") for path in paths]
     return [r for r in records if r is not None]
+
+
+def sweep_records(sweep_dir: str | os.PathLike) -> list[dict]:
+    """Records of the sweep that a folder's ``sweep.json`` describes: its grid, made with its base configuration.
+
+    ``cells/`` keeps the record of every cell run in the folder, and a rerun
+    with another grid or ``--config`` leaves the earlier records there: they
+    belong to other sweeps. Records of cells that ``sweep.json`` does not
+    list, or made with another base configuration than its, are left out
+    with one warning saying how many; a listed cell without a readable
+    record is missing, as in :func:`read_cells`.
+
+    Parameters
+    ----------
+    sweep_dir : path
+        A sweep folder (``sweep.json``, ``cells/``).
+
+    Returns
+    -------
+    list of dict
+        In the grid order of ``sweep.json``.
+
+    Raises
+    ------
+    InputError
+        ``sweep.json`` unreadable, or its ``cells`` or ``base_config`` not
+        of the form :func:`run_sweep` writes.
+    """
+    from .io.config import read_json_object
+
+    path = Path(sweep_dir) / "sweep.json"
+    document = read_json_object(path, what="sweep file")
+    cells = _listed_cells(path, document)
+    digest = config_digest(document["base_config"])
+    records, others = [], 0
+    for cell in cells:
+        record = read_cell_record(_cell_path(Path(sweep_dir), cell), action="skipped")
+        if record is not None and _of_cell(record, cell, digest):
+            records.append(record)
+        others += record is not None and not _of_cell(record, cell, digest)
+    names = {f"{cell.cell_id}.json" for cell in cells}
+    others += sum(1 for path in (Path(sweep_dir) / "cells").glob("*.json") if path.name not in names)
+    if others > 0:
+        grid = f"{len(cells)} cell{'s' if len(cells) != 1 else ''}"
+        _warn(f"{sweep_dir}: {others} cell record{'s' if others > 1 else ''} in cells/ not of the grid and base "
+              f"configuration of sweep.json ({grid}), left out: from earlier sweeps in this folder, or an "
+              f"unfinished rerun")
+    return records
+
+
+def _of_cell(record: dict, cell: SweepCell, digest: str) -> bool:
+    """Whether ``record`` is of ``cell`` (method and tiling) and made with the base configuration of ``digest``."""
+    return (record["method"] == cell.method and record["tile_size"] == cell.tile_size
+            and record["overlap"] == cell.overlap and record.get("config_digest", digest) == digest)
+
+
+def _listed_cells(path: Path, document: dict) -> list[SweepCell]:
+    """The cells ``sweep.json`` (``document``, read from ``path``) lists; InputError when malformed."""
+    listed, base = document.get("cells"), document.get("base_config")
+    if not isinstance(base, dict):
+        raise InputError(path, f"base_config: expected an object, got {json_excerpt(base)}")
+    if not isinstance(listed, list):
+        raise InputError(path, f"cells: expected a list of cells, got {json_excerpt(listed)}")
+    cells = []
+    for k, cell in enumerate(listed):
+        if not (isinstance(cell, dict) and isinstance(cell.get("dataset"), str)
+                and isinstance(cell.get("method"), str) and _is_number(cell.get("tile_size"))
+                and _is_number(cell.get("overlap")) and isinstance(cell.get("label"), (str, type(None)))):
+            raise InputError(path, f"cells[{k}]: expected an object with text dataset and method, numbers "
+                                   f"tile_size and overlap, and a label (text or null), got {json_excerpt(cell)}")
+        cells.append(SweepCell(cell["dataset"], cell["method"], float(cell["tile_size"]),
+                               float(cell["overlap"]), label=cell["label"]))
+    return cells
 
 
 def records_table(records: list[dict]):
