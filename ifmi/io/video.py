@@ -10,7 +10,10 @@ clip (by seeking, or by one decoding pass that keeps a bounded number of
 frames), e.g. to decide the mirror band from more than the first frame.
 
 Frames are read as stored: rotation metadata (a phone held upright) is not
-applied, because a calibration refers to sensor pixels. Damage is reported,
+applied, because a calibration refers to sensor pixels. Frames of a 16-bit
+gray stream are decoded raw and read at the depth their samples were
+recorded at, as 16-bit images are
+(:func:`~ifmi.io.images.eight_bit_from_sixteen`). Damage is reported,
 never passed on silently:
 
 * FFmpeg's own lines (``[mjpeg @ 0x...] overread 8``, ``moov atom not
@@ -43,6 +46,7 @@ import numpy as np
 
 from ..errors import InputError, InputWarning
 from ..frames import MissingFrame
+from .images import eight_bit_from_sixteen
 from .native_stderr import call_with_captured_stderr
 
 __all__ = ["VideoFrames", "VIDEO_SUFFIXES", "is_video_path"]
@@ -59,6 +63,11 @@ _UNTIMED_SUFFIXES = (".avi",)
 _MS_PER_S = 1000.0
 # Spacing given to a frame without a presentation time when the container names no rate.
 _NO_RATE_INTERVAL_S = 1.0
+# FFmpeg's codec tags of 16-bit gray frames (gray16le "Y1\0\x10", gray16be "\x10\0" "1Y"), as
+# CAP_PROP_CODEC_PIXEL_FORMAT gives them. OpenCV's conversion to 8 bits keeps their high byte, so
+# 10- to 14-bit samples stored unscaled (a machine-vision camera's FFV1 recording) would read as a
+# few gray levels; such frames are taken raw and read at their recorded depth, as 16-bit images.
+_GRAY16_TAGS = (int.from_bytes(b"Y1\x00\x10", "little"), int.from_bytes(b"\x10\x001Y", "little"))
 # Decoder threads: one, so that the decoder writes a frame's messages while it is grabbed, in the
 # calling thread, instead of from a worker thread at any later time.
 _DECODER_THREADS = 1
@@ -118,6 +127,8 @@ class _Capture:
             self.release()
             said = f" (FFmpeg: {_quoted(self.open_messages)})" if self.open_messages else ""
             raise InputError(path, f"not a video OpenCV can read{said}")
+        if int(self.capture.get(cv2.CAP_PROP_CODEC_PIXEL_FORMAT)) in _GRAY16_TAGS:
+            self.capture.set(cv2.CAP_PROP_CONVERT_RGB, 0)  # raw 16-bit frames (see _GRAY16_TAGS)
         # The calibration refers to the frames as the sensor stored them: never apply the
         # display rotation a phone records.
         self.capture.set(cv2.CAP_PROP_ORIENTATION_AUTO, 0)
@@ -242,6 +253,8 @@ class VideoFrames:
                 f"but the calibration names {self.size[0]}x{self.size[1]}{turned}")
 
     def _converted(self, frame: np.ndarray) -> np.ndarray:
+        if frame.dtype == np.uint16:
+            frame = eight_bit_from_sixteen(frame, source=self.path, what="frames")
         if frame.ndim == 2:
             return frame if self.gray else np.repeat(frame[..., None], 3, axis=2)
         return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY if self.gray else cv2.COLOR_BGR2RGB)
