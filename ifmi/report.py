@@ -18,6 +18,7 @@ from __future__ import annotations
 import html
 import os
 import platform
+import re
 import shutil
 import sys
 from dataclasses import dataclass, field, replace
@@ -270,9 +271,28 @@ def baseline_ratios(tables: dict, *, method: str = "ifmi",
 
 # -- document model: a list of blocks rendered to Markdown and HTML -----------------------------
 
+# Backticks of the shortest Markdown code fence.
+_MIN_FENCE = 3
+
+def _md_cell(value) -> str:
+    """``value`` as one Markdown table cell: one line, its ``|`` escaped (it would end the cell)."""
+    return _md_line(str(value)).replace("|", "\\|")
+
+
+def _md_line(text: str) -> str:
+    """``text`` on one line (a heading or cell ends at a line break; the rest would be body text)."""
+    return " ".join(str(text).split())
+
+
+def _md_fence(text: str) -> str:
+    """A code fence longer than any run of backticks in ``text``, so that none ends the block early."""
+    longest = max((len(run) for run in re.findall(r"`+", text)), default=0)
+    return "`" * max(_MIN_FENCE, longest + 1)
+
+
 def _md_table(header, rows) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    lines = ["| " + " | ".join(_md_cell(c) for c in header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(_md_cell(c) for c in row) + " |" for row in rows]
     return "\n".join(lines)
 
 
@@ -280,19 +300,21 @@ def _render_markdown(blocks) -> str:
     parts = []
     for kind, *rest in blocks:
         if kind == "h1":
-            parts.append(f"# {rest[0]}")
+            parts.append(f"# {_md_line(rest[0])}")
         elif kind == "h2":
-            parts.append(f"## {rest[0]}")
+            parts.append(f"## {_md_line(rest[0])}")
         elif kind == "h3":
-            parts.append(f"### {rest[0]}")
+            parts.append(f"### {_md_line(rest[0])}")
         elif kind == "p":
             parts.append(rest[0])
         elif kind == "code":
-            parts.append("```\n" + rest[0] + "\n```")
+            fence = _md_fence(rest[0])
+            parts.append(f"{fence}\n{rest[0]}\n{fence}")
         elif kind == "table":
             parts.append(_md_table(*rest))
         elif kind == "img":
-            parts.append(f"![{rest[1]}]({rest[0]})\n\n*{rest[1]}*")
+            caption = _md_line(rest[1])
+            parts.append(f"![{caption}]({rest[0]})\n\n*{caption}*")
     return "\n\n".join(parts) + "\n"
 
 

@@ -565,3 +565,16 @@ def test_two_sweeps_of_one_folder_name_get_their_own_figures_and_copies(tmp_path
     figures = sorted(p.name for p in (out / "figures").glob("heatmap_*.png"))
     assert len(figures) == 4 and {f.split("_sweep_")[0] for f in figures} == {"heatmap_site_a",
                                                                              "heatmap_site_b"}
+
+
+def test_markdown_keeps_its_structure_whatever_the_names_title_and_command():
+    # A title over two lines made a second heading, a | in a name split its table cell, and a command
+    # holding ``` ended its code block early: the README's structure was broken, exit 0.
+    from ifmi.report import _render_markdown
+
+    text = _render_markdown([("h1", "Report\n# not a heading"), ("code", "ifmi report x\n```\n# evil"),
+                             ("table", ["scene", "RMSE"], [["office|v2", "0.1"]]),
+                             ("img", "figures/a.png", "office\nlawn")])
+    assert text.startswith("# Report # not a heading\n\n````\nifmi report x\n```\n# evil\n````\n\n")
+    assert "| office\\|v2 | 0.1 |" in text.splitlines()
+    assert text.endswith("![office lawn](figures/a.png)\n\n*office lawn*\n")
