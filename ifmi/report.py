@@ -387,7 +387,7 @@ def _scene_blocks(tables: dict) -> list:
     return blocks
 
 
-def _average_blocks(avg: dict) -> list:
+def _average_blocks(avg: dict, tables: dict) -> list:
     methods = list(avg)
     header = ["", ""] + methods
     body = []
@@ -397,9 +397,24 @@ def _average_blocks(avg: dict) -> list:
     body.append(["geodesic", "ε [rad]"] + [_pm(avg[m]["rmse_geodesic_rad"]) for m in methods])
     body.append(["μ(t)", "[s]"] + [_pm(avg[m]["time_per_frame_s"]) for m in methods])
     n = max((avg[m]["rmse_mean_rad"]["n"] for m in methods), default=0)
+    note = _unlike_scenes_note(tables, methods)
+    if note:
+        body.append(["scenes", ""] + [str(sum(m in rows for rows in tables.values())) for m in methods])
+        print(f"warning: {note}", file=sys.stderr)
     return [("table", header, body),
             ("p", f"Mean ± standard deviation over {n} scene(s) of each scene's RMSE "
-                  "(and of the time per frame), as in the paper's Table 1.")]
+                  "(and of the time per frame), as in the paper's Table 1." + (f" {note}" if note else ""))]
+
+
+def _unlike_scenes_note(tables: dict, methods: list) -> str:
+    """A sentence naming the scenes some methods lack ("" when every method has every scene)."""
+    lacking = {m: [scene for scene, rows in tables.items() if m not in rows] for m in methods}
+    lacking = {m: scenes for m, scenes in lacking.items() if scenes}
+    if not lacking:
+        return ""
+    shown = "; ".join(f"{m} lacks {', '.join(sorted(scenes))}" for m, scenes in lacking.items())
+    return (f"The methods were evaluated on different scenes ({shown}): each column averages its own "
+            "scenes, so columns of different scenes do not compare; evaluate every method on every scene.")
 
 
 def _ratio_blocks(ratios: dict) -> list:
@@ -640,7 +655,7 @@ def _write_report(inputs: ReportInputs, records: list[EvaluationRecord], out: Pa
     if options.command:
         blocks += [("p", "Regenerate with:"), ("code", options.command)]
     if records:
-        blocks += [("h2", "Average over scenes (Table 1 style)"), *_average_blocks(avg),
+        blocks += [("h2", "Average over scenes (Table 1 style)"), *_average_blocks(avg, tables),
                    ("h2", "Per scene"), *_scene_blocks(tables)]
     blocks += _ratio_blocks(ratios)
     rpy, plots = _rpy_blocks(records, figures)

@@ -578,3 +578,19 @@ def test_markdown_keeps_its_structure_whatever_the_names_title_and_command():
     assert text.startswith("# Report # not a heading\n\n````\nifmi report x\n```\n# evil\n````\n\n")
     assert "| office\\|v2 | 0.1 |" in text.splitlines()
     assert text.endswith("![office lawn](figures/a.png)\n\n*office lawn*\n")
+
+
+def test_average_table_names_scenes_a_method_lacks(tmp_path, capsys):
+    # ORB without its lawn evaluation was averaged over office alone and set beside iFMI's office-and-lawn
+    # mean under "over 2 scene(s)", exit 0 and no word.
+    import shutil
+
+    root = _make_results(tmp_path)
+    shutil.rmtree(root / "eval" / "lawn" / "orb")
+    out = tmp_path / "r"
+    assert main(["report", str(root / "eval"), "--out", str(out), "--no-motion-flow"]) == 0
+    note = ("The methods were evaluated on different scenes (orb lacks lawn): each column averages its own "
+            "scenes, so columns of different scenes do not compare; evaluate every method on every scene.")
+    assert capsys.readouterr().err.strip() == f"warning: {note}"
+    readme = (out / "README.md").read_text()
+    assert note in readme and "| scenes |  | 2 | 1 | 2 |" in readme.splitlines()
