@@ -212,3 +212,22 @@ def test_a_16_bit_gray_video_is_read_at_its_recorded_depth(video, tmp_path, bits
     assert len(decoded) == len(images) and all(d.dtype == np.uint8 for d in decoded)
     for frame, image in zip(decoded, sequence.images):
         assert np.array_equal(frame, image)
+
+
+def test_frame_times_that_do_not_increase_are_restamped_with_a_warning(video, monkeypatch):
+    # A clip whose times restart (two recordings joined) gave a trajectory with repeated and falling
+    # timestamps, exit 0: evaluate refused it, and other tools would associate it wrongly.
+    import cv2
+
+    import ifmi.io.video as video_module
+
+    root, _ = video
+    times = iter([0.0, 80.0, 160.0, 80.0, 160.0, 400.0])
+    plain_get = video_module._Capture.get
+    monkeypatch.setattr(video_module._Capture, "get", lambda self, prop: next(times)
+                        if prop == cv2.CAP_PROP_POS_MSEC else plain_get(self, prop))
+    frames = VideoFrames(root / "clip.avi", size=MODEL.size)
+    with pytest.warns(InputWarning, match=r"clip.avi: 2 frames \(the first: frame 3\) had a presentation time "
+                                          r"not after the previous frame's .* stamped one frame interval after it"):
+        assert len(list(frames)) == 6
+    assert frames.timestamps == pytest.approx([0.0, 0.08, 0.16, 0.24, 0.32, 0.4])

@@ -177,6 +177,7 @@ class _Grab:
     index: int | None
     seconds: float | None
     messages: list[str]
+    restamped: bool = False
 
 
 class VideoFrames:
@@ -208,8 +209,9 @@ class VideoFrames:
         in seconds from the first: the container's times minus the first
         frame's, whatever time the container starts at (so a lost frame
         leaves a gap in a container that stores times per frame: MP4, MOV,
-        Matroska, WebM). A frame without a time is put one nominal frame
-        interval after the previous one.
+        Matroska, WebM). A frame without a time, or with one not after the
+        previous frame's (times that restart), is put one nominal frame
+        interval after the previous one, so the timestamps increase.
     frame_count : int
         Frame count the container declares (0 when unknown).
     fps : float
@@ -281,12 +283,15 @@ class VideoFrames:
                 continue
             rejected_in_row = 0
             milliseconds = capture.get(cv2.CAP_PROP_POS_MSEC)
-            if not np.isfinite(milliseconds) or (previous is not None and milliseconds <= 0):
+            seconds = milliseconds / _MS_PER_S
+            untimed = not np.isfinite(seconds) or (previous is not None and seconds <= 0)
+            # A time not after the previous frame's (a clip joined from two whose times restart):
+            # as if missing, so that the trajectory's timestamps increase.
+            restamped = not untimed and previous is not None and seconds <= previous
+            if untimed or restamped:
                 seconds = 0.0 if previous is None else previous + (
                     1.0 / self.fps if self.fps > 0 else _NO_RATE_INTERVAL_S)
-            else:
-                seconds = milliseconds / _MS_PER_S
-            yield _Grab(index, seconds, messages)
+            yield _Grab(index, seconds, messages, restamped=restamped)
             previous = seconds
             index += 1
 
@@ -295,6 +300,7 @@ class VideoFrames:
         capture = _Capture(self.path)
         rejected: list[_Grab] = []
         damaged: list[_Grab] = []
+        restamped: list[_Grab] = []
         first = 0.0  # raw time of the first frame, the origin of the timestamps
         try:
             for grab in self._grabs(capture):
@@ -305,12 +311,13 @@ class VideoFrames:
                     first = grab.seconds
                 self.timestamps.append(grab.seconds - first)
                 damaged += [grab] if grab.messages else []
+                restamped += [grab] if grab.restamped else []
                 yield self._frame(capture, grab)
             if not self.timestamps:
                 messages = capture.open_messages + [m for grab in rejected for m in grab.messages]
                 said = f" (FFmpeg: {_quoted(messages)})" if messages else ""
                 raise InputError(self.path, f"no frames could be decoded{said}")
-            self._warn_if_incomplete(rejected, damaged, capture.open_messages)
+            self._warn_if_incomplete(rejected, damaged, capture.open_messages, restamped)
         finally:
             capture.release()
 
@@ -329,11 +336,18 @@ class VideoFrames:
             return MissingFrame(source=str(self.path), reason=f"{self.path.name}: {problem}")
         return self._converted(frame)
 
-    def _warn_if_incomplete(self, rejected: list[_Grab], damaged: list[_Grab],
-                            open_messages: list[str]) -> None:
-        """One InputWarning for rejected frames, a short count or FFmpeg's complaints on opening."""
+    def _warn_if_incomplete(self, rejected: list[_Grab], damaged: list[_Grab], open_messages: list[str],
+                            restamped: list[_Grab] = ()) -> None:
+        """One InputWarning for rejected frames, a short count, FFmpeg's complaints on opening, or
+        frames whose times did not increase."""
         read = len(self.timestamps)
         problems = []
+        if restamped:
+            first = restamped[0].index
+            problems.append(f"{len(restamped)} frame{'s' if len(restamped) > 1 else ''} (the first: frame {first}) "
+                            f"had a presentation time not after the previous frame's (times that restart, as in "
+                            f"clips joined into one) and {'were' if len(restamped) > 1 else 'was'} stamped one frame "
+                            f"interval after it")
         if rejected:
             problems.append(f"skipped {len(rejected)} frame{'s' if len(rejected) > 1 else ''} the decoder "
                             f"rejected ({_quoted([m for grab in rejected for m in grab.messages])})")
