@@ -359,6 +359,20 @@ def test_sweep_cli_refuses_grid_values_of_one_cell_name(datasets, tmp_path, caps
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("method", ["orb", "akaze"])
+def test_sweep_cli_refuses_a_method_that_ignores_the_tiling(datasets, tmp_path, capsys, method):
+    # Every cell ran the same keypoint estimate: a flat error heatmap and a time heatmap of noise, exit 0.
+    good, _ = datasets
+    code = main(["sweep", str(good), "--tile-size", "32", "48", "--overlap", "0", "--method", method,
+                 "--scheduler", "synchronous", "--out", str(tmp_path / "o"), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == (f"ifmi sweep: error: --method: method {method} does not use the tiling that a "
+                                 "sweep varies (tile size and overlap are iFMI's): every cell would repeat one "
+                                 "run; expected --method ifmi or a method of your own that reads "
+                                 "config.ifmi.tiling")
+    assert not (tmp_path / "o").exists()
+
+
 def test_run_sweep_refuses_two_cells_of_one_name(datasets, tmp_path):
     from ifmi.sweep import SweepCell, SweepOptions, run_sweep
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..local_workers import DEFAULT_LOCAL_WORKERS, max_local_workers
+from ..methods import ignores_tiling
 from ..sweep import CELL_NAME_DIGITS, SweepOptions, cell_value_name, run_sweep, sweep_cells
 from ..tiling import TilingConfig
 from .estimate import chosen_method
@@ -132,6 +133,11 @@ def run(args) -> int:
             raise InputError(Path(d) / "groundtruth.txt", "ground truth not found (a sweep needs it)")
     _refuse_repeats(args)
     base_config, method = _base_config(args.config, args.method)
+    if ignores_tiling(method):
+        raise InputError("--method" if args.method else args.config,
+                         f"method {method} does not use the tiling that a sweep varies (tile size and overlap "
+                         f"are iFMI's): every cell would repeat one run; expected --method ifmi or a method "
+                         f"of your own that reads config.ifmi.tiling")
     cells = sweep_cells([str(Path(d).resolve()) for d in args.datasets], method=method,
                         tile_sizes=args.tile_size, overlaps=args.overlap)
     options = SweepOptions(scheduler=args.scheduler, n_workers=args.workers,
