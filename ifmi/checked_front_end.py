@@ -11,7 +11,7 @@ applies two rules:
   :data:`RAY_NORM_TOLERANCE` of 1, then normalised), pixels ``(N, 2)``
   finite, both frames' arrays of one length, ``rays_per_measurement`` an
   integer from 1 to N that divides N, ``diagnostics`` a mapping of one-line
-  names to JSON scalars (numbers, 64-bit integers, true/false, null or one
+  names (not empty, none of frames.csv's own columns) to JSON scalars (numbers, 64-bit integers, true/false, null or one
   line of text: each is a column of the run's frames.csv). These are
   errors of the plugin's code, the same on every frame, and a wrong result
   (pixel coordinates passed as rays, say) would otherwise come out as a
@@ -33,6 +33,7 @@ import numpy as np
 
 from .errors import InputError, one_line
 from .front_end import Correspondences
+from .odometry import FRAME_COLUMNS, RECOVERED_AFTER_RESET
 
 __all__ = ["RAY_NORM_TOLERANCE", "CheckedFrontEnd", "checked_correspondences"]
 
@@ -47,6 +48,8 @@ _REAL_KINDS = "iuf"
 # Bits of the largest integer a diagnostics entry may hold (that of a 64-bit integer; a longer one
 # is no measurement, and Python refuses to print one of over 4300 digits).
 _DIAGNOSTIC_INT_BITS = 64
+# Column names of frames.csv that a diagnostics entry would lose to (the tracker's own columns).
+_TAKEN_COLUMNS = FRAME_COLUMNS + (RECOVERED_AFTER_RESET,)
 # Characters of a diagnostics key quoted in a message.
 _SHOWN_KEY_CHARS = 40
 
@@ -186,8 +189,9 @@ def _diagnostics(value: Mapping, where: str) -> dict:
     Raises
     ------
     InputError
-        A key that is not one line of text without surrounding spaces, or a
-        value that is not a number, a 64-bit integer, true/false, null or one
+        A key that is not one line of text without surrounding spaces, an
+        empty key or one of frames.csv's own columns (whose value would be
+        lost to the tracker's), or a value that is not a number, a 64-bit integer, true/false, null or one
         line of text.
     """
     out = {}
@@ -197,6 +201,11 @@ def _diagnostics(value: Mapping, where: str) -> dict:
             raise InputError(where, f"correspondences() returned a diagnostics key {_shown(key)}; "
                                     "expected one line of text without surrounding spaces (a column "
                                     "name of frames.csv)")
+        if not key or key in _TAKEN_COLUMNS:
+            problem = "an empty column name" if not key else "a column frames.csv has already"
+            raise InputError(where, f"correspondences() returned a diagnostics key {_shown(key)}: {problem}, "
+                                    f"so its values would be lost; expected a non-empty name other than "
+                                    f"{', '.join(_TAKEN_COLUMNS)}")
         problem = _diagnostic_problem(item)
         if problem:
             raise InputError(where, f"correspondences() returned diagnostics entry {_shown(key)}: {problem}; "

@@ -29,6 +29,7 @@ __all__ = [
     "MethodInfo",
     "BUILTIN_METHODS",
     "builtin_method_names",
+    "ignores_tiling",
     "plugin_methods",
     "available_methods",
     "method_names",
@@ -60,6 +61,9 @@ class MethodInfo:
         ``"built-in"`` or ``"plugin <distribution>"``.
     color : str or None
         Matplotlib colour of a built-in method in figures.
+    uses_tiling : bool or None
+        Whether its front end reads the iFMI tiling (tile size and overlap,
+        what ``ifmi sweep`` varies); None when unknown (a plugin's).
     """
 
     name: str
@@ -67,6 +71,7 @@ class MethodInfo:
     summary: str
     source: str
     color: str | None = None
+    uses_tiling: bool | None = None
 
 
 def ifmi_front_end(model, config):
@@ -80,17 +85,22 @@ def ifmi_front_end(model, config):
 BUILTIN_METHODS = (
     MethodInfo("ifmi", "ifmi.methods:ifmi_front_end",
                "extended iFMI: per-tile Fourier-Mellin registration on the panorama, "
-               "flow rays", "built-in", "tab:red"),
+               "flow rays", "built-in", "tab:red", uses_tiling=True),
     MethodInfo("orb", "ifmi.features:orb_front_end",
                "ORB keypoints in the mirror band, Hamming ratio-test matching", "built-in",
-               "tab:blue"),
+               "tab:blue", uses_tiling=False),
     MethodInfo("akaze", "ifmi.features:akaze_front_end",
                "AKAZE keypoints in the mirror band, Hamming ratio-test matching", "built-in",
-               "tab:green"),
+               "tab:green", uses_tiling=False),
 )
 # Colours given to other methods, in turn (none of them a built-in method's colour).
 OTHER_COLORS = ("tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan",
                 "tab:gray")
+
+
+def ignores_tiling(method: str) -> bool:
+    """Whether ``method`` is known not to read the iFMI tiling (a built-in keypoint method)."""
+    return any(m.name == method and m.uses_tiling is False for m in BUILTIN_METHODS)
 
 
 def builtin_method_names() -> tuple[str, ...]:

@@ -60,7 +60,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
@@ -74,7 +74,7 @@ from .rolling_shutter import (RollingShutterOptions, angular_velocity_from_rotat
                               velocity_after_intervals, velocity_at_frame)
 from .trajectory import Trajectory
 
-__all__ = ["KeyframeOptions", "FrameRecord", "Tracker", "track_sequence"]
+__all__ = ["KeyframeOptions", "FrameRecord", "FRAME_COLUMNS", "RECOVERED_AFTER_RESET", "Tracker", "track_sequence"]
 
 
 @dataclass(frozen=True)
@@ -169,6 +169,13 @@ class FrameRecord:
         for key, value in self.diagnostics.items():
             row.setdefault(key, value)
         return row
+
+
+# Columns of frames.csv that every frame has (FrameRecord's fields but its diagnostics), and the
+# diagnostics column the tracker adds to a frame estimated against the reference before a reset:
+# names a front end's diagnostics cannot have.
+FRAME_COLUMNS = tuple(f.name for f in fields(FrameRecord) if f.name != "diagnostics")
+RECOVERED_AFTER_RESET = "recovered_after_reset"
 
 
 @dataclass
@@ -386,7 +393,7 @@ class Tracker:
         if info is None or not info.success or info.n_inliers < self.keyframe.min_inliers:
             return None
         self._reference, self._good = reference, self._good_before_reset
-        corr = replace(corr, diagnostics={**corr.diagnostics, "recovered_after_reset": True})
+        corr = replace(corr, diagnostics={**corr.diagnostics, RECOVERED_AFTER_RESET: True})
         return reference, pose, info, corr
 
     def _append(self, record: FrameRecord, rotation: np.ndarray, position: np.ndarray) -> FrameRecord:

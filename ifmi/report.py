@@ -18,6 +18,7 @@ from __future__ import annotations
 import html
 import os
 import platform
+import re
 import shutil
 import sys
 from dataclasses import dataclass, field, replace
@@ -270,9 +271,28 @@ def baseline_ratios(tables: dict, *, method: str = "ifmi",
 
 # -- document model: a list of blocks rendered to Markdown and HTML -----------------------------
 
+# Backticks of the shortest Markdown code fence.
+_MIN_FENCE = 3
+
+def _md_cell(value) -> str:
+    """``value`` as one Markdown table cell: one line, its ``|`` escaped (it would end the cell)."""
+    return _md_line(str(value)).replace("|", "\\|")
+
+
+def _md_line(text: str) -> str:
+    """``text`` on one line (a heading or cell ends at a line break; the rest would be body text)."""
+    return " ".join(str(text).split())
+
+
+def _md_fence(text: str) -> str:
+    """A code fence longer than any run of backticks in ``text``, so that none ends the block early."""
+    longest = max((len(run) for run in re.findall(r"`+", text)), default=0)
+    return "`" * max(_MIN_FENCE, longest + 1)
+
+
 def _md_table(header, rows) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    lines = ["| " + " | ".join(_md_cell(c) for c in header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(_md_cell(c) for c in row) + " |" for row in rows]
     return "\n".join(lines)
 
 
@@ -280,19 +300,21 @@ def _render_markdown(blocks) -> str:
     parts = []
     for kind, *rest in blocks:
         if kind == "h1":
-            parts.append(f"# {rest[0]}")
+            parts.append(f"# {_md_line(rest[0])}")
         elif kind == "h2":
-            parts.append(f"## {rest[0]}")
+            parts.append(f"## {_md_line(rest[0])}")
         elif kind == "h3":
-            parts.append(f"### {rest[0]}")
+            parts.append(f"### {_md_line(rest[0])}")
         elif kind == "p":
             parts.append(rest[0])
         elif kind == "code":
-            parts.append("```\n" + rest[0] + "\n```")
+            fence = _md_fence(rest[0])
+            parts.append(f"{fence}\n{rest[0]}\n{fence}")
         elif kind == "table":
             parts.append(_md_table(*rest))
         elif kind == "img":
-            parts.append(f"![{rest[1]}]({rest[0]})\n\n*{rest[1]}*")
+            caption = _md_line(rest[1])
+            parts.append(f"![{caption}]({rest[0]})\n\n*{caption}*")
     return "\n\n".join(parts) + "\n"
 
 
@@ -365,7 +387,7 @@ def _scene_blocks(tables: dict) -> list:
     return blocks
 
 
-def _average_blocks(avg: dict) -> list:
+def _average_blocks(avg: dict, tables: dict) -> list:
     methods = list(avg)
     header = ["", ""] + methods
     body = []
@@ -375,9 +397,24 @@ def _average_blocks(avg: dict) -> list:
     body.append(["geodesic", "ε [rad]"] + [_pm(avg[m]["rmse_geodesic_rad"]) for m in methods])
     body.append(["μ(t)", "[s]"] + [_pm(avg[m]["time_per_frame_s"]) for m in methods])
     n = max((avg[m]["rmse_mean_rad"]["n"] for m in methods), default=0)
+    note = _unlike_scenes_note(tables, methods)
+    if note:
+        body.append(["scenes", ""] + [str(sum(m in rows for rows in tables.values())) for m in methods])
+        print(f"warning: {note}", file=sys.stderr)
     return [("table", header, body),
             ("p", f"Mean ± standard deviation over {n} scene(s) of each scene's RMSE "
-                  "(and of the time per frame), as in the paper's Table 1.")]
+                  "(and of the time per frame), as in the paper's Table 1." + (f" {note}" if note else ""))]
+
+
+def _unlike_scenes_note(tables: dict, methods: list) -> str:
+    """A sentence naming the scenes some methods lack ("" when every method has every scene)."""
+    lacking = {m: [scene for scene, rows in tables.items() if m not in rows] for m in methods}
+    lacking = {m: scenes for m, scenes in lacking.items() if scenes}
+    if not lacking:
+        return ""
+    shown = "; ".join(f"{m} lacks {', '.join(sorted(scenes))}" for m, scenes in lacking.items())
+    return (f"The methods were evaluated on different scenes ({shown}): each column averages its own "
+            "scenes, so columns of different scenes do not compare; evaluate every method on every scene.")
 
 
 def _ratio_blocks(ratios: dict) -> list:
@@ -488,9 +525,9 @@ def _sweep_names(sweeps: Sequence[Path]) -> dict:
 
 def _sweep_blocks(sweep_dir: Path, figures: Path, *, name: str) -> tuple[list, dict]:
     from .plots import sweep_heatmap
-    from .sweep import METRICS, read_cells, records_table
+    from .sweep import METRICS, records_table, sweep_records
 
-    records = read_cells(sweep_dir)
+    records = sweep_records(sweep_dir)
     blocks = [("h3", f"Sweep: {name}")]
     if not records:
         blocks.append(("p", "No finished cells."))
@@ -618,7 +655,7 @@ def _write_report(inputs: ReportInputs, records: list[EvaluationRecord], out: Pa
     if options.command:
         blocks += [("p", "Regenerate with:"), ("code", options.command)]
     if records:
-        blocks += [("h2", "Average over scenes (Table 1 style)"), *_average_blocks(avg),
+        blocks += [("h2", "Average over scenes (Table 1 style)"), *_average_blocks(avg, tables),
                    ("h2", "Per scene"), *_scene_blocks(tables)]
     blocks += _ratio_blocks(ratios)
     rpy, plots = _rpy_blocks(records, figures)

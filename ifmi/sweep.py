@@ -55,6 +55,8 @@ from .io.atomic import (atomic_write_bytes, atomic_write_json, atomic_write_text
 __all__ = [
     "SweepCell",
     "SweepOptions",
+    "CELL_NAME_DIGITS",
+    "cell_value_name",
     "METRICS",
     "SWEEP_KIND",
     "SWEEP_RESULTS",
@@ -64,6 +66,7 @@ __all__ = [
     "run_cell",
     "run_sweep",
     "read_cells",
+    "sweep_records",
     "records_table",
     "read_cell_record",
     "write_sweep_table",
@@ -72,6 +75,9 @@ __all__ = [
     "dataset_labels",
 ]
 
+# Significant digits of a tile size or overlap in a cell's name (those of Python's "g" format, which
+# named the cells of earlier sweeps); values that agree to them share one cell record.
+CELL_NAME_DIGITS = 6
 # Hex digits of the digest that identifies a dataset's content.
 _ID_DIGITS = 12
 # Allocations up to this size stay on the heap in local-cluster workers (see run_sweep).
@@ -99,6 +105,11 @@ COLUMN_ORDER = ("dataset", "dataset_path", "method", "tile_size", "overlap", "st
                 "rmse_pitch_rad", "rmse_yaw_rad", "rmse_mean_rad", "rmse_geodesic_rad",
                 "max_geodesic_rad", "rmse_relative_rad", "time_per_frame_s", "failures", "frames",
                 "wall_s", "error", "cell_id")
+
+
+def cell_value_name(value: float) -> str:
+    """A tile size or overlap as a cell's name spells it (:data:`CELL_NAME_DIGITS` significant digits)."""
+    return f"{value:.{CELL_NAME_DIGITS}g}"
 
 
 @dataclass(frozen=True)
@@ -133,7 +144,7 @@ class SweepCell:
     @property
     def cell_id(self) -> str:
         """File-name-safe identifier, unique per dataset folder (resolved path), method and tiling."""
-        raw = f"{self.method}__tile{self.tile_size:g}__overlap{self.overlap:g}"
+        raw = f"{self.method}__tile{cell_value_name(self.tile_size)}__overlap{cell_value_name(self.overlap)}"
         return f"{dataset_folder_id(self.dataset)}__{re.sub(r'[^A-Za-z0-9_.=-]', '_', raw)}"
 
 
@@ -431,8 +442,15 @@ def run_sweep(cells: Iterable[SweepCell], *, out_dir: str | os.PathLike, base_co
         a rerun.
     InputError
         A Dask scheduler that cannot be reached.
+    ValueError
+        Two cells of one name (:attr:`SweepCell.cell_id`), which would share one record.
     """
     cells = list(cells)
+    names = [c.cell_id for c in cells]
+    if len(set(names)) < len(names):
+        twice = next(name for name in names if names.count(name) > 1)
+        raise ValueError(f"cell {twice} given twice; expected cells of distinct datasets, methods and "
+                         f"tilings (tile sizes and overlaps that differ in {CELL_NAME_DIGITS} significant digits)")
     document = {"kind": SWEEP_KIND, "cells": [c.__dict__ for c in cells],
                 "base_config": base_config, "scheduler": options.scheduler or "local-cluster"}
     out = _prepare_output(out_dir, document)
@@ -514,6 +532,79 @@ def read_cells(out_dir: str | os.PathLike, cells: Sequence[SweepCell] | None = N
         paths = [_cell_path(out, c) for c in cells]
     records = [read_cell_record(path, action="skipped") for path in paths]
     return [r for r in records if r is not None]
+
+
+def sweep_records(sweep_dir: str | os.PathLike) -> list[dict]:
+    """Records of the sweep that a folder's ``sweep.json`` describes: its grid, made with its base configuration.
+
+    ``cells/`` keeps the record of every cell run in the folder, and a rerun
+    with another grid or ``--config`` leaves the earlier records there: they
+    belong to other sweeps. Records of cells that ``sweep.json`` does not
+    list, or made with another base configuration than its, are left out
+    with one warning saying how many; a listed cell without a readable
+    record is missing, as in :func:`read_cells`.
+
+    Parameters
+    ----------
+    sweep_dir : path
+        A sweep folder (``sweep.json``, ``cells/``).
+
+    Returns
+    -------
+    list of dict
+        In the grid order of ``sweep.json``.
+
+    Raises
+    ------
+    InputError
+        ``sweep.json`` unreadable, or its ``cells`` or ``base_config`` not
+        of the form :func:`run_sweep` writes.
+    """
+    from .io.config import read_json_object
+
+    path = Path(sweep_dir) / "sweep.json"
+    document = read_json_object(path, what="sweep file")
+    cells = _listed_cells(path, document)
+    digest = config_digest(document["base_config"])
+    records, others = [], 0
+    for cell in cells:
+        record = read_cell_record(_cell_path(Path(sweep_dir), cell), action="skipped")
+        if record is not None and _of_cell(record, cell, digest):
+            records.append(record)
+        others += record is not None and not _of_cell(record, cell, digest)
+    names = {f"{cell.cell_id}.json" for cell in cells}
+    others += sum(1 for path in (Path(sweep_dir) / "cells").glob("*.json") if path.name not in names)
+    if others > 0:
+        grid = f"{len(cells)} cell{'s' if len(cells) != 1 else ''}"
+        _warn(f"{sweep_dir}: {others} cell record{'s' if others > 1 else ''} in cells/ not of the grid and base "
+              f"configuration of sweep.json ({grid}), left out: from earlier sweeps in this folder, or an "
+              f"unfinished rerun")
+    return records
+
+
+def _of_cell(record: dict, cell: SweepCell, digest: str) -> bool:
+    """Whether ``record`` is of ``cell`` (method and tiling) and made with the base configuration of ``digest``."""
+    return (record["method"] == cell.method and record["tile_size"] == cell.tile_size
+            and record["overlap"] == cell.overlap and record.get("config_digest", digest) == digest)
+
+
+def _listed_cells(path: Path, document: dict) -> list[SweepCell]:
+    """The cells ``sweep.json`` (``document``, read from ``path``) lists; InputError when malformed."""
+    listed, base = document.get("cells"), document.get("base_config")
+    if not isinstance(base, dict):
+        raise InputError(path, f"base_config: expected an object, got {json_excerpt(base)}")
+    if not isinstance(listed, list):
+        raise InputError(path, f"cells: expected a list of cells, got {json_excerpt(listed)}")
+    cells = []
+    for k, cell in enumerate(listed):
+        if not (isinstance(cell, dict) and isinstance(cell.get("dataset"), str)
+                and isinstance(cell.get("method"), str) and _is_number(cell.get("tile_size"))
+                and _is_number(cell.get("overlap")) and isinstance(cell.get("label"), (str, type(None)))):
+            raise InputError(path, f"cells[{k}]: expected an object with text dataset and method, numbers "
+                                   f"tile_size and overlap, and a label (text or null), got {json_excerpt(cell)}")
+        cells.append(SweepCell(cell["dataset"], cell["method"], float(cell["tile_size"]),
+                               float(cell["overlap"]), label=cell["label"]))
+    return cells
 
 
 def records_table(records: list[dict]):

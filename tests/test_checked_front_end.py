@@ -68,6 +68,9 @@ two_line_diagnostic = _make(lambda c, k: replace(c, diagnostics={"note": "first\
 huge_int_diagnostic = _make(lambda c, k: replace(c, diagnostics={"big": 10 ** 5000}))
 spaced_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={" seconds": 1.0}))
 tuple_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={("a", "b"): 1}))
+seconds_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={"seconds": 5.0}))
+success_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={"success": False}))
+empty_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={"": 1}))
 float16_rays = _make(lambda c, k: replace(c, rays_a=c.rays_a.astype(np.float16), rays_b=c.rays_b.astype(np.float16)))
 
 
@@ -159,6 +162,12 @@ def _estimate(dataset, method, out, capsys):
     # Read back as the seconds column (frames.csv strips column names), then refused as one named twice.
     ("spaced_key_diagnostic", "correspondences() returned a diagnostics key ' seconds'; expected one line "
                               "of text without surrounding spaces"),
+    # Before: dropped without a word (the tracker's own column won), or a column without a name.
+    ("seconds_key_diagnostic", "correspondences() returned a diagnostics key 'seconds': a column frames.csv "
+                               "has already, so its values would be lost; expected a non-empty name other "
+                               "than frame, reference_frame, success,"),
+    ("success_key_diagnostic", "diagnostics key 'success': a column frames.csv has already"),
+    ("empty_key_diagnostic", "diagnostics key '': an empty column name, so its values would be lost"),
 ])
 def test_breach_of_the_contract_is_one_line_naming_the_method(dataset, plugin, tmp_path, capsys, factory,
                                                               problem):

@@ -15,6 +15,7 @@ from ifmi.io.tum import Trajectory, write_tum
 from ifmi.report import average_table, baseline_ratios, find_results, scene_tables
 from ifmi.io.results import read_evaluation
 from ifmi.rotations import matrix_from_rpy
+from ifmi.sweep import SweepCell, config_digest
 
 # Yaw error (radians) and time per frame (seconds) given to each synthetic method.
 METHODS = {"ifmi": (0.002, 0.01), "orb": (0.02, 0.03), "akaze": (0.01, 0.2)}
@@ -52,16 +53,33 @@ def _make_results(root, scenes=("office", "lawn"), n=15):
              tile_centers=pts, tile_size=np.array(20), frames=np.array([0, 1]))
     # A finished sweep with one failed cell.
     sweep = root / "sweep"
-    atomic_write_json(sweep / "sweep.json", {"kind": "ifmi-sweep", "cells": []})
-    for i, (t, o) in enumerate([(32, 0.0), (32, 0.5), (64, 0.0), (64, 0.5)]):
-        rec = {"cell_id": f"c{i}", "dataset": "office_20", "method": "ifmi", "tile_size": t,
-               "overlap": o, "status": "ok", "error": "", "rmse_mean_rad": 0.001 * (i + 1),
-               "rmse_geodesic_rad": 0.002, "time_per_frame_s": 0.01 * (i + 1), "failures": 0}
+    cells = [SweepCell(str(root / "data" / "office_20"), "ifmi", t, o, label="office_20")
+             for t, o in [(32.0, 0.0), (32.0, 0.5), (64.0, 0.0), (64.0, 0.5)]]
+    atomic_write_json(sweep / "sweep.json", {"kind": "ifmi-sweep", "cells": [c.__dict__ for c in cells],
+                                             "base_config": {}, "scheduler": "synchronous"})
+    for i, cell in enumerate(cells):
+        rec = {"cell_id": cell.cell_id, "dataset": "office_20", "method": "ifmi", "tile_size": cell.tile_size,
+               "overlap": cell.overlap, "status": "ok", "error": "", "rmse_mean_rad": 0.001 * (i + 1),
+               "rmse_geodesic_rad": 0.002, "time_per_frame_s": 0.01 * (i + 1), "failures": 0,
+               "config_digest": config_digest({})}
         if i == 3:
             rec = {**{k: rec[k] for k in ("cell_id", "dataset", "method", "tile_size", "overlap")},
                    "status": "failed", "error": "ValueError: tile larger than panorama"}
-        atomic_write_json(sweep / "cells" / f"c{i}.json", rec)
+        atomic_write_json(_cell_file(sweep, cell), rec)
     return root
+
+
+def _cell_file(sweep, cell):
+    return sweep / "cells" / f"{cell.cell_id}.json"
+
+
+def _add_cell(sweep, tile_size, overlap):
+    """A cell added to the grid of a sweep's sweep.json; its record file."""
+    doc = json.loads((sweep / "sweep.json").read_text())
+    cell = SweepCell(doc["cells"][0]["dataset"], "ifmi", tile_size, overlap, label="office_20")
+    doc["cells"].append(cell.__dict__)
+    atomic_write_json(sweep / "sweep.json", doc)
+    return _cell_file(sweep, cell)
 
 
 def test_tables_and_ratios(tmp_path):
@@ -204,17 +222,48 @@ def test_any_method_gets_a_row_and_a_colour(tmp_path):
 
 def test_truncated_sweep_cell_is_skipped_with_a_warning(tmp_path, capsys):
     root = _make_results(tmp_path)
-    (root / "sweep" / "cells" / "c1.json").write_text('{"cell_id": "c1", "dat')
-    (root / "sweep" / "cells" / "c2.json").write_text("[]")
-    (root / "sweep" / "cells" / "c3.json").write_text('{"cell_id": "c3", "status": "ok"}')
-    (root / "sweep" / "cells" / "c4.json").write_text("[" * 100_000 + "]" * 100_000)  # was a RecursionError
+    c4 = _add_cell(root / "sweep", 96.0, 0.0)
+    c1, c2, c3 = sorted((root / "sweep" / "cells").glob("*.json"))[1:]
+    c1.write_text('{"cell_id": "c1", "dat')
+    c2.write_text("[]")
+    c3.write_text('{"cell_id": "c3", "status": "ok"}')
+    c4.write_text("[" * 100_000 + "]" * 100_000)  # was a RecursionError
     assert main(["report", str(root / "sweep"), "--out", str(tmp_path / "r")]) == 0
     err = capsys.readouterr().err
-    assert "c1.json: unreadable sweep cell" in err and "c2.json: expected a JSON object" in err
-    assert "c4.json: unreadable sweep cell (RecursionError); skipped" in err
-    assert "c3.json: sweep cell without dataset, method, tile_size, overlap; skipped" in err
+    assert f"{c1.name}: unreadable sweep cell" in err and f"{c2.name}: expected a JSON object" in err
+    assert f"{c4.name}: unreadable sweep cell (RecursionError); skipped" in err
+    assert f"{c3.name}: sweep cell without dataset, method, tile_size, overlap; skipped" in err
+    assert "left out" not in err
     doc = json.loads((tmp_path / "r" / "report.json").read_text())
     assert len(doc["sweeps"][0]["cells"]) == 1
+
+
+def test_report_shows_the_grid_and_configuration_of_sweep_json_only(tmp_path, capsys):
+    # A rerun in one folder with another grid or --config left the earlier records in cells/, and the
+    # report put them in one table and heatmap with the new ones, exit 0 (sweep.csv had the new grid).
+    root = _make_results(tmp_path, scenes=("office",))
+    sweep = root / "sweep"
+    doc = json.loads((sweep / "sweep.json").read_text())
+    earlier = SweepCell(doc["cells"][0]["dataset"], "ifmi", 48.0, 0.0, label="office_20")
+    first = json.loads(sorted((sweep / "cells").glob("*.json"))[0].read_text())
+    atomic_write_json(_cell_file(sweep, earlier), {**first, "cell_id": earlier.cell_id, "tile_size": 48.0})
+    other_config = _add_cell(sweep, 96.0, 0.0)
+    atomic_write_json(other_config, {**first, "tile_size": 96.0, "config_digest": config_digest({"x": 1})})
+    assert main(["report", str(sweep), "--out", str(tmp_path / "r")]) == 0
+    err = capsys.readouterr().err.strip()
+    assert err == (f"warning: {sweep}: 2 cell records in cells/ not of the grid and base configuration of "
+                   "sweep.json (5 cells), left out: from earlier sweeps in this folder, or an unfinished rerun")
+    cells = json.loads((tmp_path / "r" / "report.json").read_text())["sweeps"][0]["cells"]
+    assert sorted((c["tile_size"], c["overlap"]) for c in cells) == [(32, 0), (32, 0.5), (64, 0), (64, 0.5)]
+
+
+def test_report_refuses_a_sweep_json_without_its_grid(tmp_path, capsys):
+    root = _make_results(tmp_path, scenes=("office",))
+    doc = json.loads((root / "sweep" / "sweep.json").read_text())
+    atomic_write_json(root / "sweep" / "sweep.json", {**doc, "cells": "all"})
+    assert main(["report", str(root / "sweep"), "--out", str(tmp_path / "r")]) == 2
+    assert capsys.readouterr().err.strip() == (f"ifmi report: error: {root / 'sweep' / 'sweep.json'}: cells: "
+                                               'expected a list of cells, got "all"')
 
 
 def test_report_computes_the_motion_flow_sample_once_on_request(tmp_path):
@@ -334,6 +383,32 @@ def test_per_frame_arrays_that_do_not_fit_the_summary_are_one_line_error(tmp_pat
         arrays = {k: data[k] for k in data.files}
     np.savez(npz, **edit(arrays))
     assert _report_error(tmp_path, capsys, root) == f"ifmi report: error: {npz}: {expected}"
+
+
+def _with_row(array, row, value):
+    out = np.array(array, dtype=np.float64)
+    out[row] = value
+    return out
+
+
+@pytest.mark.parametrize("edit, expected", [
+    (lambda a: {**a, "timestamp": _with_row(a["timestamp"], 3, np.inf)},
+     "array timestamp: value inf at row 3; expected finite numbers"),
+    (lambda a: {**a, "roll_est": _with_row(a["roll_est"], 2, np.nan)},
+     "array roll_est: value nan at row 2; expected finite numbers"),
+    (lambda a: {**a, "timestamp": _with_row(a["timestamp"], 4, a["timestamp"][2])},
+     "array timestamp: 2 at row 4 follows 3; expected increasing timestamps"),
+    (lambda a: {**a, "yaw_gt": _with_row(a["yaw_gt"], 5, 90.0)},
+     "array yaw_gt: 90 at row 5; expected an angle in radians within [-pi, pi]"),
+])
+def test_per_frame_arrays_a_report_cannot_draw_are_one_line_error(tmp_path, capsys, edit, expected):
+    # They were drawn as gaps, zigzags or a flat line at 90 "rad" under a sound summary, with exit 0.
+    root = _make_results(tmp_path, scenes=("office",))
+    npz = root / "eval" / "office" / "orb" / "per_frame.npz"
+    with np.load(npz) as data:
+        arrays = {k: data[k] for k in data.files}
+    np.savez(npz, **edit(arrays))
+    assert _report_error(tmp_path, capsys, root).startswith(f"ifmi report: error: {npz}: {expected}")
 
 
 def test_frame_count_past_64_bits_is_one_line_error(tmp_path, capsys):
@@ -490,3 +565,32 @@ def test_two_sweeps_of_one_folder_name_get_their_own_figures_and_copies(tmp_path
     figures = sorted(p.name for p in (out / "figures").glob("heatmap_*.png"))
     assert len(figures) == 4 and {f.split("_sweep_")[0] for f in figures} == {"heatmap_site_a",
                                                                              "heatmap_site_b"}
+
+
+def test_markdown_keeps_its_structure_whatever_the_names_title_and_command():
+    # A title over two lines made a second heading, a | in a name split its table cell, and a command
+    # holding ``` ended its code block early: the README's structure was broken, exit 0.
+    from ifmi.report import _render_markdown
+
+    text = _render_markdown([("h1", "Report\n# not a heading"), ("code", "ifmi report x\n```\n# evil"),
+                             ("table", ["scene", "RMSE"], [["office|v2", "0.1"]]),
+                             ("img", "figures/a.png", "office\nlawn")])
+    assert text.startswith("# Report # not a heading\n\n````\nifmi report x\n```\n# evil\n````\n\n")
+    assert "| office\\|v2 | 0.1 |" in text.splitlines()
+    assert text.endswith("![office lawn](figures/a.png)\n\n*office lawn*\n")
+
+
+def test_average_table_names_scenes_a_method_lacks(tmp_path, capsys):
+    # ORB without its lawn evaluation was averaged over office alone and set beside iFMI's office-and-lawn
+    # mean under "over 2 scene(s)", exit 0 and no word.
+    import shutil
+
+    root = _make_results(tmp_path)
+    shutil.rmtree(root / "eval" / "lawn" / "orb")
+    out = tmp_path / "r"
+    assert main(["report", str(root / "eval"), "--out", str(out), "--no-motion-flow"]) == 0
+    note = ("The methods were evaluated on different scenes (orb lacks lawn): each column averages its own "
+            "scenes, so columns of different scenes do not compare; evaluate every method on every scene.")
+    assert capsys.readouterr().err.strip() == f"warning: {note}"
+    readme = (out / "README.md").read_text()
+    assert note in readme and "| scenes |  | 2 | 1 | 2 |" in readme.splitlines()

@@ -342,6 +342,48 @@ def test_sweep_cli_refuses_a_grid_value_given_twice(datasets, tmp_path, capsys, 
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize(("option", "grid"), [("--tile-size", ["32", "32.0000001"]),
+                                               ("--overlap", ["0.5", "0.50000000001"])])
+def test_sweep_cli_refuses_grid_values_of_one_cell_name(datasets, tmp_path, capsys, option, grid):
+    # Both values were run into one cell file: the table had two rows of the second, the first was lost.
+    good, _ = datasets
+    values = {"--tile-size": ["32"], "--overlap": ["0"]}
+    values[option] = grid
+    code = main(["sweep", str(good), "--tile-size", *values["--tile-size"], "--overlap",
+                 *values["--overlap"], "--scheduler", "synchronous", "--out", str(tmp_path / "o"),
+                 "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert (f"{option}: values {float(grid[0])!r} and {float(grid[1])!r} both name the cell value "
+            f"{float(grid[0]):g} (cells are named to 6 significant digits)") in err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("method", ["orb", "akaze"])
+def test_sweep_cli_refuses_a_method_that_ignores_the_tiling(datasets, tmp_path, capsys, method):
+    # Every cell ran the same keypoint estimate: a flat error heatmap and a time heatmap of noise, exit 0.
+    good, _ = datasets
+    code = main(["sweep", str(good), "--tile-size", "32", "48", "--overlap", "0", "--method", method,
+                 "--scheduler", "synchronous", "--out", str(tmp_path / "o"), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == (f"ifmi sweep: error: --method: method {method} does not use the tiling that a "
+                                 "sweep varies (tile size and overlap are iFMI's): every cell would repeat one "
+                                 "run; expected --method ifmi or a method of your own that reads "
+                                 "config.ifmi.tiling")
+    assert not (tmp_path / "o").exists()
+
+
+def test_run_sweep_refuses_two_cells_of_one_name(datasets, tmp_path):
+    from ifmi.sweep import SweepCell, SweepOptions, run_sweep
+
+    good, _ = datasets
+    cells = [SweepCell(str(good), "ifmi", 32.0, overlap) for overlap in (0.5, 0.5 + 1e-11)]
+    with pytest.raises(ValueError, match="given twice"):
+        run_sweep(cells, out_dir=tmp_path / "o", base_config=EstimateConfig().to_dict(),
+                  options=SweepOptions(scheduler="synchronous", progress=False))
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.parametrize("key, value, expected", [
     ("rmse_geodesic_rad", "0.1", 'rmse_geodesic_rad: expected a number or null, got "0.1"'),
     ("tile_size", None, "tile_size: expected a number, got null"),

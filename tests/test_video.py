@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ifmi.camera import paracatadioptric_model
-from ifmi.errors import InputError
+from ifmi.errors import InputError, InputWarning
 from ifmi.io.calib import write_calib
 from ifmi.io.tum import read_tum
 from ifmi.io.video import VideoFrames, is_video_path
@@ -179,3 +179,55 @@ def test_given_band_radii_decode_no_band_frames(shaded_clip, monkeypatch):
     estimate = estimate_video(root / "clip.avi", root / "calib_results.txt", method="ifmi", config=config)
     panorama = estimate.config.ifmi.panorama
     assert (panorama.radius_min_px, panorama.radius_max_px) == (22.0, 73.0)
+
+
+def _write_gray16_video(path, images):
+    """``images`` ((H, W) uint16) as a lossless 16-bit gray FFV1 video; skip when OpenCV cannot."""
+    import cv2
+
+    height, width = images[0].shape
+    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"FFV1"), FPS, (width, height),
+                             [cv2.VIDEOWRITER_PROP_DEPTH, cv2.CV_16U, cv2.VIDEOWRITER_PROP_IS_COLOR, 0])
+    if not writer.isOpened():
+        pytest.skip("this OpenCV cannot write 16-bit FFV1 video")
+    for image in images:
+        writer.write(image)
+    writer.release()
+
+
+@pytest.mark.parametrize("bits", [12, 16])
+def test_a_16_bit_gray_video_is_read_at_its_recorded_depth(video, tmp_path, bits):
+    # 12-bit samples stored unscaled in a 16-bit video read as their high byte, 16 gray levels, and
+    # every frame after the first failed; now they read as 16-bit images do, with one warning.
+    root, sequence = video
+    images = [image.astype(np.uint16) << (bits - 8) | np.uint16(2 ** (bits - 8) - 1) for image in sequence.images]
+    path = tmp_path / "clip.mkv"
+    _write_gray16_video(path, images)
+    if bits < 16:
+        with pytest.warns(InputWarning, match=f"clip.mkv: 16-bit frames whose values stay below {2 ** bits} "
+                                              f"are read as {bits}-bit data"):
+            decoded = list(VideoFrames(path, size=MODEL.size))
+    else:
+        decoded = list(VideoFrames(path, size=MODEL.size))
+    assert len(decoded) == len(images) and all(d.dtype == np.uint8 for d in decoded)
+    for frame, image in zip(decoded, sequence.images):
+        assert np.array_equal(frame, image)
+
+
+def test_frame_times_that_do_not_increase_are_restamped_with_a_warning(video, monkeypatch):
+    # A clip whose times restart (two recordings joined) gave a trajectory with repeated and falling
+    # timestamps, exit 0: evaluate refused it, and other tools would associate it wrongly.
+    import cv2
+
+    import ifmi.io.video as video_module
+
+    root, _ = video
+    times = iter([0.0, 80.0, 160.0, 80.0, 160.0, 400.0])
+    plain_get = video_module._Capture.get
+    monkeypatch.setattr(video_module._Capture, "get", lambda self, prop: next(times)
+                        if prop == cv2.CAP_PROP_POS_MSEC else plain_get(self, prop))
+    frames = VideoFrames(root / "clip.avi", size=MODEL.size)
+    with pytest.warns(InputWarning, match=r"clip.avi: 2 frames \(the first: frame 3\) had a presentation time "
+                                          r"not after the previous frame's .* stamped one frame interval after it"):
+        assert len(list(frames)) == 6
+    assert frames.timestamps == pytest.approx([0.0, 0.08, 0.16, 0.24, 0.32, 0.4])

@@ -8,7 +8,8 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..local_workers import DEFAULT_LOCAL_WORKERS, max_local_workers
-from ..sweep import SweepOptions, run_sweep, sweep_cells
+from ..methods import ignores_tiling
+from ..sweep import CELL_NAME_DIGITS, SweepOptions, cell_value_name, run_sweep, sweep_cells
 from ..tiling import TilingConfig
 from .estimate import chosen_method
 
@@ -109,6 +110,19 @@ def _refuse_repeats(args) -> None:
         if repeated:
             raise InputError(option, f"value {repeated[0]:g} given twice; expected distinct values "
                                      f"(got {' '.join(f'{v:g}' for v in values)})")
+        _refuse_one_name(option, values)
+
+
+def _refuse_one_name(option: str, values: list[float]) -> None:
+    """Two values a cell's name spells alike (:attr:`ifmi.sweep.SweepCell.cell_id`) would share its record."""
+    named: dict[str, float] = {}
+    for value in values:
+        name = cell_value_name(value)
+        if name in named:
+            raise InputError(option, f"values {named[name]!r} and {value!r} both name the cell value {name} "
+                                     f"(cells are named to {CELL_NAME_DIGITS} significant digits), so one "
+                                     f"cell's record would stand for both; expected values that differ there")
+        named[name] = value
 
 
 def run(args) -> int:
@@ -119,6 +133,11 @@ def run(args) -> int:
             raise InputError(Path(d) / "groundtruth.txt", "ground truth not found (a sweep needs it)")
     _refuse_repeats(args)
     base_config, method = _base_config(args.config, args.method)
+    if ignores_tiling(method):
+        raise InputError("--method" if args.method else args.config,
+                         f"method {method} does not use the tiling that a sweep varies (tile size and overlap "
+                         f"are iFMI's): every cell would repeat one run; expected --method ifmi or a method "
+                         f"of your own that reads config.ifmi.tiling")
     cells = sweep_cells([str(Path(d).resolve()) for d in args.datasets], method=method,
                         tile_sizes=args.tile_size, overlaps=args.overlap)
     options = SweepOptions(scheduler=args.scheduler, n_workers=args.workers,

@@ -13,7 +13,10 @@ than failing somewhere inside a report.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
+
+import numpy as np
 
 from ..dataset_names import display_name
 from ..errors import InputError, json_excerpt
@@ -38,6 +41,9 @@ _NAME = "a name (a string without / or \\) or null"
 _TEXT_FIELDS = ("dataset", "dataset_path", "groundtruth_path")
 # Per-frame arrays a report draws (orientation over frames).
 PER_FRAME_REQUIRED = ("timestamp",) + tuple(f"{a}_{k}" for a in AXES for k in ("gt", "est"))
+# Largest |roll|, |pitch|, |yaw| of a drawn angle, radians (Euler angles lie in [-pi, pi]; the margin
+# covers rounding, far below a value written in degrees).
+_MAX_ANGLE_RAD = math.pi + 1e-9
 
 
 def _describe(value) -> str:
@@ -219,7 +225,9 @@ def check_per_frame_arrays(path: str | Path, arrays: dict, *, associated: int) -
     ------
     InputError
         A missing array of :data:`PER_FRAME_REQUIRED`, an array that is not
-        one number per frame, or a length other than ``associated``.
+        one number per frame, or a length other than ``associated``; a drawn
+        array (:data:`PER_FRAME_REQUIRED`) with a value that is not finite,
+        timestamps that do not increase, or an angle outside [-pi, pi].
     """
     path = Path(path)
     missing = [k for k in PER_FRAME_REQUIRED if k not in arrays]
@@ -234,3 +242,23 @@ def check_per_frame_arrays(path: str | Path, arrays: dict, *, associated: int) -
             raise InputError(path, f"array {name}: {len(array)} frames, but evaluation.json "
                                    f"has {associated} associated frames; expected one row per "
                                    "associated frame")
+    _check_drawn_arrays(path, arrays)
+
+
+def _check_drawn_arrays(path: Path, arrays: dict) -> None:
+    """The arrays a report draws: finite, timestamps increasing, angles in radians within [-pi, pi]."""
+    for name in PER_FRAME_REQUIRED:
+        values = np.asarray(arrays[name], dtype=np.float64)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise InputError(path, f"array {name}: value {values[bad[0]]} at row {bad[0]}; expected finite "
+                                   "numbers (evaluate writes them for every associated frame)")
+        if name == "timestamp":
+            back = np.flatnonzero(np.diff(values) <= 0)
+            if back.size:
+                raise InputError(path, f"array timestamp: {values[back[0] + 1]:g} at row {back[0] + 1} "
+                                       f"follows {values[back[0]]:g}; expected increasing timestamps")
+        elif values.size and np.abs(values).max() > _MAX_ANGLE_RAD:
+            row = int(np.abs(values).argmax())
+            raise InputError(path, f"array {name}: {values[row]:g} at row {row}; expected an angle in "
+                                   "radians within [-pi, pi]")

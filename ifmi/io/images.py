@@ -35,8 +35,8 @@ from ..errors import InputError, InputWarning
 from .native_stderr import call_with_captured_stderr
 from .text_file import refuse_special_file
 
-__all__ = ["read_image", "IMAGE_SUFFIXES", "SENSOR_BIT_DEPTHS", "image_file_problem", "image_header_size",
-           "sensor_bit_depth", "size_problem"]
+__all__ = ["read_image", "IMAGE_SUFFIXES", "SENSOR_BIT_DEPTHS", "eight_bit_from_sixteen", "image_file_problem",
+           "image_header_size", "sensor_bit_depth", "size_problem"]
 
 #: Sample depths of common image sensors, in bits; a 16-bit file whose values
 #: all fit the smaller of them is read at that depth (:func:`sensor_bit_depth`).
@@ -299,11 +299,26 @@ def sensor_bit_depth(largest: int) -> int:
     return next(depth for depth in SENSOR_BIT_DEPTHS if largest < 2 ** depth)
 
 
-def _eight_bit_from_sixteen(path: Path, image: np.ndarray) -> np.ndarray:
-    """``image`` (uint16) as uint8: its top 8 bits at its recorded depth (:func:`sensor_bit_depth`)."""
+def eight_bit_from_sixteen(image: np.ndarray, *, source: str | os.PathLike, what: str = "images") -> np.ndarray:
+    """``image`` (uint16) as uint8: its top 8 bits at its recorded depth (:func:`sensor_bit_depth`).
+
+    Parameters
+    ----------
+    image : ndarray of uint16
+    source : path-like, keyword-only
+        The folder or file the image is from, named in the warning.
+    what : str, keyword-only
+        What its 16-bit pictures are called in the warning (``"images"``, ``"frames"``).
+
+    Warns
+    -----
+    InputWarning
+        The image is read at a smaller recorded depth than 16 bits (one
+        message per ``source`` and depth).
+    """
     depth = sensor_bit_depth(int(image.max()))
     if depth < 16:
-        warnings.warn(f"{path.parent}: 16-bit images whose values stay below {2 ** depth} are read as "
+        warnings.warn(f"{source}: 16-bit {what} whose values stay below {2 ** depth} are read as "
                       f"{depth}-bit data (their top 8 of {depth} bits), not as 16-bit data", InputWarning,
                       stacklevel=3)
     return (image >> (depth - 8)).astype(np.uint8)
@@ -360,7 +375,7 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
     if image.ndim == 3 and image.shape[2] == 4:
         image = image[..., :3]  # the alpha channel goes before the bit depth is judged
     if image.dtype == np.uint16:
-        image = _eight_bit_from_sixteen(path, image)
+        image = eight_bit_from_sixteen(image, source=path.parent)
     elif image.dtype != np.uint8:
         raise InputError(path, f"expected an 8- or 16-bit image, got {image.dtype}")
     if image.ndim == 3:

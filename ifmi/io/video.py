@@ -10,7 +10,10 @@ clip (by seeking, or by one decoding pass that keeps a bounded number of
 frames), e.g. to decide the mirror band from more than the first frame.
 
 Frames are read as stored: rotation metadata (a phone held upright) is not
-applied, because a calibration refers to sensor pixels. Damage is reported,
+applied, because a calibration refers to sensor pixels. Frames of a 16-bit
+gray stream are decoded raw and read at the depth their samples were
+recorded at, as 16-bit images are
+(:func:`~ifmi.io.images.eight_bit_from_sixteen`). Damage is reported,
 never passed on silently:
 
 * FFmpeg's own lines (``[mjpeg @ 0x...] overread 8``, ``moov atom not
@@ -43,6 +46,7 @@ import numpy as np
 
 from ..errors import InputError, InputWarning
 from ..frames import MissingFrame
+from .images import eight_bit_from_sixteen
 from .native_stderr import call_with_captured_stderr
 
 __all__ = ["VideoFrames", "VIDEO_SUFFIXES", "is_video_path"]
@@ -59,6 +63,11 @@ _UNTIMED_SUFFIXES = (".avi",)
 _MS_PER_S = 1000.0
 # Spacing given to a frame without a presentation time when the container names no rate.
 _NO_RATE_INTERVAL_S = 1.0
+# FFmpeg's codec tags of 16-bit gray frames (gray16le "Y1\0\x10", gray16be "\x10\0" "1Y"), as
+# CAP_PROP_CODEC_PIXEL_FORMAT gives them. OpenCV's conversion to 8 bits keeps their high byte, so
+# 10- to 14-bit samples stored unscaled (a machine-vision camera's FFV1 recording) would read as a
+# few gray levels; such frames are taken raw and read at their recorded depth, as 16-bit images.
+_GRAY16_TAGS = (int.from_bytes(b"Y1\x00\x10", "little"), int.from_bytes(b"\x10\x001Y", "little"))
 # Decoder threads: one, so that the decoder writes a frame's messages while it is grabbed, in the
 # calling thread, instead of from a worker thread at any later time.
 _DECODER_THREADS = 1
@@ -118,6 +127,8 @@ class _Capture:
             self.release()
             said = f" (FFmpeg: {_quoted(self.open_messages)})" if self.open_messages else ""
             raise InputError(path, f"not a video OpenCV can read{said}")
+        if int(self.capture.get(cv2.CAP_PROP_CODEC_PIXEL_FORMAT)) in _GRAY16_TAGS:
+            self.capture.set(cv2.CAP_PROP_CONVERT_RGB, 0)  # raw 16-bit frames (see _GRAY16_TAGS)
         # The calibration refers to the frames as the sensor stored them: never apply the
         # display rotation a phone records.
         self.capture.set(cv2.CAP_PROP_ORIENTATION_AUTO, 0)
@@ -166,6 +177,7 @@ class _Grab:
     index: int | None
     seconds: float | None
     messages: list[str]
+    restamped: bool = False
 
 
 class VideoFrames:
@@ -197,8 +209,9 @@ class VideoFrames:
         in seconds from the first: the container's times minus the first
         frame's, whatever time the container starts at (so a lost frame
         leaves a gap in a container that stores times per frame: MP4, MOV,
-        Matroska, WebM). A frame without a time is put one nominal frame
-        interval after the previous one.
+        Matroska, WebM). A frame without a time, or with one not after the
+        previous frame's (times that restart), is put one nominal frame
+        interval after the previous one, so the timestamps increase.
     frame_count : int
         Frame count the container declares (0 when unknown).
     fps : float
@@ -242,6 +255,8 @@ class VideoFrames:
                 f"but the calibration names {self.size[0]}x{self.size[1]}{turned}")
 
     def _converted(self, frame: np.ndarray) -> np.ndarray:
+        if frame.dtype == np.uint16:
+            frame = eight_bit_from_sixteen(frame, source=self.path, what="frames")
         if frame.ndim == 2:
             return frame if self.gray else np.repeat(frame[..., None], 3, axis=2)
         return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY if self.gray else cv2.COLOR_BGR2RGB)
@@ -268,12 +283,15 @@ class VideoFrames:
                 continue
             rejected_in_row = 0
             milliseconds = capture.get(cv2.CAP_PROP_POS_MSEC)
-            if not np.isfinite(milliseconds) or (previous is not None and milliseconds <= 0):
+            seconds = milliseconds / _MS_PER_S
+            untimed = not np.isfinite(seconds) or (previous is not None and seconds <= 0)
+            # A time not after the previous frame's (a clip joined from two whose times restart):
+            # as if missing, so that the trajectory's timestamps increase.
+            restamped = not untimed and previous is not None and seconds <= previous
+            if untimed or restamped:
                 seconds = 0.0 if previous is None else previous + (
                     1.0 / self.fps if self.fps > 0 else _NO_RATE_INTERVAL_S)
-            else:
-                seconds = milliseconds / _MS_PER_S
-            yield _Grab(index, seconds, messages)
+            yield _Grab(index, seconds, messages, restamped=restamped)
             previous = seconds
             index += 1
 
@@ -282,6 +300,7 @@ class VideoFrames:
         capture = _Capture(self.path)
         rejected: list[_Grab] = []
         damaged: list[_Grab] = []
+        restamped: list[_Grab] = []
         first = 0.0  # raw time of the first frame, the origin of the timestamps
         try:
             for grab in self._grabs(capture):
@@ -292,12 +311,13 @@ class VideoFrames:
                     first = grab.seconds
                 self.timestamps.append(grab.seconds - first)
                 damaged += [grab] if grab.messages else []
+                restamped += [grab] if grab.restamped else []
                 yield self._frame(capture, grab)
             if not self.timestamps:
                 messages = capture.open_messages + [m for grab in rejected for m in grab.messages]
                 said = f" (FFmpeg: {_quoted(messages)})" if messages else ""
                 raise InputError(self.path, f"no frames could be decoded{said}")
-            self._warn_if_incomplete(rejected, damaged, capture.open_messages)
+            self._warn_if_incomplete(rejected, damaged, capture.open_messages, restamped)
         finally:
             capture.release()
 
@@ -316,11 +336,18 @@ class VideoFrames:
             return MissingFrame(source=str(self.path), reason=f"{self.path.name}: {problem}")
         return self._converted(frame)
 
-    def _warn_if_incomplete(self, rejected: list[_Grab], damaged: list[_Grab],
-                            open_messages: list[str]) -> None:
-        """One InputWarning for rejected frames, a short count or FFmpeg's complaints on opening."""
+    def _warn_if_incomplete(self, rejected: list[_Grab], damaged: list[_Grab], open_messages: list[str],
+                            restamped: list[_Grab] = ()) -> None:
+        """One InputWarning for rejected frames, a short count, FFmpeg's complaints on opening, or
+        frames whose times did not increase."""
         read = len(self.timestamps)
         problems = []
+        if restamped:
+            first = restamped[0].index
+            problems.append(f"{len(restamped)} frame{'s' if len(restamped) > 1 else ''} (the first: frame {first}) "
+                            f"had a presentation time not after the previous frame's (times that restart, as in "
+                            f"clips joined into one) and {'were' if len(restamped) > 1 else 'was'} stamped one frame "
+                            f"interval after it")
         if rejected:
             problems.append(f"skipped {len(rejected)} frame{'s' if len(rejected) > 1 else ''} the decoder "
                             f"rejected ({_quoted([m for grab in rejected for m in grab.messages])})")
