@@ -21,7 +21,9 @@ applies two rules:
   pair of a sequence. Only the first frame must be prepared, since it is
   the reference. ``sys.exit`` inside the plugin is an error, not the end of
   the run with its status, and an ``accept_pose`` that raises stops the run
-  (the pose it was told is already settled).
+  (the pose it was told is already settled). A ``refine_correspondences`` that raises
+  leaves the pair its first solution, the exception in the frame's
+  diagnostics; what it returns is held to the contract as above.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import numpy as np
 
 from .errors import InputError, one_line
 from .front_end import Correspondences
-from .odometry import FRAME_COLUMNS, RECOVERED_AFTER_RESET
+from .odometry import FRAME_COLUMNS, RECOVERED_AFTER_RESET, REFINE_FAILURE
 
 __all__ = ["RAY_NORM_TOLERANCE", "CheckedFrontEnd", "checked_correspondences"]
 
@@ -49,7 +51,7 @@ _REAL_KINDS = "iuf"
 # is no measurement, and Python refuses to print one of over 4300 digits).
 _DIAGNOSTIC_INT_BITS = 64
 # Column names of frames.csv that a diagnostics entry would lose to (the tracker's own columns).
-_TAKEN_COLUMNS = FRAME_COLUMNS + (RECOVERED_AFTER_RESET,)
+_TAKEN_COLUMNS = FRAME_COLUMNS + (RECOVERED_AFTER_RESET, REFINE_FAILURE)
 # Characters of a diagnostics key quoted in a message.
 _SHOWN_KEY_CHARS = 40
 
@@ -76,7 +78,7 @@ class CheckedFrontEnd:
     Raises
     ------
     InputError
-        ``accept_pose`` present but not callable.
+        ``accept_pose`` or ``refine_correspondences`` present but not callable.
     """
 
     def __init__(self, front_end, method: str) -> None:
@@ -88,6 +90,13 @@ class CheckedFrontEnd:
                                           "expected accept_pose(state, rotation) or none")
         if accept is not None:
             self.accept_pose = self._accept_pose
+        refine = getattr(front_end, "refine_correspondences", None)
+        if refine is not None and not callable(refine):
+            raise InputError(self._where, f"refine_correspondences is not callable (got {type(refine).__name__}); "
+                                          "expected refine_correspondences(state_a, state_b, first, *, rotation_ab) "
+                                          "or none")
+        if refine is not None:
+            self.refine_correspondences = self._refine_correspondences
         self._prepared_any = False
 
     def _call(self, what: str, function, *args, **kwargs):
@@ -124,6 +133,19 @@ class CheckedFrontEnd:
         except Exception as exc:  # a plugin's failure on this pair
             return Correspondences.failed(f"{self._where}: correspondences() raised {one_line(exc)}")
         return checked_correspondences(result, method=self._method)
+
+    def _refine_correspondences(self, state_a: _Prepared, state_b: _Prepared, first: Correspondences, *,
+                                rotation_ab: np.ndarray) -> Correspondences | None:
+        """The plugin's refined matches, checked; None as it returns None; an exception it
+        raises comes back as failed correspondences (the pair keeps its first solution)."""
+        try:
+            result = self._call("refine_correspondences()", self._inner.refine_correspondences, state_a.state,
+                                state_b.state, first, rotation_ab=rotation_ab)
+        except InputError:
+            raise
+        except Exception as exc:  # a plugin's failure on this pair
+            return Correspondences.failed(f"{self._where}: refine_correspondences() raised {one_line(exc)}")
+        return None if result is None else checked_correspondences(result, method=self._method)
 
     def _accept_pose(self, state: _Prepared, rotation: np.ndarray) -> None:
         try:

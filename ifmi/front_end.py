@@ -23,6 +23,15 @@ successfully estimated frame, before that frame can serve as a reference
 (the iFMI front end ties its tracked tiles to it). Failed frames are never
 passed.
 
+A front end may also have ``refine_correspondences(state_a, state_b, first,
+*, rotation_ab) -> Correspondences or None``: once the back end has solved
+a pair from ``first`` (what ``correspondences`` returned), the odometry
+passes it the solved ``R_ab`` ((3, 3)). Correspondences it returns are
+solved again and replace the first solution when that succeeds (the iFMI
+front end registers a weak pair's tiles again at that rotation and returns
+both registrations' matches); None keeps the first solution, and so do
+failed correspondences, whose reason goes into the frame's diagnostics.
+
 This module imports nothing else of :mod:`ifmi`, so any front end can import
 it without import cycles.
 """

@@ -74,7 +74,7 @@ from .rolling_shutter import (RollingShutterOptions, angular_velocity_from_rotat
                               velocity_after_intervals, velocity_at_frame)
 from .trajectory import Trajectory
 
-__all__ = ["KeyframeOptions", "FrameRecord", "FRAME_COLUMNS", "RECOVERED_AFTER_RESET", "Tracker", "track_sequence"]
+__all__ = ["KeyframeOptions", "FrameRecord", "FRAME_COLUMNS", "RECOVERED_AFTER_RESET", "REFINE_FAILURE", "Tracker", "track_sequence"]
 
 
 @dataclass(frozen=True)
@@ -172,10 +172,11 @@ class FrameRecord:
 
 
 # Columns of frames.csv that every frame has (FrameRecord's fields but its diagnostics), and the
-# diagnostics column the tracker adds to a frame estimated against the reference before a reset:
-# names a front end's diagnostics cannot have.
+# diagnostics columns the tracker adds (a frame estimated against the reference before a reset;
+# why a front end's refined correspondences failed): names a front end's diagnostics cannot have.
 FRAME_COLUMNS = tuple(f.name for f in fields(FrameRecord) if f.name != "diagnostics")
 RECOVERED_AFTER_RESET = "recovered_after_reset"
+REFINE_FAILURE = "refine_failure"
 
 
 @dataclass
@@ -306,7 +307,8 @@ class Tracker:
 
         A front end with ``refine_correspondences`` is passed the solved
         ``R_ab``; correspondences it returns are solved again and replace the
-        first solution when that succeeds.
+        first solution when that succeeds. Failed ones leave the first
+        solution, their reason in the diagnostics (``REFINE_FAILURE``).
         """
         if getattr(self.front_end, "uses_prior_rotation", False):
             corr = self.front_end.correspondences(reference.state, state,
@@ -319,7 +321,9 @@ class Tracker:
         refine = getattr(self.front_end, "refine_correspondences", None)
         if refine is not None and info.success:
             refined = refine(reference.state, state, corr, rotation_ab=pose.rotation)
-            if refined is not None:
+            if refined is not None and not refined.success:
+                corr = replace(corr, diagnostics={**corr.diagnostics, REFINE_FAILURE: refined.reason})
+            elif refined is not None:
                 pose_refined, info_refined = self._solve_rays(reference, refined, frame)
                 if info_refined.success:
                     return pose_refined, info_refined, refined

@@ -113,6 +113,38 @@ class _Accepting(Spoiled):
 
 def accept_raises(model, config):
     return _Accepting(model, config, lambda c, k: c)
+
+
+class _Refining(Spoiled):
+    """Refines a pair by spoiling its first matches with ``refine_spoil(first, pair)``."""
+
+    def refine_correspondences(self, a, b, first, *, rotation_ab):
+        return self.refine_spoil(first, b[0])
+
+
+def _refining(refine_spoil):
+    def factory(model, config):
+        front_end = _Refining(model, config, lambda c, k: c)
+        front_end.refine_spoil = refine_spoil
+        return front_end
+    return factory
+
+
+def _refine_raise_on_3(c, k):
+    if k == 3:
+        raise ValueError("no second look")
+    return None
+
+
+refine_raises_on_3 = _refining(_refine_raise_on_3)
+refine_pixels_as_rays = _refining(lambda c, k: replace(c, rays_a=np.c_[c.pixels_a, np.ones(len(c.pixels_a))]))
+refine_half = _refining(lambda c, k: replace(c, diagnostics={**c.diagnostics, "refined": True}))
+
+
+def refine_not_callable(model, config):
+    front_end = Spoiled(model, config, lambda c, k: c)
+    front_end.refine_correspondences = 3
+    return front_end
 '''
 
 
@@ -145,6 +177,9 @@ def _estimate(dataset, method, out, capsys):
     ("exits", "correspondences() called sys.exit(0)"),
     ("returns_class", "factory returned the class Spoiled; expected an instance"),
     ("accept_raises", "accept_pose() raised ValueError: pose store is full"),
+    ("refine_not_callable", "refine_correspondences is not callable (got int); expected "
+                            "refine_correspondences(state_a, state_b, first, *, rotation_ab) or none"),
+    ("refine_pixels_as_rays", "returned rays_a that are not unit vectors (norms"),
     ("prepare_fails_on_0", "prepare() of the first frame raised RuntimeError: no keypoints: ..."),
     # Before: the imaginary parts were dropped with a NumPy warning and the run went on.
     ("complex_rays", "correspondences() returned rays_a that is no numeric array (TypeError: values of type "
@@ -197,6 +232,23 @@ def test_exception_of_the_plugin_fails_that_frame_only(dataset, plugin, tmp_path
     assert [r["frame"] for r in rows if r["success"] != "true"] == failed
     assert rows[int(failed[0])]["reason"] == f"method {method}: {reason}"
     assert len(read_tum(out)) == FRAMES
+
+
+def test_refined_matches_of_the_plugin_are_solved_again_and_its_exception_kept_as_a_diagnostic(
+        dataset, plugin, tmp_path, capsys):
+    # The refinement returns the first matches (marked): solved again, the same estimate as ORB's.
+    code, _ = _estimate(dataset, f"{plugin}:refine_half", tmp_path / "r.txt", capsys)
+    assert code == 0 and all(r["refined"] == "true" for r in _frames(tmp_path / "r.txt")[1:])
+    code, _ = _estimate(dataset, "orb", tmp_path / "o.txt", capsys)
+    assert np.array_equal(read_tum(tmp_path / "r.txt").rotations, read_tum(tmp_path / "o.txt").rotations)
+    # An exception in the refinement keeps the pair's first solution, and says why in frames.csv.
+    method = f"{plugin}:refine_raises_on_3"
+    code, _ = _estimate(dataset, method, tmp_path / "x.txt", capsys)
+    rows = _frames(tmp_path / "x.txt")
+    assert code == 0 and all(r["success"] == "true" for r in rows)
+    assert [r["refine_failure"] for r in rows] == ["", "", "", f"method {method}: refine_correspondences() "
+                                                               "raised ValueError: no second look", "", ""]
+    assert np.array_equal(read_tum(tmp_path / "x.txt").rotations, read_tum(tmp_path / "o.txt").rotations)
 
 
 def test_matches_paired_off_by_one_fail_that_frame_as_chance(dataset, plugin, tmp_path, capsys):
