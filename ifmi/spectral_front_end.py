@@ -23,7 +23,7 @@ from .fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, 
                             TileSpectra)
 from .errors import CalibrationFitError
 from .relative_pose import rotation_angles, rotation_from_rays
-from .rotations import matrix_aligning_rays
+from .rotations import geodesic_angle, matrix_aligning_rays
 from .tiling import (TileLayout, TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_layout,
                      tile_size_px, tiles_from_panorama)
 from .unwarp import (PANORAMA_INTERPOLATIONS, PanoramaConfig, PanoramaMapping, gray_from_image,
@@ -130,7 +130,16 @@ class IfmiConfig:
         errors partly average out with the first's. Measured on 108 fast
         sets and 12 warehouse sets (3 RANSAC seeds, both modes): the sets
         where iFMI's ATE exceeded the better feature method's went from 25
-        to 13 (`reports/fast_motion`, thirteenth stop). 0 disables it.
+        to 11 (`reports/fast_motion`, thirteenth stop). 0 disables it.
+    reregister_min_px : float
+        The second registration is made only when the solved rotation moves
+        the tiles at least this far from where they were registered
+        (panorama pixels: the angle between the two rotations times
+        ``width / 2 pi``). A smaller move samples them at nearly the same
+        sub-pixel positions, which pools nearly the same rays twice. On
+        the 18 designed fast sets 84 of 228 pairs are registered again
+        (97 with 0.1 px, 65 with 0.5 px); over the sets above, 0.3 px
+        misses 11, 0.1 px and no limit 14, 0.5 px 12.
     dense_tiles_per_column : int or None
         The retry registers only this many tiles of each column of the
         denser layout, those whose texture best fixes a shift in frame a
@@ -227,6 +236,7 @@ class IfmiConfig:
     dense_retry_fraction: float = 0.33
     dense_overlap: float = 0.5
     reregister_fraction: float = 0.6
+    reregister_min_px: float = 0.3
     dense_tiles_per_column: int | None = None
     anchor_templates: bool = True
     curved_placement: bool = True
@@ -248,8 +258,9 @@ class IfmiConfig:
         if not 0 <= self.dense_retry_fraction <= 1 or not 0 <= self.dense_overlap < 1:
             raise ValueError(f"expected 0 <= dense_retry_fraction <= 1 and 0 <= dense_overlap < 1, got "
                              f"{self.dense_retry_fraction}, {self.dense_overlap}")
-        if not 0 <= self.reregister_fraction <= 1:
-            raise ValueError(f"expected 0 <= reregister_fraction <= 1, got {self.reregister_fraction}")
+        if not 0 <= self.reregister_fraction <= 1 or not self.reregister_min_px >= 0:
+            raise ValueError(f"expected 0 <= reregister_fraction <= 1 and reregister_min_px >= 0, got "
+                             f"{self.reregister_fraction}, {self.reregister_min_px}")
         if self.dense_tiles_per_column is not None and self.dense_tiles_per_column < 1:
             raise ValueError(f"expected dense_tiles_per_column >= 1 or None, got {self.dense_tiles_per_column}")
         if not self.landmark_gate_px > 0 or not 0 < self.landmark_weight <= 1:
@@ -327,6 +338,8 @@ class IfmiFrameState:
         self._spectra: TileSpectra | None = None
         self.tracked: PlacedTiles | None = None
         self.tracked_valid: np.ndarray | None = None
+        # R_ab at which this frame's rays were last registered against a reference (with a prediction).
+        self.registered_rotation: np.ndarray | None = None
         self.reference: tuple | None = None
         self.reference_curvature: np.ndarray | None = None
         # Landmark rays (IfmiConfig.landmark_rays): this frame's accepted R_0k, the frame-0 rays
@@ -983,19 +996,25 @@ class IfmiFrontEnd:
                                     diagnostics: dict) -> Correspondences:
         """Rays of a predicted registration ``match``, or of the dense retry at its rotation when
         at most ``config.dense_retry_fraction`` of its tiles passed and the retry keeps more."""
-        offsets_a, linear_a, placed = match.offsets_a, match.linear_a, match.placed
-        curvature_a = state_a.reference_curvature
-        landmarks = state_a.reference_landmarks
-        valid = placed.valid
+        valid = match.placed.valid
+        state_b.registered_rotation = match.rotation
         if self.dense_layout is not None and valid.sum() <= self.config.dense_retry_fraction * self.layout.count:
             dense = self.register_dense(state_a, state_b, prior_rotation=match.rotation)
             diagnostics = {**diagnostics, "n_tiles_kept_dense": int(dense[2].valid.sum())}
             if dense[2].valid.sum() > valid.sum():
-                offsets_a, linear_a, placed = dense
-                curvature_a = landmarks = None
-                valid = placed.valid
+                return self._placed_correspondences(state_a, *dense, diagnostics, dense=True)
+        return self._placed_correspondences(state_a, match.offsets_a, match.linear_a, match.placed, diagnostics,
+                                            dense=False)
+
+    def _placed_correspondences(self, state_a: IfmiFrameState, offsets_a: np.ndarray, linear_a: np.ndarray,
+                                placed: PlacedRegistration, diagnostics: dict, *, dense: bool) -> Correspondences:
+        """Rays of the kept tiles of a registration of frame a's tiles (reference tiles, or the
+        ``dense`` layout's cut anew: no curvature or landmarks of their own)."""
+        valid = placed.valid
         if valid.sum() < self.config.min_tiles:
             return self._too_few_tiles(valid, diagnostics)
+        curvature_a = None if dense else state_a.reference_curvature
+        landmarks = None if dense else state_a.reference_landmarks
         pairs = flow_from_placements(offsets_a, linear_a, placed.offsets, placed.linear, valid, self.mapping,
                                      points=self._tile_points(placed.template_centroid),
                                      tile_size=self.layout.tile_size,
@@ -1011,9 +1030,12 @@ class IfmiFrontEnd:
 
         Pairs whose registration kept at most ``config.reregister_fraction``
         of the layout's tiles (as ``first``'s ``n_tiles_kept`` says) are
-        registered again where ``rotation_ab`` puts the reference's tiles,
-        without the coarse stage (the dense retry as for any registration);
-        frame b then keeps this registration's tracked tiles.
+        registered again where ``rotation_ab`` puts the tiles that gave
+        ``first``'s rays (the reference's tiles, or the dense retry's), if
+        that moves them at least ``config.reregister_min_px``; no coarse
+        stage and no dense retry. A second registration of the reference's
+        tiles gives frame b its tracked tiles (placed at the better
+        rotation).
 
         Parameters
         ----------
@@ -1030,22 +1052,28 @@ class IfmiFrontEnd:
             Both registrations' matches (``first``'s first), with
             ``first``'s diagnostics and ``n_tiles_kept_reregistered``; None
             when the pair is not registered again (enough tiles passed, no
-            prediction in use, ``reregister_fraction`` 0) or the second
-            registration failed.
+            prediction in use, ``reregister_fraction`` 0, a move under
+            ``reregister_min_px``) or the second registration failed.
         """
         kept = first.diagnostics.get("n_tiles_kept")
         fraction = self.config.reregister_fraction
-        if (fraction == 0 or not first.success or not self.config.use_prior or kept is None
+        if (fraction == 0 or not first.success or state_b.registered_rotation is None or kept is None
                 or kept > fraction * self.layout.count):
             return None
-        match = self._tiles_at(state_a, state_b, np.asarray(rotation_ab, dtype=np.float64))
-        placed = match.placed
-        second = self._correspondences_from_match(
-            state_a, state_b, match, self._diagnostics(placed.reason, placed.peak_ratio, placed.peak_to_noise,
-                                                       match.n_new))
+        rotation_ab = np.asarray(rotation_ab, dtype=np.float64)
+        moved = geodesic_angle(state_b.registered_rotation, rotation_ab)
+        if moved * self.mapping.width / (2 * np.pi) < self.config.reregister_min_px:
+            return None
+        if first.diagnostics.get("n_tiles_kept_dense", -1) > kept:  # the first rays are the dense retry's
+            offsets_a, linear_a, placed = self.register_dense(state_a, state_b, prior_rotation=rotation_ab)
+            second = self._placed_correspondences(state_a, offsets_a, linear_a, placed, {}, dense=True)
+        else:
+            match = self._tiles_at(state_a, state_b, rotation_ab)
+            placed = match.placed
+            second = self._placed_correspondences(state_a, match.offsets_a, match.linear_a, placed, {}, dense=False)
         if not second.success:
             return None
-        diagnostics = {**first.diagnostics, "n_tiles_kept_reregistered": second.diagnostics["n_tiles_kept"]}
+        diagnostics = {**first.diagnostics, "n_tiles_kept_reregistered": int(placed.valid.sum())}
         return Correspondences(*(np.concatenate([getattr(first, name), getattr(second, name)])
                                  for name in ("pixels_a", "pixels_b", "rays_a", "rays_b")),
                                diagnostics=diagnostics, rays_per_measurement=first.rays_per_measurement)

@@ -276,10 +276,17 @@ def test_a_weak_pair_is_registered_again_at_the_solved_rotation_and_both_rays_po
         match = other.correspondences(a, b, prior_rotation=STEP)
         assert match.diagnostics["n_tiles_kept"] > 0.5 * other.layout.count
         assert other.refine_correspondences(a, b, match, rotation_ab=STEP) is None
+    # Nor when the solved rotation moves the tiles by under reregister_min_px (0.3 px; 0.02 rad: 1.6 px).
+    assert fe.refine_correspondences(s0, s1, first, rotation_ab=s1.registered_rotation) is None
+    nudged = s1.registered_rotation @ Rotation.from_rotvec([0.0, 0.0, 0.003]).as_matrix()
+    assert fe.refine_correspondences(s0, s1, first, rotation_ab=nudged) is None
     failed = Correspondences.failed("no tiles", {"n_tiles_kept": 0})
     assert fe.refine_correspondences(s0, s1, failed, rotation_ab=STEP) is None
 
 
 def test_reregister_fraction_is_validated():
-    with pytest.raises(ValueError, match="expected 0 <= reregister_fraction <= 1, got 1.5"):
+    with pytest.raises(ValueError, match="expected 0 <= reregister_fraction <= 1 and reregister_min_px >= 0, "
+                                         "got 1.5, 0.3"):
         IfmiConfig(reregister_fraction=1.5)
+    with pytest.raises(ValueError, match="got 0.6, -1"):
+        IfmiConfig(reregister_min_px=-1)
