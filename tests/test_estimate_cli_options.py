@@ -240,6 +240,32 @@ def test_camera_limits_name_the_option_given_on_the_command_line(dataset, tmp_pa
     assert _one_line_error(capsys).startswith("ifmi estimate: error: --width: ifmi.panorama.width: expected at most ")
 
 
+# --- 10. tile layouts with more tiles than a frame pair's registration memory ---------------
+
+# The limit for 32 px tiles with the default log-polar grid (ifmi.fourier_mellin.max_tile_count).
+TILE_LIMIT_32PX = ("expected at most 12483 tiles per frame (1 GiB to register a frame pair, 84 KiB per 32 px "
+                   "tile), got ")
+
+
+def test_overlap_near_one_is_refused_naming_the_tile_count(dataset, tmp_path, capsys):
+    # Before: steps of 1 px between tiles, 31232 tiles of 32 px per frame, 1.6 GiB and about 10 s
+    # per frame pair (a 2048 px panorama: hundreds of thousands), with exit 0 in the end.
+    out = tmp_path / "e.txt"
+    assert main(["estimate", str(dataset), "--overlap", "0.999", "--out", str(out), *QUIET]) == 2
+    assert _one_line_error(capsys) == (
+        f"ifmi estimate: error: --overlap: ifmi.tiling: {TILE_LIMIT_32PX}31232: 32 px tiles overlapping by 0.999 "
+        f"step 1 px across the 92x512 px panorama; an overlap of at most 0.95 keeps within it")
+    assert not out.exists()
+
+
+def test_dense_retry_overlap_near_one_in_a_config_file_names_the_file(dataset, tmp_path, capsys):
+    config = _write_config(tmp_path / "c.json", lambda d: d["ifmi"].update(dense_overlap=0.99))
+    assert main(["estimate", str(dataset), "--config", str(config), "--out", str(tmp_path / "e.txt"),
+                 *QUIET]) == 2
+    assert _one_line_error(capsys).startswith(f"ifmi estimate: error: {config}: ifmi.dense_overlap: "
+                                              f"{TILE_LIMIT_32PX}31232: 32 px tiles overlapping by 0.99 ")
+
+
 # --- 8. omnisim degrade: the output folder outside the source -------------------------------
 
 @pytest.mark.parametrize("inside", ["images/sub", "noisy", "images"])

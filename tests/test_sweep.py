@@ -181,6 +181,18 @@ def test_calibration_that_is_a_fifo_fails_its_cell_instead_of_blocking(tmp_path,
             in capsys.readouterr().err)
 
 
+def test_overlap_near_one_fails_its_cell_at_once_naming_the_tile_count(tmp_path, capsys):
+    # Before: the cell registered 31232 tiles of 32 px per frame (1.6 GiB, about 10 s a frame pair).
+    folder = _write_dataset(tmp_path / "ds", n=3, size=256, seed=5)
+    assert main(["sweep", str(folder), "--tile-size", "32", "--overlap", "0.999", "--scheduler", "synchronous",
+                 "--out", str(tmp_path / "sweep"), "--no-progress"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert err.startswith("failed ds-") and "__tile32__overlap0.999: InputError: ifmi.tiling: expected at most " \
+        "12483 tiles per frame (1 GiB to register a frame pair, 84 KiB per 32 px tile), got 31232: " in err
+    assert err.endswith("an overlap of at most 0.95 keeps within it")
+
+
 def test_two_datasets_of_one_name_are_distinct_cells(tmp_path):
     a = _write_dataset(tmp_path / "site_a" / "office", n=4, size=128, seed=5, max_step_rad=0.03)
     b = _write_dataset(tmp_path / "site_b" / "office", n=4, size=128, seed=6, max_step_rad=0.06)
