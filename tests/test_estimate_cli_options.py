@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import threading
 
 import numpy as np
 import pytest
@@ -200,6 +202,63 @@ def test_config_file_with_a_huge_integer_is_one_line(dataset, tmp_path, capsys):
     assert main(["estimate", str(dataset), "--config", str(config), "--out", str(tmp_path / "e.txt")]) == 2
     assert _one_line_error(capsys) == (f"ifmi estimate: error: {config}: invalid JSON: an integer of 5000 "
                                        f"digits; expected at most 4300")
+
+
+# --- 6b. --config files that are no JSON text: one line each, never a wait -------------------
+
+def _feed_fifo_once_read(fifo, text: str, stop: threading.Event) -> None:
+    """Write ``text`` into ``fifo`` once a reader has opened it, until ``stop``: a reader that
+    waits for a writer then gets an answer, and a test without the check fails instead of hanging."""
+    while not stop.is_set():
+        try:
+            fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)
+        except OSError:  # no reader yet
+            stop.wait(0.05)
+            continue
+        with os.fdopen(fd, "w") as pipe:
+            pipe.write(text)
+        return
+
+
+def _config_path(kind: str, tmp_path):
+    """A --config path of the given kind, and the message ``ifmi estimate`` gives for it."""
+    path = tmp_path / "c.json"
+    if kind == "fifo":
+        os.mkfifo(path)
+        return path, "is a FIFO, device or socket, not a configuration file; expected a regular file"
+    if kind == "device":
+        return os.devnull, "is a FIFO, device or socket, not a configuration file; expected a regular file"
+    if kind == "folder":
+        path.mkdir()
+        return path, "is a folder; expected a configuration file"
+    if kind == "missing":
+        return path, "configuration file not found"
+    if kind == "latin-1":
+        text = '{"relative_pose": {"seed": 1}, "note": "caf\u00e9"}'
+        path.write_bytes(text.encode("latin-1"))
+        return path, (f"cannot read configuration file: byte 0xe9 at offset {text.index(chr(0xe9))} is not UTF-8 "
+                      "text; expected UTF-8 text")
+    path.write_text(json.dumps({"note": "x" * 2 ** 20}))
+    return path, f"is {path.stat().st_size} bytes; expected a configuration file of at most 1048576 bytes"
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+@pytest.mark.parametrize("kind", ["fifo", "device", "folder", "missing", "latin-1", "huge"])
+def test_config_that_is_no_json_text_is_one_line(dataset, tmp_path, capsys, kind):
+    # Before: a FIFO waited for a writer forever; /dev/null was "invalid JSON at line 1 column 1"; a
+    # file of 300 MB was read whole (0.7 GB, 4 s) before its keys were refused.
+    config, message = _config_path(kind, tmp_path)
+    stop = threading.Event()
+    feeder = threading.Thread(target=_feed_fifo_once_read, args=(config, "{}", stop), daemon=True)
+    if kind == "fifo":
+        feeder.start()
+    try:
+        code = main(["estimate", str(dataset), "--config", str(config), "--out", str(tmp_path / "e.txt"), *QUIET])
+    finally:
+        stop.set()
+    assert code == 2
+    assert _one_line_error(capsys) == f"ifmi estimate: error: {config}: {message}"
+    assert not (tmp_path / "e.txt").exists()
 
 
 # --- 7. outputs never replace the --config file ---------------------------------------------
