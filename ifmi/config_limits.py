@@ -9,11 +9,14 @@ width of 1e9 ends in one line instead of exhausting memory.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .camera import OcamModel, max_image_radius
 from .errors import InputError
-from .tiling import MIN_TILE_SIZE_PX, tile_size_px
+from .fourier_mellin import TILE_MEMORY_BUDGET_BYTES, max_tile_count, registration_bytes_per_tile
+from .tiling import MIN_TILE_SIZE_PX, TilingConfig, tile_grid_shape, tile_size_px, tile_step_px
 from .unwarp import angular_pixel_size_in_band, off_axis_band, panorama_mapping, radius_band
 
 __all__ = ["check_config_for_model"]
@@ -36,8 +39,10 @@ def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=No
     OCamCalib, which take no band radii), for the ``"ifmi"`` method a tile
     given as a fraction of the panorama width has at least
     :data:`~ifmi.tiling.MIN_TILE_SIZE_PX` pixels and the log-polar grids
-    are at most four times the tile side (a tile larger than the panorama
-    is reported by the front end, naming the calibration), and a feature
+    are at most four times the tile side, the tiles of a frame (of the
+    layout, and of the dense retry's at ``ifmi.dense_overlap``) at most
+    :func:`ifmi.fourier_mellin.max_tile_count` (a tile larger than the
+    panorama is reported by the front end, naming the calibration), and a feature
     front end's ``radius_band`` lies inside the image. Explicit band radii in ``config`` (e.g. decided from the frames)
     are the band checked. A bundle-adjustment window needs a global shutter.
     A RANSAC threshold in pixels converts to under pi radians.
@@ -54,7 +59,8 @@ def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=No
     Raises
     ------
     InputError
-        Named after the configuration key (``ifmi.panorama.width``): what is
+        Named after the configuration key (``ifmi.panorama.width``; for
+        the tile count ``ifmi.tiling`` or ``ifmi.dense_overlap``): what is
         accepted for this camera and what was given; or after ``calib_path``
         (default ``ifmi.panorama``) when the camera model gives no band.
     """
@@ -88,10 +94,7 @@ def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=No
             raise InputError(f"ifmi.panorama.{name}", f"expected at most {limit} px for this camera "
                                                       f"({_MAX_OVERSAMPLING} x its image band's outer "
                                                       f"{kind}), got {value}")
-    registration = config.ifmi.registration
-    fraction = config.ifmi.tiling.tile_size is not None and config.ifmi.tiling.tile_size < 1
-    log_polar = registration.log_polar_angles is not None or registration.log_polar_radii is not None
-    if method == "ifmi" and (fraction or log_polar):
+    if method == "ifmi":
         _check_tiles(config, panorama_mapping(model, config=pano))
     _check_pixel_threshold(config, model)
 
@@ -172,3 +175,34 @@ def _check_tiles(config, mapping) -> None:
             raise InputError(f"ifmi.registration.{name}", f"expected at most {_MAX_OVERSAMPLING * tile} "
                                                           f"({_MAX_OVERSAMPLING} x the {tile} px tile side), "
                                                           f"got {value}")
+    layouts = {"ifmi.tiling": config.ifmi.tiling}
+    if config.ifmi.dense_retry_fraction > 0 and config.ifmi.use_prior:
+        layouts["ifmi.dense_overlap"] = replace(config.ifmi.tiling, overlap=config.ifmi.dense_overlap)
+    for key, tiling in layouts.items():
+        problem = _tile_count_problem((mapping.height, mapping.width), tiling, config.ifmi.registration)
+        if problem:
+            raise InputError(key, problem)
+
+
+def _tile_count_problem(shape: tuple, tiling: TilingConfig, registration) -> str | None:
+    """Why the layout ``tiling`` gives a panorama of ``shape`` too many tiles to register, or None.
+
+    The limit is :func:`ifmi.fourier_mellin.max_tile_count`: the tiles whose registration fits
+    :data:`~ifmi.fourier_mellin.TILE_MEMORY_BUDGET_BYTES`. A near-1 overlap makes steps of a pixel
+    or two between tiles, and hundreds of thousands of tiles per frame.
+    """
+    tile = tile_size_px(tiling.tile_size, shape[1])
+    count = int(np.prod(tile_grid_shape(shape, config=tiling)))
+    limit = max_tile_count(tile, config=registration)
+    if count <= limit:
+        return None
+    # The largest overlap in hundredths below the one given that keeps within the limit.
+    fitting = [k / 100 for k in range(int(tiling.overlap * 100), -1, -1)
+               if np.prod(tile_grid_shape(shape, config=replace(tiling, overlap=k / 100))) <= limit]
+    advice = (f"an overlap of at most {fitting[0]:g} keeps within it" if fitting else "use larger tiles")
+    per_tile = registration_bytes_per_tile(tile, config=registration)
+    step = tile_step_px(tile, tiling.overlap)
+    return (f"expected at most {limit} tiles per frame ({TILE_MEMORY_BUDGET_BYTES / 2 ** 30:g} GiB to register "
+            f"a frame pair, {per_tile / 1024:.0f} KiB per {tile} px tile), got {count}: {tile} px tiles "
+            f"overlapping by {tiling.overlap:g} step {step} px across the {shape[0]}x{shape[1]} px panorama; "
+            f"{advice}")

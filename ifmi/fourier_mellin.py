@@ -70,12 +70,29 @@ __all__ = [
     "FourierMellin",
     "TileRejection",
     "transform_points",
+    "registration_bytes_per_tile",
+    "max_tile_count",
+    "TILE_MEMORY_BUDGET_BYTES",
 ]
 
 # Rows (exclusive) OpenCV's remap accepts, and the range of its 16-bit fixed-point maps.
 _REMAP_MAX_ROWS = 2 ** 15
 # Pixels of the tiles whose remap maps are built and used at a time (512 kB per float32 map).
 _MAP_CHUNK_PIXELS = 2 ** 17
+# Peak memory of registering one frame pair, per tile: bytes per tile pixel (the tiles, their
+# spectra, correlation surfaces, resampled tiles) and per sample of the log-polar grid (the
+# descriptors and their spectra). Measured with tracemalloc over two ``prepare`` calls and one
+# ``correspondences`` on the demo office at 256 px: 49 to 81 bytes per tile pixel (tiles of 8 to
+# 64 px, 16 to 31232 tiles) and about 19 per log-polar sample (grids of 32x16 to 256x256); these
+# bounds are at or above every measurement (5.2 kB measured for an 8 px tile, 5.4 kB bounded).
+_PEAK_BYTES_PER_TILE_PIXEL = 72
+_PEAK_BYTES_PER_LOG_POLAR_SAMPLE = 24
+# Memory one frame pair's tile registration may take, which bounds the tiles of a frame. ``ifmi
+# sweep`` runs two estimates at once by default (ifmi.local_workers.DEFAULT_LOCAL_WORKERS), and a
+# run keeps its reference frame's tiles besides, so this keeps a sweep within a few GiB. Time
+# grows with it too: 31232 tiles of 32 px (1.6 GiB) took 10.6 s per frame pair on 2 cores,
+# 7936 tiles (0.4 GiB) 3.3 s; the default layouts hold 32 to 1000 tiles (2 to 250 MB).
+TILE_MEMORY_BUDGET_BYTES = 2 ** 30
 
 
 class TileRejection(IntEnum):
@@ -566,6 +583,33 @@ def _placement_maps(n: int, offsets: np.ndarray, linear: np.ndarray,
     return maps[0].reshape(-1, n), maps[1].reshape(-1, n)
 
 
+def registration_bytes_per_tile(tile_size: int, *, config: FourierMellinConfig = FourierMellinConfig()) -> int:
+    """Bytes that registering one frame pair takes per tile at its peak (an upper bound, measured).
+
+    Parameters
+    ----------
+    tile_size : int
+        ``N``.
+    config : FourierMellinConfig, keyword-only
+        Its log-polar grid (default ``N`` angles by ``N / 2`` radii) counts besides the tile's pixels.
+
+    Returns
+    -------
+    int
+    """
+    n = int(tile_size)
+    samples = int(config.log_polar_angles or n) * int(config.log_polar_radii or n // 2)
+    return _PEAK_BYTES_PER_TILE_PIXEL * n * n + _PEAK_BYTES_PER_LOG_POLAR_SAMPLE * samples
+
+
+def max_tile_count(tile_size: int, *, config: FourierMellinConfig = FourierMellinConfig()) -> int:
+    """Most tiles of ``tile_size`` px a frame may have: their registration within :data:`TILE_MEMORY_BUDGET_BYTES`.
+
+    For the default 32 px tiles that is 12483 tiles, for 64 px tiles 3120.
+    """
+    return TILE_MEMORY_BUDGET_BYTES // registration_bytes_per_tile(tile_size, config=config)
+
+
 class FourierMellin:
     """Precomputed windows, filters and log-polar maps for ``count`` tiles of size ``tile_size``.
 
@@ -582,8 +626,10 @@ class FourierMellin:
         n = int(tile_size)
         if n < MIN_TILE_SIZE_PX or n % 2:
             raise ValueError(f"tile size must be even and >= {MIN_TILE_SIZE_PX}, got {tile_size}")
-        if count < 1:
-            raise ValueError(f"tile count must be >= 1, got {count}")
+        limit = max_tile_count(n, config=config)
+        if not 1 <= count <= limit:
+            raise ValueError(f"tile count must be from 1 to {limit} for {n} px tiles (registering a frame pair "
+                             f"within {TILE_MEMORY_BUDGET_BYTES / 2 ** 30:g} GiB), got {count}")
         self.tile_size = n
         self.count = int(count)
         self.config = config

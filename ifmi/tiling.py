@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-__all__ = ["TilingConfig", "TileLayout", "tile_layout", "tiles_from_panorama", "tile_size_px",
-           "tile_corner_strengths", "strongest_tiles_per_column", "MIN_TILE_SIZE_PX"]
+__all__ = ["TilingConfig", "TileLayout", "tile_layout", "tiles_from_panorama", "tile_size_px", "tile_step_px",
+           "tile_grid_shape", "tile_corner_strengths", "strongest_tiles_per_column", "MIN_TILE_SIZE_PX"]
 
 # Smallest tile side in pixels: the Fourier-Mellin registration (ifmi.fourier_mellin.FourierMellin)
 # needs at least 8 samples along each axis of a tile and of its log-polar grid.
@@ -40,7 +40,11 @@ class TilingConfig:
         1024 px width: smaller tiles carry too little texture on noisy
         images, larger ones move less rigidly).
     overlap : float
-        Fraction of a tile shared with its neighbour, in ``[0, 1)``.
+        Fraction of a tile shared with its neighbour, in ``[0, 1)``. Near 1
+        the step from tile to tile is a pixel or two and a frame gets tens
+        of thousands of tiles; the estimate's entry points refuse more than
+        :func:`ifmi.fourier_mellin.max_tile_count`
+        (:func:`ifmi.config_limits.check_config_for_model`).
     """
 
     tile_size: float | None = None
@@ -104,6 +108,39 @@ def tile_size_px(tile_size: float | None, panorama_width: int) -> int:
     return max(4, 2 * int(round(size / 2.0)))
 
 
+def tile_step_px(tile_size: int, overlap: float) -> int:
+    """Pixels from one tile's origin to its neighbour's: ``N (1 - overlap)``, rounded, at least 1."""
+    return max(1, int(round(tile_size * (1.0 - overlap))))
+
+
+def tile_grid_shape(panorama_shape: tuple[int, int], *, config: TilingConfig = TilingConfig()) -> tuple[int, int]:
+    """Tile rows and columns of :func:`tile_layout`, without building the layout.
+
+    Parameters
+    ----------
+    panorama_shape : (int, int)
+        Panorama ``(height, width)`` in pixels.
+    config : TilingConfig, keyword-only
+
+    Returns
+    -------
+    (int, int)
+        ``TileLayout.grid_shape``; the tile count is their product.
+
+    Raises
+    ------
+    ValueError
+        The tile is larger than the panorama.
+    """
+    height, width = (int(v) for v in panorama_shape)
+    n = tile_size_px(config.tile_size, width)
+    if n > height or n > width:
+        raise ValueError(f"tile size {n} px does not fit the {height}x{width} panorama; "
+                         f"expected at most {min(height, width)} px")
+    step = tile_step_px(n, config.overlap)
+    return 1 + (height - n) // step, max(1, int(round(width / step)))
+
+
 def tile_layout(panorama_shape: tuple[int, int], *, config: TilingConfig = TilingConfig()) -> TileLayout:
     """Tile layout of a panorama.
 
@@ -118,14 +155,10 @@ def tile_layout(panorama_shape: tuple[int, int], *, config: TilingConfig = Tilin
     TileLayout
     """
     height, width = (int(v) for v in panorama_shape)
+    n_rows, n_cols = tile_grid_shape((height, width), config=config)
     n = tile_size_px(config.tile_size, width)
-    if n > height or n > width:
-        raise ValueError(f"tile size {n} px does not fit the {height}x{width} panorama; "
-                         f"expected at most {min(height, width)} px")
-    step = max(1, int(round(n * (1.0 - config.overlap))))
-    n_rows = 1 + (height - n) // step
+    step = tile_step_px(n, config.overlap)
     top = (height - n - (n_rows - 1) * step) // 2
-    n_cols = max(1, int(round(width / step)))
     col0 = np.round(np.arange(n_cols) * (width / n_cols)).astype(int)
     row0 = top + step * np.arange(n_rows)
     rows, cols = np.meshgrid(row0, col0, indexing="ij")

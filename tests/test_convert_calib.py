@@ -135,6 +135,41 @@ def test_convert_calib_never_replaces_its_input_or_harms_its_dataset(tmp_path, c
     assert {p.name: p.read_bytes() for p in ds.iterdir() if p.is_file()} == before
 
 
+@pytest.mark.parametrize("source, target, out, problem", [
+    ("ds/calib_results.txt", "ocamcalib", "ds/calib_results.txt", "is the input calibration"),
+    ("ds", "ocamcalib", "ds/calib_results.txt", "is the input calibration"),
+    ("ds", "ds", "ds/camera.yaml", "would put a second calibration into the dataset"),
+    ("ds", "ocamcalib", "ds/groundtruth.txt", "would replace groundtruth.txt of the input dataset"),
+])
+def test_library_conversion_never_replaces_its_input_even_with_overwrite(tmp_path, source, target, out, problem):
+    # Before: the check sat in the command line; convert_calibration_file(..., overwrite=True) replaced
+    # the input calibration with the fit's approximation of it.
+    from ifmi.errors import OutputError
+    from ifmi.io.calibration_conversion import convert_calibration_file
+
+    ds = tmp_path / "ds"
+    (ds / "images").mkdir(parents=True)
+    write_calib(ds / "calib_results.txt", paracatadioptric_model((240, 320), horizon_radius_px=100.0))
+    (ds / "groundtruth.txt").write_text("0 0 0 0 0 0 0 1\n")
+    before = {p.name: p.read_bytes() for p in ds.iterdir() if p.is_file()}
+    with pytest.raises(OutputError, match=problem):
+        convert_calibration_file(tmp_path / source, target, tmp_path / out, overwrite=True)
+    assert {p.name: p.read_bytes() for p in ds.iterdir() if p.is_file()} == before
+
+
+def test_library_conversion_refuses_a_suffix_that_reads_back_as_the_other_format(tmp_path):
+    # Before: only the command line checked it; a library call wrote a Kalibr camchain into o.txt,
+    # which then read back as (broken) OCamCalib text.
+    from ifmi.errors import InputError
+    from ifmi.io.calibration_conversion import convert_calibration_file
+
+    source = tmp_path / "calib_results.txt"
+    write_calib(source, paracatadioptric_model((240, 320), horizon_radius_px=100.0))
+    with pytest.raises(InputError, match="a ds model is written as a Kalibr camchain"):
+        convert_calibration_file(source, "ds", tmp_path / "o.txt")
+    assert not (tmp_path / "o.txt").exists()
+
+
 def test_image_given_as_calibration_is_said_to_be_no_text_calibration(tmp_path, capsys):
     from PIL import Image
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import threading
 
 import numpy as np
 import pytest
@@ -202,6 +204,63 @@ def test_config_file_with_a_huge_integer_is_one_line(dataset, tmp_path, capsys):
                                        f"digits; expected at most 4300")
 
 
+# --- 6b. --config files that are no JSON text: one line each, never a wait -------------------
+
+def _feed_fifo_once_read(fifo, text: str, stop: threading.Event) -> None:
+    """Write ``text`` into ``fifo`` once a reader has opened it, until ``stop``: a reader that
+    waits for a writer then gets an answer, and a test without the check fails instead of hanging."""
+    while not stop.is_set():
+        try:
+            fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)
+        except OSError:  # no reader yet
+            stop.wait(0.05)
+            continue
+        with os.fdopen(fd, "w") as pipe:
+            pipe.write(text)
+        return
+
+
+def _config_path(kind: str, tmp_path):
+    """A --config path of the given kind, and the message ``ifmi estimate`` gives for it."""
+    path = tmp_path / "c.json"
+    if kind == "fifo":
+        os.mkfifo(path)
+        return path, "is a FIFO, device or socket, not a configuration file; expected a regular file"
+    if kind == "device":
+        return os.devnull, "is a FIFO, device or socket, not a configuration file; expected a regular file"
+    if kind == "folder":
+        path.mkdir()
+        return path, "is a folder; expected a configuration file"
+    if kind == "missing":
+        return path, "configuration file not found"
+    if kind == "latin-1":
+        text = '{"relative_pose": {"seed": 1}, "note": "caf\u00e9"}'
+        path.write_bytes(text.encode("latin-1"))
+        return path, (f"cannot read configuration file: byte 0xe9 at offset {text.index(chr(0xe9))} is not UTF-8 "
+                      "text; expected UTF-8 text")
+    path.write_text(json.dumps({"note": "x" * 2 ** 20}))
+    return path, f"is {path.stat().st_size} bytes; expected a configuration file of at most 1048576 bytes"
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+@pytest.mark.parametrize("kind", ["fifo", "device", "folder", "missing", "latin-1", "huge"])
+def test_config_that_is_no_json_text_is_one_line(dataset, tmp_path, capsys, kind):
+    # Before: a FIFO waited for a writer forever; /dev/null was "invalid JSON at line 1 column 1"; a
+    # file of 300 MB was read whole (0.7 GB, 4 s) before its keys were refused.
+    config, message = _config_path(kind, tmp_path)
+    stop = threading.Event()
+    feeder = threading.Thread(target=_feed_fifo_once_read, args=(config, "{}", stop), daemon=True)
+    if kind == "fifo":
+        feeder.start()
+    try:
+        code = main(["estimate", str(dataset), "--config", str(config), "--out", str(tmp_path / "e.txt"), *QUIET])
+    finally:
+        stop.set()
+    assert code == 2
+    assert _one_line_error(capsys) == f"ifmi estimate: error: {config}: {message}"
+    assert not (tmp_path / "e.txt").exists()
+
+
 # --- 7. outputs never replace the --config file ---------------------------------------------
 
 @pytest.mark.parametrize("out_name", ["run.config.json", "run.txt"])
@@ -238,6 +297,32 @@ def test_camera_limits_name_the_option_given_on_the_command_line(dataset, tmp_pa
     assert main(["estimate", str(dataset), "--config", str(config), "--width", "1000000000",
                  "--out", str(tmp_path / "e.txt"), *QUIET]) == 2
     assert _one_line_error(capsys).startswith("ifmi estimate: error: --width: ifmi.panorama.width: expected at most ")
+
+
+# --- 10. tile layouts with more tiles than a frame pair's registration memory ---------------
+
+# The limit for 32 px tiles with the default log-polar grid (ifmi.fourier_mellin.max_tile_count).
+TILE_LIMIT_32PX = ("expected at most 12483 tiles per frame (1 GiB to register a frame pair, 84 KiB per 32 px "
+                   "tile), got ")
+
+
+def test_overlap_near_one_is_refused_naming_the_tile_count(dataset, tmp_path, capsys):
+    # Before: steps of 1 px between tiles, 31232 tiles of 32 px per frame, 1.6 GiB and about 10 s
+    # per frame pair (a 2048 px panorama: hundreds of thousands), with exit 0 in the end.
+    out = tmp_path / "e.txt"
+    assert main(["estimate", str(dataset), "--overlap", "0.999", "--out", str(out), *QUIET]) == 2
+    assert _one_line_error(capsys) == (
+        f"ifmi estimate: error: --overlap: ifmi.tiling: {TILE_LIMIT_32PX}31232: 32 px tiles overlapping by 0.999 "
+        f"step 1 px across the 92x512 px panorama; an overlap of at most 0.95 keeps within it")
+    assert not out.exists()
+
+
+def test_dense_retry_overlap_near_one_in_a_config_file_names_the_file(dataset, tmp_path, capsys):
+    config = _write_config(tmp_path / "c.json", lambda d: d["ifmi"].update(dense_overlap=0.99))
+    assert main(["estimate", str(dataset), "--config", str(config), "--out", str(tmp_path / "e.txt"),
+                 *QUIET]) == 2
+    assert _one_line_error(capsys).startswith(f"ifmi estimate: error: {config}: ifmi.dense_overlap: "
+                                              f"{TILE_LIMIT_32PX}31232: 32 px tiles overlapping by 0.99 ")
 
 
 # --- 8. omnisim degrade: the output folder outside the source -------------------------------

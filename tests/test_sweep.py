@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 
 import numpy as np
 import pandas as pd
@@ -179,6 +180,48 @@ def test_calibration_that_is_a_fifo_fails_its_cell_instead_of_blocking(tmp_path,
                  "--out", str(tmp_path / "sweep"), "--no-progress"]) == 1
     assert (f"InputError: {folder / 'calib_results.txt'}: is a FIFO, device or socket, not a calibration file"
             in capsys.readouterr().err)
+
+
+def test_overlap_near_one_fails_its_cell_at_once_naming_the_tile_count(tmp_path, capsys):
+    # Before: the cell registered 31232 tiles of 32 px per frame (1.6 GiB, about 10 s a frame pair).
+    folder = _write_dataset(tmp_path / "ds", n=3, size=256, seed=5)
+    assert main(["sweep", str(folder), "--tile-size", "32", "--overlap", "0.999", "--scheduler", "synchronous",
+                 "--out", str(tmp_path / "sweep"), "--no-progress"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert err.startswith("failed ds-") and "__tile32__overlap0.999: InputError: ifmi.tiling: expected at most " \
+        "12483 tiles per frame (1 GiB to register a frame pair, 84 KiB per 32 px tile), got 31232: " in err
+    assert err.endswith("an overlap of at most 0.95 keeps within it")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_config_that_is_a_fifo_is_one_line_error(datasets, tmp_path, capsys):
+    # Before: the sweep waited for a writer forever.
+    good, _ = datasets
+    os.mkfifo(tmp_path / "c.json")
+    stop = threading.Event()
+
+    def feed() -> None:  # without the check the reader gets "{}" and the sweep runs: a failure, not a hang
+        while not stop.is_set():
+            try:
+                fd = os.open(tmp_path / "c.json", os.O_WRONLY | os.O_NONBLOCK)
+            except OSError:
+                stop.wait(0.05)
+                continue
+            with os.fdopen(fd, "w") as pipe:
+                pipe.write("{}")
+            return
+
+    threading.Thread(target=feed, daemon=True).start()
+    try:
+        code = main(["sweep", str(good), "--tile-size", "32", "--overlap", "0", "--scheduler", "synchronous",
+                     "--config", str(tmp_path / "c.json"), "--out", str(tmp_path / "o"), "--no-progress"])
+    finally:
+        stop.set()
+    assert code == 2
+    assert capsys.readouterr().err.strip() == (f"ifmi sweep: error: {tmp_path / 'c.json'}: is a FIFO, device or "
+                                               "socket, not a configuration file; expected a regular file")
+    assert not (tmp_path / "o").exists()
 
 
 def test_two_datasets_of_one_name_are_distinct_cells(tmp_path):

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ifmi.tiling import (TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_layout, tile_size_px,
-                         tiles_from_panorama)
+from ifmi.fourier_mellin import FourierMellin, FourierMellinConfig, max_tile_count
+from ifmi.tiling import (TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_grid_shape, tile_layout,
+                         tile_size_px, tiles_from_panorama)
 
 
 def test_non_overlapping_tiles_cover_the_circle():
@@ -146,3 +147,22 @@ def test_strongest_tiles_rejects_bad_input():
         strongest_tiles_per_column(np.zeros(47), layout, 1)
     with pytest.raises(ValueError, match="count >= 1"):
         strongest_tiles_per_column(np.zeros(48), layout, 0)
+
+
+@pytest.mark.parametrize("shape, config", [((100, 640), TilingConfig(tile_size=64)),
+                                           ((128, 512), TilingConfig(tile_size=64, overlap=0.5)),
+                                           ((92, 512), TilingConfig(overlap=0.999)),
+                                           ((128, 1024), TilingConfig(tile_size=0.1, overlap=0.3))])
+def test_grid_shape_is_the_layouts(shape, config):
+    assert tile_grid_shape(shape, config=config) == tile_layout(shape, config=config).grid_shape
+
+
+def test_registration_refuses_more_tiles_than_its_memory_budget():
+    # Before: any count was taken, and a near-1 overlap registered 31232 tiles of 32 px per frame (1.6 GiB).
+    assert max_tile_count(32) == 12483 and max_tile_count(64) == 3120
+    # A larger log-polar grid takes more memory per tile, so fewer tiles.
+    assert max_tile_count(32, config=FourierMellinConfig(log_polar_angles=128, log_polar_radii=128)) == 2299
+    FourierMellin(32, 12483)
+    with pytest.raises(ValueError, match=r"^tile count must be from 1 to 12483 for 32 px tiles \(registering a "
+                                         r"frame pair within 1 GiB\), got 31232$"):
+        FourierMellin(32, 31232)

@@ -2,21 +2,12 @@
 
 from __future__ import annotations
 
-import os
 import sys
-from pathlib import Path
 
 from ..calib_fit import TARGETS, percent_below
-from ..errors import InputError, OutputError
-from ..io.camera_file import KALIBR_FILE, OCAMCALIB_FILE, calibration_path, convert_calibration_file
-from ..io.dataset import refuse_output_in_datasets
+from ..io.calibration_conversion import convert_calibration_file
 
-__all__ = ["add_parser", "run", "fit_summary", "check_out_suffix", "check_out_spares_inputs",
-           "frame_change_note"]
-
-# Suffixes that ifmi.io.camera_file.read_camera reads as a Kalibr camchain (any other: OCamCalib
-# text); --out must carry one exactly when the target is a Kalibr model, so the file reads back.
-_KALIBR_SUFFIXES = (".yaml", ".yml")
+__all__ = ["add_parser", "run", "fit_summary", "frame_change_note"]
 
 
 def add_parser(subparsers) -> None:
@@ -43,61 +34,7 @@ def fit_summary(fit) -> str:
             f"{region}")
 
 
-def check_out_suffix(out, target: str) -> None:
-    """Refuse an ``--out`` whose suffix would make the written file read back in the other format.
-
-    Raises
-    ------
-    InputError
-        A Kalibr target without a ``.yaml``/``.yml`` suffix, or ``ocamcalib`` with one.
-    """
-    suffix = Path(out).suffix
-    is_kalibr_name = suffix.lower() in _KALIBR_SUFFIXES
-    if target == "ocamcalib" and is_kalibr_name:
-        raise InputError(out, f"--out: an ocamcalib model is written as OCamCalib text, but a {suffix} file is "
-                              f"read as Kalibr YAML; expected another suffix, e.g. calib_results.txt")
-    if target != "ocamcalib" and not is_kalibr_name:
-        raise InputError(out, f"--out: a {target} model is written as a Kalibr camchain, which is read back "
-                              f"from a .yaml or .yml file only; expected e.g. camera.yaml, got suffix "
-                              f"{suffix or '(none)'}")
-
-
-def check_out_spares_inputs(source, out) -> None:
-    """Refuse an ``--out`` that would replace the input calibration or harm its dataset, --force or not.
-
-    The dataset is ``source`` when it is a folder, else the folder of the
-    calibration file when it holds ``images/``: a second calibration file
-    there (camera.yaml beside calib_results.txt) would make it unreadable.
-
-    Raises
-    ------
-    OutputError
-        ``out`` is the input calibration file, a second calibration file of
-        the dataset, or one of its files or folders
-        (:func:`ifmi.io.dataset.dataset_conflict`).
-    """
-    source = Path(source)
-    calib = calibration_path(source) if source.is_dir() else source
-    try:
-        same = os.path.samefile(calib, out)
-    except OSError:  # out does not exist yet (or calib does not: reading it says so)
-        same = False
-    if same:
-        raise OutputError(out, f"is the input calibration {calib}; choose another output path")
-    dataset = source if source.is_dir() else calib.parent
-    if not (source.is_dir() or (dataset / "images").is_dir()):
-        return
-    real = Path(os.path.realpath(out))
-    second = real.name in (OCAMCALIB_FILE, KALIBR_FILE) and not real.exists()
-    if second and real.parent == Path(os.path.realpath(dataset)):
-        raise OutputError(out, f"would put a second calibration into the dataset {dataset}, which holds "
-                               f"{calib.name} (a dataset holds one); choose another output path")
-    refuse_output_in_datasets(out, [dataset])
-
-
 def run(args) -> int:
-    check_out_suffix(args.out, args.to)
-    check_out_spares_inputs(args.calib, args.out)
     fit = convert_calibration_file(args.calib, args.to, args.out, overwrite=args.force)
     print(f"{args.out}: {args.to} fitted to {args.calib}: {fit_summary(fit)}")
     if not fit.success:

@@ -122,7 +122,9 @@ def _add_config_options(p) -> None:
     g.add_argument("--tile-size", type=float, metavar="N",
                    help="tile side: pixels if >= 1 (at least 8), else a fraction of the panorama "
                         "width giving at least 8 px (default: width / 16 within 32..64 px)")
-    g.add_argument("--overlap", type=float, help="tile overlap fraction in [0, 1)")
+    g.add_argument("--overlap", type=float,
+                   help="tile overlap fraction in [0, 1); a layout with more tiles per frame than 1 GiB "
+                        "registers (12483 of 32 px) is refused")
     g.add_argument("--th-pr", type=float, help="smallest accepted peak ratio")
     g.add_argument("--th-pnr", type=float, help="smallest accepted peak-to-noise ratio")
     g.add_argument("--points-per-tile", type=int, choices=(1, 5, 9), help="flow points per tile")

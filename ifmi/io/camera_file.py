@@ -2,7 +2,8 @@
 
 A DATASET folder holds exactly one of the two; :func:`calibration_path`
 finds it, :func:`read_camera` reads either format by its file name, and
-:func:`write_camera` writes a model in its own format.
+:func:`write_camera` writes a model in its own format. Converting one
+model into another is :mod:`ifmi.io.calibration_conversion`'s.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from .kalibr import read_kalibr, write_kalibr
 from .text_file import refuse_special_file
 
 __all__ = ["OCAMCALIB_FILE", "KALIBR_FILE", "calibration_path", "read_camera", "write_camera",
-           "camera_file_name", "convert_calibration_file"]
+           "camera_file_name"]
 
 OCAMCALIB_FILE = "calib_results.txt"
 KALIBR_FILE = "camera.yaml"
@@ -66,45 +67,3 @@ def write_camera(folder: str | os.PathLike, model) -> Path:
     else:
         write_kalibr(path, model)
     return path
-
-
-def convert_calibration_file(source: str | os.PathLike, target: str, out: str | os.PathLike, *,
-                             overwrite: bool = False):
-    """Fit a ``target`` model to the calibration at ``source`` and write it to ``out``.
-
-    Parameters
-    ----------
-    source : path
-        ``calib_results.txt``, ``camera.yaml`` or a dataset folder holding one.
-    target : str
-        One of :data:`ifmi.calib_fit.TARGETS`; ``ocamcalib`` is written as
-        OCamCalib text, the others as a Kalibr camchain.
-    out : path
-    overwrite : bool, keyword-only
-        Replace an existing ``out`` (otherwise an error).
-
-    Returns
-    -------
-    ifmi.calib_fit.CalibrationFit
-
-    Raises
-    ------
-    InputError
-        Unreadable source, an existing ``out``, or a source that no model converts.
-    """
-    from ..calib_fit import fit_camera_model
-
-    source, out = Path(source), Path(out)
-    path = calibration_path(source) if source.is_dir() else source
-    model = read_camera(path)
-    if out.exists() and not overwrite:
-        raise InputError(out, "exists; choose another --out or pass --force")
-    try:
-        fit = fit_camera_model(model, target)
-    except ValueError as exc:
-        raise InputError(path, str(exc)) from None
-    if isinstance(fit.model, OcamModel):
-        write_calib(out, fit.model)
-    else:
-        write_kalibr(out, fit.model)
-    return fit

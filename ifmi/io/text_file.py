@@ -11,7 +11,7 @@ __all__ = ["read_text_file", "read_failure", "number_from_text", "refuse_special
 
 
 def read_text_file(path: str | os.PathLike, *, what: str, encoding: str = "utf-8",
-                   errors: str = "strict") -> str:
+                   errors: str = "strict", max_bytes: int | None = None) -> str:
     """The text of a file, or an :class:`~ifmi.errors.InputError` naming it.
 
     Parameters
@@ -20,7 +20,11 @@ def read_text_file(path: str | os.PathLike, *, what: str, encoding: str = "utf-8
     what : str, keyword-only
         What the file is, for messages (``"calibration file"``).
     encoding, errors : str, keyword-only
-        As for :meth:`pathlib.Path.read_text`.
+        As for :meth:`pathlib.Path.read_text` (line ends are read as ``\\n`` too).
+    max_bytes : int, optional, keyword-only
+        Largest file accepted; a larger one is refused before it is read
+        (from its size on disk, or after ``max_bytes + 1`` bytes when it
+        grows meanwhile), so a huge file named by mistake costs no memory.
 
     Returns
     -------
@@ -29,21 +33,40 @@ def read_text_file(path: str | os.PathLike, *, what: str, encoding: str = "utf-8
     Raises
     ------
     InputError
-        A FIFO, device or socket (:func:`refuse_special_file`), or as :func:`read_failure` words it.
+        A FIFO, device or socket (:func:`refuse_special_file`), a file over
+        ``max_bytes``, or as :func:`read_failure` words it.
     """
     path = Path(path)
     refuse_special_file(path, what=what)
     try:
-        return path.read_text(encoding=encoding, errors=errors)
+        if max_bytes is None:
+            return path.read_text(encoding=encoding, errors=errors)
+        data = _bytes_within(path, max_bytes, what=what)
+        # Universal newlines, as read_text reads them.
+        return data.decode(encoding, errors).replace("\r\n", "\n").replace("\r", "\n")
     except (OSError, UnicodeDecodeError) as exc:
         raise read_failure(path, exc, what=what, encoding=encoding) from None
+
+
+def _bytes_within(path: Path, max_bytes: int, *, what: str) -> bytes:
+    """The bytes of the file at ``path``; an :class:`~ifmi.errors.InputError` when there are more than ``max_bytes``."""
+    with open(path, "rb") as file:
+        size = os.fstat(file.fileno()).st_size
+        data = b"" if size > max_bytes else file.read(max_bytes + 1)
+    if size > max_bytes or len(data) > max_bytes:
+        found = f"{size} bytes" if size > max_bytes else f"over {max_bytes} bytes"
+        raise InputError(path, f"is {found}; expected a {what} of at most {max_bytes} bytes")
+    return data
 
 
 def refuse_special_file(path: str | os.PathLike, *, what: str) -> None:
     """Refuse a ``path`` that exists but is a FIFO, device or socket (reading it could block forever).
 
-    For files a command finds by name (side files, files of a result folder),
-    not for files the user names, which may be pipes (``<(...)``).
+    Serves files a command finds by name (side files, files of a result
+    folder) and the text files a user names (calibration, trajectory and
+    configuration files, through :func:`read_text_file`): a FIFO with no
+    writer blocks ``open`` forever. A pipe of the shell's ``<(...)`` is
+    refused too; such text is passed as a regular file.
 
     Raises
     ------
