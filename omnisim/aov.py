@@ -32,17 +32,32 @@ AOV_NAMES = ("depth", "normal")
 def aov_names_from_text(text) -> tuple:
     """AOV names from ``"depth,normal"`` (or a sequence of names), in :data:`AOV_NAMES` order.
 
+    An empty (or blank) text or sequence means no AOVs; otherwise every
+    name must be known, non-empty and given once.
+
     Raises
     ------
     ValueError
-        An unknown name; the message lists the known ones.
+        An unknown name (the message lists the known ones), an empty name
+        (``"depth,"``, ``",,"``) or a name given twice (``"depth,depth"``);
+        the message says what was expected and what was given.
     """
-    parts = text.split(",") if isinstance(text, str) else list(text or ())
-    names = {part.strip() for part in parts if part.strip()}
-    unknown = sorted(names - set(AOV_NAMES))
+    if isinstance(text, str):
+        given = text if text.strip() else ""
+        parts = [part.strip() for part in text.split(",")] if given else []
+    else:
+        parts = [str(part).strip() for part in (text or ())]
+        given = ",".join(parts)
+    known = ", ".join(AOV_NAMES)
+    if "" in parts:
+        raise ValueError(f"expected comma-separated AOV names from {known}, got an empty name in {given!r}")
+    unknown = sorted(set(parts) - set(AOV_NAMES))
     if unknown:
-        raise ValueError(f"expected AOV names from {', '.join(AOV_NAMES)}, got {', '.join(unknown)}")
-    return tuple(name for name in AOV_NAMES if name in names)
+        raise ValueError(f"expected AOV names from {known}, got {', '.join(unknown)}")
+    twice = sorted({part for part in parts if parts.count(part) > 1})
+    if twice:
+        raise ValueError(f"expected each AOV name once, got {', '.join(twice)} more than once in {given!r}")
+    return tuple(name for name in AOV_NAMES if name in parts)
 
 
 def aov_integrator_dict() -> dict:

@@ -14,9 +14,11 @@ scene is loaded once per worker, not once per frame.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 from distributed import WorkerPlugin
 
-__all__ = ["OmnisimWorkerPlugin", "map_on_cluster"]
+__all__ = ["OmnisimWorkerPlugin", "cluster_client", "map_on_client", "map_on_cluster"]
 
 PLUGIN_NAME = "omnisim"
 
@@ -82,22 +84,12 @@ def _connect(client_class, scheduler: str):
                                         f"{first_line(exc)}") from None
 
 
-def map_on_cluster(factory, run, plan, jobs: list, *, key: str, variant: str,
-                   workers: int | None = None, scheduler: str | None = None):
-    """Run ``run(factory(plan), job)`` for every job on Dask workers; yield results as they finish.
+@contextmanager
+def cluster_client(*, variant: str, workers: int | None = None, scheduler: str | None = None):
+    """A Dask client whose workers have the omnisim plugin; closed (with its local cluster) on exit.
 
     Parameters
     ----------
-    factory : callable
-        ``factory(plan)`` builds a worker's state once (picklable by reference).
-    run : callable
-        ``run(state, job)`` computes one job's result (picklable by reference).
-    plan : object
-        Shared input, sent to each worker once.
-    jobs : list
-        Job descriptions.
-    key : str, keyword-only
-        Identifies ``plan``; a worker rebuilds its state when the key changes.
     variant : str, keyword-only
         Mitsuba variant for the workers.
     workers : int, optional, keyword-only
@@ -108,12 +100,16 @@ def map_on_cluster(factory, run, plan, jobs: list, *, key: str, variant: str,
 
     Yields
     ------
-    object
-        The results, in completion order.
+    distributed.Client
+
+    Raises
+    ------
+    InputError
+        Named ``--scheduler``: see :func:`_connect`.
     """
     import os
 
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, LocalCluster
 
     threads = None
     if scheduler:
@@ -125,11 +121,59 @@ def map_on_cluster(factory, run, plan, jobs: list, *, key: str, variant: str,
         client = Client(cluster)
     try:
         client.register_plugin(OmnisimWorkerPlugin(variant, threads))
-        [shared] = client.scatter([plan], broadcast=True)
-        futures = [client.submit(_run_on_worker, factory, run, shared, key, job, pure=False) for job in jobs]
-        for future in as_completed(futures):
-            yield future.result()
+        yield client
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def map_on_client(client, factory, run, plan, jobs: list, *, key: str):
+    """Run ``run(factory(plan), job)`` for every job on the workers of ``client``; yield results as they finish.
+
+    Parameters
+    ----------
+    client : distributed.Client
+        From :func:`cluster_client` (its workers have the omnisim plugin).
+    factory : callable
+        ``factory(plan)`` builds a worker's state once (picklable by reference).
+    run : callable
+        ``run(state, job)`` computes one job's result (picklable by reference).
+    plan : object
+        Shared input, sent to each worker once.
+    jobs : list
+        Job descriptions.
+    key : str, keyword-only
+        Identifies ``plan``; a worker rebuilds its state when the key changes.
+
+    Yields
+    ------
+    object
+        The results, in completion order.
+    """
+    from distributed import as_completed
+
+    [shared] = client.scatter([plan], broadcast=True)
+    futures = [client.submit(_run_on_worker, factory, run, shared, key, job, pure=False) for job in jobs]
+    for future in as_completed(futures):
+        yield future.result()
+
+
+def map_on_cluster(factory, run, plan, jobs: list, *, key: str, variant: str,
+                   workers: int | None = None, scheduler: str | None = None):
+    """:func:`map_on_client` on a client of :func:`cluster_client`, opened for these jobs alone.
+
+    Parameters
+    ----------
+    factory, run, plan, jobs, key
+        See :func:`map_on_client`.
+    variant, workers, scheduler
+        See :func:`cluster_client`.
+
+    Yields
+    ------
+    object
+        The results, in completion order.
+    """
+    with cluster_client(variant=variant, workers=workers, scheduler=scheduler) as client:
+        yield from map_on_client(client, factory, run, plan, jobs, key=key)

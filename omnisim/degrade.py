@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -106,6 +107,28 @@ def _source_file_bytes(path: Path, what: str) -> bytes:
         raise read_failure(path, exc, what=what) from None
 
 
+def _source_copies(dataset) -> dict:
+    """The files copied as they are into the output folder: ``{name in the output: bytes}``.
+
+    Calibration always; ``groundtruth.txt`` and ``meta.json`` (copied as
+    ``source_meta.json``) when anything stands at their names, so that a
+    folder, FIFO or dangling link there is refused instead of skipped.
+
+    Raises
+    ------
+    InputError
+        The message names the source file: see :func:`_source_file_bytes`.
+    """
+    copies = {dataset.calib_path.name: _source_file_bytes(dataset.calib_path, "calibration file")}
+    optional = (("groundtruth.txt", "groundtruth.txt", "trajectory file"),
+                ("meta.json", "source_meta.json", "meta.json file"))
+    for name, out_name, what in optional:
+        path = dataset.root / name
+        if os.path.lexists(path):
+            copies[out_name] = _source_file_bytes(path, what)
+    return copies
+
+
 def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int = 0,
                     progress: bool = True) -> DegradeResult:
     """Write a copy of a dataset folder with capture effects applied to every image.
@@ -158,17 +181,14 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
         "format": META_FORMAT,
         "degrade": DEGRADE_VERSION,
     }
+    copies = _source_copies(dataset)  # read (or refused) before the output folder is touched
     meta = open_output_folder(out_dir, identity)
     images_dir = out_dir / "images"
     meta.update({"source": str(dataset.root.resolve()), "effects": asdict(effects), "seed": int(seed),
                  "frames": len(names), "versions": package_versions(("numpy", "opencv-python-headless",
                                                                      "omnisim-ifmi"))})
-    atomic_write_bytes(out_dir / dataset.calib_path.name, _source_file_bytes(dataset.calib_path, "calibration file"))
-    if dataset.groundtruth_path is not None:
-        atomic_write_bytes(out_dir / "groundtruth.txt", _source_file_bytes(dataset.groundtruth_path, "trajectory file"))
-    source_meta = dataset.root / "meta.json"
-    if source_meta.exists():
-        atomic_write_bytes(out_dir / "source_meta.json", _source_file_bytes(source_meta, "meta.json file"))
+    for name, data in copies.items():
+        atomic_write_bytes(out_dir / name, data)
     atomic_write_json(out_dir / "meta.json", meta)
 
     out_names = [Path(name).with_suffix(".png").name for name in names]

@@ -55,6 +55,20 @@ MAX_ENTRY_TRIANGLES = 20_000_000
 # camera renders right up to a half-width of 2e9 m, black from 4e9 m and not at all from 4e18 m,
 # with no error from Mitsuba; half the largest good size is allowed.
 MAX_PLACED_REACH_M = 1e9
+# Largest error of a texture lookup that float32 texture coordinates may cause, in texels. The
+# renderer interpolates a hit's texture coordinates in float32 over its triangle, so they are off
+# by about 2^-24 of the triangle's span in texture repeats, however exactly its vertices store
+# them. Measured on a flat ground of 64 cells under a camera 1.3 m up (512 px grass photo, 64 px
+# images, 4 spp) against the same texture on a 60 m ground: equal to PNG's rounding up to 0.012
+# texel (400 repeats across a cell), 0.9 % of the pixels off by up to 3 levels at 0.024 and 19 %
+# by up to 11 at 0.098; the texture is noise from about 1 texel (a 2e7 m ground of 512 cells).
+# Storing each cell's coordinates wrapped to its own repeat (in float64, then cast) changed none
+# of these. Chosen between the last clean and the first deviating measurement.
+MAX_TEXEL_ERROR = 1.0 / 64.0
+# Relative step of float32 numbers (half their machine epsilon): a coordinate's rounding error.
+FLOAT32_STEP = 2.0 ** -24
+# Triangles whose texture span is measured at once (a bounded temporary array).
+SPAN_CHUNK_TRIANGLES = 1 << 20
 
 _SCALAR_TYPES = {"int": int, "float": float, "bool": bool, "str": str, "material": str, "file": str}
 _LIST_TYPES = {"str[]": str, "material[]": str, "photo[]": str}
@@ -320,6 +334,15 @@ def _resolve(p: Param, value, *, path: Path, where: str, materials):
     return value
 
 
+def _largest_uv_span(uvs: np.ndarray, faces: np.ndarray) -> float:
+    """The largest difference of one texture coordinate (u or v) between two vertices of one triangle."""
+    largest = 0.0
+    for start in range(0, len(faces), SPAN_CHUNK_TRIANGLES):
+        a, b, c = (uvs[faces[start:start + SPAN_CHUNK_TRIANGLES, corner]] for corner in range(3))
+        largest = max(largest, float(np.abs(a - b).max()), float(np.abs(b - c).max()), float(np.abs(c - a).max()))
+    return largest
+
+
 class GeneratorContext:
     """What a generator may use: its checked parameters, a seeded RNG and the scene's meshes.
 
@@ -329,10 +352,11 @@ class GeneratorContext:
     """
 
     def __init__(self, spec: ObjectSpec, *, path, rng: np.random.Generator, groups: dict,
-                 appearances: dict):
+                 appearances: dict, texture_sides: Mapping[str, int] | None = None):
         self.spec, self.path, self.rng = spec, Path(path), rng
         self.index = spec.index
         self.groups, self.appearances = groups, appearances
+        self.texture_sides = dict(texture_sides or {})  # [textures.*] name -> larger side, pixels
         self.triangles = 0  # made so far, bounded by MAX_ENTRY_TRIANGLES
 
     def __getitem__(self, name: str):
@@ -346,7 +370,9 @@ class GeneratorContext:
         """Append ``mesh = (positions, faces, uvs)`` to the group of ``appearance`` with ``color``.
 
         Raises InputError once the entry's meshes exceed :data:`MAX_ENTRY_TRIANGLES` triangles, or
-        when a vertex lies farther than :data:`MAX_PLACED_REACH_M` from the origin (or is not finite).
+        when a vertex lies farther than :data:`MAX_PLACED_REACH_M` from the origin (or is not finite),
+        or when a triangle spans so many repeats of its appearance's texture that float32 texture
+        coordinates miss its texels by more than :data:`MAX_TEXEL_ERROR` (:meth:`_check_texture_span`).
         """
         self.triangles += len(mesh[1])
         if self.triangles > MAX_ENTRY_TRIANGLES:
@@ -357,7 +383,42 @@ class GeneratorContext:
             raise InputError(self.path, f"{self.spec.where()}: expected geometry within {MAX_PLACED_REACH_M:.3g} m "
                                         f"of the origin (float32 ray tracing loses larger surfaces; lower its "
                                         f"sizes or distances), got {reach:.3g} m")
+        self._check_texture_span(appearance, mesh)
         self.groups.setdefault(appearance, MeshGroup()).add(*mesh, color=color)
+
+    def _repeating_texture(self, appearance: str) -> tuple[str, int, float] | None:
+        """``(what, side in pixels, repeat length in texture coordinates)`` of the texture that
+        repeats over ``appearance``'s meshes, or None (a colour, or a photograph clamped to them)."""
+        look = self.appearances.get(appearance)
+        if look is None or look.photo:
+            return None
+        if look.image is not None:
+            side = int(max(look.image.shape[:2]))
+            return f"its own texture image ({side} px)", side, 1.0
+        texture = look.material.texture
+        if not texture or texture not in self.texture_sides:
+            return None
+        side = self.texture_sides[texture]
+        return f"texture {texture!r} ({side} px) of [materials.{appearance}]", side, look.material.tile
+
+    def _check_texture_span(self, appearance: str, mesh) -> None:
+        """Refuse a mesh one of whose triangles spans more than ``MAX_TEXEL_ERROR / (FLOAT32_STEP *
+        side)`` repeats of its repeating texture of ``side`` pixels: the renderer's float32
+        interpolation would scramble the texture there (a textured ground of 2e9 m, the largest
+        allowed, rendered noise with exit 0)."""
+        texture = self._repeating_texture(appearance)
+        _, faces, uvs = mesh
+        if texture is None or uvs is None or not len(faces):
+            return
+        what, side, tile = texture
+        span = _largest_uv_span(np.asarray(uvs, dtype=np.float64), np.asarray(faces)) / tile
+        limit = MAX_TEXEL_ERROR / (FLOAT32_STEP * side)
+        if not span <= limit:
+            raise InputError(self.path, f"{self.spec.where()}: one triangle spans {span:.3g} repeats of {what}, "
+                                        f"expected at most {limit:.3g} (the renderer interpolates "
+                                        f"texture coordinates in float32, which then miss the texels by more "
+                                        f"than 1/{1 / MAX_TEXEL_ERROR:g} of one); use smaller triangles (more "
+                                        "cells, smaller sizes) or a larger tile")
 
     def add_appearance(self, name: str, appearance: Appearance) -> None:
         """Declare a generated appearance (the name should include the object's index).

@@ -13,7 +13,8 @@ Without ``material`` each geometry keeps the file's own appearance:
   for 8-bit bitmaps); colour factors beside a texture are ignored (tools
   write arbitrary ones, trimesh a grey 0.4);
 * else per-vertex colours, 8-bit values mapped to [0, 1] (used as linear
-  reflectance, which is what Mitsuba's own PLY loader expects);
+  reflectance, which is what Mitsuba's own PLY loader expects; an OBJ's
+  float colours, and its materials' ``Kd``, must lie in [0, 1]);
 * else per-face colours (each face gets its own vertices);
 * else the material's base (diffuse) colour, mapped to [0, 1];
 * else mid grey (an STL file has no appearance).
@@ -23,7 +24,9 @@ from __future__ import annotations
 
 import base64
 import io
+import itertools
 import json
+import re
 import stat
 import struct
 import warnings
@@ -45,6 +48,11 @@ __all__ = ["MeshPart", "mesh_parts_from_file", "mesh_side_files"]
 DEFAULT_GREY = (0.5, 0.5, 0.5)
 # Largest value of the 8-bit colours trimesh stores.
 UINT8_MAX = 255.0
+# An OBJ vertex line (its values after ``v``), and the columns of its colour values (``v x y z r g b``).
+_OBJ_VERTEX_LINE = re.compile(rb"^[ \t]*v[ \t]+([^\r\n#]*)", flags=re.MULTILINE)
+_OBJ_COLOUR_COLUMNS = (3, 4, 5)
+# A material library's diffuse colour line (its values after ``Kd``, any case as the reader takes it).
+_MTL_DIFFUSE_LINE = re.compile(rb"^[ \t]*[Kk][Dd][ \t]+([^\r\n]*)", flags=re.MULTILINE)
 
 
 @dataclass(frozen=True)
@@ -124,7 +132,9 @@ def mesh_parts_from_file(path) -> list[MeshPart]:
     ------
     InputError
         The file cannot be read, holds no triangles, ends before the rows
-        its (PLY) header declares or names an OBJ vertex 0.
+        its (PLY) header declares or names an OBJ vertex 0; or an OBJ
+        vertex colour or a diffuse colour (``Kd``) of its material library
+        is not a number in [0, 1] (the message names the file and line).
 
     Warns
     -----
@@ -141,7 +151,9 @@ def mesh_parts_from_file(path) -> list[MeshPart]:
         data = _bytes_or_none(path)  # one read serves both scans; an unreadable file is the reader's to report
         if data is not None:
             _check_obj_face_indices(path, data)
-            _warn_missing_obj_files(path, data)
+            libraries = _obj_material_files(path, data)  # one scan of the OBJ's lines for its side files
+            _check_obj_colours(path, data, [found for _, found, _ in libraries])
+            _warn_missing_obj_files(path, libraries)
     elif suffix in (".gltf", ".glb"):
         _warn_unreadable_gltf_textures(path)
     try:
@@ -230,6 +242,67 @@ def _check_obj_face_indices(path: Path, data: bytes) -> None:
             shown = b" ".join(words).decode("utf-8", errors="replace")
             raise InputError(path, f"line {line + 1} ({shown!r}): expected face indices from 1 (OBJ counts "
                                    f"from 1, negative ones back from the last), got 0")
+
+
+def _obj_vertex_colours(tails: list[bytes]) -> np.ndarray | None:
+    """The colours ``(V, 3)`` on the OBJ ``v`` lines whose values are ``tails``, as the reader takes
+    them: the 4th to 6th value when every ``v`` line has at least six values; else None (the reader
+    then keeps no vertex colours; words that are no numbers are its to report)."""
+    if not tails:
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            return np.loadtxt(tails, dtype=np.float64, usecols=_OBJ_COLOUR_COLUMNS, ndmin=2)
+        except ValueError:  # a line with fewer values, or a word that is no number
+            return None
+
+
+def _check_obj_colours(path: Path, data: bytes, libraries: list[Path | None]) -> None:
+    """Refuse colour values outside [0, 1] in the OBJ ``path`` (bytes ``data``) and its material
+    ``libraries`` (the files its ``mtllib`` lines name; None for one not found).
+
+    The reader keeps vertex colours (``v x y z r g b``, on every ``v`` line) and diffuse colours
+    (``Kd r g b``) as 8-bit values: NaN became 0 and anything else was clipped to [0, 1] without a
+    word (``Kd -0.3 0.5 nan`` rendered a green, 1.5 a white, exit 0). Colours are linear
+    reflectances, so values outside [0, 1] are refused, naming the file and the line.
+    """
+    tails = _OBJ_VERTEX_LINE.findall(data)
+    values = _obj_vertex_colours(tails)
+    outside = np.zeros((0, 3), bool) if values is None else ~((values >= 0.0) & (values <= 1.0))  # NaN too
+    if outside.any():
+        row, column = (int(i) for i in np.argwhere(outside)[0])
+        match = next(itertools.islice(_OBJ_VERTEX_LINE.finditer(data), row, None))
+        word = tails[row].split()[_OBJ_COLOUR_COLUMNS[column]]
+        _refuse_colour(path, data, match.start(), "vertex colour values", word.decode("ascii", "replace"))
+    for library in libraries:
+        text = _bytes_or_none(library) if library is not None else None
+        if text is not None:
+            _check_mtl_colours(library, text)
+
+
+def _check_mtl_colours(path: Path, data: bytes) -> None:
+    """Refuse ``Kd`` lines of the material library ``path`` (bytes ``data``) whose values are numbers
+    outside [0, 1] (see :func:`_check_obj_colours`); a line the reader cannot parse (``Kd spectral
+    f.rfl``) is the reader's to skip."""
+    for match in re.finditer(_MTL_DIFFUSE_LINE, data):
+        words = match.group(1).split(b"#")[0].split()
+        try:
+            values = [float(word) for word in words]  # as the reader parses them
+        except ValueError:
+            continue
+        outside = [word for word, value in zip(words, values) if not 0.0 <= value <= 1.0]  # NaN too
+        if outside:
+            _refuse_colour(path, data, match.start(), "diffuse colour (Kd) values",
+                           outside[0].decode("ascii", "replace"))
+
+
+def _refuse_colour(path: Path, data: bytes, start: int, what: str, bad: str) -> None:
+    """Raise the one-line error for the colour value ``bad`` on the line of ``data`` that begins at ``start``."""
+    end = data.find(b"\n", start)
+    shown = data[start:end if end >= 0 else len(data)].decode("utf-8", errors="replace").strip()
+    line = data.count(b"\n", 0, start) + 1
+    raise InputError(path, f"line {line} ({shown!r}): expected {what} in [0, 1] (linear reflectance), got {bad}")
 
 
 def _check_ply_rows(path: Path, mesh) -> None:
@@ -322,12 +395,12 @@ def _check_not_special(path: Path, named: Path) -> None:
         raise InputError(path, f"names {named.name}, which is not a regular file; expected a file to read")
 
 
-def _warn_missing_obj_files(path: Path, data: bytes) -> None:
-    """One warning naming the material libraries and diffuse textures the OBJ ``path`` (bytes ``data``)
-    needs that are not there, or that are there but hold no image (the reader then drops them without
-    a word)."""
+def _warn_missing_obj_files(path: Path, libraries: list) -> None:
+    """One warning naming the material libraries and diffuse textures the OBJ ``path`` needs
+    (``libraries``: :func:`_obj_material_files`) that are not there, or that are there but hold no
+    image (the reader then drops them without a word)."""
     missing = []
-    for library, found, textures in _obj_material_files(path, data):
+    for library, found, textures in libraries:
         if found is None:
             missing.append(f"material library {library} not found")
             continue

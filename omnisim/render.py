@@ -17,6 +17,7 @@ is refused rather than mixed.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import os
@@ -597,21 +598,65 @@ def frame_plan(scene_path, *, frames: int | None = None, seed: int | None = None
 
 
 def frame_results(plan: FramePlan, jobs: list, *, workers: int | None = None, scheduler: str | None = None,
-                  renderer: FrameRenderer | None = None):
+                  renderer: FrameRenderer | None = None, client=None):
     """Iterator of ``(k, files)`` for the jobs ``(k, kinds)``: in this process, or on a Dask cluster.
 
     ``files`` maps relative paths (``images/000003.png``, ``depth/000003.npy``) to bytes.
     ``renderer`` (of ``plan``) is used in this process instead of loading the scene again.
+    ``client`` (of :func:`omnisim.cluster.cluster_client`) is a cluster already connected,
+    used instead of ``workers`` or ``scheduler``.
     """
-    if workers or scheduler:
-        from .cluster import map_on_cluster
+    if client is not None or workers or scheduler:
+        from .cluster import map_on_client, map_on_cluster
 
-        yield from map_on_cluster(FrameRenderer, render_frame_files, plan, jobs, key=plan.key,
-                                  variant=plan.variant, workers=workers, scheduler=scheduler)
+        if client is not None:
+            yield from map_on_client(client, FrameRenderer, render_frame_files, plan, jobs, key=plan.key)
+        else:
+            yield from map_on_cluster(FrameRenderer, render_frame_files, plan, jobs, key=plan.key,
+                                      variant=plan.variant, workers=workers, scheduler=scheduler)
         return
     renderer = renderer if renderer is not None else FrameRenderer(plan)
     for job in jobs:
         yield render_frame_files(renderer, job)
+
+
+def _check_parallel_options(scene_path, workers: int | None, scheduler: str | None) -> None:
+    """Refuse a ``--workers`` count this machine cannot run or a blank ``--scheduler`` address.
+
+    Raises
+    ------
+    InputError
+        The message names the option, what it expects and what it got.
+    """
+    if workers is not None and not 1 <= workers <= max_local_workers():
+        raise InputError(scene_path, f"--workers: expected >= 1 and at most {max_local_workers()} (the CPUs this "
+                                     f"process may use), got {workers}")
+    if scheduler is not None and not scheduler.strip():
+        raise InputError("--scheduler", f"expected the address of a Dask scheduler (e.g. tcp://HOST:8786), "
+                                        f"got {scheduler!r}")
+
+
+def _cluster_for(plan: FramePlan, out_dir: Path, *, workers: int | None, scheduler: str | None):
+    """The context of a Dask client for the frames still to render into ``out_dir``, or a null context.
+
+    Nothing is written: the folder is checked as :func:`check_output_folder` checks it.
+    No cluster is started when neither ``workers`` nor ``scheduler`` is given or when
+    every frame is already there; otherwise the cluster is started or connected when
+    the context is entered, so that an unusable ``--scheduler`` fails before the
+    output folder is created.
+    """
+    from contextlib import nullcontext
+
+    if not (workers or scheduler):
+        return nullcontext()
+    n = plan.config.trajectory.frames
+    previous = check_output_folder(out_dir, _dataset_identity(plan.config, plan.seed, plan.variant))
+    if previous is not None and not _pending_jobs(out_dir, copy.deepcopy(previous), n,
+                                                  ("images",) + plan.aovs):
+        return nullcontext()
+    from .cluster import cluster_client
+
+    return cluster_client(variant=plan.variant, workers=workers, scheduler=scheduler)
 
 
 def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int | None = None,
@@ -653,14 +698,13 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     Raises
     ------
     InputError
-        Bad scene file or values, or an output folder holding another render;
-        raised before anything is written.
+        Bad scene file or values, an output folder holding another render, or a
+        ``scheduler`` that is blank or cannot be connected to; raised before
+        anything is written.
     OutputError
         A file cannot be written (the message names it and the OS reason).
     """
-    if workers is not None and not 1 <= workers <= max_local_workers():
-        raise InputError(scene_path, f"--workers: expected >= 1 and at most {max_local_workers()} (the CPUs this "
-                                     f"process may use), got {workers}")
+    _check_parallel_options(scene_path, workers, scheduler)
     plan = frame_plan(scene_path, frames=frames, seed=seed, spp=spp, resolution=resolution,
                       variant=variant, aovs=aovs)
     config, seed, aovs, n = plan.config, plan.seed, plan.aovs, plan.config.trajectory.frames
@@ -673,20 +717,14 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
                       f"renders {local.renderer.spp} samples per pixel (meta.json: spp_rendered)",
                       InputWarning, stacklevel=2)
     out_dir = Path(out_dir)
-    meta = _open_dataset(scene_path, out_dir, config, seed, plan.variant, plan.trajectory,
-                         spp_rendered=local.renderer.spp)
     kinds = ("images",) + aovs
-    jobs = _pending_jobs(out_dir, meta, n, kinds)
-    rendered, black, start = 0, 0, time.perf_counter()
-    if jobs:
-        from tqdm import tqdm
-
-        with tqdm(total=n, initial=n - len(jobs), disable=not progress, unit="frame", desc=config.name) as bar:
-            for _, files in frame_results(plan, jobs, workers=workers, scheduler=scheduler, renderer=local):
-                _store_frame(out_dir, meta, files)
-                black += _is_black_frame(files)
-                rendered += 1
-                bar.update(1)
+    # A cluster is started (or a --scheduler connected) before the output folder is created.
+    with _cluster_for(plan, out_dir, workers=workers, scheduler=scheduler) as client:
+        meta = _open_dataset(scene_path, out_dir, config, seed, plan.variant, plan.trajectory,
+                             spp_rendered=local.renderer.spp)
+        jobs = _pending_jobs(out_dir, meta, n, kinds)
+        start = time.perf_counter()
+        rendered, black = _render_jobs(plan, jobs, out_dir, meta, renderer=local, client=client, progress=progress)
     if black:
         warnings.warn(f"{scene_path}: {black} of the {rendered} frames rendered now are black (every pixel 0): "
                       "the camera sees no light (none in the scene, all enclosed, or a negative radiance)",
@@ -698,10 +736,33 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
                          seconds_per_frame=seconds / rendered if rendered else float("nan"))
 
 
-def _open_dataset(scene_path, out_dir: Path, config: SceneConfig, seed: int, variant: str,
-                  trajectory: WorldPoses, *, spp_rendered: int) -> dict:
-    """Check or create the folder, write calibration, ground truth and meta.json; return the meta."""
-    identity = {
+def _render_jobs(plan: FramePlan, jobs: list, out_dir: Path, meta: dict, *, renderer: FrameRenderer,
+                 client, progress: bool) -> tuple[int, int]:
+    """Render ``jobs`` (here, or on ``client``'s cluster when given) and store each frame's files.
+
+    Returns
+    -------
+    rendered, black : int
+        Frames rendered, and how many of them are black (every pixel 0).
+    """
+    rendered, black = 0, 0
+    if not jobs:
+        return rendered, black
+    from tqdm import tqdm
+
+    n = plan.config.trajectory.frames
+    with tqdm(total=n, initial=n - len(jobs), disable=not progress, unit="frame", desc=plan.config.name) as bar:
+        for _, files in frame_results(plan, jobs, renderer=renderer, client=client):
+            _store_frame(out_dir, meta, files)
+            black += _is_black_frame(files)
+            rendered += 1
+            bar.update(1)
+    return rendered, black
+
+
+def _dataset_identity(config: SceneConfig, seed: int, variant: str) -> dict:
+    """What an output folder's frames were made with: a rerun with another identity is refused."""
+    return {
         "scene_sha256": config.sha256,
         "seed": seed,
         "variant": variant,
@@ -709,7 +770,12 @@ def _open_dataset(scene_path, out_dir: Path, config: SceneConfig, seed: int, var
         "format": META_FORMAT,
         "renderer": RENDERER_VERSION,
     }
-    meta = open_output_folder(out_dir, identity)
+
+
+def _open_dataset(scene_path, out_dir: Path, config: SceneConfig, seed: int, variant: str,
+                  trajectory: WorldPoses, *, spp_rendered: int) -> dict:
+    """Check or create the folder, write calibration, ground truth and meta.json; return the meta."""
+    meta = open_output_folder(out_dir, _dataset_identity(config, seed, variant))
     meta.update({
         "scene_file": str(Path(scene_path).resolve()),
         "scene_name": config.name,

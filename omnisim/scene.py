@@ -24,7 +24,7 @@ from .geometry import MeshGroup
 from .lights import EnvmapLight, emitter_dict
 from .materials import Appearance, bsdf_dict
 from .settings import MAX_RADIANCE
-from .textures import texture_image
+from .textures import texture_image, texture_side
 
 # Parameters of a Mitsuba emitter that hold the light it gives (:func:`_check_file_values`).
 EMITTED_KEYS = ("radiance.value", "irradiance.value", "intensity.value", "data", "scale")
@@ -46,9 +46,11 @@ def scene_meshes(config: SceneConfig) -> tuple[dict, dict]:
     generators = registered_generators()
     appearances = {name: Appearance(material) for name, material in config.materials.items()}
     groups: dict[str, MeshGroup] = {}
+    sides = {name: texture_side(texture) for name, texture in config.textures.items()}
     for spec in config.objects:
         rng = np.random.default_rng([config.layout_seed, spec.index])
-        ctx = GeneratorContext(spec, path=config.path, rng=rng, groups=groups, appearances=appearances)
+        ctx = GeneratorContext(spec, path=config.path, rng=rng, groups=groups, appearances=appearances,
+                               texture_sides=sides)
         generators[spec.generator].function(ctx)
     return groups, appearances
 

@@ -14,7 +14,7 @@ import numpy as np
 from .settings import SettingError, check_fields, setting
 
 __all__ = ["BUNDLED_PHOTOS", "PhotoTexture", "NoiseTexture", "TEXTURE_SOURCES", "photo_texture",
-           "noise_texture", "texture_image", "linear_texture_from_image"]
+           "noise_texture", "texture_image", "texture_side", "linear_texture_from_image"]
 
 # Photographs shipped inside the scikit-image wheel (CC0 or public domain); the
 # package fetches others over the network, which is not available here.
@@ -192,3 +192,14 @@ def texture_image(texture: PhotoTexture | NoiseTexture, *, seed: int) -> np.ndar
         return photo_texture(texture.name, tint=texture.tint, brightness=texture.brightness)
     return noise_texture(texture.size, seed=texture.seed + seed, octaves=texture.octaves,
                          base_cells=texture.cells, color_a=texture.color_a, color_b=texture.color_b)
+
+
+def texture_side(texture: PhotoTexture | NoiseTexture) -> int:
+    """The larger side in pixels of the image :func:`texture_image` makes (without making a noise image)."""
+    if isinstance(texture, PhotoTexture):
+        import skimage.data
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return int(max(np.shape(getattr(skimage.data, texture.name)())[:2]))
+    return int(texture.size)

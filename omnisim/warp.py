@@ -335,6 +335,51 @@ def _frame_rows(model, settings: WarpSettings, k: int) -> tuple[np.ndarray, np.n
     return times, rotations_in_camera_frame(model, rotation_walk(settings, times))
 
 
+def _band_text(model, band: tuple[float, float]) -> str:
+    """``band`` for a message: sensor radii in pixels, or angles from the panorama axis in degrees."""
+    if isinstance(model, OcamModel):
+        return f"mirror band (radius {band[0]:.1f}..{band[1]:.1f} px)"
+    return f"lit band ({np.degrees(band[0]):.1f}..{np.degrees(band[1]):.1f} degrees from the panorama axis)"
+
+
+def _constant_value(pixels: np.ndarray) -> str | None:
+    """The one value of ``pixels`` ((N,) gray or (N, 3) colour) in words, or None when they differ."""
+    if not len(pixels) or np.any(pixels != pixels[0]):
+        return None
+    value = np.atleast_1d(pixels[0])
+    if not value.any():
+        return "0 (black)"
+    return f"gray level {int(value[0])}" if len(value) == 1 else f"colour {tuple(int(v) for v in value)}"
+
+
+def _usable_source_band(image_path: Path, model, source: np.ndarray) -> tuple[float, float]:
+    """The source's valid band (:func:`valid_source_band`), refused when it cannot make a sequence.
+
+    Raises
+    ------
+    InputError
+        Named ``image_path``: no lit band (a non-OCamCalib model), a band too thin or an
+        image too small for a round trip, or a band without texture: every pixel in it holds
+        one value (a black or flat image), so every rotation gives the same frame and the
+        ground truth could not be seen in the frames.
+    """
+    try:
+        band = valid_source_band(model, source)
+    except ValueError as exc:
+        raise InputError(image_path, str(exc)) from None
+    if not _comparable_pixels(model, band).any():
+        raise InputError(image_path, f"image of {model.height}x{model.width} px too small to warp: no "
+                                     f"pixel of its valid band lies {3 * _EDGE_PX:g} px inside the band "
+                                     "and the image edges (expected a larger image)")
+    h, w = model.size
+    grid = np.stack(np.mgrid[0:h, 0:w], axis=-1).astype(np.float64)
+    value = _constant_value(source[_inside(model, grid, band)])
+    if value is not None:
+        raise InputError(image_path, f"no texture: every pixel of its {_band_text(model, band)} is {value}, so "
+                                     "every rotation gives the same frame (expected an image with detail there)")
+    return band
+
+
 def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = WarpSettings(),
                  progress: bool = True) -> WarpResult:
     """Write a DATASET folder: the source warped through ``settings.frames`` orientations.
@@ -355,8 +400,9 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
     InputError
         Unreadable image or calibration, an image whose size differs from
         the calibration's, an image too small for any pixel of its valid
-        band to be compared after a round trip, or an output folder holding
-        something else.
+        band to be compared after a round trip, an image without texture in
+        its valid band (every pixel there one value: black or flat), or an
+        output folder holding something else.
     """
     image_path, calib_path, out_dir = Path(image_path), Path(calib_path), Path(out_dir)
     model = read_camera(calib_path)
@@ -368,14 +414,7 @@ def warp_dataset(image_path, calib_path, out_dir, *, settings: WarpSettings = Wa
         "calib_sha256": hashlib.sha256(calib_path.read_bytes()).hexdigest(),
         "settings": settings.identity(), "format": META_FORMAT, "warp": WARP_VERSION,
     }
-    try:
-        band = valid_source_band(model, source)
-    except ValueError as exc:
-        raise InputError(image_path, str(exc)) from None
-    if not _comparable_pixels(model, band).any():
-        raise InputError(image_path, f"image of {model.height}x{model.width} px too small to warp: no "
-                                     f"pixel of its valid band lies {3 * _EDGE_PX:g} px inside the band "
-                                     "and the image edges (expected a larger image)")
+    band = _usable_source_band(image_path, model, source)
     meta = open_output_folder(out_dir, identity)
     rotations = rotations_in_camera_frame(model, rotation_walk(settings))
     meta.update({"source": str(image_path.resolve()), "settings": settings.identity(), "frames": settings.frames,

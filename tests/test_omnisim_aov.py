@@ -230,6 +230,30 @@ def test_unknown_aov_is_one_line_error(tmp_path):
         render_dataset(_scene(tmp_path), tmp_path / "out", progress=False, aovs="depth,albedo")
 
 
+@pytest.mark.parametrize("aov, expected", [
+    (",,", "expected comma-separated AOV names from depth, normal, got an empty name in ',,'"),
+    ("depth,", "expected comma-separated AOV names from depth, normal, got an empty name in 'depth,'"),
+    ("depth,depth", "expected each AOV name once, got depth more than once in 'depth,depth'"),
+    ("normal, depth,normal", "expected each AOV name once, got normal more than once in 'normal, depth,normal'"),
+])
+def test_empty_or_repeated_aov_names_are_one_line_errors(tmp_path, capsys, aov, expected):
+    """``--aov ,,`` rendered no AOVs and ``--aov depth,depth`` depth once, both with exit 0."""
+    from omnisim.cli import main
+
+    scene = _scene(tmp_path, frames=1, size=16)
+    code = main(["render", str(scene), "--out", str(tmp_path / "out"), "--aov", aov, "--no-progress"])
+    assert code == 2
+    assert capsys.readouterr().err.strip() == f"omnisim render: error: {scene}: --aov: {expected}"
+    assert not (tmp_path / "out").exists()
+
+
+def test_no_aov_names_mean_no_aovs():
+    from omnisim.aov import aov_names_from_text
+
+    assert aov_names_from_text("") == aov_names_from_text(" ") == aov_names_from_text(()) == ()
+    assert aov_names_from_text(" normal,depth ") == aov_names_from_text(["normal", "depth"]) == ("depth", "normal")
+
+
 def test_timed_capture_needs_the_pose_after_the_last_frame(tmp_path):
     from omnisim.render import render_dataset
 

@@ -65,3 +65,30 @@ def test_scheduler_address_dask_cannot_use_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("omnisim render: error: --scheduler: cannot connect to a Dask scheduler at "
                           "'nonsense://x': unknown address scheme 'nonsense'") and "\n" not in err
+    assert not (tmp_path / "out").exists()  # was left behind: calibration, ground truth, meta.json
+
+
+@pytest.mark.parametrize("address", ["", "  "])
+def test_blank_scheduler_address_is_one_line(tmp_path, capsys, address):
+    """--scheduler "" (an unset variable) rendered in this process as if no option were given."""
+    from omnisim.cli import main
+
+    scene = _scene(tmp_path, frames=1, size=16)
+    assert main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress",
+                 "--scheduler", address]) == 2
+    assert capsys.readouterr().err.strip() == ("omnisim render: error: --scheduler: expected the address of a "
+                                               f"Dask scheduler (e.g. tcp://HOST:8786), got {address!r}")
+    assert not (tmp_path / "out").exists()
+
+
+def test_finished_render_needs_no_scheduler(tmp_path, capsys):
+    """A rerun with nothing left to render connects to no cluster, as before."""
+    from omnisim.cli import main
+
+    scene = _scene(tmp_path, frames=1, size=16)
+    out = tmp_path / "out"
+    assert main(["render", str(scene), "--out", str(out), "--no-progress"]) == 0
+    files = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != "meta.json"}
+    assert main(["render", str(scene), "--out", str(out), "--no-progress", "--scheduler", "nonsense://x"]) == 0
+    assert "0 rendered now" in capsys.readouterr().out
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != "meta.json"} == files

@@ -576,6 +576,51 @@ def test_obj_that_is_not_utf8_is_read(tmp_path):
     np.testing.assert_allclose(np.ptp(part.positions, axis=0), [2.0, 3.0, 0.0])
 
 
+@pytest.mark.parametrize("line, shown", [("v 0 1 0 0.5 -0.25 0.5", "-0.25"), ("v 0 1 0 nan 0.5 0.5", "nan"),
+                                         ("v 0 1 0 0.5 0.5 255", "255")])
+def test_obj_vertex_colour_outside_0_1_is_refused(tmp_path, line, shown):
+    """The reader stored vertex colours as 8 bits: a negative value or NaN became 0 (black) and 255
+    became 1, with exit 0."""
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "c.obj").write_text(f"# colours\nv 0 0 0 0 0 0\nv 1 0 0 1 1 1\n{line}\nf 1 2 3\n")
+    with pytest.raises(InputError) as caught:
+        mesh_parts_from_file(tmp_path / "c.obj")
+    assert str(caught.value) == (f"{tmp_path / 'c.obj'}: line 4 ({line!r}): expected vertex colour values in [0, 1] "
+                                 f"(linear reflectance), got {shown}")
+
+
+def test_obj_vertex_colours_in_0_1_are_kept(tmp_path):
+    import numpy as np
+
+    pytest.importorskip("trimesh")
+    from omnisim.meshes import mesh_parts_from_file
+
+    (tmp_path / "c.obj").write_text("v 0 0 0 0 0 0\nv 1 0 0 1 1 1\nv 0 1 0 0.2 0.6 1.0\nf 1 2 3\n")
+    (part,) = mesh_parts_from_file(tmp_path / "c.obj")
+    np.testing.assert_allclose(part.colors, [[0, 0, 0], [1, 1, 1], [0.2, 0.6, 1.0]], atol=0.5 / 255)
+
+
+@pytest.mark.parametrize("kd, shown", [("Kd -0.3 0.5 0.5", "-0.3"), ("Kd 0.3 nan 0.5", "nan"),
+                                       ("kd 0.3 0.5 1.5", "1.5")])
+def test_mtl_diffuse_colour_outside_0_1_is_one_line_exit_2(tmp_path, capsys, kd, shown):
+    """A material's Kd was stored as 8 bits: -0.3 and NaN became 0, 1.5 became 1, and the render
+    finished with exit 0."""
+    pytest.importorskip("trimesh")
+    from omnisim.cli import main
+
+    (tmp_path / "m.mtl").write_text(f"newmtl ok\nKd 0 0.5 1\nnewmtl bad\n{kd}\n")
+    (tmp_path / "m.obj").write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl bad\nf 1 2 3\n")
+    scene = write_scene(tmp_path, BASE + '[[objects]]\ngenerator = "mesh"\nfile = "m.obj"\n')
+    code = main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"])
+    assert code == 2
+    assert capsys.readouterr().err.strip() == (f"omnisim render: error: {tmp_path / 'm.mtl'}: line 4 ({kd!r}): "
+                                               "expected diffuse colour (Kd) values in [0, 1] (linear reflectance), "
+                                               f"got {shown}")
+    assert not (tmp_path / "out").exists()
+
+
 OBJ_HEAD = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\n"
 
 

@@ -130,6 +130,32 @@ def test_source_meta_json_that_is_no_file_is_one_line(source, tmp_path, capsys, 
     shown = "a folder" if kind == "folder" else "no regular file (a FIFO, device, socket or broken link)"
     assert capsys.readouterr().err.strip() == (f"omnisim degrade: error: {copy / 'meta.json'}: is {shown}; "
                                                "expected the source dataset's meta.json file")
+    assert not (tmp_path / "q").exists()
+
+
+@pytest.mark.parametrize("kind", ["folder", "fifo", "broken link"])
+def test_source_groundtruth_that_is_no_file_is_one_line(source, tmp_path, capsys, kind):
+    """A folder, FIFO or dangling link named groundtruth.txt in the source was skipped: the copy
+    had no ground truth, exit 0, and nothing said so."""
+    import os
+
+    if kind == "fifo" and not hasattr(os, "mkfifo"):
+        pytest.skip("no FIFOs on this system")
+    copy = tmp_path / "copy"
+    shutil.copytree(source, copy)
+    truth = copy / "groundtruth.txt"
+    truth.unlink()
+    if kind == "folder":
+        truth.mkdir()
+    elif kind == "fifo":
+        os.mkfifo(truth)
+    else:
+        truth.symlink_to(tmp_path / "nowhere.txt")
+    assert omnisim_main(["degrade", str(copy), "--out", str(tmp_path / "q"), "--no-progress"]) == 2
+    shown = "a folder" if kind == "folder" else "no regular file (a FIFO, device, socket or broken link)"
+    assert capsys.readouterr().err.strip() == (f"omnisim degrade: error: {truth}: is {shown}; "
+                                               "expected the source dataset's trajectory file")
+    assert not (tmp_path / "q").exists()
 
 
 def test_cli_reports_a_missing_dataset_in_one_line(tmp_path, capsys):

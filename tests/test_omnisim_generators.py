@@ -180,3 +180,60 @@ def test_relation_of_a_registered_generator_is_checked_and_listed(tmp_path, monk
         register_generator("wedge", Param("height", "float", 1.0, "metres"), relations=(Relation("width", "", fits),))
     with pytest.raises(ValueError, match="only a pair"):
         Param("distance", "float[3]", (1.0, 2.0, 3.0), "metres", ordered=True)
+
+
+TEXTURED = """
+[textures.noise]
+source = "noise"
+size = 256
+
+[materials.ground]
+texture = "noise"
+"""
+# A 256 px texture repeats at most 1/64 / (2^-24 * 256) = 1024 times across one triangle.
+LIMIT_REPEATS = 1024
+
+
+@pytest.mark.parametrize("repeats, refused", [(LIMIT_REPEATS, False), (1100, True)])
+def test_ground_cells_spanning_too_many_texture_repeats_are_refused(tmp_path, repeats, refused):
+    """A textured ground of 2e9 m (within the geometry bound) rendered noise: float32 texture
+    coordinates interpolated across cells of millions of repeats miss the texels. Refused where one
+    cell spans more repeats than keep the lookup within 1/64 texel; up to there it is built."""
+    table = _object("ground", size=[64.0 * repeats, 64.0 * repeats], cells=64, material="ground")
+    config = load_scene_config(write_scene(tmp_path, BASE + TEXTURED + table))
+    if not refused:
+        groups, _ = scene_meshes(config)
+        assert len(groups["ground"].arrays()[1]) == 2 * 64 * 64
+        return
+    with pytest.raises(InputError) as caught:
+        scene_meshes(config)
+    assert str(caught.value).endswith(
+        "[[objects]] #1 (ground): one triangle spans 1.1e+03 repeats of texture 'noise' (256 px) of "
+        "[materials.ground], expected at most 1.02e+03 (the renderer interpolates texture coordinates in "
+        "float32, which then miss the texels by more than 1/64 of one); use smaller triangles (more cells, "
+        "smaller sizes) or a larger tile")
+
+
+def test_huge_ground_without_texture_or_with_a_long_tile_is_built(tmp_path):
+    """Only the texture's repeats across a triangle count: an untextured ground of 2e9 m is built, and
+    a textured one whose material tile makes a cell span few repeats."""
+    huge = _object("ground", size=[2e9, 2e9], cells=64, material="painted")
+    scene_meshes(load_scene_config(write_scene(tmp_path, BASE + huge)))
+    long_tile = TEXTURED + "tile = 4e4\n" + _object("ground", size=[2e9, 2e9], cells=64, material="ground")
+    scene_meshes(load_scene_config(write_scene(tmp_path, BASE + long_tile)))  # 3.1e7 m cells: 781 repeats
+
+
+def test_cli_huge_textured_ground_is_one_line_exit_2(tmp_path, capsys):
+    import importlib.util
+
+    if importlib.util.find_spec("mitsuba") is None:
+        pytest.skip("mitsuba is not installed (sim extra)")
+    from omnisim.cli import main
+
+    table = _object("ground", size=[2e9, 2e9], cells=64, material="ground")
+    scene = write_scene(tmp_path, BASE + TEXTURED + table)
+    assert main(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith(f"omnisim render: error: {scene}: [[objects]] #1 (ground): one "
+                                              "triangle spans 3.12e+07 repeats of texture 'noise' (256 px)")
+    assert not (tmp_path / "out").exists()

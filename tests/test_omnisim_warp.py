@@ -229,6 +229,51 @@ def test_black_image_through_a_kalibr_camera_is_a_one_line_error(tmp_path, capsy
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("level, shown", [(0, "0 (black)"), (128, "colour (128, 128, 128)")])
+def test_image_without_texture_is_a_one_line_error(tmp_path, source_files, capsys, level, shown):
+    """A black (or flat) photo through an OCamCalib calibration gave black (or flat) frames, exit 0."""
+    from omnisim.cli import main
+
+    cv2.imwrite(str(tmp_path / "flat.png"), np.full((SIZE, SIZE, 3), level, np.uint8))
+    code = main(["warp", str(tmp_path / "flat.png"), "--calib", str(source_files[1]),
+                 "--out", str(tmp_path / "o"), "--frames", "2", "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err
+    assert err.startswith(f"omnisim warp: error: {tmp_path / 'flat.png'}: no texture: every pixel of its mirror "
+                          f"band (radius ") and f"px) is {shown}, so every rotation gives the same frame" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_flat_image_through_a_kalibr_camera_is_a_one_line_error(tmp_path, capsys):
+    from camera_examples import EXAMPLES
+
+    from ifmi.io.kalibr import write_kalibr
+    from omnisim.cli import main
+
+    model = EXAMPLES["kb"].scaled(0.25)
+    cv2.imwrite(str(tmp_path / "flat.png"), np.full(model.size, 90, np.uint8))
+    write_kalibr(tmp_path / "camera.yaml", model)
+    code = main(["warp", str(tmp_path / "flat.png"), "--calib", str(tmp_path / "camera.yaml"),
+                 "--out", str(tmp_path / "o"), "--frames", "2", "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and "flat.png: no texture" in err and "is gray level 90" in err
+    assert "degrees from the panorama axis" in err and not (tmp_path / "o").exists()
+
+
+def test_dark_textured_image_is_warped(tmp_path, source_files):
+    """Texture of a few gray levels in a dark photo is still texture: the frames move with it."""
+    from omnisim.warp import WarpSettings, warp_dataset
+
+    dark = cv2.imread(str(source_files[0]), cv2.IMREAD_GRAYSCALE) // 64  # levels 0..3
+    assert dark.max() <= 3 and dark.std() > 0
+    cv2.imwrite(str(tmp_path / "dark.png"), dark)
+    result = warp_dataset(tmp_path / "dark.png", source_files[1], tmp_path / "o", progress=False,
+                          settings=WarpSettings(frames=2, max_step_deg=5.0))
+    assert result.written == 2
+    frames = [cv2.imread(str(tmp_path / "o" / "images" / f"{k:06d}.png"), cv2.IMREAD_UNCHANGED) for k in range(2)]
+    assert frames[1].max() > 0 and not np.array_equal(frames[0], frames[1])
+
+
 # --- rolling shutter ------------------------------------------------------------------
 
 def test_walk_read_between_frames_is_continuous():
