@@ -28,8 +28,8 @@ A front end may also have ``refine_correspondences(state_a, state_b, first,
 a pair from ``first`` (what ``correspondences`` returned), the odometry
 passes it the solved ``R_ab`` ((3, 3)). Correspondences it returns are
 solved again and replace the first solution when that succeeds (the iFMI
-front end registers a weak pair's tiles again at that rotation and returns
-both registrations' matches); None keeps the first solution, and so do
+front end registers a weak pair's tiles again at that rotation and averages
+the two registrations' matches); None keeps the first solution, and so do
 failed correspondences, whose reason goes into the frame's diagnostics.
 
 This module imports nothing else of :mod:`ifmi`, so any front end can import

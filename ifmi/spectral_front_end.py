@@ -30,7 +30,7 @@ from .unwarp import (PANORAMA_INTERPOLATIONS, PanoramaConfig, PanoramaMapping, g
                      panorama_image_from_omni_image, panorama_mapping, panorama_pixels_from_rays,
                      rays_from_panorama_pixels)
 
-__all__ = ["IfmiConfig", "IfmiFrameState", "IfmiFrontEnd"]
+__all__ = ["IfmiConfig", "IfmiFrameState", "IfmiFrontEnd", "averaged_correspondences"]
 
 # Step (panorama pixels) of the central differences that give a predicted map's curvature: about
 # a quarter of a 64 px tile, where the second-order term matters, and far above rounding.
@@ -121,25 +121,24 @@ class IfmiConfig:
         Overlap of the denser layout (``TilingConfig.overlap``).
     reregister_fraction : float
         When at most this fraction of the layout's tiles passed and the back
-        end solved the pair, the reference's tiles are registered a second
-        time, directly at the solved rotation (no coarse stage), and the
-        pair is solved again from both registrations' rays pooled
-        (:meth:`IfmiFrontEnd.refine_correspondences`). The solved rotation
-        places the tiles better than the coarse stage did, and the second
-        registration samples them at other sub-pixel positions, so its
-        errors partly average out with the first's. Measured on 108 fast
+        end solved the pair, the tiles that gave its rays are registered a
+        second time, directly at the solved rotation (no coarse stage), and
+        the pair is solved again with each ray of frame b the mean of its
+        two registrations (:meth:`IfmiFrontEnd.refine_correspondences`).
+        The solved rotation places the tiles better than the coarse stage
+        did, and the second registration samples them at other sub-pixel
+        positions, so their errors partly average out. Measured on 108 fast
         sets and 12 warehouse sets (3 RANSAC seeds, both modes): the sets
         where iFMI's ATE exceeded the better feature method's went from 25
-        to 11 (`reports/fast_motion`, thirteenth stop). 0 disables it.
+        to 15 (`reports/fast_motion`, thirteenth stop). 0 disables it.
     reregister_min_px : float
         The second registration is made only when the solved rotation moves
         the tiles at least this far from where they were registered
         (panorama pixels: the angle between the two rotations times
         ``width / 2 pi``). A smaller move samples them at nearly the same
-        sub-pixel positions, which pools nearly the same rays twice. On
-        the 18 designed fast sets 84 of 228 pairs are registered again
-        (97 with 0.1 px, 65 with 0.5 px); over the sets above, 0.3 px
-        misses 11, 0.1 px and no limit 14, 0.5 px 12.
+        sub-pixel positions and changes nearly nothing. On the 18 designed
+        fast sets 84 of 228 pairs are registered again (97 with 0.1 px, 65
+        with 0.5 px).
     dense_tiles_per_column : int or None
         The retry registers only this many tiles of each column of the
         denser layout, those whose texture best fixes a shift in frame a
@@ -305,6 +304,37 @@ def _robust_rotation(rays_a: np.ndarray, rays_b: np.ndarray) -> tuple[np.ndarray
         scale = np.median(residual) + np.finfo(np.float64).tiny
         weights = 1.0 / (1.0 + (residual / scale) ** 2)
     return rotation_from_rays(rays_a, rays_b, weights), float(scale)
+
+
+def averaged_correspondences(first: Correspondences, second: Correspondences) -> Correspondences:
+    """Two registrations of one pair merged: a match of frame a's pixel in both gets the mean of
+    the two frame-b rays (and pixels); a match in one of them is kept as it is.
+
+    Parameters
+    ----------
+    first, second : Correspondences
+        Matches of the same tiles of frame a (the same ``pixels_a`` and ``rays_a`` for a tile's
+        flow points wherever both registrations kept it), with one ``rays_per_measurement``.
+
+    Returns
+    -------
+    Correspondences
+        ``first``'s matches in its order (averaged where ``second`` has them too), then those of
+        ``second`` alone; ``first``'s diagnostics.
+    """
+    where = {row.tobytes(): k for k, row in enumerate(np.ascontiguousarray(first.pixels_a))}
+    in_first = np.array([where.get(row.tobytes(), -1) for row in np.ascontiguousarray(second.pixels_a)], dtype=int)
+    both = in_first >= 0
+    rays_b = first.rays_b.copy()
+    rays_b[in_first[both]] += second.rays_b[both]
+    rays_b /= np.linalg.norm(rays_b, axis=1, keepdims=True)
+    pixels_b = first.pixels_b.copy()
+    pixels_b[in_first[both]] = (pixels_b[in_first[both]] + second.pixels_b[both]) / 2.0
+    alone = ~both
+    return replace(first, pixels_a=np.concatenate([first.pixels_a, second.pixels_a[alone]]),
+                   pixels_b=np.concatenate([pixels_b, second.pixels_b[alone]]),
+                   rays_a=np.concatenate([first.rays_a, second.rays_a[alone]]),
+                   rays_b=np.concatenate([rays_b, second.rays_b[alone]]))
 
 
 class IfmiFrameState:
@@ -1026,7 +1056,7 @@ class IfmiFrontEnd:
 
     def refine_correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, first: Correspondences, *,
                                rotation_ab: np.ndarray) -> Correspondences | None:
-        """``first`` pooled with a second registration at the back end's solved rotation, or None.
+        """``first`` averaged with a second registration at the back end's solved rotation, or None.
 
         Pairs whose registration kept at most ``config.reregister_fraction``
         of the layout's tiles (as ``first``'s ``n_tiles_kept`` says) are
@@ -1049,8 +1079,9 @@ class IfmiFrontEnd:
         Returns
         -------
         Correspondences or None
-            Both registrations' matches (``first``'s first), with
-            ``first``'s diagnostics and ``n_tiles_kept_reregistered``; None
+            Both registrations' matches merged by
+            :func:`averaged_correspondences`, with ``first``'s diagnostics
+            and ``n_tiles_kept_reregistered``; None
             when the pair is not registered again (enough tiles passed, no
             prediction in use, ``reregister_fraction`` 0, a move under
             ``reregister_min_px``) or the second registration failed.
@@ -1074,6 +1105,4 @@ class IfmiFrontEnd:
         if not second.success:
             return None
         diagnostics = {**first.diagnostics, "n_tiles_kept_reregistered": int(placed.valid.sum())}
-        return Correspondences(*(np.concatenate([getattr(first, name), getattr(second, name)])
-                                 for name in ("pixels_a", "pixels_b", "rays_a", "rays_b")),
-                               diagnostics=diagnostics, rays_per_measurement=first.rays_per_measurement)
+        return replace(averaged_correspondences(first, second), diagnostics=diagnostics)
