@@ -369,16 +369,19 @@ def test_sweep_cli_refuses_a_dataset_given_twice(datasets, tmp_path, capsys, sec
     assert not (tmp_path / "o").exists()
 
 
+def _sweep_with_grid(dataset, out, capsys, option, grid):
+    """``(exit code, stderr)`` of a sweep over ``grid`` for ``option`` (the other option one value)."""
+    values = {"--tile-size": ["32"], "--overlap": ["0"]}
+    values[option] = grid
+    code = main(["sweep", str(dataset), "--tile-size", *values["--tile-size"], "--overlap",
+                 *values["--overlap"], "--scheduler", "synchronous", "--out", str(out), "--no-progress"])
+    return code, capsys.readouterr().err.strip()
+
+
 @pytest.mark.parametrize(("option", "grid", "shown"), [("--tile-size", ["32", "48", "32.0"], "32 48 32"),
                                                         ("--overlap", ["0", "0.0"], "0 0")])
 def test_sweep_cli_refuses_a_grid_value_given_twice(datasets, tmp_path, capsys, option, grid, shown):
-    good, _ = datasets
-    values = {"--tile-size": ["32"], "--overlap": ["0"]}
-    values[option] = grid
-    code = main(["sweep", str(good), "--tile-size", *values["--tile-size"], "--overlap",
-                 *values["--overlap"], "--scheduler", "synchronous", "--out", str(tmp_path / "o"),
-                 "--no-progress"])
-    err = capsys.readouterr().err.strip()
+    code, err = _sweep_with_grid(datasets[0], tmp_path / "o", capsys, option, grid)
     assert code == 2 and len(err.splitlines()) == 1
     value = shown.split()[0]
     assert f"{option}: value {value} given twice; expected distinct values (got {shown})" in err
@@ -389,13 +392,7 @@ def test_sweep_cli_refuses_a_grid_value_given_twice(datasets, tmp_path, capsys, 
                                                ("--overlap", ["0.5", "0.50000000001"])])
 def test_sweep_cli_refuses_grid_values_of_one_cell_name(datasets, tmp_path, capsys, option, grid):
     # Both values were run into one cell file: the table had two rows of the second, the first was lost.
-    good, _ = datasets
-    values = {"--tile-size": ["32"], "--overlap": ["0"]}
-    values[option] = grid
-    code = main(["sweep", str(good), "--tile-size", *values["--tile-size"], "--overlap",
-                 *values["--overlap"], "--scheduler", "synchronous", "--out", str(tmp_path / "o"),
-                 "--no-progress"])
-    err = capsys.readouterr().err.strip()
+    code, err = _sweep_with_grid(datasets[0], tmp_path / "o", capsys, option, grid)
     assert code == 2 and len(err.splitlines()) == 1
     assert (f"{option}: values {float(grid[0])!r} and {float(grid[1])!r} both name the cell value "
             f"{float(grid[0]):g} (cells are named to 6 significant digits)") in err
