@@ -86,6 +86,43 @@ def test_a_start_equal_to_one_searched_is_not_searched_again(scene, monkeypatch)
     assert len(searches) == 3
 
 
+def test_a_half_turn_of_a_symmetric_scene_does_not_replace_the_prediction(scene, monkeypatch):
+    # A scene that repeats after half a turn (each half of the environment the same texture, as
+    # a room with one texture on every wall seen from near its middle): the panorama turned half
+    # round matches as well as the true one. The prediction is 8 degrees off, so the search from
+    # it moves it past confirm_angle_rad and the identity is searched too.
+    _, mapping = scene
+    texture = environment_texture(height=360, seed=2)
+    half = texture.shape[1] // 2
+    periodic = np.concatenate([texture[:, :half], texture[:, :half]], axis=1)
+    truth = _rotation(-25.0, 6.0, 120.0)
+    prediction = Rotation.from_rotvec([0.0, 0.08, 0.12]).as_matrix() @ truth
+    searched = {}
+    original = GlobalMotionEstimator._search
+
+    def search(self, reference, coarse_b, start):
+        found = original(self, reference, coarse_b, start)
+        searched["prediction" if np.array_equal(start, prediction) else "identity"] = found[0]
+        return found
+
+    monkeypatch.setattr(GlobalMotionEstimator, "_search", search)
+    results = {}
+    for ratio in (1.0, 0.5):
+        estimator = GlobalMotionEstimator(mapping, config=GlobalMotionConfig(confirm_mismatch_ratio=ratio))
+        a = _coarse(periodic, mapping, estimator, np.eye(3))
+        b = _coarse(periodic, mapping, estimator, truth)
+        results[ratio] = estimator.estimate(a, b, priors=(prediction, None))
+    # The premise: from the prediction the search finds the truth, from the identity the half
+    # turn, which matches a little better (0.9622 against 0.9621).
+    near, far = searched["prediction"], searched["identity"]
+    assert np.degrees(geodesic_angle(truth, near.rotation)) < 1.0
+    assert np.degrees(geodesic_angle(truth, far.rotation)) > 170.0 and far.score > near.score
+    # Any better match replacing the prediction's (ratio 1) took the half turn; the default asks a
+    # result that far to leave at most half the mismatch, and keeps the truth.
+    assert np.degrees(geodesic_angle(truth, results[1.0].rotation)) > 170.0
+    assert np.degrees(geodesic_angle(truth, results[0.5].rotation)) < 1.0
+
+
 def test_kabsch_fit_is_exact_on_exact_rays():
     rng = np.random.default_rng(3)
     rays_b = rng.normal(size=(10, 3))
@@ -122,6 +159,9 @@ def test_tracking_survives_an_abrupt_reversal(scene):
 def test_config_is_checked():
     with pytest.raises(ValueError, match="min_sectors"):
         GlobalMotionConfig(sectors=6, min_sectors=8)
+    for ratio in (0.0, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="0 < confirm_mismatch_ratio <= 1"):
+            GlobalMotionConfig(confirm_mismatch_ratio=ratio)
     with pytest.raises(ValueError, match="width"):
         GlobalMotionConfig(width=16)
 
