@@ -128,6 +128,13 @@ def test_config_is_checked():
         GlobalMotionConfig(width=16)
 
 
+def test_more_sector_passes_than_the_bound_are_refused():
+    # 10**20 passes were accepted and the estimate never ended.
+    with pytest.raises(ValueError, match=r"expected iterations <= 100 sector passes, got 100000000000000000000"):
+        GlobalMotionConfig(iterations=10 ** 20)
+    assert GlobalMotionConfig(iterations=100).iterations == 100
+
+
 @pytest.mark.parametrize(("values", "count"), [
     ({"wide_tilt_step_deg": 0.01}, "2563200"), ({"wide_tilt_step_deg": 1e-300}, "inf"),
     ({"wide_tilt_max_deg": 1e12}, "6.25e+22"), ({"wide_tilt_max_deg": float("inf")}, "inf"),
