@@ -22,7 +22,7 @@ import numpy as np
 
 from .camera import OcamModel, radius_from_pixels, rays_from_pixels
 from .front_end import Correspondences
-from .options import options_from_dict
+from .options import check_finite_fields, options_from_dict
 
 __all__ = [
     "DETECTORS",
@@ -43,6 +43,9 @@ ORB_DEFAULT_FEATURES = 500
 # memory grows linearly with them (a million layers asks for hundreds of gigabytes); at 32 the
 # scale step between sublevels (2^(1/32), 2 %) is already finer than the detector resolves.
 _MAX_AKAZE_LAYERS = 32
+# Largest FAST threshold of ORB, gray levels: a corner needs pixels brighter or darker than the
+# centre by more than the threshold, and 8-bit images differ by at most 255.
+_MAX_FAST_THRESHOLD = 254
 
 
 @dataclass(frozen=True)
@@ -70,7 +73,9 @@ class FeatureConfig:
         Fewer matches than this flags the pair as failed.
     orb_scale_factor, orb_levels, orb_edge_threshold, orb_patch_size, orb_fast_threshold
         ``cv2.ORB_create`` options (pyramid ratio, levels, border in pixels,
-        descriptor patch in pixels, FAST threshold in gray levels).
+        descriptor patch in pixels, FAST threshold in gray levels): a scale
+        factor above 1, at least one level, a border of at least 0 and a
+        patch of at least 2 pixels, a threshold from 0 to 254.
     akaze_threshold : float
         ``cv2.AKAZE_create`` detector response threshold.
     akaze_min_keypoints : int
@@ -88,7 +93,7 @@ class FeatureConfig:
         detector keeps the noise of a flat image. An ``akaze_threshold`` at
         or below it is kept as given.
     akaze_octaves, akaze_octave_layers : int
-        AKAZE scale space size (at most 32 layers per octave).
+        AKAZE scale space size (at least 1 of each, at most 32 layers per octave).
     radius_band : (2,) tuple of float or None
         Override of the mirror band ``(inner, outer)`` radius in sensor
         pixels; ``None`` uses the iFMI front end's default band for the
@@ -141,6 +146,22 @@ class FeatureConfig:
         if self.akaze_octave_layers > _MAX_AKAZE_LAYERS:
             raise ValueError(f"akaze_octave_layers must be at most {_MAX_AKAZE_LAYERS} (scale steps of "
                              f"2^(1/{_MAX_AKAZE_LAYERS}) per sublevel), got {self.akaze_octave_layers}")
+        self._check_detector_sizes()
+
+    def _check_detector_sizes(self) -> None:
+        """The lower bounds ``cv2.ORB_create`` and ``cv2.AKAZE_create`` assert (their failure was an
+        OpenCV traceback at the first image), and the FAST threshold's range of gray levels."""
+        check_finite_fields(self, ("orb_scale_factor",))
+        if not self.orb_scale_factor > 1:
+            raise ValueError(f"orb_scale_factor must be > 1 (the pyramid's ratio), got {self.orb_scale_factor}")
+        minimums = {"orb_levels": 1, "orb_edge_threshold": 0, "orb_patch_size": 2, "orb_fast_threshold": 0,
+                    "akaze_octaves": 1, "akaze_octave_layers": 1}
+        for name, minimum in minimums.items():
+            if getattr(self, name) < minimum:
+                raise ValueError(f"{name} must be >= {minimum}, got {getattr(self, name)}")
+        if self.orb_fast_threshold > _MAX_FAST_THRESHOLD:
+            raise ValueError(f"orb_fast_threshold must be at most {_MAX_FAST_THRESHOLD} gray levels (8-bit "
+                             f"images differ by at most 255), got {self.orb_fast_threshold}")
 
     def to_dict(self) -> dict:
         return {f.name: (list(getattr(self, f.name)) if isinstance(getattr(self, f.name), tuple)

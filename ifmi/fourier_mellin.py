@@ -112,6 +112,9 @@ class TileRejection(IntEnum):
 # Most refinement passes: each one resamples and registers every tile again (about the cost of
 # the first registration) while the residual settles after one or two; more only cost time.
 _MAX_REFINE_PASSES = 10
+# Most FFT threads: scipy's FFT starts at most as many threads as the machine has CPUs, and a
+# count past a C int (2**31) was a TypeError traceback at the first frame.
+_MAX_FFT_WORKERS = 1024
 # Most phase-plane iterations: the fit converges within a few (default 3) even on noisy tiles.
 _MAX_PHASE_PLANE_ITERATIONS = 50
 _INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos4": cv2.INTER_LANCZOS4}
@@ -183,7 +186,7 @@ class FourierMellinConfig:
         Estimate ``s`` and ``theta``; when false they are 1 and 0 and only the
         translation is measured (faster; for nearly rigid tile motion).
     workers : int
-        FFT threads.
+        FFT threads (1 to 1024).
     phase_plane_max_frequency : float
         Largest frequency (cycles per pixel) of the phase-plane shift refinement.
     phase_plane_weight_power : float
@@ -270,6 +273,8 @@ class FourierMellinConfig:
         if not 0 <= self.refine_passes <= _MAX_REFINE_PASSES or self.workers < 1:
             raise ValueError(f"expected 0 <= refine_passes <= {_MAX_REFINE_PASSES} and workers >= 1, got "
                              f"{self.refine_passes}, {self.workers}")
+        if self.workers > _MAX_FFT_WORKERS:
+            raise ValueError(f"expected workers <= {_MAX_FFT_WORKERS} FFT threads, got {self.workers}")
         if self.phase_plane_iterations > _MAX_PHASE_PLANE_ITERATIONS:
             raise ValueError(f"expected phase_plane_iterations <= {_MAX_PHASE_PLANE_ITERATIONS}, "
                              f"got {self.phase_plane_iterations}")

@@ -46,6 +46,14 @@ __all__ = ["GlobalMotionConfig", "GlobalMotion", "GlobalMotionEstimator", "rotat
 # Fewest coarse-panorama columns of a sector: a Hann-windowed phase correlation over fewer
 # leaves no usable peak (the default 12 sectors of a 128-column panorama have 10).
 _MIN_SECTOR_COLUMNS = 8
+# Most starts of the wide search's grid: each costs a yaw search of the coarse panorama (0.4 ms
+# at its default 128 columns), so 1024 starts keep a searched pair under half a second; a step
+# of 0.01 degrees (2.5 million starts) took minutes per pair, and 1e-300 failed allocating them.
+_MAX_WIDE_STARTS = 1024
+# Most sector passes: each fits the sectors again at the last rotation (default 2 passes); 100
+# added 0.2 s to seven fast 256 px pairs, while 10**20 never ended (the passes stop only when too
+# few sectors are clear).
+_MAX_SECTOR_ITERATIONS = 100
 
 
 @dataclass(frozen=True)
@@ -62,7 +70,7 @@ class GlobalMotionConfig:
         a rotation; more average parallax and texture gaps), each at least
         8 columns of the coarse panorama wide.
     iterations : int
-        Sector passes after the yaw search.
+        Sector passes after the yaw search (at most 100).
     min_peak_ratio : float
         A sector (or the yaw search) whose correlation peak ratio is below
         this does not count.
@@ -84,7 +92,8 @@ class GlobalMotionConfig:
         covers tilts between frames up to about 15 degrees; a 6-degree step
         up to 12, 24 starts, gave the same results on the lawn pairs that
         need it at twice the cost).
-        ``wide_tilt_max_deg = 0`` turns the wide search off.
+        ``wide_tilt_max_deg = 0`` turns the wide search off. The grid
+        holds at most 1024 starts (728 in steps of 0.6 degrees up to 8).
     wide_candidates : int
         The wide search runs the yaw search from every start of the grid
         and the sector passes only from this many, those whose yaw
@@ -155,6 +164,25 @@ class GlobalMotionConfig:
                              f"{self.min_peak_ratio}, {self.outlier_factor}, {self.confirm_angle_rad}, "
                              f"{self.settled_shift_px}, {self.wide_tilt_max_deg}, {self.wide_tilt_step_deg}, "
                              f"{self.wide_mismatch_ratio}, {self.wide_candidates}, {self.confirm_mismatch_ratio}")
+        self._check_search_sizes()
+
+    def _check_search_sizes(self) -> None:
+        """Bounds of the work a pair may cost: sector passes and starts of the wide search's grid."""
+        if self.iterations > _MAX_SECTOR_ITERATIONS:
+            raise ValueError(f"expected iterations <= {_MAX_SECTOR_ITERATIONS} sector passes, got {self.iterations}")
+        steps = _wide_steps(self)
+        starts = (2 * steps + 1) * (2 * steps + 1) - 1
+        if not starts <= _MAX_WIDE_STARTS:
+            count = f"{starts:.0f}" if starts < 1e15 else f"{starts:.3g}"
+            raise ValueError(f"expected a wide search grid of at most {_MAX_WIDE_STARTS} starts, got "
+                             f"{count} (wide_tilt_max_deg {self.wide_tilt_max_deg:g} in steps of "
+                             f"wide_tilt_step_deg {self.wide_tilt_step_deg:g}); expected a larger step or a "
+                             "smaller maximum")
+
+
+def _wide_steps(config: GlobalMotionConfig) -> float:
+    """Steps of the wide search's grid each side of its start, along each axis (may be infinite)."""
+    return float(np.floor(config.wide_tilt_max_deg / config.wide_tilt_step_deg + 1e-9))
 
 
 @dataclass(frozen=True)
@@ -437,7 +465,7 @@ class GlobalMotionEstimator:
     def _tilted_starts(self, start: np.ndarray) -> np.ndarray:
         """``start`` tilted (on the left, about a's horizontal axes) by the wide search's grid, (K, 3, 3)."""
         c = self.config
-        steps = int(np.floor(c.wide_tilt_max_deg / c.wide_tilt_step_deg + 1e-9))
+        steps = int(_wide_steps(c))
         tilts = np.radians(np.arange(-steps, steps + 1) * c.wide_tilt_step_deg)
         roll, pitch = (grid.ravel() for grid in np.meshgrid(tilts, tilts, indexing="ij"))
         tilted = (roll != 0) | (pitch != 0)

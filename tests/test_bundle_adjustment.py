@@ -163,6 +163,9 @@ def test_exact_frames_stay_exact_through_the_tracker_window():
     ({"window": 1}, "window must be 0"), ({"window": -2}, "window must be 0"),
     ({"robust_scale_rad": 0.0}, "robust_scale_rad"), ({"match_tolerance_rad": -1.0}, "match_tolerance_rad"),
     ({"gauge_weight": float("nan")}, "gauge_weight must be a finite"), ({"iterations": 0}, "iterations"),
+    # 10**20 iterations with tolerance 0 were accepted and the estimate never ended.
+    ({"iterations": 10 ** 20, "tolerance": 0.0},
+     "iterations must be from 1 to 1000 and tolerance >= 0, got 100000000000000000000, 0.0"),
 ])
 def test_invalid_options_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):

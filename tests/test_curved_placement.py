@@ -151,7 +151,9 @@ def test_refit_pass_corrects_a_wrong_prediction(environment):
 
 
 @pytest.mark.parametrize("field, value", [("refit_passes", -1), ("refit_max_residual_px", 0.0),
-                                          ("min_width_curved", -5)])
+                                          ("min_width_curved", -5),
+                                          # 10**20 passes were accepted and the estimate never ended
+                                          ("refit_passes", 10 ** 20)])
 def test_invalid_refit_options_are_rejected(field, value):
     with pytest.raises(ValueError, match="refit_passes"):
         IfmiConfig(**{field: value})

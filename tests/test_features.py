@@ -201,6 +201,23 @@ def test_config_round_trip_and_validation():
         FeatureConfig.from_dict({"n_feature": 3})
 
 
+@pytest.mark.parametrize("values, message", [
+    ({"orb_levels": 0}, "orb_levels must be >= 1, got 0"),
+    ({"orb_edge_threshold": -1}, "orb_edge_threshold must be >= 0, got -1"),
+    ({"orb_patch_size": 1}, "orb_patch_size must be >= 2, got 1"),
+    ({"orb_fast_threshold": -1}, "orb_fast_threshold must be >= 0, got -1"),
+    ({"orb_fast_threshold": 10 ** 20}, r"orb_fast_threshold must be at most 254 gray levels .*got 10{20}"),
+    ({"orb_scale_factor": 1.0, "orb_levels": 1}, r"orb_scale_factor must be > 1 \(the pyramid's ratio\), got 1.0"),
+    ({"orb_scale_factor": float("inf")}, "orb_scale_factor must be a finite number, got inf"),
+    ({"akaze_octaves": 0}, "akaze_octaves must be >= 1, got 0"),
+    ({"akaze_octave_layers": -1}, "akaze_octave_layers must be >= 1, got -1"),
+])
+def test_detector_sizes_opencv_refuses_are_refused_by_the_config(values, message):
+    # These values ended in an OpenCV error (or an OverflowError) at the first image.
+    with pytest.raises(ValueError, match=message):
+        FeatureConfig.from_dict(values)
+
+
 def test_registered_methods_track_a_synthetic_sequence(texture):
     from dataclasses import replace
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -164,6 +166,26 @@ def test_config_is_checked():
             GlobalMotionConfig(confirm_mismatch_ratio=ratio)
     with pytest.raises(ValueError, match="width"):
         GlobalMotionConfig(width=16)
+
+
+def test_more_sector_passes_than_the_bound_are_refused():
+    # 10**20 passes were accepted and the estimate never ended.
+    with pytest.raises(ValueError, match=r"expected iterations <= 100 sector passes, got 100000000000000000000"):
+        GlobalMotionConfig(iterations=10 ** 20)
+    assert GlobalMotionConfig(iterations=100).iterations == 100
+
+
+@pytest.mark.parametrize(("values", "count"), [
+    ({"wide_tilt_step_deg": 0.01}, "2563200"), ({"wide_tilt_step_deg": 1e-300}, "inf"),
+    ({"wide_tilt_max_deg": 1e12}, "6.25e+22"), ({"wide_tilt_max_deg": float("inf")}, "inf"),
+])
+def test_a_wide_search_grid_of_too_many_starts_is_refused(values, count):
+    # Such grids failed allocating their starts or took minutes per pair, at the first pair the
+    # wide search served (a fast one).
+    with pytest.raises(ValueError, match=rf"expected a wide search grid of at most 1024 starts, got {re.escape(count)} "):
+        GlobalMotionConfig(**values)
+    fine = GlobalMotionEstimator(panorama_mapping(MODEL), config=GlobalMotionConfig(wide_tilt_step_deg=0.6))
+    assert len(fine._tilted_starts(np.eye(3))) == 728
 
 
 def _front_end_pair(texture, truth, config):

@@ -202,6 +202,13 @@ def test_config_rejects_negative_weight_power():
         FourierMellinConfig(residual_weight_power=-1.0)
 
 
+def test_config_rejects_more_fft_threads_than_the_bound():
+    # 10**20 threads ended in a TypeError traceback from scipy's FFT at the first frame.
+    with pytest.raises(ValueError, match="expected workers <= 1024 FFT threads, got 100000000000000000000"):
+        FourierMellinConfig(workers=10 ** 20)
+    assert FourierMellinConfig(workers=1024).workers == 1024
+
+
 def test_config_rejects_unknown_interpolation():
     with pytest.raises(ValueError, match="resample_interpolation"):
         FourierMellinConfig(resample_interpolation="nearest")
