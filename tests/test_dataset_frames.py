@@ -220,7 +220,18 @@ def test_missing_folder_and_a_file_instead_of_a_folder(tmp_path, capsys):
     assert capsys.readouterr().err.strip() == f"ifmi estimate: error: {tmp_path / 'nonexist'}: dataset folder not found"
     (tmp_path / "file").write_text("x")
     assert main(["estimate", str(tmp_path / "file"), "--out", str(tmp_path / "e.txt")]) == 2
-    assert "file: not a folder" in capsys.readouterr().err
+    assert "file: neither a dataset folder nor a video" in capsys.readouterr().err
+    # A video type OpenCV may read but the estimator does not take is named with the ones it does.
+    (tmp_path / "clip.mpg").write_bytes(b"\x00\x00\x01\xba")
+    assert main(["estimate", str(tmp_path / "clip.mpg"), "--calib", str(tmp_path / "c.txt"),
+                 "--out", str(tmp_path / "e.txt")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"ifmi estimate: error: {tmp_path / 'clip.mpg'}: neither a dataset folder nor a video (expected a "
+        "folder with calib_results.txt or camera.yaml and images/, or a video file ending in .mp4, .avi, "
+        ".mov, .mkv, .m4v, .webm with --calib)")
+    # read_dataset itself, which no video reaches, keeps its own words.
+    with pytest.raises(InputError, match="not a folder"):
+        read_dataset(tmp_path / "file")
 
 
 # --- damaged image files ---------------------------------------------------------

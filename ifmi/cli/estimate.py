@@ -310,13 +310,17 @@ def _derived_keys(config: EstimateConfig, used: EstimateConfig) -> list:
 
 def run(args) -> int:
     from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
-    from ..io.video import is_video_path
+    from ..io.video import VIDEO_SUFFIXES, is_video_path
 
     config_file, given, config = _configuration(args)
     method = chosen_method(args.method, config_file)
     load_factory(method)  # an unknown or broken method fails before any work
     out = Path(args.out)
     video = is_video_path(args.dataset)
+    if not video and Path(args.dataset).is_file():
+        raise InputError(args.dataset, f"neither a dataset folder nor a video (expected a folder with "
+                                       f"calib_results.txt or camera.yaml and images/, or a video file ending "
+                                       f"in {', '.join(VIDEO_SUFFIXES)} with --calib)")
     if video and not args.calib:
         raise InputError(args.dataset, "a video needs --calib CALIB (calib_results.txt)")
     if args.calib and not video:
