@@ -402,3 +402,18 @@ def test_pixel_threshold_past_half_a_turn_is_refused(dataset, tmp_path, capsys):
     assert _one_line_error(capsys).startswith(
         "ifmi estimate: error: --ransac-threshold-px: relative_pose.ransac_threshold_px: expected under ")
     assert not out.exists()
+
+
+def test_tile_options_given_to_a_keypoint_method_are_named_in_one_warning(dataset, tmp_path, capsys):
+    # The estimate is ORB's as without them; the options were dropped without a word before.
+    args = ["estimate", str(dataset), "--method", "orb", *QUIET]
+    assert main([*args, "--out", str(tmp_path / "plain.txt")]) == 0
+    capsys.readouterr()
+    assert main([*args, "--out", str(tmp_path / "o.txt"), "--tile-size", "32", "--th-pr", "2", "--seed", "0"]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert warnings == ["ifmi estimate: warning: --th-pr, --tile-size only change iFMI's tiles; "
+                        "--method orb does not read them"]
+    assert (tmp_path / "o.txt").read_text() == (tmp_path / "plain.txt").read_text()
+    # iFMI reads them: no warning.
+    assert main(["estimate", str(dataset), "--out", str(tmp_path / "i.txt"), "--tile-size", "32", *QUIET]) == 0
+    assert "warning" not in capsys.readouterr().err

@@ -61,6 +61,8 @@ _FLAG_OPTIONS = {
     "rotation_only": ("relative_pose.rotation_only", True),
     "keyframes": ("keyframe.enabled", True),
 }
+# Key paths (and prefixes) of the options only iFMI's front end reads: the tiles and their registration.
+_IFMI_ONLY_KEYS = ("ifmi.tiling.", "ifmi.registration.", "ifmi.points_per_tile", "ifmi.use_prior")
 # Values that decide whether a tile fits its panorama (what a CalibrationFitError is about): the
 # sizes first, the band radii (which set the panorama's height) only when no size was set.
 _TILE_FIT_KEYS = (("ifmi.tiling.tile_size", "ifmi.panorama.width", "ifmi.panorama.height"),
@@ -308,6 +310,19 @@ def _derived_keys(config: EstimateConfig, used: EstimateConfig) -> list:
     return [key for key in DERIVED_KEYS if _value_at(config, key) is None and _value_at(used, key) is not None]
 
 
+def _warn_ignored_options(method: str, given: dict) -> None:
+    """One warning line naming the options given that ``method`` (a built-in keypoint method) does not read."""
+    from ..methods import ignores_tiling
+
+    if not ignores_tiling(method):
+        return
+    ignored = sorted({option for key, (option, _) in given.items() if key.startswith(_IFMI_ONLY_KEYS)})
+    if ignored:
+        print(f"ifmi estimate: warning: {', '.join(ignored)} only change{'s' if len(ignored) == 1 else ''} "
+              f"iFMI's tiles; --method {method} does not read {'it' if len(ignored) == 1 else 'them'}",
+              file=sys.stderr)
+
+
 def run(args) -> int:
     from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
     from ..io.video import VIDEO_SUFFIXES, is_video_path
@@ -315,6 +330,7 @@ def run(args) -> int:
     config_file, given, config = _configuration(args)
     method = chosen_method(args.method, config_file)
     load_factory(method)  # an unknown or broken method fails before any work
+    _warn_ignored_options(method, given)
     out = Path(args.out)
     video = is_video_path(args.dataset)
     if not video and Path(args.dataset).is_file():
