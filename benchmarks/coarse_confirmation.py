@@ -37,12 +37,15 @@ from ifmi.rotations import geodesic_angle
 
 
 class _Recorder:
-    """Wraps the coarse stage's ``estimate`` and ``_search`` to record every search of a pair."""
+    """While entered, records every search of each pair the coarse stage searches from two starts
+    (its ``estimate`` and ``_search`` wrapped; both restored on exit)."""
 
     def __init__(self, out):
         self.out, self.pair, self.searches = out, None, []
         self._estimate = global_motion.GlobalMotionEstimator.estimate
         self._search = global_motion.GlobalMotionEstimator._search
+
+    def __enter__(self) -> "_Recorder":
         recorder = self
 
         def search(estimator, reference, coarse_b, start):
@@ -59,6 +62,11 @@ class _Recorder:
 
         global_motion.GlobalMotionEstimator._search = search
         global_motion.GlobalMotionEstimator.estimate = estimate
+        return self
+
+    def __exit__(self, *exc) -> None:
+        global_motion.GlobalMotionEstimator._search = self._search
+        global_motion.GlobalMotionEstimator.estimate = self._estimate
 
     def write(self, result) -> None:
         name, mode, (a, b), truth = self.pair
@@ -120,8 +128,7 @@ def main(argv=None) -> int:
                         help="a result this close to the truth (radians) counts as right")
     parser.add_argument("--out", type=Path, required=True, help="JSON lines, one per call")
     args = parser.parse_args(argv)
-    with open(args.out, "w") as out:
-        recorder = _Recorder(out)
+    with open(args.out, "w") as out, _Recorder(out) as recorder:
         for mode in args.modes:
             for path in args.datasets:
                 record_dataset(path, mode, recorder)

@@ -487,3 +487,28 @@ def test_parallax_benchmark_records_both_fits_of_each_pair(tmp_path, monkeypatch
         assert r["error_rotation"] < 6e-3 and r["error_5pt"] < 6e-3 and np.isfinite(r["disagreement"])
     parallax.print_summary(rows)
     assert "3 / 3" in capsys.readouterr().out
+
+
+def test_coarse_confirmation_benchmark_records_both_searches_and_restores_the_stage(tmp_path, monkeypatch, capsys):
+    from ifmi.global_motion import GlobalMotionEstimator
+
+    confirmation = _benchmark_module("coarse_confirmation", monkeypatch)
+    original = GlobalMotionEstimator.estimate
+    model = example_omni_model(128)
+    # Random steps up to 0.4 rad: the constant-velocity prediction is off by more than 0.1 rad on
+    # three pairs, and the coarse stage searches from the identity as well.
+    sequence = synthetic_sequence(model, 6, seed=6, max_step_rad=0.4, band_px=example_band_px(model))
+    data = write_synthetic_dataset(tmp_path / "fast", sequence)
+    out = tmp_path / "confirm.jsonl"
+    assert confirmation.main([str(data), "--out", str(out), "--modes", "frame"]) == 0
+    assert GlobalMotionEstimator.estimate is original
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [tuple(line["pair"]) for line in lines] == [(1, 2), (3, 4), (4, 5)]
+    # The coarse stage's choice is within a quarter of a coarse pixel (2 pi / 128 columns = 0.049
+    # rad; measured 4-9 mrad) of the truth on each pair; twice the first search was 1-2.5 rad off
+    # and the identity's right, once the reverse.
+    assert all(line["chosen_err"] < 0.25 * 2 * np.pi / 128 and len(line["searches"]) == 2 for line in lines)
+    wrong_first = [line["searches"][0]["err"] > 0.5 for line in lines]
+    assert wrong_first == [True, True, False]
+    printed = capsys.readouterr().out
+    assert "later start right: 2 pairs" in printed and "first start right: 1 pairs" in printed
