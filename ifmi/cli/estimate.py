@@ -20,9 +20,10 @@ import dataclasses
 import math
 import os
 import sys
+import warnings
 from pathlib import Path
 
-from ..errors import CalibrationFitError, InputError
+from ..errors import CalibrationFitError, InputError, InputWarning
 from ..methods import load_factory
 from ..options import RejectedValues, replaced_at_paths
 from ..pipeline import EstimateConfig, estimate_dataset, estimate_video
@@ -318,9 +319,8 @@ def _warn_ignored_options(method: str, given: dict) -> None:
         return
     ignored = sorted({option for key, (option, _) in given.items() if key.startswith(_IFMI_ONLY_KEYS)})
     if ignored:
-        print(f"ifmi estimate: warning: {', '.join(ignored)} only change{'s' if len(ignored) == 1 else ''} "
-              f"iFMI's tiles; --method {method} does not read {'it' if len(ignored) == 1 else 'them'}",
-              file=sys.stderr)
+        warnings.warn(f"{', '.join(ignored)} only change{'s' if len(ignored) == 1 else ''} iFMI's tiles; "
+                      f"--method {method} does not read {'it' if len(ignored) == 1 else 'them'}", InputWarning)
 
 
 def run(args) -> int:
