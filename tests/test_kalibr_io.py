@@ -139,6 +139,19 @@ def test_dataset_folder_holds_one_calibration_of_either_format(tmp_path):
         calibration_path(tmp_path / "c")
 
 
+def test_a_calibration_link_to_a_missing_file_is_refused_not_passed_over(tmp_path):
+    # Beside a valid camera.yaml, a dangling calib_results.txt link was skipped without a word and
+    # the yaml used; alone, it read as "not found". Either way the calibration meant is unknown.
+    b = tmp_path / "b"
+    write_camera(b, EXAMPLES["kb"])
+    (b / "calib_results.txt").symlink_to(tmp_path / "moved" / "calib_results.txt")
+    with pytest.raises(InputError, match=r"calib_results.txt: is a link to a missing file \(.*moved"):
+        calibration_path(b)
+    (b / "camera.yaml").unlink()
+    with pytest.raises(InputError, match="is a link to a missing file"):
+        calibration_path(b)
+
+
 def test_read_dataset_uses_camera_yaml(tmp_path):
     import cv2
 

@@ -33,10 +33,14 @@ def calibration_path(folder: str | os.PathLike) -> Path:
     ------
     InputError
         Neither or both of ``calib_results.txt`` and ``camera.yaml`` present,
-        or the one present is a FIFO, device or socket (reading it would wait
-        for a writer that never comes).
+        either a link to a missing file, or the one present a FIFO, device or
+        socket (reading it would wait for a writer that never comes).
     """
     folder = Path(folder)
+    for name in (OCAMCALIB_FILE, KALIBR_FILE):
+        if (folder / name).is_symlink() and not (folder / name).exists():
+            # Passed over, the other file (or "not found") would stand in for the calibration meant.
+            raise InputError(folder / name, f"is a link to a missing file ({os.readlink(folder / name)})")
     # Whatever exists under either name is the calibration: a folder of that name is then named as one.
     found = [folder / name for name in (OCAMCALIB_FILE, KALIBR_FILE) if (folder / name).exists()]
     if not found:
