@@ -24,81 +24,55 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from unittest import mock
 
+import numpy as np
 
 from bench_methods import MODES, mode_config
-import ifmi.global_motion as global_motion
+from ifmi.global_motion import GlobalMotionEstimator
 from ifmi.io.dataset import read_dataset
 from ifmi.io.tum import read_tum
-from ifmi.methods import create_front_end
 from ifmi.odometry import track_sequence
 from ifmi.pipeline import EstimateConfig, resolved_config
 from ifmi.rotations import geodesic_angle
+from rotation_model_parallax import PairNamingFrontEnd
 
 
-class _Recorder:
-    """While entered, records every search of each pair the coarse stage searches from two starts
-    (its ``estimate`` and ``_search`` wrapped; both restored on exit)."""
-
-    def __init__(self, out):
-        self.out, self.pair, self.searches = out, None, []
-        self._estimate = global_motion.GlobalMotionEstimator.estimate
-        self._search = global_motion.GlobalMotionEstimator._search
-
-    def __enter__(self) -> "_Recorder":
-        recorder = self
-
-        def search(estimator, reference, coarse_b, start):
-            found, start_score = recorder._search(estimator, reference, coarse_b, start)
-            recorder.searches.append((start, found, start_score))
-            return found, start_score
-
-        def estimate(estimator, coarse_a, coarse_b, *, priors=(None,)):
-            recorder.searches = []
-            result = recorder._estimate(estimator, coarse_a, coarse_b, priors=priors)
-            if len(recorder.searches) > 1 and recorder.pair is not None:
-                recorder.write(result)
-            return result
-
-        global_motion.GlobalMotionEstimator._search = search
-        global_motion.GlobalMotionEstimator.estimate = estimate
-        return self
-
-    def __exit__(self, *exc) -> None:
-        global_motion.GlobalMotionEstimator._search = self._search
-        global_motion.GlobalMotionEstimator.estimate = self._estimate
-
-    def write(self, result) -> None:
-        name, mode, (a, b), truth = self.pair
-        searches = [{"start_err": float(geodesic_angle(start, truth)), "err": float(geodesic_angle(found.rotation, truth)),
-                     "score": found.score, "start_score": start_score, "success": found.success}
-                    for start, found, start_score in self.searches]
-        self.out.write(json.dumps({"set": name, "mode": mode, "pair": [a, b],
-                                   "chosen_err": float(geodesic_angle(result.rotation, truth)),
-                                   "searches": searches}) + "\n")
-
-
-def record_dataset(path: str, mode: str, recorder: _Recorder) -> None:
-    """Track ``path`` with iFMI's defaults in ``mode``, telling ``recorder`` each pair's frames and truth."""
+def record_dataset(path: str, mode: str, out) -> None:
+    """Track ``path`` with iFMI's defaults in ``mode`` and write to ``out`` one JSON line per coarse
+    estimate that searched from two starts (the coarse stage observed, its results unchanged)."""
     data = read_dataset(path)
     truth = read_tum(data.groundtruth_path).rotations
     config = mode_config(resolved_config(EstimateConfig(), data.model), mode)
-    front_end = create_front_end("ifmi", data.model, config)
-    prepare, correspondences, count = front_end.prepare, front_end.correspondences, [0]
+    pair, searches = [], []
+    search, estimate = GlobalMotionEstimator._search, GlobalMotionEstimator.estimate
 
-    def prepared(image):
-        state = prepare(image)
-        state.frame_index = count[0]
-        count[0] += 1
-        return state
+    def observed_search(estimator, reference, coarse_b, start):
+        found, start_score = search(estimator, reference, coarse_b, start)
+        searches.append({"start": start, "found": found, "start_score": start_score})
+        return found, start_score
 
-    def matched(state_a, state_b, **kwargs):
-        a, b = state_a.frame_index, state_b.frame_index
-        recorder.pair = (Path(path).name, mode, (a, b), truth[a].T @ truth[b])
-        return correspondences(state_a, state_b, **kwargs)
+    def observed_estimate(estimator, coarse_a, coarse_b, *, priors=(None,)):
+        searches.clear()
+        result = estimate(estimator, coarse_a, coarse_b, priors=priors)
+        if len(searches) > 1:
+            out.write(json.dumps(_record(Path(path).name, mode, pair, truth[pair[0]].T @ truth[pair[1]],
+                                         result, searches)) + "\n")
+        return result
 
-    front_end.prepare, front_end.correspondences = prepared, matched
-    track_sequence(data.iter_images(), front_end, pose_options=config.relative_pose, keyframe=config.keyframe)
+    with mock.patch.object(GlobalMotionEstimator, "_search", observed_search), \
+         mock.patch.object(GlobalMotionEstimator, "estimate", observed_estimate):
+        track_sequence(data.iter_images(), PairNamingFrontEnd(data.model, config.ifmi, pair),
+                       pose_options=config.relative_pose, keyframe=config.keyframe)
+
+
+def _record(name: str, mode: str, pair: list, truth: np.ndarray, result, searches: list) -> dict:
+    """One call's line: the pair, the chosen result's error and each search's figures (radians)."""
+    return {"set": name, "mode": mode, "pair": list(pair),
+            "chosen_err": float(geodesic_angle(result.rotation, truth)),
+            "searches": [{"start_err": float(geodesic_angle(s["start"], truth)),
+                          "err": float(geodesic_angle(s["found"].rotation, truth)), "score": s["found"].score,
+                          "start_score": s["start_score"], "success": s["found"].success} for s in searches]}
 
 
 def summarize(lines: list, right_rad: float) -> None:
@@ -128,10 +102,10 @@ def main(argv=None) -> int:
                         help="a result this close to the truth (radians) counts as right")
     parser.add_argument("--out", type=Path, required=True, help="JSON lines, one per call")
     args = parser.parse_args(argv)
-    with open(args.out, "w") as out, _Recorder(out) as recorder:
+    with open(args.out, "w") as out:
         for mode in args.modes:
             for path in args.datasets:
-                record_dataset(path, mode, recorder)
+                record_dataset(path, mode, out)
     summarize([json.loads(line) for line in open(args.out)], args.right_rad)
     return 0
 
