@@ -99,7 +99,12 @@ class GlobalMotionConfig:
         and the sector passes only from this many, those whose yaw
         correlation peaks clearest (from a start near the true tilt the
         peak ratio was 2.4 to 6.8 on lawn pairs, from the others mostly
-        1.0 to 2.3).
+        1.0 to 2.3). A pair that fails anyway is searched from every start
+        (:meth:`GlobalMotionEstimator.wide_search`, ``every_start``): on the
+        first pairs of translated sets at about 26 degrees per frame (the
+        atelier and office renders of seeds 11 and 5, every 10th frame) the
+        two clearest peaks were wrong starts, 0.17-0.47 rad off, while the
+        best of all eight came within 0.04-0.09 rad.
     confirm_mismatch_ratio : float
         A result of the search from another start (see
         ``confirm_angle_rad``) that lies more than ``confirm_angle_rad``
@@ -116,13 +121,17 @@ class GlobalMotionConfig:
         off), a right result from another start left 0.03-0.26 of the
         first's mismatch, a wrong one 0.99 or more of it.
     wide_mismatch_ratio : float
-        A wide search result replaces the rotation found before only when
-        its mismatch ``1 - score`` is at most this fraction of that one's.
-        A wrong yaw leaves a clear mismatch that the right one removes (lawn
-        pairs tilted by 10 degrees: 0.037 against 0.005), while under
-        parallax every coarse rotation leaves most of it (office with
-        translation: 0.32 against 0.30), and there the scores do not rank
-        rotations a few degrees apart.
+        A wide search result is clearly better than the rotation found
+        before (:meth:`GlobalMotionEstimator.clearly_better`) when it lies
+        more than ``confirm_angle_rad`` from it and its mismatch
+        ``1 - score`` is at most this fraction of that one's. A wrong yaw
+        leaves a clear mismatch that the right one removes (lawn pairs
+        tilted by 10 degrees: 0.037 against 0.005), while under parallax
+        every coarse rotation leaves most of it (office with translation:
+        0.32 against 0.30), and there the scores do not rank rotations a
+        few degrees apart: a result that only matches better is taken
+        only for a pair that cannot be solved otherwise
+        (:meth:`ifmi.spectral_front_end.IfmiFrontEnd.rescue_correspondences`).
     settled_shift_px : float
         When the whole-panorama shift from a start is below this (coarse
         pixels) along both axes, the start is returned as it is and the
@@ -418,8 +427,8 @@ class GlobalMotionEstimator:
         return not far or 1.0 - other.score <= self.config.confirm_mismatch_ratio * (1.0 - first.score)
 
     def wide_search(self, coarse_a: np.ndarray, coarse_b: np.ndarray, *, start: np.ndarray | None,
-                    current_rotation: np.ndarray, current_score: float) -> GlobalMotion | None:
-        """The search from tilted copies of ``start``, when it clearly beats ``current``.
+                    current_score: float, every_start: bool = False) -> GlobalMotion | None:
+        """The search from tilted copies of ``start``, when it beats ``current``.
 
         For pairs whose tiles failed at the rotation :meth:`estimate` gave:
         under a tilt of more than a few degrees the whole-panorama
@@ -434,18 +443,19 @@ class GlobalMotionEstimator:
         coarse_a, coarse_b : (h, w) float32 ndarray
         start : (3, 3) ndarray or None, keyword-only
             ``R_ab`` the grid is centred on (None: the identity).
-        current_rotation : (3, 3) ndarray, keyword-only
-            ``R_ab`` found before (by :meth:`estimate`).
         current_score : float, keyword-only
-            Its :meth:`score`.
+            :meth:`score` of the ``R_ab`` found before (by :meth:`estimate`).
+        every_start : bool, keyword-only
+            Run the sector passes from every start of the grid instead of
+            the ``config.wide_candidates`` clearest.
 
         Returns
         -------
         GlobalMotion or None
-            The best search from the grid, if it succeeded, lies more than
-            ``config.confirm_angle_rad`` from ``current_rotation`` and leaves
-            at most ``config.wide_mismatch_ratio`` of its mismatch
-            ``1 - score``; else None.
+            The best search from the grid, if it succeeded and matches
+            better than ``current_score``; else None. Whether it is clearly
+            better, far from that rotation and removing most of its
+            mismatch, :meth:`clearly_better` tells.
         """
         c = self.config
         start = np.eye(3) if start is None else np.asarray(start, dtype=np.float64)
@@ -453,14 +463,20 @@ class GlobalMotionEstimator:
         starts = self._tilted_starts(start)
         # Only the starts whose yaw search peaks clearest get the sector passes.
         ratios = [self._yaw_search(reference.whole, self.warped(coarse_b, tilted))[1] for tilted in starts]
-        clearest = np.argsort(ratios, kind="stable")[::-1][:c.wide_candidates]
+        clearest = np.argsort(ratios, kind="stable")[::-1][:len(starts) if every_start else c.wide_candidates]
         # Every candidate is searched: the clearest can land on the same wrong yaw as before.
         wide = max((self._search(reference, coarse_b, starts[k])[0] for k in clearest),
                    key=lambda result: (result.success, result.score), default=None)
-        if (wide is None or not wide.success or _angle(current_rotation.T @ wide.rotation) <= c.confirm_angle_rad
-                or 1.0 - wide.score > c.wide_mismatch_ratio * (1.0 - current_score)):
+        if wide is None or not wide.success or wide.score <= current_score:
             return None
         return wide
+
+    def clearly_better(self, found: GlobalMotion, *, current_rotation: np.ndarray, current_score: float) -> bool:
+        """Whether ``found`` lies more than ``config.confirm_angle_rad`` from ``current_rotation`` and
+        leaves at most ``config.wide_mismatch_ratio`` of its mismatch ``1 - current_score``."""
+        c = self.config
+        return (_angle(current_rotation.T @ found.rotation) > c.confirm_angle_rad
+                and 1.0 - found.score <= c.wide_mismatch_ratio * (1.0 - current_score))
 
     def _tilted_starts(self, start: np.ndarray) -> np.ndarray:
         """``start`` tilted (on the left, about a's horizontal axes) by the wide search's grid, (K, 3, 3)."""

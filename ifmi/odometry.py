@@ -305,19 +305,26 @@ class Tracker:
     def _solve(self, reference: _Reference, state, predicted: np.ndarray, frame: int):
         """``(pose, info, corr)`` of ``frame`` against ``reference``; ``(None, None, corr)`` when matching failed.
 
+        A pair that failed to match or to solve is passed to a front end's
+        ``rescue_correspondences`` (``(state_a, state_b, failed, *,
+        prior_rotation) -> Correspondences or None``) when it has one;
+        correspondences it returns replace the failure when they solve.
         A front end with ``refine_correspondences`` is passed the solved
         ``R_ab``; correspondences it returns are solved again and replace the
         first solution when that succeeds. Failed ones leave the first
         solution, their reason in the diagnostics (``REFINE_FAILURE``).
         """
+        prior = reference.rotation.T @ predicted
         if getattr(self.front_end, "uses_prior_rotation", False):
-            corr = self.front_end.correspondences(reference.state, state,
-                                                  prior_rotation=reference.rotation.T @ predicted)
+            corr = self.front_end.correspondences(reference.state, state, prior_rotation=prior)
         else:
             corr = self.front_end.correspondences(reference.state, state)
-        if not corr.success:
-            return None, None, corr
-        pose, info = self._solve_rays(reference, corr, frame)
+        pose, info = self._solve_rays(reference, corr, frame) if corr.success else (None, None)
+        if info is None or not info.success:
+            rescued = self._rescued(reference, state, corr, prior, frame)
+            if rescued is None:
+                return pose, info, corr
+            pose, info, corr = rescued
         refine = getattr(self.front_end, "refine_correspondences", None)
         if refine is not None and info.success:
             refined = refine(reference.state, state, corr, rotation_ab=pose.rotation)
@@ -328,6 +335,18 @@ class Tracker:
                 if info_refined.success:
                     return pose_refined, info_refined, refined
         return pose, info, corr
+
+    def _rescued(self, reference: _Reference, state, failed, prior: np.ndarray, frame: int) -> tuple | None:
+        """``(pose, info, corr)`` from a front end with ``rescue_correspondences`` for a pair that
+        failed to match or to solve (``failed``), when they solve; else None."""
+        rescue = getattr(self.front_end, "rescue_correspondences", None)
+        if rescue is None:
+            return None
+        corr = rescue(reference.state, state, failed, prior_rotation=prior)
+        if corr is None:
+            return None
+        pose, info = self._solve_rays(reference, corr, frame)
+        return (pose, info, corr) if info.success else None
 
     def _solve_rays(self, reference: _Reference, corr, frame: int) -> tuple:
         """``(pose, info)`` of the back end on ``corr``'s rays (with the rolling-shutter model when set)."""

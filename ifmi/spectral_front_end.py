@@ -103,12 +103,14 @@ class IfmiConfig:
     wide_search_fraction : float
         When at most this fraction of the tiles pass at the coarse stage's
         rotation (after any re-acquisition) and that rotation is more than
-        ``global_motion.confirm_angle_rad`` from the prediction, its wide search
-        (:meth:`ifmi.global_motion.GlobalMotionEstimator.wide_search`, from
-        starts tilted around the prediction) looks for a clearly better
-        rotation, and the tiles are registered there instead. A tilt of ten degrees between frames can smear
-        the whole-panorama correlation into a wrong yaw that a few tiles
-        still agree with. 0 disables the search.
+        ``global_motion.confirm_angle_rad`` from the prediction, its wide
+        search (:meth:`ifmi.global_motion.GlobalMotionEstimator.wide_search`,
+        from starts tilted around the prediction) looks for a clearly better
+        rotation, and the tiles are registered there instead. A tilt of ten
+        degrees between frames can smear the whole-panorama correlation into
+        a wrong yaw that a few tiles still agree with. A pair that cannot be
+        solved at all is searched again from every start
+        (:meth:`IfmiFrontEnd.rescue_correspondences`). 0 disables both.
     max_tile_distortion : float
         A tracked tile whose placement stretches or shrinks the panorama by
         more than this factor along any direction is cut anew.
@@ -853,26 +855,26 @@ class IfmiFrontEnd:
     def _needs_wide_search(self, match: "_TileMatch", diagnostics: dict) -> bool:
         """Few tiles passed after the coarse stage moved the prediction far (more than
         ``global_motion.confirm_angle_rad``): it may have jumped to a wrong yaw. Where it kept or
-        nudged the prediction, the tiles fail for noise or parallax, which the wide search cannot help."""
-        return (self.global_stage is not None and self.config.wide_search_fraction > 0
+        nudged the prediction, the tiles fail for noise or parallax, which the wide search cannot
+        help unless the pair cannot be solved (:meth:`rescue_correspondences`)."""
+        return (self._wide_search_on()
                 and match.placed.valid.sum() <= self.config.wide_search_fraction * self.layout.count
                 and diagnostics.get("coarse_correction_rad", 0.0) > self.config.global_motion.confirm_angle_rad)
 
-    def _wide_match(self, state_a: IfmiFrameState, state_b: IfmiFrameState, match: "_TileMatch",
-                    diagnostics: dict, prediction: np.ndarray) -> tuple["_TileMatch", dict] | None:
-        """Tiles at the coarse stage's wide search (around ``prediction``), if it finds a clearly
-        better rotation than ``match``'s; else None.
+    def _wide_search_on(self) -> bool:
+        """Whether the wide search can run (a coarse stage, ``config.wide_search_fraction`` above 0)."""
+        return self.global_stage is not None and self.config.wide_search_fraction > 0
 
-        The coarse match decides, not the tile count: both registrations come
-        here with few tiles passing, and under parallax (lawn with
-        translation) the right rotation can keep as few as the wrong one
-        (2 against 3) until the dense retry registers more.
-        """
-        coarse = self.global_stage.wide_search(state_a.coarse_panorama, state_b.coarse_panorama, start=prediction,
-                                               current_rotation=match.rotation,
-                                               current_score=diagnostics["coarse_score"])
-        if coarse is None:
-            return None
+    def _wide_search(self, state_a: IfmiFrameState, state_b: IfmiFrameState, diagnostics: dict,
+                     prediction: np.ndarray, *, every_start: bool = False) -> GlobalMotion | None:
+        """The coarse stage's wide search around ``prediction``: a rotation matching better than the
+        coarse rotation the tiles were registered at (``diagnostics["coarse_score"]``), or None."""
+        return self.global_stage.wide_search(state_a.coarse_panorama, state_b.coarse_panorama, start=prediction,
+                                             current_score=diagnostics["coarse_score"], every_start=every_start)
+
+    def _wide_tiles(self, state_a: IfmiFrameState, state_b: IfmiFrameState, coarse: GlobalMotion,
+                    prediction: np.ndarray) -> tuple["_TileMatch", dict]:
+        """Tiles at the wide search's rotation ``coarse``, and their figures."""
         wide = self._tiles_at(state_a, state_b, coarse.rotation)
         tiles = self._diagnostics(wide.placed.reason, wide.placed.peak_ratio, wide.placed.peak_to_noise, wide.n_new)
         return wide, {**tiles, **_coarse_diagnostics(prediction, coarse), "wide_search": True}
@@ -1010,10 +1012,60 @@ class IfmiFrontEnd:
                 match, diagnostics = retry, {**retry_diagnostics, "reacquired": True}
             match.restore_tracking(state_b)
         if self._needs_wide_search(match, diagnostics):
-            wide = self._wide_match(state_a, state_b, match, diagnostics, prior_rotation)
-            if wide is not None:
-                match, diagnostics = wide
+            # The coarse match decides here, not the tile count: both registrations have few tiles
+            # passing, and under parallax (lawn with translation) the right rotation can keep as few
+            # as the wrong one (2 against 3) until the dense retry registers more.
+            searched = self._wide_search(state_a, state_b, diagnostics, prior_rotation)
+            if searched is not None and self.global_stage.clearly_better(
+                    searched, current_rotation=match.rotation, current_score=diagnostics["coarse_score"]):
+                match, diagnostics = self._wide_tiles(state_a, state_b, searched, prior_rotation)
         return self._correspondences_from_match(state_a, state_b, match, diagnostics)
+
+    def rescue_correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, failed: Correspondences, *,
+                               prior_rotation: np.ndarray | None = None) -> Correspondences | None:
+        """Correspondences of a pair that could not be solved, registered at the best rotation of a
+        wide search from every start, or None.
+
+        Called by the odometry when :meth:`correspondences` failed or the
+        back end could not solve what it returned (too few tiles kept
+        inliers). Any rotation whose panorama matches better than the
+        coarse stage's is tried, not only a clearly better one
+        (:meth:`_needs_wide_search`): under parallax every coarse rotation
+        leaves most of the panorama mismatch, and on the first pair of a
+        sequence the prediction is the identity, which the coarse stage
+        keeps when its own search from there matches worse.
+
+        Parameters
+        ----------
+        state_a, state_b : IfmiFrameState
+            The pair ``failed`` was matched from (reference a, frame b).
+        failed : Correspondences
+            What :meth:`correspondences` returned for the pair.
+        prior_rotation : (3, 3) ndarray, optional, keyword-only
+            The predicted ``R_ab`` it was given.
+
+        Returns
+        -------
+        Correspondences or None
+            With ``wide_search`` and ``wide_rescue`` in the diagnostics;
+            None when there is nothing to try (no prediction or coarse
+            stage, the wide search off or already taken for the pair, no
+            better-matching rotation) or the tiles fail there too. Frame b
+            then keeps its first registration.
+        """
+        if not self.config.use_prior or prior_rotation is None or not self._wide_search_on() \
+                or "coarse_score" not in failed.diagnostics or "wide_search" in failed.diagnostics:
+            return None
+        searched = self._wide_search(state_a, state_b, failed.diagnostics, prior_rotation, every_start=True)
+        if searched is None:
+            return None
+        first = (state_b.tracked, state_b.tracked_valid, state_b.tracked_landmarks, state_b.registered_rotation)
+        wide, diagnostics = self._wide_tiles(state_a, state_b, searched, prior_rotation)
+        rescued = self._correspondences_from_match(state_a, state_b, wide, {**diagnostics, "wide_rescue": True})
+        if rescued.success:
+            return rescued
+        state_b.tracked, state_b.tracked_valid, state_b.tracked_landmarks, state_b.registered_rotation = first
+        return None
 
     def _too_few_tiles(self, valid: np.ndarray, diagnostics: dict) -> Correspondences:
         """A failed pair: fewer than ``config.min_tiles`` of the ``valid`` tiles passed."""

@@ -308,3 +308,44 @@ def test_correspondences_refined_at_the_solved_pose_are_solved_again(refined):
         assert max(relative) < 1e-9 and all(r.diagnostics.get("refined") for r in records[1:])
     else:
         assert np.allclose(relative, 0.01, atol=1e-6) and not any(r.diagnostics.get("refined") for r in records)
+
+
+class RescuingFrontEnd(ExactFrontEnd):
+    """Frames listed in ``fail`` give no match, those in ``unsolvable`` 2 rays (too few to solve);
+    ``rescue_correspondences`` gives the exact rays, or None for frames in ``no_rescue``."""
+
+    uses_prior_rotation = True
+
+    def __init__(self, *, fail=(), unsolvable=(), no_rescue=()):
+        super().__init__(fail)
+        self.unsolvable, self.no_rescue, self.rescue_calls = set(unsolvable), set(no_rescue), []
+
+    def correspondences(self, state_a, state_b, *, prior_rotation=None):
+        first = super().correspondences(state_a, state_b)
+        if first.success and state_b[0] in self.unsolvable:
+            return Correspondences(first.pixels_a[:2], first.pixels_b[:2], first.rays_a[:2], first.rays_b[:2],
+                                   {"n_tiles": 1})
+        return first
+
+    def rescue_correspondences(self, state_a, state_b, failed, *, prior_rotation):
+        self.rescue_calls.append((state_a[0], state_b[0], failed.success, prior_rotation))
+        if state_b[0] in self.no_rescue:
+            return None
+        rays_a, rays_b = self.world @ state_a[1], self.world @ state_b[1]
+        return Correspondences(rays_a * 0, rays_b * 0, rays_a, rays_b, {"rescued": True})
+
+
+def test_a_pair_that_fails_to_match_or_to_solve_is_rescued():
+    # Frame 2 matches nothing, frame 4 gives too few rays to solve, frame 6's rescue gives nothing;
+    # the front end's rescue is called for exactly those, with the prediction, and its rays replace
+    # the failures it answers.
+    frames, truth = _frames(8)
+    fe = RescuingFrontEnd(fail={2, 6}, unsolvable={4}, no_rescue={6})
+    traj, records = track_sequence(frames, fe, pose_options=POSE)
+    assert [(a, b, ok) for a, b, ok, _ in fe.rescue_calls] == [(1, 2, False), (3, 4, True), (5, 6, False)]
+    predicted = fe.rescue_calls[0][3]  # constant velocity from frames 0 and 1
+    assert geodesic_angle(predicted, truth[0].T @ truth[1]) < 1e-9
+    assert [r.success for r in records] == [True] * 6 + [False, True]
+    assert records[2].diagnostics["rescued"] and records[4].diagnostics["rescued"]
+    good = [k for k in range(8) if k != 6]
+    assert np.max(geodesic_angle(truth[good], traj.rotations[good])) < 1e-9

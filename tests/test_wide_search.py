@@ -11,6 +11,8 @@ from scipy.spatial.transform import Rotation
 from ifmi.camera import paracatadioptric_model
 from ifmi.global_motion import GlobalMotion, GlobalMotionConfig, GlobalMotionEstimator, rotation_from_ray_pairs
 from ifmi.rotations import geodesic_angle
+from ifmi.odometry import track_sequence
+from ifmi.relative_pose import RelativePoseOptions
 from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
 from ifmi.synthetic import environment_texture, omni_from_environment
 from ifmi.unwarp import PanoramaConfig, panorama_image_from_omni_image, panorama_mapping
@@ -45,11 +47,12 @@ def test_the_wide_search_replaces_a_wrong_yaw(texture):
     estimator, mapping = _estimator()
     a, b = _coarse_pair(texture, estimator, mapping)
     wrong_score = estimator.score(a, estimator.warped(b, WRONG))
-    found = estimator.wide_search(a, b, start=None, current_rotation=WRONG, current_score=wrong_score)
+    found = estimator.wide_search(a, b, start=None, current_score=wrong_score)
     assert found is not None and found.success
     # Measured 0.12 degree; a coarse pixel is 2.8 degrees.
     assert np.degrees(geodesic_angle(TRUTH, found.rotation)) < 1.0
     assert 1.0 - found.score <= 0.5 * (1.0 - wrong_score)
+    assert estimator.clearly_better(found, current_rotation=WRONG, current_score=wrong_score)
 
 
 def test_the_wide_search_leaves_a_right_rotation_alone(texture):
@@ -57,15 +60,51 @@ def test_the_wide_search_leaves_a_right_rotation_alone(texture):
     a, b = _coarse_pair(texture, estimator, mapping)
     right = estimator.estimate(a, b)
     assert np.degrees(geodesic_angle(TRUTH, right.rotation)) < 1.0
-    assert estimator.wide_search(a, b, start=None, current_rotation=right.rotation,
-                                 current_score=right.score) is None
+    found = estimator.wide_search(a, b, start=None, current_score=right.score)
+    # Nothing matches better, or only a rotation next to it that does not clearly replace it.
+    assert found is None or (found.score > right.score and np.degrees(geodesic_angle(TRUTH, found.rotation)) < 1.0
+                             and not estimator.clearly_better(found, current_rotation=right.rotation,
+                                                              current_score=right.score))
+
+
+@pytest.mark.parametrize("every_start, searches", [(False, 2), (True, 8)])
+def test_the_wide_search_refines_the_clearest_starts_or_every_start(texture, monkeypatch, every_start, searches):
+    estimator, mapping = _estimator()
+    a, b = _coarse_pair(texture, estimator, mapping)
+    starts = []
+    search = GlobalMotionEstimator._search
+
+    def counted(self, reference, coarse_b, start):
+        starts.append(start)
+        return search(self, reference, coarse_b, start)
+
+    monkeypatch.setattr(GlobalMotionEstimator, "_search", counted)
+    wrong_score = estimator.score(a, estimator.warped(b, WRONG))
+    found = estimator.wide_search(a, b, start=None, current_score=wrong_score, every_start=every_start)
+    # The default grid: 8 starts tilted by 8 degrees; wide_candidates 2 of them by default.
+    assert len(starts) == searches and len({s.tobytes() for s in starts}) == searches
+    assert found is not None and np.degrees(geodesic_angle(TRUTH, found.rotation)) < 1.0
+
+
+def test_a_near_or_slightly_better_result_is_not_clearly_better(texture):
+    estimator, mapping = _estimator()
+    a, b = _coarse_pair(texture, estimator, mapping)
+    wrong_score = estimator.score(a, estimator.warped(b, WRONG))
+    right = GlobalMotion(TRUTH, True, "", 2.0, 12, estimator.score(a, estimator.warped(b, TRUTH)))
+    # Far and clearly better; the same rotation nudged by 0.05 rad (under confirm_angle_rad) is not far.
+    assert estimator.clearly_better(right, current_rotation=WRONG, current_score=wrong_score)
+    nudged = TRUTH @ Rotation.from_euler("x", 0.05).as_matrix()
+    assert not estimator.clearly_better(right, current_rotation=nudged, current_score=wrong_score)
+    # Far but leaving more than wide_mismatch_ratio (0.5) of the mismatch: 0.6 of it.
+    slightly = replace(right, score=1.0 - 0.6 * (1.0 - wrong_score))
+    assert not estimator.clearly_better(slightly, current_rotation=WRONG, current_score=wrong_score)
 
 
 def test_the_wide_search_can_be_turned_off(texture):
     estimator, mapping = _estimator(GlobalMotionConfig(wide_tilt_max_deg=0.0))
     a, b = _coarse_pair(texture, estimator, mapping)
     wrong_score = estimator.score(a, estimator.warped(b, WRONG))
-    assert estimator.wide_search(a, b, start=None, current_rotation=WRONG, current_score=wrong_score) is None
+    assert estimator.wide_search(a, b, start=None, current_score=wrong_score) is None
 
 
 def _coarse_stage_returns(monkeypatch, rotation, score):
@@ -91,6 +130,117 @@ def test_the_front_end_searches_wide_when_the_tiles_fail(texture, monkeypatch):
     a, b = (plain.prepare(omni_from_environment(texture, MODEL, r, band_px=BAND)) for r in (np.eye(3), TRUTH))
     failed = plain.correspondences(a, b, prior_rotation=np.eye(3))
     assert not failed.success and "wide_search" not in failed.diagnostics
+
+
+def _frames(front_end, texture):
+    return [front_end.prepare(omni_from_environment(texture, MODEL, r, band_px=BAND)) for r in (np.eye(3), TRUTH)]
+
+
+def test_the_front_end_searches_wide_when_the_coarse_stage_kept_the_prediction(texture, monkeypatch):
+    # The first pair of a sequence: the prediction is the identity, 31 degrees from R_01. When the
+    # coarse stage's own search matches worse than its start it returns the start unchanged; the
+    # tiles then fail there, and the failing pair is rescued by the wide search.
+    config = IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0)
+    front_end = IfmiFrontEnd(MODEL, config)
+    a, b = _frames(front_end, texture)
+    score = front_end.global_stage.score(a.coarse_panorama, b.coarse_panorama)
+    monkeypatch.setattr(GlobalMotionEstimator, "estimate",
+                        lambda self, coarse_a, coarse_b, *, priors=(None,): GlobalMotion(np.eye(3), True, "", 1.3,
+                                                                                          0, score))
+    failed = front_end.correspondences(a, b, prior_rotation=np.eye(3))
+    assert not failed.success
+    pair = front_end.rescue_correspondences(a, b, failed, prior_rotation=np.eye(3))
+    assert pair.success and pair.diagnostics["wide_search"] and pair.diagnostics["wide_rescue"]
+    # Measured 0.026 degree, as from the wrong yaw above.
+    assert np.degrees(geodesic_angle(TRUTH, rotation_from_ray_pairs(pair.rays_a, pair.rays_b))) < 0.1
+
+
+def test_a_failing_pair_takes_a_rotation_that_only_matches_better(texture, monkeypatch):
+    # Under parallax every coarse rotation leaves most of the mismatch, so the wide search's result
+    # cannot be clearly better by its score; a pair that would fail takes it when its tiles pass.
+    # The coarse stage is told here that the wrong yaw matches almost as well as the truth.
+    config = IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0)
+    front_end = IfmiFrontEnd(MODEL, config)
+    a, b = _frames(front_end, texture)
+    stage = front_end.global_stage
+    close = stage.score(a.coarse_panorama, stage.warped(b.coarse_panorama, TRUTH)) - 0.02
+    _coarse_stage_returns(monkeypatch, WRONG, close)
+    found = stage.wide_search(a.coarse_panorama, b.coarse_panorama, start=None, current_score=close)
+    assert found is not None and not stage.clearly_better(found, current_rotation=WRONG, current_score=close)
+    failed = front_end.correspondences(a, b, prior_rotation=np.eye(3))
+    assert not failed.success
+    pair = front_end.rescue_correspondences(a, b, failed, prior_rotation=np.eye(3))
+    assert pair.success and pair.diagnostics["wide_search"] and pair.diagnostics["wide_rescue"]
+    assert b.tracked_valid.sum() == pair.diagnostics["n_tiles_kept"] >= config.min_tiles
+    assert np.degrees(geodesic_angle(TRUTH, rotation_from_ray_pairs(pair.rays_a, pair.rays_b))) < 0.1
+    # Without the wide search there is nothing to rescue with.
+    plain = IfmiFrontEnd(MODEL, replace(config, wide_search_fraction=0.0))
+    a, b = _frames(plain, texture)
+    failed = plain.correspondences(a, b, prior_rotation=np.eye(3))
+    assert not failed.success and "wide_search" not in failed.diagnostics
+    assert plain.rescue_correspondences(a, b, failed, prior_rotation=np.eye(3)) is None
+
+
+def test_a_rescue_whose_tiles_fail_leaves_the_failed_pair(texture, monkeypatch):
+    # Frame b shows another scene: the wide search finds some rotation matching better than the
+    # coarse stage's (observed below), its tiles fail too, and frame b keeps the first
+    # registration, as without a rescue.
+    other = omni_from_environment(environment_texture(height=360, seed=9), MODEL, np.eye(3), band_px=BAND)
+    found = []
+    search = GlobalMotionEstimator.wide_search
+
+    def observed(self, *args, **kwargs):
+        found.append(search(self, *args, **kwargs))
+        return found[-1]
+
+    monkeypatch.setattr(GlobalMotionEstimator, "wide_search", observed)
+    front_end = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0))
+    a = front_end.prepare(omni_from_environment(texture, MODEL, np.eye(3), band_px=BAND))
+    b = front_end.prepare(other)
+    failed = front_end.correspondences(a, b, prior_rotation=np.eye(3))
+    assert not failed.success
+    kept = (b.tracked_valid.copy(), b.tracked.offsets.copy(), b.registered_rotation.copy())
+    found.clear()
+    assert front_end.rescue_correspondences(a, b, failed, prior_rotation=np.eye(3)) is None
+    assert len(found) == 1 and found[0] is not None
+    np.testing.assert_array_equal(b.tracked_valid, kept[0])
+    np.testing.assert_array_equal(b.tracked.offsets, kept[1])
+    np.testing.assert_array_equal(b.registered_rotation, kept[2])
+
+
+def test_there_is_no_rescue_without_a_prediction_or_twice(texture, monkeypatch):
+    front_end = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0,
+                                               wide_search_fraction=0.0))
+    a, b = _frames(front_end, texture)
+    # The coarse stage lands on the wrong yaw (and the first wide search is off): the pair fails.
+    _coarse_stage_returns(monkeypatch, WRONG, 0.1)
+    failed = front_end.correspondences(a, b, prior_rotation=np.eye(3))
+    assert not failed.success
+    front_end.config = replace(front_end.config, wide_search_fraction=0.33)
+    assert front_end.rescue_correspondences(a, b, failed) is None
+    rescued = front_end.rescue_correspondences(a, b, failed, prior_rotation=np.eye(3))
+    assert rescued is not None and rescued.success
+    assert front_end.rescue_correspondences(a, b, rescued, prior_rotation=np.eye(3)) is None
+
+
+def test_the_odometry_rescues_a_first_pair_the_coarse_stage_kept(texture, monkeypatch):
+    # As above, the coarse stage keeps the identity for R_01 (31 degrees off) and the tiles fail
+    # there; the tracker passes the failure to the front end's rescue and chains its solution.
+    config = IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0)
+    frames = [omni_from_environment(texture, MODEL, r, band_px=BAND) for r in (np.eye(3), TRUTH)]
+    original = GlobalMotionEstimator.estimate
+    monkeypatch.setattr(GlobalMotionEstimator, "estimate",
+                        lambda self, coarse_a, coarse_b, *, priors=(None,):
+                        replace(original(self, coarse_a, coarse_b, priors=priors), rotation=np.eye(3), n_sectors=0,
+                                score=self.score(coarse_a, coarse_b)))
+    options = RelativePoseOptions(ransac_threshold_rad=0.01, seed=0)
+    trajectory, records = track_sequence(frames, IfmiFrontEnd(MODEL, config), pose_options=options)
+    assert records[1].success and records[1].diagnostics["wide_rescue"]
+    assert np.degrees(geodesic_angle(TRUTH, trajectory.rotations[1])) < 0.1
+    # Without the wide search the first pair fails and frame 1 keeps frame 0's pose.
+    _, plain = track_sequence(frames, IfmiFrontEnd(MODEL, replace(config, wide_search_fraction=0.0)),
+                              pose_options=options)
+    assert not plain[1].success
 
 
 @pytest.mark.parametrize("kwargs, name", [({"wide_tilt_max_deg": -1.0}, "wide_tilt_max_deg"),
