@@ -428,7 +428,7 @@ class GlobalMotionEstimator:
 
     def wide_search(self, coarse_a: np.ndarray, coarse_b: np.ndarray, *, start: np.ndarray | None,
                     current_score: float, every_start: bool = False) -> GlobalMotion | None:
-        """The search from tilted copies of ``start``, when it beats ``current``.
+        """The search from tilted copies of ``start``, when it matches better than ``current_score``.
 
         For pairs whose tiles failed at the rotation :meth:`estimate` gave:
         under a tilt of more than a few degrees the whole-panorama
