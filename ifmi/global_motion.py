@@ -338,10 +338,16 @@ class GlobalMotionEstimator:
         sectors = np.moveaxis(image[:, cols], 1, 0)
         return windowed_spectra(sectors, self.sector_window)
 
-    def _yaw_search(self, spectrum_a: np.ndarray, warped_b: np.ndarray) -> tuple[np.ndarray, float]:
-        """Whole-panorama shift ``(row, col)`` of warped b against a (a's :meth:`_yaw_spectrum`), and its peak ratio."""
-        peaks = find_peaks(correlation_surface(normalized_cross_power(spectrum_a, self._yaw_spectrum(warped_b)),
-                                               self.shape))
+    def _yaw_search(self, spectrum_a: np.ndarray, warped_b: np.ndarray, *,
+                    max_col_shift: float | None = None) -> tuple[np.ndarray, float]:
+        """Whole-panorama shift ``(row, col)`` of warped b against a (a's :meth:`_yaw_spectrum`), and its peak
+        ratio; with ``max_col_shift`` (coarse columns) the peak is taken among shifts up to that."""
+        surface = correlation_surface(normalized_cross_power(spectrum_a, self._yaw_spectrum(warped_b)), self.shape)
+        if max_col_shift is not None:
+            width = self.shape[1]
+            shifts = (np.arange(width) + width // 2) % width - width // 2
+            surface[..., np.abs(shifts) > max_col_shift] = surface.min()
+        peaks = find_peaks(surface)
         return peaks.shift[0], float(peaks.peak_ratio[0])
 
     def _sector_fit(self, sectors_a: np.ndarray, warped_b: np.ndarray, rotation: np.ndarray):
@@ -471,6 +477,35 @@ class GlobalMotionEstimator:
             return None
         return wide
 
+    def search_near(self, coarse_a: np.ndarray, coarse_b: np.ndarray, *, starts: np.ndarray,
+                    max_yaw_rad: float) -> GlobalMotion:
+        """The search of :meth:`estimate` from each of ``starts`` with its yaw kept near the start; the best match.
+
+        The whole-panorama peak is taken among shifts of at most
+        ``max_yaw_rad`` about the panorama axis, so a scene that matches
+        itself farther round (a room turned half round) cannot pull the
+        search there; the sector passes follow as usual.
+
+        Parameters
+        ----------
+        coarse_a, coarse_b : (h, w) float32 ndarray
+        starts : (K, 3, 3) ndarray, keyword-only
+            Starting ``R_ab`` values, ``K >= 1``.
+        max_yaw_rad : float, keyword-only
+            Largest yaw correction of the whole-panorama search, radians.
+
+        Returns
+        -------
+        GlobalMotion
+            The result whose warped panorama b matches a best (:meth:`score`;
+            successful results first).
+        """
+        reference = _ReferenceSpectra(self, coarse_a)
+        max_col_shift = max_yaw_rad * self.shape[1] / (2 * np.pi)
+        found = [self._search(reference, coarse_b, np.asarray(start, dtype=np.float64),
+                              max_col_shift=max_col_shift)[0] for start in starts]
+        return max(found, key=lambda result: (result.success, result.score))
+
     def clearly_better(self, found: GlobalMotion, *, current_rotation: np.ndarray, current_score: float) -> bool:
         """Whether ``found`` lies more than ``config.confirm_angle_rad`` from ``current_rotation`` and
         leaves at most ``config.wide_mismatch_ratio`` of its mismatch ``1 - current_score``."""
@@ -488,15 +523,16 @@ class GlobalMotionEstimator:
         rpy = np.stack([roll[tilted], pitch[tilted], np.zeros(int(tilted.sum()))], axis=1)
         return matrix_from_rpy(rpy) @ start
 
-    def _search(self, reference: _ReferenceSpectra, coarse_b: np.ndarray,
-                start: np.ndarray) -> tuple[GlobalMotion, float]:
-        """Yaw search and sector passes from ``start``; the result and the start's own :meth:`score`."""
+    def _search(self, reference: _ReferenceSpectra, coarse_b: np.ndarray, start: np.ndarray, *,
+                max_col_shift: float | None = None) -> tuple[GlobalMotion, float]:
+        """Yaw search (its shift up to ``max_col_shift`` coarse columns, if given) and sector passes from
+        ``start``; the result and the start's own :meth:`score`."""
         c = self.config
         coarse_a = reference.coarse
         rotation = start
         warped_b = self.warped(coarse_b, rotation)
         start_score = self.score(coarse_a, warped_b)
-        shift, yaw_ratio = self._yaw_search(reference.whole, warped_b)
+        shift, yaw_ratio = self._yaw_search(reference.whole, warped_b, max_col_shift=max_col_shift)
         if yaw_ratio >= c.min_peak_ratio and np.all(np.abs(shift) < c.settled_shift_px):
             # The start already lines the panoramas up; the tiles measure what is left.
             return GlobalMotion(start, True, "", yaw_ratio, 0, start_score), start_score

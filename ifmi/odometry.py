@@ -19,7 +19,10 @@ Front ends that declare ``uses_prior_rotation`` receive a predicted
 ``R_rk`` (constant angular velocity from the last two successfully
 estimated poses) and may use it to look for the motion near the prediction.
 Front ends with ``accept_pose`` are told each successful frame's ``R_0k``
-(:mod:`ifmi.front_end`).
+(:mod:`ifmi.front_end`). A front end's ``rescue_correspondences`` gets a
+pair that failed to match or to solve, its ``half_turn_alternative`` every
+solved pair (and may return another solution), and its
+``refine_correspondences`` the pair's final solved rotation.
 
 A frame whose estimate fails keeps the last pose (flagged with a reason)
 and never becomes a reference: its held pose is not its true pose, and its
@@ -325,6 +328,7 @@ class Tracker:
             if rescued is None:
                 return pose, info, corr
             pose, info, corr = rescued
+        pose, info, corr = self._nearer_alternative(reference, state, (pose, info, corr), prior, frame)
         refine = getattr(self.front_end, "refine_correspondences", None)
         if refine is not None and info.success:
             refined = refine(reference.state, state, corr, rotation_ab=pose.rotation)
@@ -347,6 +351,19 @@ class Tracker:
             return None
         pose, info = self._solve_rays(reference, corr, frame)
         return (pose, info, corr) if info.success else None
+
+    def _nearer_alternative(self, reference: _Reference, state, solved: tuple, prior: np.ndarray,
+                            frame: int) -> tuple:
+        """``solved`` (``(pose, info, corr)``), or what a front end's ``half_turn_alternative``
+        returns for it (``(state_a, state_b, *, rotation_ab, n_inliers, prior_rotation, solve) ->
+        (pose, info, corr) or None``; ``solve(corr) -> (pose, info)`` is this tracker's back end)."""
+        alternative = getattr(self.front_end, "half_turn_alternative", None)
+        if alternative is None:
+            return solved
+        pose, info, _ = solved
+        found = alternative(reference.state, state, rotation_ab=pose.rotation, n_inliers=info.n_inliers,
+                            prior_rotation=prior, solve=lambda corr: self._solve_rays(reference, corr, frame))
+        return solved if found is None else found
 
     def _solve_rays(self, reference: _Reference, corr, frame: int) -> tuple:
         """``(pose, info)`` of the back end on ``corr``'s rays (with the rolling-shutter model when set)."""

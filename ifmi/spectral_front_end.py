@@ -8,6 +8,7 @@ noise filters and returns ray pairs from the flow equation.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Mapping
 
@@ -221,6 +222,32 @@ class IfmiConfig:
         (frame-to-frame error closer to the measured one). The trajectory's
         error then decays by ``1 - landmark_weight`` per frame towards the
         landmarks'.
+    half_turn_check_rad : float
+        When the back end solves a pair more than this far from its
+        prediction (radians; the first pair's prediction is the identity),
+        the pair is solved once more from that rotation turned half round
+        about the panorama axis (:meth:`IfmiFrontEnd.half_turn_alternative`),
+        and the solution nearer the prediction is taken when it keeps
+        enough inliers. A room of one texture seen from near its middle
+        matches itself half a turn round, and under parallax the half turn
+        can match as well as the truth. A quarter turn by default: no pair
+        of the fast benchmark sets (at most about 30 degrees per frame)
+        lies that far from its prediction unless it took a wrong turn.
+        ``pi`` turns the check off.
+    half_turn_inlier_fraction : float
+        The alternative replaces the first solution only with at least this
+        fraction of its inliers (the frames explain both about as well; a
+        scene that does not repeat half round leaves the alternative few
+        tiles, or none).
+    half_turn_yaw_window_rad : float
+        The turned rotation is refined by the coarse stage with its yaw kept
+        within this of the start (radians, 0.35 = 20 degrees;
+        :meth:`~ifmi.global_motion.GlobalMotionEstimator.search_near`). The
+        turn is about the vertical, so the start's yaw is right to within
+        the cameras' tilt from it and its tilt is off by up to twice that
+        (0.10-0.26 rad on the atelier pairs that took the half turn). With
+        a quarter turn as the window, the search on one of them jumped to a
+        neighbour of a ring of six alike plinths 60 degrees round.
     """
 
     panorama: PanoramaConfig = field(default_factory=PanoramaConfig)
@@ -252,6 +279,9 @@ class IfmiConfig:
     landmark_rays: bool = True
     landmark_gate_px: float = 0.25
     landmark_weight: float = 0.5
+    half_turn_check_rad: float = math.pi / 2
+    half_turn_inlier_fraction: float = 0.5
+    half_turn_yaw_window_rad: float = 0.35
 
     def __post_init__(self) -> None:
         if self.points_per_tile not in (1, 5, 9):
@@ -286,6 +316,11 @@ class IfmiConfig:
             raise ValueError(f"expected 0 <= prediction_check_tiles < 0.5, got {self.prediction_check_tiles}")
         if not self.max_tile_distortion > 1:
             raise ValueError(f"expected max_tile_distortion > 1, got {self.max_tile_distortion}")
+        if not 0 <= self.half_turn_check_rad <= math.pi or not 0 <= self.half_turn_inlier_fraction <= 1 \
+                or not 0 < self.half_turn_yaw_window_rad <= math.pi:
+            raise ValueError(f"expected 0 <= half_turn_check_rad <= pi, 0 <= half_turn_inlier_fraction <= 1 and "
+                             f"0 < half_turn_yaw_window_rad <= pi, got {self.half_turn_check_rad}, "
+                             f"{self.half_turn_inlier_fraction}, {self.half_turn_yaw_window_rad}")
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "IfmiConfig":
@@ -384,6 +419,15 @@ class IfmiFrameState:
         self.rotation: np.ndarray | None = None
         self.tracked_landmarks: np.ndarray | None = None
         self.reference_landmarks: np.ndarray | None = None
+
+    def registration_snapshot(self) -> tuple:
+        """What registering this frame against a reference sets (tracked tiles, their landmarks, the
+        rotation registered at), for :meth:`restore_registration` when another registration is not kept."""
+        return self.tracked, self.tracked_valid, self.tracked_landmarks, self.registered_rotation
+
+    def restore_registration(self, snapshot: tuple) -> None:
+        """Set back what :meth:`registration_snapshot` saved."""
+        self.tracked, self.tracked_valid, self.tracked_landmarks, self.registered_rotation = snapshot
 
     def layout_tiles(self, index: np.ndarray | None = None) -> np.ndarray:
         """Layout tiles ``(K, N, N)`` float32, all or ``index`` (bool mask or indices) of them."""
@@ -1059,13 +1103,87 @@ class IfmiFrontEnd:
         searched = self._wide_search(state_a, state_b, failed.diagnostics, prior_rotation, every_start=True)
         if searched is None:
             return None
-        first = (state_b.tracked, state_b.tracked_valid, state_b.tracked_landmarks, state_b.registered_rotation)
+        first = state_b.registration_snapshot()
         wide, diagnostics = self._wide_tiles(state_a, state_b, searched, prior_rotation)
         rescued = self._correspondences_from_match(state_a, state_b, wide, {**diagnostics, "wide_rescue": True})
         if rescued.success:
             return rescued
-        state_b.tracked, state_b.tracked_valid, state_b.tracked_landmarks, state_b.registered_rotation = first
+        state_b.restore_registration(first)
         return None
+
+    def half_turn_alternative(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *, rotation_ab: np.ndarray,
+                              n_inliers: int, prior_rotation: np.ndarray | None, solve) -> tuple | None:
+        """The pair solved again from ``rotation_ab`` turned half round, when that lies nearer the prediction.
+
+        A room of one texture seen from near its middle (brick on every
+        wall, a ring of alike objects) matches itself turned half round
+        about the vertical. On the first pair of a sequence the prediction
+        is the identity, and under parallax the half turn can match the
+        panoramas and keep tiles as well as the true rotation or better, so
+        the pair is solved, successfully, about pi away from the truth, and
+        every later pose keeps the error. When the back end's ``rotation_ab``
+        lies more than ``config.half_turn_check_rad`` from the prediction,
+        it is turned half round about the panorama axis (on either side:
+        the scene's turn is about the vertical, which is the axis of
+        whichever frame is upright), the coarse stage refines both with the
+        yaw kept within ``config.half_turn_yaw_window_rad``, and the tiles
+        are registered at the better match (dense retry included) and
+        solved. That solution replaces the first when it lies nearer the
+        prediction and keeps at least ``config.half_turn_inlier_fraction``
+        of the first's inliers: where the frames cannot tell the two apart,
+        the smaller motion is taken.
+
+        Parameters
+        ----------
+        state_a, state_b : IfmiFrameState
+            The pair that was solved (reference a, frame b).
+        rotation_ab : (3, 3) ndarray, keyword-only
+            ``R_ab`` the back end solved.
+        n_inliers : int, keyword-only
+            Its inlier count.
+        prior_rotation : (3, 3) ndarray or None, keyword-only
+            The predicted ``R_ab`` the pair was matched with.
+        solve : callable, keyword-only
+            ``solve(correspondences) -> (pose, info)``: the odometry's back end.
+
+        Returns
+        -------
+        tuple or None
+            ``(pose, info, correspondences)`` of the alternative, with
+            ``half_turn: True`` in the diagnostics; None when it is not
+            tried (no prediction or coarse stage, ``rotation_ab`` within the
+            bound) or not taken. Frame b then keeps its first registration.
+        """
+        if not self.config.use_prior or prior_rotation is None or self.global_stage is None:
+            return None
+        far = float(geodesic_angle(prior_rotation, rotation_ab))
+        if far <= self.config.half_turn_check_rad:
+            return None
+        first = state_b.registration_snapshot()
+        half_turn = self._half_turn
+        rotation_ab = np.asarray(rotation_ab, dtype=np.float64)
+        coarse = self.global_stage.search_near(state_a.coarse_panorama, state_b.coarse_panorama,
+                                               starts=np.stack([half_turn @ rotation_ab, rotation_ab @ half_turn]),
+                                               max_yaw_rad=self.config.half_turn_yaw_window_rad)
+        match = self._tiles_at(state_a, state_b, coarse.rotation)
+        diagnostics = self._diagnostics(match.placed.reason, match.placed.peak_ratio, match.placed.peak_to_noise,
+                                        match.n_new)
+        diagnostics = {**diagnostics, **_coarse_diagnostics(half_turn @ rotation_ab, coarse), "half_turn": True}
+        corr = self._correspondences_from_match(state_a, state_b, match, diagnostics)
+        if corr.success:
+            pose, info = solve(corr)
+            if (info.success and float(geodesic_angle(prior_rotation, pose.rotation)) < far
+                    and info.n_inliers >= self.config.half_turn_inlier_fraction * n_inliers):
+                return pose, info, corr
+        state_b.restore_registration(first)
+        return None
+
+    @property
+    def _half_turn(self) -> np.ndarray:
+        """Half turn (3, 3) about the panorama axis, in the camera frame."""
+        axis_frame = self.mapping.camera_from_panorama
+        half_turn = np.diag([-1.0, -1.0, 1.0])
+        return half_turn if axis_frame is None else axis_frame @ half_turn @ axis_frame.T
 
     def _too_few_tiles(self, valid: np.ndarray, diagnostics: dict) -> Correspondences:
         """A failed pair: fewer than ``config.min_tiles`` of the ``valid`` tiles passed."""
