@@ -32,17 +32,6 @@ front end registers a weak pair's tiles again at that rotation and averages
 the two registrations' matches); None keeps the first solution, and so do
 failed correspondences, whose reason goes into the frame's diagnostics.
 
-A front end may also have ``half_turn_alternative(state_a, state_b, *,
-rotation_ab, n_inliers, prior_rotation, solve) -> (pose, info, corr) or
-None``: after the back end has solved a pair (``rotation_ab`` with
-``n_inliers`` inliers; ``prior_rotation`` the prediction it was matched
-with), the odometry offers the front end a second look, with ``solve(corr)
--> (pose, info)`` its own back end. A returned solution replaces the first
-(the iFMI front end solves a pair far from its prediction again from the
-rotation turned half round, for scenes that look alike half a turn round,
-and returns that solution when it lies nearer the prediction); None keeps
-the first.
-
 This module imports nothing else of :mod:`ifmi`, so any front end can import
 it without import cycles.
 """

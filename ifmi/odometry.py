@@ -19,10 +19,11 @@ Front ends that declare ``uses_prior_rotation`` receive a predicted
 ``R_rk`` (constant angular velocity from the last two successfully
 estimated poses) and may use it to look for the motion near the prediction.
 Front ends with ``accept_pose`` are told each successful frame's ``R_0k``
-(:mod:`ifmi.front_end`). A front end's ``rescue_correspondences`` gets a
-pair that failed to match or to solve, its ``half_turn_alternative`` every
-solved pair (and may return another solution), and its
-``refine_correspondences`` the pair's final solved rotation.
+(:mod:`ifmi.front_end`). Two more hooks are the iFMI front end's own (a
+plugin's are not passed through :class:`~ifmi.checked_front_end.CheckedFrontEnd`):
+``rescue_correspondences`` gets a pair that failed to match or to solve,
+and ``half_turn_alternative`` every solved pair, for which it may return
+another solution (see their docstrings in :mod:`ifmi.spectral_front_end`).
 
 A frame whose estimate fails keeps the last pose (flagged with a reason)
 and never becomes a reference: its held pose is not its true pose, and its
