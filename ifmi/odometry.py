@@ -22,7 +22,7 @@ Front ends with ``accept_pose`` are told each successful frame's ``R_0k``
 (:mod:`ifmi.front_end`). Two more hooks are the iFMI front end's own (a
 plugin's are not passed through :class:`~ifmi.checked_front_end.CheckedFrontEnd`):
 ``rescue_correspondences`` gets a pair that failed to match or to solve,
-and ``second_solution`` every solved pair, for which it may return
+and ``half_turn_alternative`` every solved pair, for which it may return
 another solution (see their docstrings in :mod:`ifmi.spectral_front_end`).
 
 A frame whose estimate fails keeps the last pose (flagged with a reason)
@@ -329,7 +329,7 @@ class Tracker:
             if rescued is None:
                 return pose, info, corr
             pose, info, corr = rescued
-        pose, info, corr = self._second_solution(reference, state, (pose, info, corr), prior, frame)
+        pose, info, corr = self._nearer_alternative(reference, state, (pose, info, corr), prior, frame)
         refine = getattr(self.front_end, "refine_correspondences", None)
         if refine is not None and info.success:
             refined = refine(reference.state, state, corr, rotation_ab=pose.rotation)
@@ -353,18 +353,17 @@ class Tracker:
         pose, info = self._solve_rays(reference, corr, frame)
         return (pose, info, corr) if info.success else None
 
-    def _second_solution(self, reference: _Reference, state, solved: tuple, prior: np.ndarray, frame: int) -> tuple:
-        """``solved`` (``(pose, info, corr)``), or what a front end's ``second_solution`` returns for it
-        (``(state_a, state_b, corr, *, pose, info, prior_rotation, solve, max_sigma_rad) -> (pose, info, corr)
-        or None``; ``solve(corr) -> (pose, info)`` is this tracker's back end, ``max_sigma_rad`` its
-        RANSAC threshold)."""
-        second = getattr(self.front_end, "second_solution", None)
-        if second is None:
+    def _nearer_alternative(self, reference: _Reference, state, solved: tuple, prior: np.ndarray,
+                            frame: int) -> tuple:
+        """``solved`` (``(pose, info, corr)``), or what a front end's ``half_turn_alternative``
+        returns for it (``(state_a, state_b, *, rotation_ab, n_inliers, prior_rotation, solve) ->
+        (pose, info, corr) or None``; ``solve(corr) -> (pose, info)`` is this tracker's back end)."""
+        alternative = getattr(self.front_end, "half_turn_alternative", None)
+        if alternative is None:
             return solved
-        pose, info, corr = solved
-        found = second(reference.state, state, corr, pose=pose, info=info, prior_rotation=prior,
-                       solve=lambda rays: self._solve_rays(reference, rays, frame),
-                       max_sigma_rad=self.pose_options.ransac_threshold_rad)
+        pose, info, _ = solved
+        found = alternative(reference.state, state, rotation_ab=pose.rotation, n_inliers=info.n_inliers,
+                            prior_rotation=prior, solve=lambda corr: self._solve_rays(reference, corr, frame))
         return solved if found is None else found
 
     def _solve_rays(self, reference: _Reference, corr, frame: int) -> tuple:

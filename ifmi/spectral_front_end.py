@@ -226,7 +226,7 @@ class IfmiConfig:
         When the back end solves a pair more than this far from its
         prediction (radians; the first pair's prediction is the identity),
         the pair is solved once more from that rotation turned half round
-        about the panorama axis (:meth:`IfmiFrontEnd.second_solution`),
+        about the panorama axis (:meth:`IfmiFrontEnd.half_turn_alternative`),
         and the solution nearer the prediction is taken when it keeps
         enough inliers. A room of one texture seen from near its middle
         matches itself half a turn round, and under parallax the half turn
@@ -1109,91 +1109,6 @@ class IfmiFrontEnd:
         if rescued.success:
             return rescued
         state_b.restore_registration(first)
-        return None
-
-    def second_solution(self, state_a: IfmiFrameState, state_b: IfmiFrameState, first: Correspondences, *,
-                        pose, info, prior_rotation: np.ndarray | None, solve, max_sigma_rad: float) -> tuple | None:
-        """Another solution of a pair the back end solved, or None (called by the odometry for every solved pair).
-
-        A solution more than ``config.half_turn_check_rad`` from the
-        prediction may be the half turn of a scene that repeats itself
-        (:meth:`half_turn_alternative`). Otherwise a solution whose predicted
-        rotation error exceeds ``max_sigma_rad`` is weak (a few tiles passed
-        where the coarse stage left them; the fit cannot pin the rotation
-        down to its own inlier threshold) and the wide search looks for a
-        better rotation (:meth:`weak_pair_alternative`).
-
-        Parameters
-        ----------
-        state_a, state_b : IfmiFrameState
-            The pair that was solved (reference a, frame b).
-        first : Correspondences
-            What :meth:`correspondences` (or a rescue) returned for it.
-        pose, info : RelativePose, RelativePoseInfo, keyword-only
-            The back end's solution of ``first``.
-        prior_rotation : (3, 3) ndarray or None, keyword-only
-            The predicted ``R_ab`` the pair was matched with.
-        solve : callable, keyword-only
-            ``solve(correspondences) -> (pose, info)``: the odometry's back end.
-        max_sigma_rad : float, keyword-only
-            Largest predicted rotation error (radians) of a solution that
-            is not weak: the odometry's RANSAC inlier threshold.
-
-        Returns
-        -------
-        tuple or None
-            ``(pose, info, correspondences)`` replacing the first solution.
-        """
-        if not self.config.use_prior or prior_rotation is None or self.global_stage is None:
-            return None
-        if float(geodesic_angle(prior_rotation, pose.rotation)) > self.config.half_turn_check_rad:
-            return self.half_turn_alternative(state_a, state_b, rotation_ab=pose.rotation, n_inliers=info.n_inliers,
-                                              prior_rotation=prior_rotation, solve=solve)
-        if getattr(info, "rotation_sigma_rad", math.nan) > max_sigma_rad:
-            return self.weak_pair_alternative(state_a, state_b, first, sigma_rad=info.rotation_sigma_rad,
-                                              prior_rotation=prior_rotation, solve=solve)
-        return None
-
-    def weak_pair_alternative(self, state_a: IfmiFrameState, state_b: IfmiFrameState, first: Correspondences, *,
-                              sigma_rad: float, prior_rotation: np.ndarray, solve) -> tuple | None:
-        """The pair solved at the wide search's rotation, when that solution's predicted error is smaller.
-
-        The first pair of a fast sequence with a large tilt can keep a
-        rotation the coarse stage could not improve on (the identity), where
-        a few tiles pass and the back end solves from them with a predicted
-        error above its own inlier threshold, 0.15 rad off (the atelier with
-        translation, 35 degrees per frame, 11 of them tilt: 3 tiles, 35 of 40
-        rays). The wide search from every start
-        (:meth:`rescue_correspondences`) is tried as for a pair that failed;
-        its solution replaces the first when its predicted rotation error
-        is below ``sigma_rad`` (there: 85 rays as inliers, 0.0064 rad
-        predicted, 0.003 rad off).
-
-        Parameters
-        ----------
-        state_a, state_b : IfmiFrameState
-        first : Correspondences
-            The weak solution's correspondences.
-        sigma_rad : float, keyword-only
-            Its predicted rotation error, radians.
-        prior_rotation : (3, 3) ndarray, keyword-only
-        solve : callable, keyword-only
-            ``solve(correspondences) -> (pose, info)``.
-
-        Returns
-        -------
-        tuple or None
-            ``(pose, info, correspondences)`` (``wide_rescue`` in the
-            diagnostics), or None; frame b then keeps its first registration.
-        """
-        before = state_b.registration_snapshot()
-        corr = self.rescue_correspondences(state_a, state_b, first, prior_rotation=prior_rotation)
-        if corr is None:
-            return None
-        pose, info = solve(corr)
-        if info.success and info.rotation_sigma_rad < sigma_rad:
-            return pose, info, corr
-        state_b.restore_registration(before)
         return None
 
     def half_turn_alternative(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *, rotation_ab: np.ndarray,

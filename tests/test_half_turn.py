@@ -1,9 +1,6 @@
-"""A second solution of a solved pair: the smaller of two rotations in a scene that repeats half round,
-and the wide search's for a weak pair."""
+"""A scene that matches itself turned half round: the smaller of two solving rotations is taken."""
 
 from __future__ import annotations
-
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -11,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from ifmi.camera import paracatadioptric_model
 from ifmi.front_end import Correspondences
-from ifmi.global_motion import GlobalMotion, GlobalMotionEstimator
+from ifmi.global_motion import GlobalMotionEstimator
 from ifmi.odometry import track_sequence
 from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays
 from ifmi.rotations import geodesic_angle
@@ -147,7 +144,7 @@ def test_the_near_search_keeps_the_yaw_near_its_start(texture):
 
 class _HalfTurnFrontEnd:
     """Exact rays of ``R_0k`` per frame; frame 1's correspondences give the half turn, and
-    ``second_solution`` offers the truth (solved by the tracker's back end)."""
+    ``half_turn_alternative`` offers the truth (solved by the tracker's back end)."""
 
     uses_prior_rotation = True
 
@@ -169,8 +166,8 @@ class _HalfTurnFrontEnd:
         truth = self.rotations[a].T @ self.rotations[b]
         return self._corr(HALF_TURN @ truth if b == 1 else truth, {})
 
-    def second_solution(self, a, b, first, *, pose, info, prior_rotation, solve, max_sigma_rad):
-        self.calls.append((a, b, geodesic_angle(prior_rotation, pose.rotation), info.n_inliers, max_sigma_rad))
+    def half_turn_alternative(self, a, b, *, rotation_ab, n_inliers, prior_rotation, solve):
+        self.calls.append((a, b, geodesic_angle(prior_rotation, rotation_ab), n_inliers))
         if not self.offer or b != 1:
             return None
         corr = self._corr(self.rotations[a].T @ self.rotations[b], {"half_turn": True})
@@ -183,71 +180,14 @@ def test_the_tracker_chains_the_front_ends_alternative(offer):
     rotations = [Rotation.from_euler("z", 0.3 * k).as_matrix() for k in range(4)]
     front_end = _HalfTurnFrontEnd(rotations, offer=offer)
     trajectory, records = track_sequence(range(4), front_end, pose_options=OPTIONS)
-    # The hook sees every solved pair with its prediction, inlier count and the RANSAC threshold.
+    # The hook sees every solved pair with its prediction and inlier count.
     assert [call[:2] for call in front_end.calls] == [(0, 1), (1, 2), (2, 3)]
     assert front_end.calls[0][2] == pytest.approx(np.pi - 0.3, abs=1e-6) and front_end.calls[0][3] == 80
-    assert all(call[4] == OPTIONS.ransac_threshold_rad for call in front_end.calls)
     error = np.degrees(geodesic_angle(rotations[3], trajectory.rotations[3]))
     if offer:
         assert records[1].diagnostics["half_turn"] and error < 1e-6
     else:
         assert "half_turn" not in records[1].diagnostics and error == pytest.approx(180.0, abs=1e-4)
-
-
-def _weak_first_pair(front_end, texture, monkeypatch):
-    """A first pair (prediction the identity, 31 degrees from R_01) whose coarse stage keeps the
-    identity, as a tilted pair with translation can: the tiles fail there, and the pair's
-    correspondences stand for a weak solution's (the wide search reads only their diagnostics)."""
-    a, b = _pair(front_end, texture, TRUTH)
-    stage = front_end.global_stage
-    score = stage.score(a.coarse_panorama, b.coarse_panorama)
-    kept = GlobalMotion(np.eye(3), True, "", 1.3, 0, score)
-    with monkeypatch.context() as patch:
-        patch.setattr(GlobalMotionEstimator, "estimate", lambda self, coarse_a, coarse_b, *, priors=(None,): kept)
-        first = front_end.correspondences(a, b, prior_rotation=np.eye(3))
-    return a, b, first
-
-
-def test_a_weak_solution_is_replaced_by_the_wide_searchs(texture, monkeypatch):
-    front_end = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0))
-    a, b, first = _weak_first_pair(front_end, texture, monkeypatch)
-    weak = SimpleNamespace(success=True, n_inliers=35, rotation_sigma_rad=0.03)
-    found = front_end.second_solution(a, b, first, pose=SimpleNamespace(rotation=np.eye(3)), info=weak,
-                                      prior_rotation=np.eye(3), solve=_solve, max_sigma_rad=0.01)
-    assert found is not None
-    pose, info, corr = found
-    assert corr.diagnostics["wide_rescue"] and info.rotation_sigma_rad < weak.rotation_sigma_rad
-    # Measured 0.026 degree (noise-free synthetic frames), as the rescue of a failed pair.
-    assert np.degrees(geodesic_angle(TRUTH, pose.rotation)) < 0.1
-    assert np.degrees(geodesic_angle(TRUTH, b.registered_rotation)) < 2.8
-
-
-def test_a_firm_solution_or_a_worse_alternative_is_kept(texture, monkeypatch):
-    front_end = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0))
-    a, b, first = _weak_first_pair(front_end, texture, monkeypatch)
-    kept = b.registration_snapshot()
-
-    def never(corr):
-        raise AssertionError("nothing is solved again")
-
-    # Predicted error within the threshold: not weak, nothing is tried.
-    firm = SimpleNamespace(success=True, n_inliers=35, rotation_sigma_rad=0.005)
-    assert front_end.second_solution(a, b, first, pose=SimpleNamespace(rotation=np.eye(3)), info=firm,
-                                     prior_rotation=np.eye(3), solve=never, max_sigma_rad=0.01) is None
-    # Weak by a threshold of 0, but the wide search's solution predicts a larger error than the
-    # first's (claimed exact): it is solved, not taken, and frame b keeps its first registration.
-    exact = SimpleNamespace(success=True, n_inliers=35, rotation_sigma_rad=1e-12)
-    solved = []
-
-    def observed(corr):
-        solved.append(_solve(corr))
-        return solved[-1]
-
-    assert front_end.second_solution(a, b, first, pose=SimpleNamespace(rotation=np.eye(3)), info=exact,
-                                     prior_rotation=np.eye(3), solve=observed, max_sigma_rad=0.0) is None
-    assert len(solved) == 1 and solved[0][1].success
-    for now, before in zip(b.registration_snapshot(), kept):
-        assert now is before
 
 
 @pytest.mark.parametrize("kwargs", [{"half_turn_check_rad": -0.1}, {"half_turn_check_rad": 4.0},
