@@ -916,12 +916,14 @@ class IfmiFrontEnd:
         return self.global_stage.wide_search(state_a.coarse_panorama, state_b.coarse_panorama, start=prediction,
                                              current_score=diagnostics["coarse_score"], every_start=every_start)
 
-    def _wide_tiles(self, state_a: IfmiFrameState, state_b: IfmiFrameState, coarse: GlobalMotion,
-                    prediction: np.ndarray) -> tuple["_TileMatch", dict]:
-        """Tiles at the wide search's rotation ``coarse``, and their figures."""
-        wide = self._tiles_at(state_a, state_b, coarse.rotation)
-        tiles = self._diagnostics(wide.placed.reason, wide.placed.peak_ratio, wide.placed.peak_to_noise, wide.n_new)
-        return wide, {**tiles, **_coarse_diagnostics(prediction, coarse), "wide_search": True}
+    def _searched_tiles(self, state_a: IfmiFrameState, state_b: IfmiFrameState, coarse: GlobalMotion,
+                        start: np.ndarray, *, search: str) -> tuple["_TileMatch", dict]:
+        """Tiles at the rotation ``coarse`` of a coarse search from ``start``, and their figures, with the
+        search's name (``"wide_search"``, ``"half_turn"``) set true in them."""
+        match = self._tiles_at(state_a, state_b, coarse.rotation)
+        tiles = self._diagnostics(match.placed.reason, match.placed.peak_ratio, match.placed.peak_to_noise,
+                                  match.n_new)
+        return match, {**tiles, **_coarse_diagnostics(start, coarse), search: True}
 
     def _tiles_at(self, state_a: IfmiFrameState, state_b: IfmiFrameState, rotation: np.ndarray) -> _TileMatch:
         """:meth:`register_predicted` at ``rotation``, with the tracking it left in frame b."""
@@ -1062,7 +1064,8 @@ class IfmiFrontEnd:
             searched = self._wide_search(state_a, state_b, diagnostics, prior_rotation)
             if searched is not None and self.global_stage.clearly_better(
                     searched, current_rotation=match.rotation, current_score=diagnostics["coarse_score"]):
-                match, diagnostics = self._wide_tiles(state_a, state_b, searched, prior_rotation)
+                match, diagnostics = self._searched_tiles(state_a, state_b, searched, prior_rotation,
+                                                           search="wide_search")
         return self._correspondences_from_match(state_a, state_b, match, diagnostics)
 
     def rescue_correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, failed: Correspondences, *,
@@ -1104,7 +1107,7 @@ class IfmiFrontEnd:
         if searched is None:
             return None
         first = state_b.registration_snapshot()
-        wide, diagnostics = self._wide_tiles(state_a, state_b, searched, prior_rotation)
+        wide, diagnostics = self._searched_tiles(state_a, state_b, searched, prior_rotation, search="wide_search")
         rescued = self._correspondences_from_match(state_a, state_b, wide, {**diagnostics, "wide_rescue": True})
         if rescued.success:
             return rescued
@@ -1162,13 +1165,10 @@ class IfmiFrontEnd:
         first = state_b.registration_snapshot()
         half_turn = self._half_turn
         rotation_ab = np.asarray(rotation_ab, dtype=np.float64)
-        coarse = self.global_stage.search_near(state_a.coarse_panorama, state_b.coarse_panorama,
-                                               starts=np.stack([half_turn @ rotation_ab, rotation_ab @ half_turn]),
+        starts = np.stack([half_turn @ rotation_ab, rotation_ab @ half_turn])
+        coarse = self.global_stage.search_near(state_a.coarse_panorama, state_b.coarse_panorama, starts=starts,
                                                max_yaw_rad=self.config.half_turn_yaw_window_rad)
-        match = self._tiles_at(state_a, state_b, coarse.rotation)
-        diagnostics = self._diagnostics(match.placed.reason, match.placed.peak_ratio, match.placed.peak_to_noise,
-                                        match.n_new)
-        diagnostics = {**diagnostics, **_coarse_diagnostics(half_turn @ rotation_ab, coarse), "half_turn": True}
+        match, diagnostics = self._searched_tiles(state_a, state_b, coarse, starts[0], search="half_turn")
         corr = self._correspondences_from_match(state_a, state_b, match, diagnostics)
         if corr.success:
             pose, info = solve(corr)
