@@ -32,7 +32,7 @@ from itertools import islice
 
 import numpy as np
 
-from ifmi.bundle_adjustment import BundleAdjustmentOptions
+from ifmi.backend.bundle_adjustment import BundleAdjustmentOptions
 from ifmi.io.dataset import read_dataset
 from ifmi.pipeline import EstimateConfig, estimate_sequence
 

@@ -38,10 +38,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ifmi.camera import paracatadioptric_model, radius_from_pixels
+from ifmi.geometry.camera import paracatadioptric_model, radius_from_pixels
 from ifmi.io.dataset import read_dataset, read_image
 from ifmi.pipeline import EstimateConfig, create_front_end, estimate_dataset, resolved_config
-from ifmi.relative_pose import relative_pose_from_rays
+from ifmi.backend.relative_pose import relative_pose_from_rays
 
 # ORB settings of the baseline: OpenCV defaults except the feature count, and Lowe's ratio.
 ORB_FEATURES = 2000

@@ -40,12 +40,12 @@ from pathlib import Path
 import numpy as np
 
 from bench_methods import mode_config, run_method
-from ifmi.dataset_names import dataset_labels, resolved_folder
+from ifmi.evaluation.dataset_names import dataset_labels, resolved_folder
 from ifmi.io.atomic import atomic_write_json
 from ifmi.io.camera_file import calibration_path, read_camera
 from ifmi.io.dataset import read_dataset
 from ifmi.pipeline import EstimateConfig, estimate_sequence, resolved_config
-from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
 
 
 def parse_variant(text: str) -> tuple[str, dict]:

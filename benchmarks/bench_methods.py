@@ -53,18 +53,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ifmi.dataset_names import dataset_folder_id, dataset_labels, resolved_folder
+from ifmi.evaluation.dataset_names import dataset_folder_id, dataset_labels, resolved_folder
 from ifmi.errors import InputError
-from ifmi.evaluation import evaluate_files
+from ifmi.evaluation.trajectory_files import evaluate_files
 from ifmi.io.camera_file import calibration_path, read_camera
 from ifmi.io.config import read_estimate_config
 from ifmi.io.dataset import read_dataset
 from ifmi.io.results import write_estimate_run
 from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig, estimate_dataset, estimate_sequence, resolved_config
-from ifmi.methods import builtin_method_names
-from ifmi.metrics import MIN_ASSOCIATED
-from ifmi.report import machine_info
+from ifmi.tracking.methods import builtin_method_names
+from ifmi.evaluation.metrics import MIN_ASSOCIATED
+from ifmi.experiments.report import machine_info
 
 METHODS = builtin_method_names()
 # Odometry modes: estimates against the previous frame, or against keyframes.
@@ -123,7 +123,7 @@ def labelled_datasets(paths) -> list[tuple[str, str]]:
 
 def _check_benchmark_dataset(folder: Path) -> None:
     """:class:`InputError` unless ``folder`` can be estimated and evaluated: as many frames and
-    ground-truth poses as an evaluation needs (:data:`ifmi.metrics.MIN_ASSOCIATED`)."""
+    ground-truth poses as an evaluation needs (:data:`ifmi.evaluation.metrics.MIN_ASSOCIATED`)."""
     frames = len(read_dataset(folder).image_paths)
     if frames < MIN_ASSOCIATED:
         raise InputError(folder, f"a benchmark set needs at least {MIN_ASSOCIATED} frames, found {frames}")

@@ -96,7 +96,7 @@ def _perspective(mi, size, spp, sampler, origin, fov_deg=90.0) -> dict:
 
 def _benchmark_models(width: int) -> dict:
     """The example models at ``width`` px, and a distortion-free pinhole with the perspective camera's rays."""
-    from ifmi.camera_models import PinholeModel
+    from ifmi.geometry.camera_models import PinholeModel
 
     models = {name: EXAMPLES[name].scaled(width / EXAMPLES[name].width) for name in MODELS}
     size = models["pinhole-radtan"].size
@@ -107,7 +107,7 @@ def _benchmark_models(width: int) -> dict:
 
 def render_ratios(args) -> dict:
     """Median render time ratio model / perspective per model, in the uniform sphere and the urban scene."""
-    from ifmi.camera import valid_mask
+    from ifmi.geometry.camera import valid_mask
     from omnisim.config import load_scene_config
     from omnisim.llvm import import_mitsuba
     from omnisim.scene import build_scene_dict
@@ -201,9 +201,9 @@ def ray_costs(args) -> dict:
 def estimator_ates(args) -> dict:
     """Geodesic ATE (rad) of ifmi, orb and akaze per model on a rendered urban sequence."""
     from ifmi.io.tum import read_tum
-    from ifmi.metrics import error_stats
+    from ifmi.evaluation.metrics import error_stats
     from ifmi.pipeline import estimate_dataset
-    from ifmi.rotations import geodesic_angle
+    from ifmi.geometry.rotations import geodesic_angle
     from omnisim.config import write_scene_with_kalibr_camera
     from omnisim.render import render_dataset
 

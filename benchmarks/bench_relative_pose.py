@@ -1,6 +1,6 @@
 """Relative-pose back end: time and accuracy against a baseline revision, on the same ray sets.
 
-The baseline is ``ifmi/relative_pose.py`` as of a git revision (``--baseline``,
+The baseline is ``ifmi/backend/relative_pose.py`` as of a git revision (``--baseline``,
 by default the last revision before the back end was reworked for speed),
 loaded from ``git show`` into a module of its own, so both run in this
 process on identical inputs:
@@ -53,12 +53,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ifmi.odometry import track_sequence
+from ifmi.tracking.odometry import track_sequence
 from ifmi.io.dataset import read_dataset, read_image
 from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig, create_front_end, method_names, resolved_config
-from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays
-from ifmi.rotations import geodesic_angle
+from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays
+from ifmi.geometry.rotations import geodesic_angle
 
 # Last revision of the back end before the speed work (the default baseline).
 BASELINE_REVISION = "14b6bb94f4dcda893b8df02ed9cad3562c0a2927"
@@ -76,10 +76,10 @@ ROUNDING_PERTURBATION = 1e-15
 
 
 def load_baseline(revision: str):
-    """``ifmi/relative_pose.py`` at ``revision`` as a module ``ifmi.relative_pose_baseline`` (inside the
+    """``ifmi/backend/relative_pose.py`` at ``revision`` as a module ``ifmi.relative_pose_baseline`` (inside the
     package, so that its relative imports resolve to the current ``ifmi``)."""
     root = Path(__file__).resolve().parents[1]
-    source = subprocess.run(["git", "-C", str(root), "show", f"{revision}:ifmi/relative_pose.py"],
+    source = subprocess.run(["git", "-C", str(root), "show", f"{revision}:ifmi/backend/relative_pose.py"],
                             check=True, capture_output=True, text=True).stdout
     with tempfile.TemporaryDirectory(prefix="bench_relative_pose_") as folder:
         path = Path(folder) / "relative_pose_baseline.py"
@@ -216,7 +216,7 @@ def main(argv=None) -> int:
     parser.add_argument("--synthetic", type=int, default=10, help="synthetic pairs per kind and size")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--baseline", default=BASELINE_REVISION, metavar="REV",
-                        help="git revision of the baseline ifmi/relative_pose.py")
+                        help="git revision of the baseline ifmi/backend/relative_pose.py")
     parser.add_argument("--odometry", type=int, default=None, metavar="N",
                         help="also estimate each dataset end to end with both back ends, and N "
                              "times with the baseline on rays perturbed at rounding level")
@@ -241,7 +241,7 @@ def main(argv=None) -> int:
         groups.append((f"synthetic translate {n}",
                        [synthetic_case(n, SYNTHETIC_TRANSLATION, seed) for seed in range(args.synthetic)]))
 
-    print(f"baseline: ifmi/relative_pose.py at {args.baseline[:12]}; new: options {options}; fastest of {args.repeats} "
+    print(f"baseline: ifmi/backend/relative_pose.py at {args.baseline[:12]}; new: options {options}; fastest of {args.repeats} "
           "interleaved runs per call; rotation errors in radians; models rotation/5pt/fail")
     print(f"{'group':<22} {'pairs':>5} {'rays':>5} {'old ms':>8} {'new ms':>8} {'ratio':>6} "
           f"{'rmse old':>10} {'rmse new':>10}  {'old r/5/f':<9} {'new r/5/f':<9} {'differ':>6} {'max apart':>9}")

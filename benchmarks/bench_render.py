@@ -44,7 +44,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
 
-    from ifmi.camera import OcamModel
+    from ifmi.geometry.camera import OcamModel
     from omnisim.config import load_scene_config
     from omnisim.llvm import import_mitsuba
     from omnisim.scene import build_scene_dict

@@ -42,7 +42,7 @@ from ifmi.errors import InputError
 from ifmi.io.camera_file import calibration_path, read_camera
 from ifmi.io.config import read_estimate_config
 from ifmi.pipeline import EstimateConfig, resolved_config
-from ifmi.report import machine_info
+from ifmi.experiments.report import machine_info
 
 # The methods iFMI is ranked against.
 FEATURE_METHODS = ("orb", "akaze")

@@ -2,7 +2,7 @@
 
 Every estimate's ``frames.csv`` holds ``rotation_sigma_rad``, the RMS error
 of the frame's rotation from its reference frame that the relative-pose fit
-predicts (:attr:`ifmi.relative_pose.RelativePoseInfo.rotation_sigma_rad`).
+predicts (:attr:`ifmi.backend.relative_pose.RelativePoseInfo.rotation_sigma_rad`).
 This benchmark reads the runs of ``benchmarks/bench_seeds.py`` (or of
 ``bench_methods.py``, whose folders have the same layout), takes each
 successful frame's true error of that same rotation from the dataset's
@@ -32,8 +32,8 @@ import numpy as np
 
 from ifmi.io.results import read_frames_csv
 from ifmi.io.tum import read_tum
-from ifmi.metrics import associate_timestamps
-from ifmi.rotations import geodesic_angle
+from ifmi.evaluation.metrics import associate_timestamps
+from ifmi.geometry.rotations import geodesic_angle
 
 # Ground-truth and estimate timestamps (frame indices) associate within this difference.
 _MAX_TIME_DIFFERENCE = 1e-3

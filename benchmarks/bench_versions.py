@@ -42,7 +42,7 @@ def _worker(sets: list, frames: int, repeats: int, mode: str) -> dict:
 
     from ifmi.io.dataset import read_dataset
     from ifmi.io.tum import read_tum
-    from ifmi.metrics import error_stats, trajectory_errors
+    from ifmi.evaluation.metrics import error_stats, trajectory_errors
     from ifmi.pipeline import EstimateConfig, estimate_sequence, resolved_config
 
     sys.path.insert(0, str(_BENCHMARKS))

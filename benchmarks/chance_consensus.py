@@ -3,7 +3,7 @@
 For every count ``n`` and angular threshold, ``--draws`` sets of ``n`` ray
 pairs drawn uniformly on the sphere (no motion relates them; set ``s`` of
 a cell is drawn with seed ``1000 + s`` and solved with RANSAC seed ``s``)
-go through :func:`ifmi.relative_pose.relative_pose_from_rays` twice: with
+go through :func:`ifmi.backend.relative_pose.relative_pose_from_rays` twice: with
 the default options, and with ``min_draw_success=0`` (the chance check
 off). Every accepted pair is a wrong pose reported as a success.
 
@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays
+from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays
 
 COUNTS = (20, 50, 100, 200, 500, 1000, 2000)
 THRESHOLDS_RAD = (0.003, 0.01, 0.02)

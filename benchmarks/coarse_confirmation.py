@@ -3,7 +3,7 @@
 When the search from the prediction moves it by more than
 ``GlobalMotionConfig.confirm_angle_rad``, the coarse stage searches from
 the identity as well and chooses between the results
-(:meth:`ifmi.global_motion.GlobalMotionEstimator.estimate`). This runs
+(:meth:`ifmi.spectral.global_motion.GlobalMotionEstimator.estimate`). This runs
 iFMI's default tracker unchanged on each set and mode and, for every such
 call, records each start's result: its angle to the ground-truth ``R_ab``
 of the pair, its panorama match (``score``) and the start's own. It then
@@ -29,12 +29,12 @@ from unittest import mock
 import numpy as np
 
 from bench_methods import MODES, mode_config
-from ifmi.global_motion import GlobalMotionEstimator
+from ifmi.spectral.global_motion import GlobalMotionEstimator
 from ifmi.io.dataset import read_dataset
 from ifmi.io.tum import read_tum
-from ifmi.odometry import track_sequence
+from ifmi.tracking.odometry import track_sequence
 from ifmi.pipeline import EstimateConfig, resolved_config
-from ifmi.rotations import geodesic_angle
+from ifmi.geometry.rotations import geodesic_angle
 from rotation_model_parallax import PairNamingFrontEnd
 
 

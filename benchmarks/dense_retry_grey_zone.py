@@ -36,9 +36,9 @@ import numpy as np
 from bench_methods import MODES, mode_config
 from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig, estimate_dataset
-from ifmi.relative_pose import relative_pose_from_rays
-from ifmi.rotations import geodesic_angle
-from ifmi.spectral_front_end import IfmiFrontEnd
+from ifmi.backend.relative_pose import relative_pose_from_rays
+from ifmi.geometry.rotations import geodesic_angle
+from ifmi.spectral.ifmi_front_end import IfmiFrontEnd
 
 
 @dataclass(frozen=True)

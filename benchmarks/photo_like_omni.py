@@ -25,7 +25,7 @@ from ifmi.errors import OutputError
 from ifmi.io.atomic import atomic_write_bytes
 from ifmi.io.calib import read_calib
 from ifmi.synthetic import environment_texture, omni_from_environment
-from ifmi.unwarp import PanoramaConfig, radius_band
+from ifmi.spectral.panorama import PanoramaConfig, radius_band
 
 
 def main(argv=None) -> int:

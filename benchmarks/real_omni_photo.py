@@ -39,7 +39,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ifmi.camera import radius_from_pixels
+from ifmi.geometry.camera import radius_from_pixels
 from ifmi.errors import InputError, OutputError
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_text
 from ifmi.io.calib import parse_calib, write_calib

@@ -23,13 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from bench_methods import mode_config
-from ifmi.flow import flow_from_placements, flow_sample_points
+from ifmi.spectral.flow import flow_from_placements, flow_sample_points
 from ifmi.io.dataset import read_dataset
 from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig, resolved_config
-from ifmi.relative_pose import relative_pose_from_rays
-from ifmi.rotations import geodesic_angle
-from ifmi.spectral_front_end import IfmiFrontEnd
+from ifmi.backend.relative_pose import relative_pose_from_rays
+from ifmi.geometry.rotations import geodesic_angle
+from ifmi.spectral.ifmi_front_end import IfmiFrontEnd
 
 
 def pose_errors(rays_a: np.ndarray, rays_b: np.ndarray, per_tile: int, truth: np.ndarray, options) -> tuple:

@@ -35,8 +35,8 @@ from bench_methods import mode_config
 from ifmi import relative_pose as back_end
 from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig, estimate_dataset
-from ifmi.rotations import geodesic_angle
-from ifmi.spectral_front_end import IfmiFrontEnd
+from ifmi.geometry.rotations import geodesic_angle
+from ifmi.spectral.ifmi_front_end import IfmiFrontEnd
 
 
 class PairNamingFrontEnd(IfmiFrontEnd):

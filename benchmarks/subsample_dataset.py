@@ -23,7 +23,7 @@ import numpy as np
 from ifmi.io.atomic import atomic_write_text
 from ifmi.io.dataset import read_dataset
 from ifmi.io.tum import read_tum, write_tum
-from ifmi.trajectory import Trajectory
+from ifmi.geometry.trajectory import Trajectory
 
 
 def subsample(source: Path, out: Path, step: int, *, start: int = 0) -> int:

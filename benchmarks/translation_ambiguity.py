@@ -38,10 +38,10 @@ from bench_methods import mode_config
 from ifmi.io.atomic import atomic_write_json
 from ifmi.io.dataset import read_dataset
 from ifmi.io.tum import read_tum
-from ifmi.methods import create_front_end
-from ifmi.odometry import track_sequence
+from ifmi.tracking.methods import create_front_end
+from ifmi.tracking.odometry import track_sequence
 from ifmi.pipeline import EstimateConfig, estimate_dataset, resolved_config
-from ifmi.relative_pose import relative_pose_from_rays
+from ifmi.backend.relative_pose import relative_pose_from_rays
 
 # Step-length bins of the summary (metres; the renders' scale).
 STEP_BINS_M = (0.0, 0.02, 0.05, np.inf)

@@ -11,9 +11,9 @@ register it from a package's ``pyproject.toml``::
 import cv2
 import numpy as np
 
-from ifmi.camera import rays_from_pixels
+from ifmi.geometry.camera import rays_from_pixels
 from ifmi.front_end import Correspondences
-from ifmi.unwarp import band_mask, gray_from_image, panorama_mapping
+from ifmi.spectral.panorama import band_mask, gray_from_image, panorama_mapping
 
 RATIO = 0.75  # Lowe's ratio test on L2 descriptor distances
 MARGIN_PX = 8  # keypoints this far inside the band's edges (static borders never match)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-__all__ = ["InputError", "InputWarning", "CalibrationFitError", "OutputError", "first_line", "one_line",
+__all__ = ["InputError", "InputWarning", "CalibrationFitError", "OutputError", "OptionError", "first_line", "one_line",
            "json_excerpt"]
 
 
@@ -91,3 +91,20 @@ def json_excerpt(value, *, max_chars: int = 40) -> str:
     """
     text = json.dumps(value, default=str)
     return text if len(text) <= max_chars else text[:max_chars - 3] + "..."
+
+
+class OptionError(ValueError):
+    """A configuration value of the wrong type or range, or an unknown key.
+
+    Attributes
+    ----------
+    key : str
+        Dotted key path of the value (``""`` for the whole mapping).
+    problem : str
+        What is wrong, e.g. ``expected an integer, got float 1.5``.
+    """
+
+    def __init__(self, key: str, problem: str) -> None:
+        self.key = key
+        self.problem = problem
+        super().__init__(f"{key}: {problem}" if key else problem)

@@ -20,9 +20,9 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
-from .camera import OcamModel, radius_from_pixels, rays_from_pixels
-from .front_end import Correspondences
-from .options import check_finite_fields, options_from_dict
+from ifmi.geometry.camera import OcamModel, radius_from_pixels, rays_from_pixels
+from ifmi.front_end import Correspondences
+from ifmi.options import check_finite_fields, options_from_dict
 
 __all__ = [
     "DETECTORS",
@@ -98,7 +98,7 @@ class FeatureConfig:
         Override of the mirror band ``(inner, outer)`` radius in sensor
         pixels; ``None`` uses the iFMI front end's default band for the
         calibration and images. OCamCalib models only: other models detect
-        in their panorama's band (:func:`ifmi.unwarp.band_mask`).
+        in their panorama's band (:func:`ifmi.spectral.panorama.band_mask`).
     mask_margin_px : float
         Keypoints are detected only this far (pixels) inside the band's
         edges, so no descriptor window reaches the black border or the
@@ -252,11 +252,11 @@ class FeatureFrontEnd:
 
     Parameters
     ----------
-    model : OcamModel or ifmi.camera.CameraModel
+    model : OcamModel or ifmi.geometry.camera.CameraModel
         Calibration of the images; keypoints are lifted to rays through it.
     detector : {"orb", "akaze"}
     config : FeatureConfig, keyword-only
-    panorama : ifmi.unwarp.PanoramaConfig, optional, keyword-only
+    panorama : ifmi.spectral.panorama.PanoramaConfig, optional, keyword-only
         Band detection and panorama geometry, shared with the iFMI front end
         so that every method sees the same part of the image.
 
@@ -270,7 +270,7 @@ class FeatureFrontEnd:
 
     def __init__(self, model: OcamModel, detector: str, *,
                  config: FeatureConfig = FeatureConfig(), panorama=None) -> None:
-        from .unwarp import PanoramaConfig
+        from ifmi.spectral.panorama import PanoramaConfig
 
         if detector not in DETECTORS:
             raise ValueError(f"unknown detector {detector!r}; expected one of {DETECTORS}")
@@ -290,11 +290,11 @@ class FeatureFrontEnd:
     def band(self, image: np.ndarray) -> tuple[float, float]:
         """``(inner, outer)`` sensor radius of the mirror band in pixels (fixed on first use).
 
-        Detected from the first image with :func:`ifmi.unwarp.radius_band`,
+        Detected from the first image with :func:`ifmi.spectral.panorama.radius_band`,
         unless ``config.radius_band`` sets it.
         """
         if self._band is None:
-            from .unwarp import radius_band
+            from ifmi.spectral.panorama import radius_band
 
             self._band = tuple(float(v) for v in radius_band(self.model, image,
                                                              config=self.panorama_config))
@@ -304,7 +304,7 @@ class FeatureFrontEnd:
         """``(H, W)`` uint8 detection mask: 255 inside the mirror band, 0 elsewhere."""
         if self._mask is None and not isinstance(self.model, OcamModel):
             # Other models: the pixels whose rays lie in the panorama's band (valid region, FOV).
-            from .unwarp import band_mask
+            from ifmi.spectral.panorama import band_mask
 
             self._mask = np.where(band_mask(self._panorama_mapping(image),
                                             margin_px=self.config.mask_margin_px), 255, 0).astype(np.uint8)
@@ -331,7 +331,7 @@ class FeatureFrontEnd:
         -------
         FeatureFrame
         """
-        from .unwarp import gray_from_image
+        from ifmi.spectral.panorama import gray_from_image
 
         gray = gray_from_image(image)
         if gray.shape != tuple(self.model.size):
@@ -400,7 +400,7 @@ class FeatureFrontEnd:
         return xy[:, ::-1].copy(), descriptors
 
     def _detect_on_panorama(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        from .unwarp import omni_pixels_from_panorama_pixels, panorama_image_from_omni_image
+        from ifmi.spectral.panorama import omni_pixels_from_panorama_pixels, panorama_image_from_omni_image
 
         mapping = self._panorama_mapping(gray)
         panorama = np.clip(panorama_image_from_omni_image(mapping, gray) + 0.5, 0, 255).astype(np.uint8)
@@ -413,7 +413,7 @@ class FeatureFrontEnd:
         """The band's panorama (built on first use): OCamCalib from the radius band, others from the model."""
         from dataclasses import replace
 
-        from .unwarp import panorama_mapping
+        from ifmi.spectral.panorama import panorama_mapping
 
         if self._mapping is None:
             config = self.panorama_config

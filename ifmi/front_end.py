@@ -1,11 +1,11 @@
 """The front-end contract: what every estimation method (built in or third party) provides.
 
 A *front end* turns images into ray correspondences; the relative-pose back
-end (:mod:`ifmi.relative_pose`) and the trajectory chaining
-(:mod:`ifmi.odometry`) are shared by every method, so comparisons isolate the
+end (:mod:`ifmi.backend.relative_pose`) and the trajectory chaining
+(:mod:`ifmi.tracking.odometry`) are shared by every method, so comparisons isolate the
 front end. A method is a factory ``factory(model, config) -> FrontEnd`` that
 receives the camera model and the whole :class:`ifmi.pipeline.EstimateConfig`
-(see :mod:`ifmi.methods` for how methods are named and found). A front end
+(see :mod:`ifmi.tracking.methods` for how methods are named and found). A front end
 has two methods:
 
 ``prepare(image) -> state``

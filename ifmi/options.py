@@ -21,6 +21,8 @@ import types
 import typing
 from typing import Any, Mapping, TypeVar
 
+from ifmi.errors import OptionError
+
 __all__ = ["OptionError", "options_from_dict", "RejectedValues", "replaced_at_paths", "check_finite_fields"]
 
 T = TypeVar("T")
@@ -28,21 +30,6 @@ T = TypeVar("T")
 _SHOWN_CHARS = 40
 
 
-class OptionError(ValueError):
-    """A configuration value of the wrong type or range, or an unknown key.
-
-    Attributes
-    ----------
-    key : str
-        Dotted key path of the value (``""`` for the whole mapping).
-    problem : str
-        What is wrong, e.g. ``expected an integer, got float 1.5``.
-    """
-
-    def __init__(self, key: str, problem: str) -> None:
-        self.key = key
-        self.problem = problem
-        super().__init__(f"{key}: {problem}" if key else problem)
 
 
 def _shown(value) -> str:

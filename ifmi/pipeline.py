@@ -1,10 +1,10 @@
 """Estimation pipeline: configuration and sequence estimation for any method.
 
 A method's front end (:mod:`ifmi.front_end`) turns images into ray
-correspondences; the relative-pose back end (:mod:`ifmi.relative_pose`) and
-the trajectory chaining (:mod:`ifmi.odometry`) are shared by every method, so
+correspondences; the relative-pose back end (:mod:`ifmi.backend.relative_pose`) and
+the trajectory chaining (:mod:`ifmi.tracking.odometry`) are shared by every method, so
 comparisons isolate the front end. Methods are found by name
-(:mod:`ifmi.methods`: built in, installed plugins, or
+(:mod:`ifmi.tracking.methods`: built in, installed plugins, or
 ``package.module:factory``); a factory receives the camera model and the
 whole :class:`EstimateConfig` and reads the part that concerns it
 (``config.ifmi`` for ``"ifmi"``, ``config.features`` for the feature
@@ -23,20 +23,20 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from .bundle_adjustment import BundleAdjustmentOptions
-from .camera import OcamModel
-from .config_limits import check_config_for_model
-from .errors import CalibrationFitError, InputError, InputWarning
-from .features import FeatureConfig
-from .front_end import Correspondences, FrontEnd
-from .methods import create_front_end, method_names
-from .trajectory import Trajectory
-from .options import options_from_dict
-from .odometry import FrameRecord, KeyframeOptions, track_sequence
-from .relative_pose import RelativePoseOptions
-from .rolling_shutter import RollingShutterOptions
-from .spectral_front_end import IfmiConfig
-from .unwarp import angular_pixel_size_in_band
+from ifmi.backend.bundle_adjustment import BundleAdjustmentOptions
+from ifmi.geometry.camera import OcamModel
+from ifmi.spectral.config_limits import check_config_for_model
+from ifmi.errors import CalibrationFitError, InputError, InputWarning
+from ifmi.features import FeatureConfig
+from ifmi.front_end import Correspondences, FrontEnd
+from ifmi.tracking.methods import create_front_end, method_names
+from ifmi.geometry.trajectory import Trajectory
+from ifmi.options import options_from_dict
+from ifmi.tracking.odometry import FrameRecord, KeyframeOptions, track_sequence
+from ifmi.backend.relative_pose import RelativePoseOptions
+from ifmi.backend.rolling_shutter import RollingShutterOptions
+from ifmi.spectral.ifmi_front_end import IfmiConfig
+from ifmi.spectral.panorama import angular_pixel_size_in_band
 
 __all__ = [
     "Correspondences",
@@ -71,7 +71,7 @@ class EstimateConfig:
         The camera's row read-out time; a global shutter by default.
     bundle_adjustment : BundleAdjustmentOptions
         Refinement of the trajectory over the points frames share
-        (:mod:`ifmi.bundle_adjustment`); off by default.
+        (:mod:`ifmi.backend.bundle_adjustment`); off by default.
     """
 
     ifmi: IfmiConfig = field(default_factory=IfmiConfig)
@@ -130,7 +130,7 @@ class SequenceEstimate:
 
     def least_certain_frame(self) -> tuple[int, float] | None:
         """``(frame, rotation_sigma_rad)`` of the successful frame whose rotation the fit predicts
-        least accurately (:attr:`ifmi.odometry.FrameRecord.rotation_sigma_rad`, radians), or None
+        least accurately (:attr:`ifmi.tracking.odometry.FrameRecord.rotation_sigma_rad`, radians), or None
         when no frame has a finite prediction. ``frame`` is the record's frame index."""
         known = [(r.rotation_sigma_rad, r.frame) for r in self.frames
                  if r.success and np.isfinite(r.rotation_sigma_rad)]
@@ -147,7 +147,7 @@ def resolved_config(config: EstimateConfig, model: OcamModel) -> EstimateConfig:
 
     An explicit ``relative_pose.ransac_threshold_rad`` is kept; otherwise
     ``relative_pose.ransac_threshold_px`` is converted with
-    :func:`ifmi.unwarp.angular_pixel_size_in_band` of the calibration (band from
+    :func:`ifmi.spectral.panorama.angular_pixel_size_in_band` of the calibration (band from
     ``config.ifmi.panorama``), so the same pixel threshold serves every
     image resolution and every method.
     """
@@ -173,7 +173,7 @@ def estimate_sequence(images: Iterable[np.ndarray], model: OcamModel, *, method:
         Calibration of every frame.
     method : str, keyword-only
         A name of :func:`method_names`, or ``package.module:factory``
-        (:func:`ifmi.methods.load_factory`).
+        (:func:`ifmi.tracking.methods.load_factory`).
     config : EstimateConfig, keyword-only
         A relative-pose threshold given in pixels is converted to radians for
         ``model`` (:func:`resolved_config`); the result's ``config`` holds the
@@ -214,11 +214,11 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
     for its image instead of the whole decoding time.
 
     The mirror band is decided from up to five frames spread over the
-    sequence (:func:`ifmi.unwarp.panorama_config_with_band`), so a dark
+    sequence (:func:`ifmi.spectral.panorama.panorama_config_with_band`), so a dark
     object in the first frame does not narrow it; the result's ``config``
     holds the radii. Sizes are checked against the camera before any work
     and the tiles again against the decided band
-    (:func:`ifmi.config_limits.check_config_for_model`).
+    (:func:`ifmi.spectral.config_limits.check_config_for_model`).
 
     The trajectory's timestamps and the records' ``frame`` and
     ``reference_frame`` are the dataset's frame indices (the integers in the
@@ -233,7 +233,7 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
         Also a calibration too small for the method (e.g. iFMI tiles larger
         than its panorama), naming the calibration file.
     """
-    from .io.dataset import read_dataset
+    from ifmi.io.dataset import read_dataset
 
     dataset = read_dataset(Path(dataset_dir))
     try:
@@ -262,7 +262,7 @@ def estimate_dataset(dataset_dir: str | os.PathLike, *, method: str,
 def _check_first_frame_size(dataset) -> None:
     """Raise the size error of the dataset's first frame when its header names another size than
     the calibration's."""
-    from .io.images import image_header_size, size_problem
+    from ifmi.io.images import image_header_size, size_problem
 
     if not dataset.image_paths:
         return
@@ -282,7 +282,7 @@ _BAND_FRAMES = 5
 
 def _dataset_band_frames(dataset) -> list:
     """Up to ``_BAND_FRAMES`` readable frames spread evenly over a dataset."""
-    from .io.dataset import read_image
+    from ifmi.io.dataset import read_image
 
     paths = dataset.image_paths
     index = np.unique(np.linspace(0, len(paths) - 1, min(_BAND_FRAMES, len(paths))).round().astype(int))
@@ -303,8 +303,8 @@ def _config_with_band(config: EstimateConfig, model, read_frames, calib_path) ->
     Frames are read when the band needs them (OCamCalib with a radius left open) and, for the
     check alone, for a Kalibr model with a centre; an OCamCalib run with both radii given reads
     none and is not checked."""
-    from .mirror_rim import model_images_a_rim
-    from .unwarp import band_needs_frames, panorama_config_with_band
+    from ifmi.spectral.mirror_rim import model_images_a_rim
+    from ifmi.spectral.panorama import band_needs_frames, panorama_config_with_band
 
     needs_band = band_needs_frames(model, config=config.ifmi.panorama)
     if not needs_band and (isinstance(model, OcamModel) or not model_images_a_rim(model)):
@@ -326,8 +326,8 @@ _RIM_OFFSET_WARNING = 0.02
 
 def _warn_if_rim_off_centre(model, frames, calib_path, *, dark_level: float) -> None:
     """One :class:`~ifmi.errors.InputWarning` naming ``calib_path`` when the mirror rim in
-    ``frames`` is off the calibration's centre (:func:`ifmi.mirror_rim.rim_circle_from_frames`)."""
-    from .mirror_rim import rim_circle_from_frames
+    ``frames`` is off the calibration's centre (:func:`ifmi.spectral.mirror_rim.rim_circle_from_frames`)."""
+    from ifmi.spectral.mirror_rim import rim_circle_from_frames
 
     rim = rim_circle_from_frames(model, frames, dark_level=dark_level)
     if rim is None or rim.offset_px <= _RIM_OFFSET_WARNING * rim.radius_px:
@@ -360,8 +360,8 @@ def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike,
         differs from the calibration's, or a calibration too small for the
         method (naming the calibration file).
     """
-    from .io.camera_file import read_camera
-    from .io.video import VideoFrames
+    from ifmi.io.camera_file import read_camera
+    from ifmi.io.video import VideoFrames
 
     model = read_camera(Path(calib_path))  # calib_results.txt or a Kalibr camera.yaml
     frames = VideoFrames(video_path, size=model.size)

@@ -23,10 +23,10 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 from scipy.spatial.transform import Rotation
 
-from .camera import OcamModel, paracatadioptric_model, rays_from_pixels
-from .io.atomic import atomic_write_bytes
-from .io.calib import write_calib
-from .io.tum import Trajectory, write_tum
+from ifmi.geometry.camera import OcamModel, paracatadioptric_model, rays_from_pixels
+from ifmi.io.atomic import atomic_write_bytes
+from ifmi.io.calib import write_calib
+from ifmi.io.tum import Trajectory, write_tum
 
 __all__ = [
     "example_omni_model",
@@ -134,7 +134,7 @@ def omni_from_environment(environment: np.ndarray, model: OcamModel, rotation: n
     map_cols = (np.mod(azimuth, 2 * np.pi) / (2 * np.pi) * we - 0.5).astype(np.float32)
     image = cv2.remap(environment, map_cols, map_rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
     if band_px is not None:
-        from .camera import radius_from_pixels
+        from ifmi.geometry.camera import radius_from_pixels
 
         radius = radius_from_pixels(model, grid)
         image[(radius < band_px[0]) | (radius > band_px[1])] = 0.0

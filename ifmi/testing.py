@@ -19,9 +19,9 @@ import os
 
 import numpy as np
 
-from .metrics import MIN_ASSOCIATED, EvaluationSummary, summary_from_errors, trajectory_errors
-from .rotations import geodesic_angle
-from .trajectory import Trajectory
+from ifmi.evaluation.metrics import MIN_ASSOCIATED, EvaluationSummary, summary_from_errors, trajectory_errors
+from ifmi.geometry.rotations import geodesic_angle
+from ifmi.geometry.trajectory import Trajectory
 
 __all__ = ["assert_rotation_close", "assert_trajectory_close"]
 
@@ -70,7 +70,7 @@ def _trajectory(value, name: str) -> Trajectory:
     if isinstance(value, Trajectory):
         return value
     if isinstance(value, (str, os.PathLike)):
-        from .io.tum import read_tum
+        from ifmi.io.tum import read_tum
 
         return read_tum(value)
     R = _rotations(value, name)
@@ -91,7 +91,7 @@ def assert_trajectory_close(gt, est, *, rmse_rad: float, max_rad: float | None =
         A trajectory, a TUM file, or rotations ``R_0k`` (frame k at time k).
         Poses are associated by timestamp and compared from the first
         associated frame, as ``ifmi evaluate`` does
-        (:func:`~ifmi.metrics.trajectory_errors`).
+        (:func:`~ifmi.evaluation.metrics.trajectory_errors`).
     rmse_rad : float, keyword-only
         Largest accepted geodesic RMSE over the associated poses, radians.
     max_rad : float, optional, keyword-only
@@ -100,7 +100,7 @@ def assert_trajectory_close(gt, est, *, rmse_rad: float, max_rad: float | None =
         Smallest fraction of the ground-truth poses that must have an
         estimate pose, and of the estimate poses that must have a
         ground-truth pose (default all of them); at least
-        :data:`~ifmi.metrics.MIN_ASSOCIATED` poses always.
+        :data:`~ifmi.evaluation.metrics.MIN_ASSOCIATED` poses always.
     max_time_difference : float, keyword-only
         Largest timestamp difference of associated poses.
 

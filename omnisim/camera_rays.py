@@ -2,7 +2,7 @@
 
 The renderer's sensor (:mod:`omnisim.sensor`) calls :func:`rays_from_film`
 with the pixel ``(row, col)`` of each sample; the formulas are those of
-:mod:`ifmi.camera_models` (same camera frames: x along columns, y along
+:mod:`ifmi.geometry.camera_models` (same camera frames: x along columns, y along
 rows, z the optical axis; equirectangular: -y up), evaluated in float32.
 
 A model's calibration travels as one short flat list (:func:`ray_parameters`);
@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ifmi.camera import VALID_ROUND_TRIP_PX
+from ifmi.geometry.camera import VALID_ROUND_TRIP_PX
 
 __all__ = ["RAY_KINDS", "KB_TABLE_SIZE", "TABLE_ERROR_TARGET_PX", "CELL_TOLERANCE_PX", "MAX_TABLE_NODES",
            "UndistortionTable",
@@ -82,8 +82,8 @@ _PARAMETER_COUNTS = {"unified": 5, "unified_radtan": 9, "eucm": 6, "ds": 6, "kb"
 
 
 def ray_kind(model) -> str:
-    """Kind of ray code for an :mod:`ifmi.camera_models` model (one of :data:`RAY_KINDS`)."""
-    from ifmi.camera_models import (DoubleSphereModel, EquirectangularModel, ExtendedUnifiedModel,
+    """Kind of ray code for an :mod:`ifmi.geometry.camera_models` model (one of :data:`RAY_KINDS`)."""
+    from ifmi.geometry.camera_models import (DoubleSphereModel, EquirectangularModel, ExtendedUnifiedModel,
                                     KannalaBrandtModel, UnifiedModel)
 
     if isinstance(model, UnifiedModel):
@@ -124,7 +124,7 @@ def parameter_count(kind: str) -> int:
 
 
 def model_from_parameters(kind: str, values, size):
-    """The :mod:`ifmi.camera_models` model of ``kind`` with calibration ``values`` and image ``size``.
+    """The :mod:`ifmi.geometry.camera_models` model of ``kind`` with calibration ``values`` and image ``size``.
 
     Parameters
     ----------
@@ -141,7 +141,7 @@ def model_from_parameters(kind: str, values, size):
     ValueError
         If the number of values is wrong or the model rejects them.
     """
-    from ifmi.camera_models import (DoubleSphereModel, EquirectangularModel, ExtendedUnifiedModel,
+    from ifmi.geometry.camera_models import (DoubleSphereModel, EquirectangularModel, ExtendedUnifiedModel,
                                     KannalaBrandtModel, UnifiedModel)
 
     values = [float(v) for v in values]
@@ -236,7 +236,7 @@ def undistortion_table(model, *, target_px: float = TABLE_ERROR_TARGET_PX,
 
     Parameters
     ----------
-    model : ifmi.camera_models.UnifiedModel
+    model : ifmi.geometry.camera_models.UnifiedModel
         With radtan distortion (``PinholeModel`` included).
     target_px : float, keyword-only
         Wanted bound (pixels).
@@ -270,7 +270,7 @@ def _table_at_spacing(model, spacing: float, coarser: UndistortionTable | None =
     iterating (beyond a fold most of the image may be, and there the
     iteration runs to its step limit).
     """
-    from ifmi.camera_models import undistort_radtan
+    from ifmi.geometry.camera_models import undistort_radtan
 
     n_rows, n_cols = _table_shape(model.size, spacing)
     rows = _TABLE_ORIGIN_PX + spacing * np.arange(n_rows)
@@ -308,7 +308,7 @@ def _interpolated(values: np.ndarray, spacing: float, rows: np.ndarray, cols: np
 
 def _cell_error_bounds(model, values: np.ndarray) -> np.ndarray:
     """Per-cell bilinear error bound (pixels); NaN where a corner is invalid."""
-    from ifmi.camera_models import _radtan_jacobian
+    from ifmi.geometry.camera_models import _radtan_jacobian
 
     def second_difference(axis: int) -> np.ndarray:
         out = np.full(values.shape[:2], np.nan)

@@ -22,7 +22,7 @@ rendered as before (the sensor then contains no timing code at all).
 Vignetting multiplies the linear radiance of pixel ``(row, col)`` by
 ``V = (1 + (v * rho / rho_max)**2)**-2``, the cos^4 law of a lens that sees
 the pixel under the angle ``atan(v * rho / rho_max)``: ``rho`` is the pixel
-centre's sensor-plane radius (:func:`ifmi.camera.radius_from_pixels`) and
+centre's sensor-plane radius (:func:`ifmi.geometry.camera.radius_from_pixels`) and
 ``rho_max`` the outer radius of the mirror band, so ``v`` is the tangent of
 the lens' field angle at the mirror rim. It is applied per pixel to the
 rendered linear image, before exposure gain, tone mapping and quantisation.
@@ -104,7 +104,7 @@ def vignetting_from_pixels(model, *, strength: float, radius_max: float) -> np.n
     (H, W) ndarray
         float32 factors in (0, 1], indexed (row, col).
     """
-    from ifmi.camera import radius_from_pixels
+    from ifmi.geometry.camera import radius_from_pixels
 
     if strength < 0 or radius_max <= 0:
         raise ValueError(f"expected strength >= 0 and radius_max > 0, got {strength}, {radius_max}")

@@ -6,9 +6,9 @@ import argparse
 import re
 import sys
 
-from ifmi.cli.warning_lines import input_warnings_as_lines
+from ifmi.runtime.warning_lines import input_warnings_as_lines
 from ifmi.errors import InputError, OutputError
-from ifmi.interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
+from ifmi.runtime.interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
 
 # Everything heavier (numpy, the scene settings, Mitsuba) is imported inside main(),
 # after its interrupt handler is in place.
@@ -115,7 +115,7 @@ def _render(args) -> int:
 
 
 def _warp(args) -> int:
-    from ifmi.options import OptionError
+    from ifmi.errors import OptionError
 
     from .warp import WarpSettings, warp_dataset
 

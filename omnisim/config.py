@@ -20,7 +20,7 @@ import sys
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
-from ifmi.camera import (INVERSE_TOLERANCE_PX, OcamModel, check_affine, check_center_inside, check_image_size,
+from ifmi.geometry.camera import (INVERSE_TOLERANCE_PX, OcamModel, check_affine, check_center_inside, check_image_size,
                          max_image_radius, model_from_direct_polynomial)
 from ifmi.errors import InputError, first_line
 from ifmi.io.text_file import refuse_special_file
@@ -234,7 +234,7 @@ class CameraSettings:
     """Calibration at the render resolution and the mirror band (sensor-plane pixels).
 
     ``model`` is an OCamCalib model or, from ``kalibr = "camera.yaml"``, a
-    model of :mod:`ifmi.camera_models` (band 0..inf: its valid region bounds the image).
+    model of :mod:`ifmi.geometry.camera_models` (band 0..inf: its valid region bounds the image).
     """
 
     model: OcamModel
@@ -373,10 +373,10 @@ def _camera(path: Path, table, resolution, *, key: str = "[render] resolution") 
 
 def _check_written_inverse(path: Path, model: OcamModel, where: str) -> None:
     """Refuse a calibration, at the size rendered, that the dataset's readers would refuse: its inverse
-    polynomial off its direct one by more than :data:`ifmi.camera.INVERSE_TOLERANCE_PX` (the check of
+    polynomial off its direct one by more than :data:`ifmi.geometry.camera.INVERSE_TOLERANCE_PX` (the check of
     :func:`ifmi.io.calib.read_calib`). ``pol = [-1e-30, 0, 1e-30]`` rendered with exit 0 a dataset
     whose calib_results.txt no reader took (its fitted inverse was 20 px off)."""
-    from ifmi.unwarp import inverse_polynomial_error
+    from ifmi.spectral.panorama import inverse_polynomial_error
 
     try:
         error, radius = inverse_polynomial_error(model)

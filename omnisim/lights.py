@@ -125,7 +125,7 @@ def emitter_dict(mi, light) -> dict:
                 "irradiance": {"type": "rgb", "value": list(light.irradiance)}}
     if isinstance(light, ConstantLight):
         return {"type": "constant", "radiance": {"type": "rgb", "value": list(light.radiance)}}
-    from ifmi.rotations import matrix_from_rpy  # scipy: imported when a scene is built
+    from ifmi.geometry.rotations import matrix_from_rpy  # scipy: imported when a scene is built
 
     turn = np.eye(4)
     turn[:3, :3] = matrix_from_rpy(np.radians(np.asarray(light.rotation_deg, dtype=np.float64)))

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from ifmi.errors import first_line
-from ifmi.interrupts import interrupts_deferred
+from ifmi.runtime.interrupts import interrupts_deferred
 
 __all__ = [
     "BackendError",

@@ -4,7 +4,7 @@ A file is read as a trimesh scene; every geometry is taken with its node
 transform, in the file's units. It is placed by ``scale`` (file units to
 metres), then ``rotation_deg`` = [roll, pitch, yaw] in degrees with
 ``R = Rz(yaw) Ry(pitch) Rx(roll)`` about the world axes (the project's ZYX
-convention, :func:`ifmi.rotations.matrix_from_rpy`), then ``position``:
+convention, :func:`ifmi.geometry.rotations.matrix_from_rpy`), then ``position``:
 ``p_world = R (scale p_file) + position``.
 
 Without ``material`` each geometry keeps the file's own appearance:
@@ -619,7 +619,7 @@ def _placed(ctx: GeneratorContext, positions: np.ndarray, rotation: np.ndarray, 
 )
 def _mesh(ctx: GeneratorContext):
     """A mesh file placed in the world, with its own appearance or a scene material."""
-    from ifmi.rotations import matrix_from_rpy  # scipy: imported when a scene is built
+    from ifmi.geometry.rotations import matrix_from_rpy  # scipy: imported when a scene is built
 
     rotation = matrix_from_rpy(np.radians(np.asarray(ctx["rotation_deg"], dtype=np.float64)))
     offset = np.asarray(ctx["position"], dtype=np.float64)

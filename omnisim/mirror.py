@@ -3,7 +3,7 @@
 A convex paraboloid ``z = (rho**2 - h**2) / (2 h)`` (focus at the origin,
 metric ``h``) reflects the parallel rays of an orthographic camera looking
 along +z into rays whose backward extensions meet at the focus, so its image
-obeys :func:`ifmi.camera.paracatadioptric_model` exactly. This mode renders
+obeys :func:`ifmi.geometry.camera.paracatadioptric_model` exactly. This mode renders
 that physical setup (mirror as a finely tessellated mesh with analytic
 normals and a perfect conductor BSDF) to cross-check the ``omnicam`` sensor.
 
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ifmi.camera import pixel_offsets_from_sensor
+from ifmi.geometry.camera import pixel_offsets_from_sensor
 
 __all__ = ["horizon_radius_from_model", "mirror_scene_entries"]
 
@@ -65,7 +65,7 @@ def mirror_scene_entries(model, *, to_world: np.ndarray, radius_max: float, spp:
     Parameters
     ----------
     model : OcamModel
-        A paracatadioptric model (see :func:`ifmi.camera.paracatadioptric_model`);
+        A paracatadioptric model (see :func:`ifmi.geometry.camera.paracatadioptric_model`);
         its centre and affine part place the mirror in the image.
     to_world : (4, 4) ndarray, keyword-only
         Camera-to-world pose of the model's camera frame (z = mirror axis).

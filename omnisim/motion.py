@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ifmi.io.tum import Trajectory, read_tum
-from ifmi.rotations import matrix_from_rpy
+from ifmi.geometry.rotations import matrix_from_rpy
 
 from .config import TrajectorySettings
 from .settings import MAX_CAMERA_REACH_M

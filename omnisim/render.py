@@ -34,7 +34,7 @@ from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_t
 from ifmi.io.camera_file import write_camera
 from ifmi.io.provenance import package_versions
 from ifmi.io.tum import format_tum, write_tum
-from ifmi.local_workers import max_local_workers
+from ifmi.runtime.local_workers import max_local_workers
 
 from .aov import AOV_NAMES, aov_integrator_dict, aov_names_from_text, aov_sensor_dict, depth_normal_from_aov, npy_bytes
 from .capture import ground_truth_time, row_mid_times, sensor_timing_props, vignetting_from_pixels
@@ -70,8 +70,8 @@ def poses_in_model_frame(poses: WorldPoses, model) -> WorldPoses:
     camera. An equirectangular camera (z forward, -y up) is mounted level:
     its z is the body's x and its -y the body's z.
     """
-    from ifmi.camera import OcamModel
-    from ifmi.camera_models import EquirectangularModel
+    from ifmi.geometry.camera import OcamModel
+    from ifmi.geometry.camera_models import EquirectangularModel
 
     if isinstance(model, OcamModel):
         return poses
@@ -687,7 +687,7 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         Per-pixel ground truth to write beside the images: "depth", "normal" (:mod:`omnisim.aov`).
     workers : int, optional, keyword-only
         Render on a local Dask cluster of this many worker processes, 1 to
-        :func:`ifmi.local_workers.max_local_workers`.
+        :func:`ifmi.runtime.local_workers.max_local_workers`.
     scheduler : str, optional, keyword-only
         Render on the Dask cluster at this scheduler address (workers must see the scene's files).
 

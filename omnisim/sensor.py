@@ -1,6 +1,6 @@
 """Mitsuba sensor plugin ``omnicam``: the OCamCalib camera model, and every other model, exactly.
 
-Kalibr and equirectangular models (:mod:`ifmi.camera_models`) take the same
+Kalibr and equirectangular models (:mod:`ifmi.geometry.camera_models`) take the same
 route with their own pixel->direction code (:mod:`omnisim.camera_rays`),
 chosen by the ``camera_model`` property; their calibration is one list
 ``params`` (Kalibr's values, exposed through ``traverse``), from which the
@@ -11,7 +11,7 @@ changes), all opaque; samples outside the model's valid region are black.
 Each film sample is mapped to a ``(row, col)`` pixel coordinate (film x is the
 column, film y the row; pixel centres at integers, so the film position
 ``x + 0.5`` is column ``x``), lifted to a camera-frame ray with the same
-``cam2world`` formula as :func:`ifmi.camera.rays_from_pixels`, and carried to
+``cam2world`` formula as :func:`ifmi.geometry.camera.rays_from_pixels`, and carried to
 the world by ``to_world``. The camera frame is the model's: x along image
 rows, y along image columns, z the mirror axis.
 
@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ifmi.camera import OcamModel
+from ifmi.geometry.camera import OcamModel
 
 __all__ = ["PLUGIN_NAME", "register_omni_sensor", "sensor_dict", "to_world_matrix"]
 
@@ -62,11 +62,11 @@ def to_world_matrix(rotation: np.ndarray, position: np.ndarray) -> np.ndarray:
 def sensor_dict(model, *, to_world: np.ndarray, radius_min: float, radius_max: float,
                 spp: int, sampler: str = "multijitter", seed: int = 0, mi=None,
                 timing: dict | None = None) -> dict:
-    """Mitsuba scene-dict entry of the omni sensor for an :class:`ifmi.camera.OcamModel`.
+    """Mitsuba scene-dict entry of the omni sensor for an :class:`ifmi.geometry.camera.OcamModel`.
 
     Parameters
     ----------
-    model : OcamModel or ifmi.camera.CameraModel
+    model : OcamModel or ifmi.geometry.camera.CameraModel
         Calibration; the film gets its ``size`` (height rows, width columns).
     to_world : (4, 4) ndarray, keyword-only
         Camera-to-world transform (camera frame of the model).

@@ -13,11 +13,11 @@ with the source image as frame 0. Pixels whose own ray, or whose source
 pixel, lies outside the region of the source that images the scene, or too
 close to the image edge for the interpolation kernel, are black. That
 region is, for an OCamCalib calibration (``calib_results.txt``), the mirror
-band of sensor radii detected on the image (:func:`ifmi.unwarp.radius_band`,
+band of sensor radii detected on the image (:func:`ifmi.spectral.panorama.radius_band`,
 with the calibration's band as fallback); for a Kalibr ``camera.yaml``
-(fisheyes, pinhole, equirectangular; :mod:`ifmi.camera_models`), the lit
+(fisheyes, pinhole, equirectangular; :mod:`ifmi.geometry.camera_models`), the lit
 band of angles about the camera's panorama axis
-(:func:`ifmi.unwarp.lit_off_axis_band`) inside the model's valid region, so
+(:func:`ifmi.spectral.panorama.lit_off_axis_band`) inside the model's valid region, so
 a fisheye's black surround stays black and fixed in the image.
 
 The random walk turns about the calibration's z axis for an OCamCalib
@@ -53,7 +53,7 @@ import numpy as np
 from scipy.ndimage import map_coordinates
 from scipy.spatial.transform import Rotation
 
-from ifmi.camera import (OcamModel, angles_from_axis, angular_pixel_size, pixels_from_rays, radius_from_pixels,
+from ifmi.geometry.camera import (OcamModel, angles_from_axis, angular_pixel_size, pixels_from_rays, radius_from_pixels,
                          rays_from_pixels)
 from ifmi.errors import InputError
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_json
@@ -61,10 +61,10 @@ from ifmi.io.camera_file import camera_file_name, read_camera
 from ifmi.io.dataset import read_image
 from ifmi.io.provenance import package_versions
 from ifmi.io.tum import write_tum
-from ifmi.options import OptionError
-from ifmi.rolling_shutter import row_time_offsets
-from ifmi.trajectory import Trajectory
-from ifmi.unwarp import PanoramaConfig, gray_from_image, lit_off_axis_band, panorama_axis_rotation, radius_band
+from ifmi.errors import OptionError
+from ifmi.geometry.row_timing import row_time_offsets
+from ifmi.geometry.trajectory import Trajectory
+from ifmi.spectral.panorama import PanoramaConfig, gray_from_image, lit_off_axis_band, panorama_axis_rotation, radius_band
 
 from .config import MAX_FRAMES
 from .render import META_FORMAT, encode_png, open_output_folder, pending_images, write_row_poses
@@ -98,7 +98,7 @@ class WarpSettings:
         in ``[0, 1]``: row ``r`` of frame ``k`` sees the camera at time
         ``k + rolling_shutter * (r - (H - 1) / 2) / (H - 1)`` of the
         (continuous) walk, so the middle row holds the ground-truth pose
-        (:mod:`ifmi.rolling_shutter`'s convention). 0: a global shutter.
+        (:mod:`ifmi.backend.rolling_shutter`'s convention). 0: a global shutter.
     """
 
     frames: int = 60
@@ -108,7 +108,7 @@ class WarpSettings:
     rolling_shutter: float = 0.0
 
     def __post_init__(self) -> None:
-        """Raises :class:`ifmi.options.OptionError` naming the first field out of range (NaN included)."""
+        """Raises :class:`ifmi.errors.OptionError` naming the first field out of range (NaN included)."""
         checks = (("frames", 1 <= self.frames <= MAX_FRAMES, f"1 <= frames <= {MAX_FRAMES} (as a render)"),
                   ("seed", self.seed >= 0, "seed >= 0"),
                   ("max_step_deg", 0 < self.max_step_deg <= 90, "0 < max_step_deg <= 90"),
@@ -179,10 +179,10 @@ def _pixel_angle(model) -> float:
 def valid_source_band(model, image: np.ndarray) -> tuple[float, float]:
     """Band ``(inner, outer)`` of the source image that images the scene.
 
-    Sensor radius in pixels for an :class:`~ifmi.camera.OcamModel` (the
-    mirror band, :func:`ifmi.unwarp.radius_band`); off-axis angle in
+    Sensor radius in pixels for an :class:`~ifmi.geometry.camera.OcamModel` (the
+    mirror band, :func:`ifmi.spectral.panorama.radius_band`); off-axis angle in
     radians about the panorama axis for the other models (the lit band,
-    :func:`ifmi.unwarp.lit_off_axis_band`, kept ``_EDGE_PX`` pixels inside
+    :func:`ifmi.spectral.panorama.lit_off_axis_band`, kept ``_EDGE_PX`` pixels inside
     its edges for the interpolation kernel).
 
     Raises
@@ -316,7 +316,7 @@ def rotations_in_camera_frame(model, walk: np.ndarray) -> np.ndarray:
     """Orientations ``R_0k`` (K, 3, 3) of a walk about z, turned about ``model``'s panorama axis.
 
     An OCamCalib model keeps its own z (the mirror axis, the walk
-    unchanged); other models turn about :func:`ifmi.unwarp.panorama_axis_rotation`.
+    unchanged); other models turn about :func:`ifmi.spectral.panorama.panorama_axis_rotation`.
     """
     if isinstance(model, OcamModel):
         return walk

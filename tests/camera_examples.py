@@ -6,8 +6,8 @@ the published TUM-VI camera); they are not tuned to make anything pass.
 
 from __future__ import annotations
 
-from ifmi.camera import model_from_direct_polynomial
-from ifmi.camera_models import (
+from ifmi.geometry.camera import model_from_direct_polynomial
+from ifmi.geometry.camera_models import (
     DoubleSphereModel,
     EquirectangularModel,
     ExtendedUnifiedModel,

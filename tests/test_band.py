@@ -7,8 +7,8 @@ import warnings
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model, radius_from_pixels
-from ifmi.unwarp import PanoramaConfig, radius_band
+from ifmi.geometry.camera import paracatadioptric_model, radius_from_pixels
+from ifmi.spectral.panorama import PanoramaConfig, radius_band
 
 MODEL = paracatadioptric_model((240, 260), horizon_radius_px=70.0, center=(118.6, 133.2),
                                affine=(1.004, 0.006, -0.003))
@@ -104,7 +104,7 @@ def test_sequence_with_a_dark_operator_is_estimated_end_to_end():
     # azimuth in every frame; the band must still span the mirror (the previous rule cut it to
     # 71..93 px) and every frame succeed.
     from ifmi.pipeline import estimate_sequence
-    from ifmi.rotations import geodesic_angle
+    from ifmi.geometry.rotations import geodesic_angle
     from ifmi.synthetic import synthetic_sequence
 
     model = paracatadioptric_model((200, 200), horizon_radius_px=60.0)

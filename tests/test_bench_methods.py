@@ -274,7 +274,7 @@ def test_bench_seeds_refuses_negative_or_repeated_seeds(tmp_path, capsys, monkey
 
 
 def test_bench_relative_pose_loads_a_revisions_back_end_that_solves(monkeypatch):
-    # The baseline is ifmi/relative_pose.py from git; its relative imports must resolve in the package.
+    # The baseline is ifmi/backend/relative_pose.py from git; its relative imports must resolve in the package.
     root = BENCHMARK.parents[1]
     if not (root / ".git").exists():
         pytest.skip("not a git checkout")
@@ -287,7 +287,7 @@ def test_bench_relative_pose_loads_a_revisions_back_end_that_solves(monkeypatch)
     rotation = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 degrees of yaw
     rays_a = rays_b @ rotation.T
     rays_a += rng.normal(0.0, 1e-4, rays_a.shape)
-    for module_ in (baseline, importlib.import_module("ifmi.relative_pose")):
+    for module_ in (baseline, importlib.import_module("ifmi.backend.relative_pose")):
         options = module_.RelativePoseOptions(ransac_threshold_rad=1e-3)
         pose, info = module_.relative_pose_from_rays(rays_a, rays_b, options=options)
         assert info.success
@@ -378,7 +378,7 @@ def test_bench_uncertainty_takes_each_pairs_error_from_its_own_reference_frame(t
     from scipy.spatial.transform import Rotation
 
     from ifmi.io.tum import write_tum
-    from ifmi.trajectory import Trajectory
+    from ifmi.geometry.trajectory import Trajectory
 
     module = _benchmark_module("bench_uncertainty", monkeypatch)
     stamps = np.arange(4.0)
@@ -490,7 +490,7 @@ def test_parallax_benchmark_records_both_fits_of_each_pair(tmp_path, monkeypatch
 
 
 def test_coarse_confirmation_benchmark_records_both_searches_and_restores_the_stage(tmp_path, monkeypatch, capsys):
-    from ifmi.global_motion import GlobalMotionEstimator
+    from ifmi.spectral.global_motion import GlobalMotionEstimator
 
     confirmation = _benchmark_module("coarse_confirmation", monkeypatch)
     original = GlobalMotionEstimator.estimate

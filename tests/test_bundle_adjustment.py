@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.bundle_adjustment import (BundleAdjustmentOptions, TrackObservations, poses_from_bundle_adjustment,
+from ifmi.backend.bundle_adjustment import (BundleAdjustmentOptions, TrackObservations, poses_from_bundle_adjustment,
                                     poses_from_sliding_window, tracks_from_pair_rays)
-from ifmi.odometry import Tracker, track_sequence
+from ifmi.tracking.odometry import Tracker, track_sequence
 from ifmi.pipeline import Correspondences
-from ifmi.relative_pose import RelativePoseOptions
-from ifmi.rolling_shutter import RollingShutterOptions
-from ifmi.rotations import geodesic_angle
+from ifmi.backend.relative_pose import RelativePoseOptions
+from ifmi.backend.rolling_shutter import RollingShutterOptions
+from ifmi.geometry.rotations import geodesic_angle
 
 OPTIONS = BundleAdjustmentOptions(robust_scale_rad=2e-3, iterations=50, tolerance=1e-14)
 

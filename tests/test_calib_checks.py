@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ifmi.camera import fit_inverse_polynomial, paracatadioptric_model
+from ifmi.geometry.camera import fit_inverse_polynomial, paracatadioptric_model
 from ifmi.cli import main
 from ifmi.errors import InputError
 from ifmi.io.calib import INVERSE_TOLERANCE_PX, format_calib, inverse_polynomial_error, parse_calib

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import pytest
 
-from ifmi.calib_fit import fit_camera_model
-from ifmi.camera import paracatadioptric_model
-from ifmi.camera_models import DoubleSphereModel, KannalaBrandtModel, UnifiedModel
+from ifmi.geometry.calib_fit import fit_camera_model
+from ifmi.geometry.camera import paracatadioptric_model
+from ifmi.geometry.camera_models import DoubleSphereModel, KannalaBrandtModel, UnifiedModel
 from ifmi.cli import main
 from ifmi.errors import InputError
 from ifmi.io.calib import format_calib, read_calib

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ifmi.camera import (
+from ifmi.geometry.camera import (
     OcamModel,
     elevation_from_radius,
     fit_inverse_polynomial,
@@ -201,7 +201,7 @@ def test_missing_calib_file(tmp_path):
 
 
 def test_sensor_and_pixels_round_trip_through_the_affine_part():
-    from ifmi.camera import pixel_offsets_from_sensor, pixels_from_sensor, sensor_from_pixels
+    from ifmi.geometry.camera import pixel_offsets_from_sensor, pixels_from_sensor, sensor_from_pixels
 
     model = paracatadioptric_model((300, 320), horizon_radius_px=90.0, center=(151.3, 158.2),
                                    affine=(1.003, -0.012, 0.008))
@@ -221,7 +221,7 @@ def test_sensor_and_pixels_round_trip_through_the_affine_part():
 
 
 def test_angular_pixel_size_of_a_paraboloid_at_its_horizon():
-    from ifmi.camera import angular_pixel_size, pixels_from_sensor
+    from ifmi.geometry.camera import angular_pixel_size, pixels_from_sensor
 
     # pol(r) = -h/2 + r^2/(2h): at r = h the ray is horizontal and d(theta)/dr = 1/h,
     # and across the radius a pixel is 1/h of the horizon circle; both neighbours subtend 1/h rad.

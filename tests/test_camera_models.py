@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ifmi.camera import CameraModel, angles_from_axis, pixels_from_rays, rays_from_pixels, valid_mask
-from ifmi.camera_models import (
+from ifmi.geometry.camera import CameraModel, angles_from_axis, pixels_from_rays, rays_from_pixels, valid_mask
+from ifmi.geometry.camera_models import (
     DoubleSphereModel,
     ExtendedUnifiedModel,
     KannalaBrandtModel,
@@ -170,7 +170,7 @@ def test_radtan_fold_bounds_the_valid_region():
     r_d = r (1 - 0.4 r^2 + 0.05 r^4) peaks at r^2 = (1.2 - sqrt(0.44)) / 0.5, r_d = 0.651:
     farther pixels would also be images of rays from the far branch.
     """
-    from ifmi.camera_models import PinholeModel
+    from ifmi.geometry.camera_models import PinholeModel
 
     model = PinholeModel.create((200.0, 200.0), (319.5, 239.5), (480, 640), (-0.4, 0.05, 0.0, 0.0))
     r_fold = np.sqrt((1.2 - np.sqrt(0.44)) / 0.5)

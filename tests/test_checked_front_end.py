@@ -11,12 +11,12 @@ import csv
 import numpy as np
 import pytest
 
-from ifmi.checked_front_end import checked_correspondences
+from ifmi.tracking.checked_front_end import checked_correspondences
 from ifmi.cli import main
 from ifmi.errors import InputError
 from ifmi.front_end import Correspondences
 from ifmi.io.tum import read_tum
-from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays
+from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays
 from ifmi.synthetic import example_band_px, example_omni_model, synthetic_sequence, write_synthetic_dataset
 
 FRAMES = 6
@@ -27,7 +27,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ifmi.methods import create_front_end
+from ifmi.tracking.methods import create_front_end
 
 
 class Spoiled:
@@ -266,7 +266,7 @@ def test_float16_rays_are_read_as_unit_rays(dataset, plugin, tmp_path, capsys):
     assert code == 0 and all(r["success"] == "true" for r in _frames(tmp_path / "h.txt"))
     code, _ = _estimate(dataset, "orb", tmp_path / "o.txt", capsys)
     # float16 keeps 11 bits: a ray moves by up to 5e-4 rad, about a tenth of this camera's pixel.
-    from ifmi.rotations import geodesic_angle
+    from ifmi.geometry.rotations import geodesic_angle
 
     half, full = read_tum(tmp_path / "h.txt").rotations, read_tum(tmp_path / "o.txt").rotations
     assert geodesic_angle(half, full).max() < 2e-3

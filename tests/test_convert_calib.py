@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ifmi.calib_fit import fit_camera_model, reprojection_errors
-from ifmi.camera import model_from_direct_polynomial, paracatadioptric_model, valid_mask
-from ifmi.camera_models import ExtendedUnifiedModel, UnifiedModel
+from ifmi.geometry.calib_fit import fit_camera_model, reprojection_errors
+from ifmi.geometry.camera import model_from_direct_polynomial, paracatadioptric_model, valid_mask
+from ifmi.geometry.camera_models import ExtendedUnifiedModel, UnifiedModel
 from ifmi.cli import main
 from ifmi.io.calib import read_calib, write_calib
 from ifmi.io.kalibr import read_kalibr, write_kalibr
@@ -196,7 +196,7 @@ def test_pinhole_target_refuses_cameras_seeing_180_degrees_or_more(tmp_path, cap
 
 
 def test_printed_error_names_the_region_it_is_measured_over():
-    from ifmi.calib_fit import CalibrationFit
+    from ifmi.geometry.calib_fit import CalibrationFit
     from ifmi.cli.convert_calib import fit_summary
 
     whole = fit_camera_model(UNIFIED, "eucm")
@@ -257,6 +257,6 @@ def test_converting_across_toolboxes_warns_that_ground_truth_no_longer_fits(tmp_
 
 
 def test_coverage_just_under_whole_is_not_printed_as_100_percent():
-    from ifmi.calib_fit import percent_below
+    from ifmi.geometry.calib_fit import percent_below
 
     assert percent_below(0.99996) == "99.9" and percent_below(0.625) == "62.5" and percent_below(1.0) == "100.0"

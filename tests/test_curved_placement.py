@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.camera import paracatadioptric_model
-from ifmi.fourier_mellin import FourierMellin
-from ifmi.flow import flow_from_placements
-from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
-from ifmi.tiling import TilingConfig
-from ifmi.unwarp import PanoramaConfig, panorama_pixels_from_rays, rays_from_panorama_pixels
+from ifmi.geometry.camera import paracatadioptric_model
+from ifmi.spectral.fourier_mellin import FourierMellin
+from ifmi.spectral.flow import flow_from_placements
+from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.spectral.tiling import TilingConfig
+from ifmi.spectral.panorama import PanoramaConfig, panorama_pixels_from_rays, rays_from_panorama_pixels
 
 from tile_checks import kept_tiles_rotation_error
 

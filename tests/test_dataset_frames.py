@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model
+from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.cli import main
 from ifmi.errors import InputError, InputWarning
 from ifmi.frames import MissingFrame
@@ -22,7 +22,7 @@ from ifmi.io.dataset import frame_index, read_dataset
 from ifmi.io.images import image_file_problem, read_image
 from ifmi.io.results import read_frames_csv
 from ifmi.io.tum import read_tum
-from ifmi.rotations import geodesic_angle
+from ifmi.geometry.rotations import geodesic_angle
 
 MODEL = paracatadioptric_model((64, 64), horizon_radius_px=20.0)
 
@@ -165,7 +165,7 @@ def _warn_inside_own_package(code: str) -> None:
 
 
 def test_warning_lines_of_own_and_foreign_user_warnings(capsys):
-    from ifmi.cli.warning_lines import input_warnings_as_lines
+    from ifmi.runtime.warning_lines import input_warnings_as_lines
 
     # pytest.warns records what reaches Python's default display.
     with pytest.warns(UserWarning) as default_display, input_warnings_as_lines(lambda: "ifmi test"):
@@ -180,7 +180,7 @@ def test_warning_line_during_a_progress_bar_starts_a_line_of_its_own(capsys):
 
     from tqdm import tqdm
 
-    from ifmi.cli.warning_lines import input_warnings_as_lines
+    from ifmi.runtime.warning_lines import input_warnings_as_lines
 
     with input_warnings_as_lines(lambda: "ifmi estimate"), tqdm(total=3, file=sys.stderr, desc="estimate") as bar:
         bar.update(1)
@@ -195,7 +195,7 @@ def test_warning_line_during_a_progress_bar_starts_a_line_of_its_own(capsys):
 
 
 def test_warning_lines_of_numpy_runtime_warnings_name_the_project_line(capsys):
-    from ifmi.cli.warning_lines import input_warnings_as_lines
+    from ifmi.runtime.warning_lines import input_warnings_as_lines
 
     with input_warnings_as_lines(lambda: "omnisim warp"):
         with np.errstate(invalid="warn"):
@@ -352,9 +352,9 @@ def test_missing_frame_leaves_a_gap_and_evaluates_right(sequence_dataset, tmp_pa
 def test_reference_frames_across_two_gaps_keep_their_timestamps():
     """frames.csv names reference frames by index: with frames 3 and 5 missing,
     the last poses (rows 4 and 5, frames 6 and 7) still find their references."""
-    from ifmi.evaluation import _reference_timestamps
+    from ifmi.evaluation.trajectory_files import _reference_timestamps
     from ifmi.io.results import EstimateSideFiles, FrameTable
-    from ifmi.trajectory import Trajectory
+    from ifmi.geometry.trajectory import Trajectory
 
     frame = np.array([0, 1, 2, 4, 6, 7], dtype=float)
     reference = np.array([0, 0, 1, 2, 4, 6], dtype=float)

@@ -5,11 +5,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ifmi.flow import flow_from_placements, flow_sample_points, points_on_centroids
-from ifmi.fourier_mellin import FourierMellin, energy_centroids
-from ifmi.phase_correlation import hann_window
-from ifmi.camera import paracatadioptric_model
-from ifmi.unwarp import PanoramaConfig, panorama_mapping
+from ifmi.spectral.flow import flow_from_placements, flow_sample_points, points_on_centroids
+from ifmi.spectral.fourier_mellin import FourierMellin, energy_centroids
+from ifmi.spectral.phase_correlation import hann_window
+from ifmi.geometry.camera import paracatadioptric_model
+from ifmi.spectral.panorama import PanoramaConfig, panorama_mapping
 
 N = 64
 CENTRE = (N - 1) / 2.0

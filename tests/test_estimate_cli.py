@@ -11,11 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model
+from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.cli import main
 from ifmi.io.dataset import read_dataset, read_image
 from ifmi.io.tum import read_tum
-from ifmi.rotations import geodesic_angle
+from ifmi.geometry.rotations import geodesic_angle
 
 pytest.importorskip("skimage")
 from ifmi.synthetic import synthetic_sequence, write_synthetic_dataset  # noqa: E402
@@ -176,7 +176,7 @@ def test_unreadable_config_file(dataset, tmp_path, capsys):
 
 
 def test_pixel_threshold_option_is_converted_and_recorded(dataset, tmp_path):
-    from ifmi.unwarp import angular_pixel_size_in_band
+    from ifmi.spectral.panorama import angular_pixel_size_in_band
 
     root, _ = dataset
     out = tmp_path / "px.txt"
@@ -291,7 +291,7 @@ def _kalibr_dataset(root, model, image_size):
 
 def _cut_eucm(height):
     """The example EUCM camera at half size (240 x 376), its image cut to ``height`` rows: no full ring."""
-    from ifmi.camera_models import ExtendedUnifiedModel
+    from ifmi.geometry.camera_models import ExtendedUnifiedModel
 
     from camera_examples import EXAMPLES
 

@@ -10,10 +10,10 @@ import threading
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model
+from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.cli import main
 from ifmi.io.dataset import read_dataset
-from ifmi.unwarp import angular_pixel_size_in_band
+from ifmi.spectral.panorama import angular_pixel_size_in_band
 
 pytest.importorskip("skimage")
 from ifmi.synthetic import (example_band_px, example_omni_model, synthetic_sequence,  # noqa: E402
@@ -301,7 +301,7 @@ def test_camera_limits_name_the_option_given_on_the_command_line(dataset, tmp_pa
 
 # --- 10. tile layouts with more tiles than a frame pair's registration memory ---------------
 
-# The limit for 32 px tiles with the default log-polar grid (ifmi.fourier_mellin.max_tile_count).
+# The limit for 32 px tiles with the default log-polar grid (ifmi.spectral.fourier_mellin.max_tile_count).
 TILE_LIMIT_32PX = ("expected at most 12483 tiles per frame (1 GiB to register a frame pair, 84 KiB per 32 px "
                    "tile), got ")
 

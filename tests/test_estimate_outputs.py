@@ -10,7 +10,7 @@ import shutil
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model
+from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.cli import main
 from ifmi.errors import OutputError
 from ifmi.io import atomic
@@ -238,7 +238,7 @@ def test_sizes_beyond_what_the_images_give_are_refused(dataset, tmp_path, capsys
 
 
 def test_the_width_bound_is_four_circumferences_of_the_band(dataset, tmp_path, capsys):
-    from ifmi.unwarp import radius_band
+    from ifmi.spectral.panorama import radius_band
 
     limit = int(4 * 2 * np.pi * radius_band(MODEL)[1])
     main(["estimate", str(dataset), "--out", str(tmp_path / "e.txt"), "--width", str(limit + 1)])
@@ -365,8 +365,8 @@ def test_estimate_of_a_video_refuses_to_replace_the_video_or_its_calibration(tmp
 
 
 def test_limits_for_a_camera_model_other_than_ocamcalib():
-    from ifmi.camera_models import DoubleSphereModel
-    from ifmi.config_limits import check_config_for_model
+    from ifmi.geometry.camera_models import DoubleSphereModel
+    from ifmi.spectral.config_limits import check_config_for_model
     from ifmi.errors import InputError
     from ifmi.pipeline import EstimateConfig
 

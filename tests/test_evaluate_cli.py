@@ -12,7 +12,7 @@ import pytest
 from ifmi.cli import main
 from ifmi.io.results import read_evaluation
 from ifmi.io.tum import Trajectory, write_tum
-from ifmi.rotations import matrix_from_rpy
+from ifmi.geometry.rotations import matrix_from_rpy
 
 
 def _write_run(tmp_path, n=20, yaw_offset=0.01, failed=(3, 7)):
@@ -180,10 +180,10 @@ def test_disjoint_timestamps_is_one_line_error(tmp_path, capsys):
 def test_motion_flow_sample_of_real_frames_and_evaluation_stays_pure(tmp_path):
     import cv2
 
-    from ifmi.evaluation import evaluate_files
+    from ifmi.evaluation.trajectory_files import evaluate_files
     from ifmi.io.calib import write_calib
     from ifmi.io.results import write_estimate_run
-    from ifmi.motion_flow import motion_flow_sample
+    from ifmi.experiments.motion_flow import motion_flow_sample
     from ifmi.pipeline import EstimateConfig, estimate_dataset
     pytest.importorskip("skimage")
     from ifmi.synthetic import environment_texture, example_band_px, example_omni_model, omni_from_environment
@@ -346,7 +346,7 @@ def test_read_only_output_folder_is_one_line_error(tmp_path, capsys):
 
 
 def test_evaluate_options_are_checked():
-    from ifmi.evaluation import EvaluateOptions
+    from ifmi.evaluation.trajectory_files import EvaluateOptions
 
     with pytest.raises(ValueError, match="expected min_matched in \\[0, 1\\], got 1.5"):
         EvaluateOptions(min_matched=1.5)
@@ -374,8 +374,8 @@ def test_evaluate_cli_rejects_an_infinite_or_negative_time_difference(tmp_path, 
 
 
 def test_gate_fails_on_nan_rmse():
-    from ifmi.evaluation import gate_verdict
-    from ifmi.metrics import ErrorStats, EvaluationSummary
+    from ifmi.evaluation.trajectory_files import gate_verdict
+    from ifmi.evaluation.metrics import ErrorStats, EvaluationSummary
 
     nan = ErrorStats(*[float("nan")] * 5, count=0)
     summary = EvaluationSummary(nan, nan, nan, nan, nan, nan, 3, 3, 0)
@@ -384,8 +384,8 @@ def test_gate_fails_on_nan_rmse():
 
 
 def test_summary_round_trips_through_its_dict(tmp_path, capsys):
-    from ifmi.evaluation import summary_of
-    from ifmi.metrics import EvaluationSummary
+    from ifmi.evaluation.trajectory_files import summary_of
+    from ifmi.evaluation.metrics import EvaluationSummary
 
     _write_run(tmp_path)
     assert main(_gate(tmp_path, "--json")) == 0
@@ -400,7 +400,7 @@ def test_summary_round_trips_through_its_dict(tmp_path, capsys):
 
 def test_motion_flow_sample_of_frames_outside_the_dataset_is_input_error(tmp_path):
     from ifmi.errors import InputError
-    from ifmi.motion_flow import motion_flow_sample
+    from ifmi.experiments.motion_flow import motion_flow_sample
     from ifmi.pipeline import EstimateConfig
     pytest.importorskip("skimage")
     from ifmi.synthetic import example_omni_model, synthetic_sequence, write_synthetic_dataset

@@ -6,10 +6,10 @@ import cv2
 import numpy as np
 import pytest
 
-from ifmi.camera import radius_from_pixels
+from ifmi.geometry.camera import radius_from_pixels
 from ifmi.features import FeatureConfig, FeatureFrontEnd, match_descriptors
-from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays
-from ifmi.rotations import geodesic_angle, matrix_from_rpy
+from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays
+from ifmi.geometry.rotations import geodesic_angle, matrix_from_rpy
 
 pytest.importorskip("skimage")
 from ifmi.synthetic import (environment_texture, example_band_px, example_omni_model,  # noqa: E402
@@ -86,7 +86,7 @@ def test_keypoints_are_row_col_inside_the_band(pair):
 
 def test_asymmetric_image_row_col_order():
     # A bright blob at (row 40, col 100) on a 128 x 160 image must come back as (40, 100).
-    from ifmi.camera import paracatadioptric_model
+    from ifmi.geometry.camera import paracatadioptric_model
 
     model = paracatadioptric_model((128, 160), horizon_radius_px=50)
     image = np.zeros((128, 160), np.uint8)

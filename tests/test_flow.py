@@ -6,11 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model, rays_from_pixels
-from ifmi.flow import flow_from_tile_motion, flow_sample_points, pairs_with_rays_a
-from ifmi.fourier_mellin import FourierMellin, FourierMellinConfig, TileMotion, transform_points
-from ifmi.tiling import TilingConfig, tile_layout
-from ifmi.unwarp import PanoramaConfig, panorama_mapping
+from ifmi.geometry.camera import paracatadioptric_model, rays_from_pixels
+from ifmi.spectral.flow import flow_from_tile_motion, flow_sample_points, pairs_with_rays_a
+from ifmi.spectral.fourier_mellin import FourierMellin, FourierMellinConfig, TileMotion, transform_points
+from ifmi.spectral.tiling import TilingConfig, tile_layout
+from ifmi.spectral.panorama import PanoramaConfig, panorama_mapping
 
 MODEL = paracatadioptric_model((200, 220), horizon_radius_px=60.0, center=(99.0, 111.5),
                                affine=(1.003, 0.004, -0.002))

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.camera import paracatadioptric_model
-from ifmi.global_motion import GlobalMotionConfig, GlobalMotionEstimator, rotation_from_ray_pairs
-from ifmi.rotations import geodesic_angle
+from ifmi.geometry.camera import paracatadioptric_model
+from ifmi.spectral.global_motion import GlobalMotionConfig, GlobalMotionEstimator, rotation_from_ray_pairs
+from ifmi.geometry.rotations import geodesic_angle
 from ifmi.synthetic import environment_texture, omni_from_environment
-from ifmi.unwarp import PanoramaConfig, panorama_image_from_omni_image, panorama_mapping
+from ifmi.spectral.panorama import PanoramaConfig, panorama_image_from_omni_image, panorama_mapping
 
 SIZE = 200
 MODEL = paracatadioptric_model((SIZE, SIZE), horizon_radius_px=60.0)
@@ -189,7 +189,7 @@ def test_a_wide_search_grid_of_too_many_starts_is_refused(values, count):
 
 
 def _front_end_pair(texture, truth, config):
-    from ifmi.spectral_front_end import IfmiFrontEnd
+    from ifmi.spectral.ifmi_front_end import IfmiFrontEnd
 
     front_end = IfmiFrontEnd(MODEL, config)
     states = [front_end.prepare(omni_from_environment(texture, MODEL, r, band_px=BAND)) for r in (np.eye(3), truth)]
@@ -198,7 +198,7 @@ def _front_end_pair(texture, truth, config):
 
 def _coarse_result_off_by(monkeypatch, yaw_error_deg):
     """Make the coarse stage return its first start turned by ``yaw_error_deg`` (a coarse-stage error)."""
-    from ifmi.global_motion import GlobalMotion
+    from ifmi.spectral.global_motion import GlobalMotion
 
     def off(self, coarse_a, coarse_b, *, priors=(None,)):
         start = np.eye(3) if priors[0] is None else priors[0]
@@ -211,7 +211,7 @@ def _coarse_result_off_by(monkeypatch, yaw_error_deg):
 def test_a_coarse_correction_the_tiles_match_worse_than_the_prediction_is_overruled(scene, monkeypatch):
     from dataclasses import replace
 
-    from ifmi.spectral_front_end import IfmiConfig
+    from ifmi.spectral.ifmi_front_end import IfmiConfig
 
     texture, _ = scene
     truth = _rotation(12.0, 2.0, 60.0)
@@ -240,7 +240,7 @@ def test_a_coarse_correction_the_tiles_match_worse_than_the_prediction_is_overru
 
 
 def test_the_prediction_is_checked_only_within_the_tiles_reach(scene, monkeypatch):
-    from ifmi.spectral_front_end import IfmiConfig
+    from ifmi.spectral.ifmi_front_end import IfmiConfig
 
     texture, _ = scene
     truth = _rotation(12.0, 2.0, 60.0)
@@ -255,14 +255,14 @@ def test_the_prediction_is_checked_only_within_the_tiles_reach(scene, monkeypatc
 
 
 def test_prediction_check_option_is_checked():
-    from ifmi.spectral_front_end import IfmiConfig
+    from ifmi.spectral.ifmi_front_end import IfmiConfig
 
     with pytest.raises(ValueError, match="prediction_check_tiles"):
         IfmiConfig(prediction_check_tiles=0.5)
 
 
 def test_a_prediction_the_coarse_stage_confirmed_is_registered_once(scene, monkeypatch):
-    from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
+    from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
 
     texture, _ = scene
     truth = _rotation(12.0, 2.0, 60.0)

@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.camera import paracatadioptric_model
+from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.front_end import Correspondences
-from ifmi.global_motion import GlobalMotionEstimator
-from ifmi.odometry import track_sequence
-from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays
-from ifmi.rotations import geodesic_angle
-from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.spectral.global_motion import GlobalMotionEstimator
+from ifmi.tracking.odometry import track_sequence
+from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays
+from ifmi.geometry.rotations import geodesic_angle
+from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
 from ifmi.synthetic import environment_texture, omni_from_environment
-from ifmi.unwarp import PanoramaConfig, panorama_image_from_omni_image, panorama_mapping
+from ifmi.spectral.panorama import PanoramaConfig, panorama_image_from_omni_image, panorama_mapping
 
 SIZE = 200
 MODEL = paracatadioptric_model((SIZE, SIZE), horizon_radius_px=60.0)

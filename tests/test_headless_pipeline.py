@@ -19,11 +19,11 @@ import pytest
 if importlib.util.find_spec("mitsuba") is None:
     pytest.skip("mitsuba is not installed (sim extra)", allow_module_level=True)
 
-from ifmi.evaluation import evaluate_files  # noqa: E402
+from ifmi.evaluation.trajectory_files import evaluate_files  # noqa: E402
 from ifmi.io.results import write_estimate_run  # noqa: E402
 from ifmi.io.tum import read_tum  # noqa: E402
 from ifmi.pipeline import EstimateConfig, estimate_dataset  # noqa: E402
-from ifmi.report import build_report  # noqa: E402
+from ifmi.experiments.report import build_report  # noqa: E402
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 # Sequence: 8 frames of the office scene at 192 x 192 pixels, 36 samples per

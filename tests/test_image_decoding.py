@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model
+from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.errors import InputError, InputWarning
 from ifmi.frames import MissingFrame
 from ifmi.io import images

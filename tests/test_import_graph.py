@@ -78,8 +78,8 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 def test_graph_sees_deferred_imports():
     graph = import_graph()
-    # ifmi.methods imports the iFMI front end inside a function only.
-    assert "ifmi.spectral_front_end" in graph["ifmi.methods"]
+    # ifmi.tracking.methods imports the iFMI front end inside a function only.
+    assert "ifmi.spectral.ifmi_front_end" in graph["ifmi.tracking.methods"]
     assert "ifmi.front_end" in graph["ifmi.features"]
 
 
@@ -105,3 +105,83 @@ def test_ifmi_never_imports_omnisim():
                      else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level
                      else [])
             assert not any(n.split(".")[0] == "omnisim" for n in names), path
+
+
+# Layers, lowest first: a module may import its own layer and those below, never one above.
+# Pure math (no file I/O) sits below ``ifmi.io``; the applications that read and write files
+# (pipeline, evaluation of files, experiments) sit above it, and the command line on top.
+LAYERS = (
+    ("base", ("ifmi.errors", "ifmi.options", "ifmi.frames", "ifmi.front_end", "ifmi.runtime")),
+    ("geometry", ("ifmi.geometry",)),
+    # calib_fit checks a fitted model over the panorama band, so it sits with the math above geometry.
+    ("math", ("ifmi.spectral", "ifmi.backend", "ifmi.features", "ifmi.evaluation.metrics",
+              "ifmi.evaluation.dataset_names", "ifmi.geometry.calib_fit")),
+    ("tracking", ("ifmi.tracking", "ifmi.config")),
+    ("io", ("ifmi.io",)),
+    ("application", ("ifmi.pipeline", "ifmi.evaluation", "ifmi.synthetic", "ifmi.testing", "ifmi.api")),
+    ("experiments", ("ifmi.experiments",)),
+    ("cli", ("ifmi.cli", "ifmi")),
+)
+
+# The parts of ifmi that omnisim may use: a shared base, never the estimator.
+OMNISIM_ALLOWED = ("ifmi.errors", "ifmi.io", "ifmi.geometry", "ifmi.spectral.panorama", "ifmi.runtime")
+
+
+def layer_of(module: str) -> int:
+    """Index in :data:`LAYERS` of the longest prefix that names ``module``'s layer."""
+    best, best_len = None, -1
+    for index, (_, prefixes) in enumerate(LAYERS):
+        for prefix in prefixes:
+            if (module == prefix or module.startswith(prefix + ".")) and len(prefix) > best_len:
+                best, best_len = index, len(prefix)
+    if best is None:
+        raise KeyError(f"{module} belongs to no layer; add it to LAYERS")
+    return best
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[str]:
+    """``"a -> b"`` for every import of a module in a higher layer than the importer's."""
+    return sorted(f"{a} ({LAYERS[layer_of(a)][0]}) -> {b} ({LAYERS[layer_of(b)][0]})"
+                  for a, targets in graph.items() for b in targets if layer_of(b) > layer_of(a))
+
+
+def test_every_module_has_a_layer():
+    for module in import_graph():
+        layer_of(module)
+
+
+def test_layer_check_finds_a_planted_upward_import():
+    assert upward_imports({"ifmi.io.config": {"ifmi.pipeline"}}) == [
+        "ifmi.io.config (io) -> ifmi.pipeline (application)"]
+    assert upward_imports({"ifmi.pipeline": {"ifmi.io.config"}}) == []
+
+
+def test_no_module_imports_a_higher_layer():
+    assert upward_imports(import_graph()) == []
+
+
+def omnisim_imports_of_ifmi() -> dict[str, set[str]]:
+    """omnisim module file name -> the ``ifmi`` modules it imports (anywhere in it)."""
+    omnisim_dir = PACKAGE_DIR.parent / "omnisim"
+    out = {}
+    for path in omnisim_dir.rglob("*.py"):
+        names = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                names.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                names.add(node.module)
+        out[path.name] = {n for n in names if n.split(".")[0] == "ifmi"}
+    return out
+
+
+def test_omnisim_imports_the_shared_base_only():
+    outside = {f"{name}: {module}" for name, modules in omnisim_imports_of_ifmi().items()
+               for module in modules
+               if not any(module == p or module.startswith(p + ".") for p in OMNISIM_ALLOWED)}
+    assert not outside, f"omnisim imports ifmi outside {OMNISIM_ALLOWED}: {sorted(outside)}"
+
+
+def test_omnisim_uses_at_most_five_top_level_parts_of_ifmi():
+    parts = {".".join(m.split(".")[:2]) for modules in omnisim_imports_of_ifmi().values() for m in modules}
+    assert len(parts) <= 5, sorted(parts)

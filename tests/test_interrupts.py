@@ -1,10 +1,10 @@
-"""SIGINT handlers of :mod:`ifmi.interrupts` (the command lines' own Ctrl-C tests are with each CLI)."""
+"""SIGINT handlers of :mod:`ifmi.runtime.interrupts` (the command lines' own Ctrl-C tests are with each CLI)."""
 
 import signal
 
 import pytest
 
-from ifmi.interrupts import caused_by_interrupt, interrupts_deferred, interrupts_recorded
+from ifmi.runtime.interrupts import caused_by_interrupt, interrupts_deferred, interrupts_recorded
 
 
 def test_interrupt_in_a_deferred_block_is_raised_when_it_is_done(default_sigint):

@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model
+from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.errors import InputError, InputWarning
 from ifmi.io.camera_file import calibration_path, read_camera, write_camera
 from ifmi.io.kalibr import format_kalibr, parse_kalibr, read_kalibr, write_kalibr

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.camera import rays_from_pixels
-from ifmi.odometry import track_sequence
-from ifmi.relative_pose import RelativePoseOptions
-from ifmi.rotations import geodesic_angle
-from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
-from ifmi.unwarp import rays_from_panorama_pixels
+from ifmi.geometry.camera import rays_from_pixels
+from ifmi.tracking.odometry import track_sequence
+from ifmi.backend.relative_pose import RelativePoseOptions
+from ifmi.geometry.rotations import geodesic_angle
+from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.spectral.panorama import rays_from_panorama_pixels
 from test_panorama_interpolation import MODEL, _scene
 
 

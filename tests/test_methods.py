@@ -14,7 +14,7 @@ import pytest
 
 from ifmi.cli import main
 from ifmi.errors import InputError
-from ifmi.methods import (BUILTIN_METHODS, ENTRY_POINT_GROUP, available_methods,
+from ifmi.tracking.methods import (BUILTIN_METHODS, ENTRY_POINT_GROUP, available_methods,
                           create_front_end, load_factory, method_names)
 from ifmi.pipeline import EstimateConfig
 

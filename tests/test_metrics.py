@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from ifmi.io.tum import Trajectory, write_tum
-from ifmi.metrics import (associate_timestamps, error_stats, summary_from_errors,
+from ifmi.evaluation.metrics import (associate_timestamps, error_stats, summary_from_errors,
                           trajectory_errors, translation_direction_errors)
-from ifmi.rotations import matrix_from_rpy
+from ifmi.geometry.rotations import matrix_from_rpy
 
 
 def _axis_rotation(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:

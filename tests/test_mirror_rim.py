@@ -10,8 +10,8 @@ import warnings
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model, pixel_offsets_from_sensor, sensor_from_pixels
-from ifmi.mirror_rim import rim_circle_from_frames
+from ifmi.geometry.camera import paracatadioptric_model, pixel_offsets_from_sensor, sensor_from_pixels
+from ifmi.spectral.mirror_rim import rim_circle_from_frames
 
 SIZE = (256, 256)
 MODEL = paracatadioptric_model(SIZE, horizon_radius_px=80.0, center=(127.2, 129.7), affine=(1.004, 0.003, -0.002))
@@ -107,7 +107,7 @@ def test_a_frame_of_another_size_is_refused():
 
 def test_a_kalibr_image_circle_clipped_by_the_image_sides_is_found_about_the_principal_point():
     # An image circle of radius 380 px on a 480 x 752 sensor: only four arcs near the corners show.
-    from ifmi.camera_models import ExtendedUnifiedModel
+    from ifmi.geometry.camera_models import ExtendedUnifiedModel
 
     model = ExtendedUnifiedModel(0.63, 1.04, (380.0, 380.0), (376.0, 240.0), (480, 752))
     rows, cols = np.mgrid[0:480, 0:752]
@@ -120,8 +120,8 @@ def test_a_kalibr_image_circle_clipped_by_the_image_sides_is_found_about_the_pri
 
 
 def test_an_equirectangular_model_has_no_rim():
-    from ifmi.camera_models import EquirectangularModel
-    from ifmi.mirror_rim import model_images_a_rim
+    from ifmi.geometry.camera_models import EquirectangularModel
+    from ifmi.spectral.mirror_rim import model_images_a_rim
 
     model = EquirectangularModel((128, 256))
     assert not model_images_a_rim(model)

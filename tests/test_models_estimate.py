@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ifmi.camera import valid_mask
+from ifmi.geometry.camera import valid_mask
 from ifmi.pipeline import estimate_sequence
-from ifmi.rotations import geodesic_angle
+from ifmi.geometry.rotations import geodesic_angle
 from ifmi.synthetic import environment_texture, omni_from_environment, rotation_sequence
-from ifmi.unwarp import band_mask, omni_pixels_from_panorama_pixels, panorama_pixels_from_omni_pixels, panorama_mapping
+from ifmi.spectral.panorama import band_mask, omni_pixels_from_panorama_pixels, panorama_pixels_from_omni_pixels, panorama_mapping
 
 from camera_examples import EXAMPLES
 
@@ -86,7 +86,7 @@ def test_equirectangular_panorama_interpolates_across_the_360_degree_seam():
     Bilinear interpolation of sin errs by at most step^2 / 8 (step = 2 pi / W, 1.9e-5 at
     W = 512); repeating the edge column instead errs by up to half a step (6e-3) there.
     """
-    from ifmi.unwarp import panorama_image_from_omni_image
+    from ifmi.spectral.panorama import panorama_image_from_omni_image
 
     model = _small("equirectangular")
     cols = np.arange(model.width)

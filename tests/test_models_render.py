@@ -16,8 +16,8 @@ import pytest
 if importlib.util.find_spec("mitsuba") is None:
     pytest.skip("mitsuba is not installed (sim extra)", allow_module_level=True)
 
-from ifmi.camera import valid_mask
-from ifmi.rotations import matrix_from_rpy
+from ifmi.geometry.camera import valid_mask
+from ifmi.geometry.rotations import matrix_from_rpy
 
 from camera_examples import EXAMPLES
 
@@ -85,7 +85,7 @@ def test_position_aov_reprojects_to_pixel_centres(mi, name):
 
 
 def _strong_tangential():
-    from ifmi.camera_models import PinholeModel
+    from ifmi.geometry.camera_models import PinholeModel
 
     # Tangential terms five times those of the examples: the radial table's start is farther off.
     return PinholeModel.create((500.0, 500.0), (319.5, 239.5), (480, 640), (-0.3, 0.1, 5e-3, -4e-3))
@@ -113,7 +113,7 @@ def test_sensor_rays_match_the_model_at_every_valid_pixel(mi, name):
 
 
 def _fold():
-    from ifmi.camera_models import PinholeModel
+    from ifmi.geometry.camera_models import PinholeModel
 
     # Radial distortion that turns back inside the image (r_d peaks at 0.651, 26 px off centre).
     return PinholeModel.create((40.0, 40.0), (63.5, 47.5), (96, 128), (-0.4, 0.05, 0.0, 0.0))
@@ -184,7 +184,7 @@ def test_radtan_rays_at_any_film_position_stay_within_the_table_bound(mi, name, 
 
 def test_table_bound_holds_for_float64_interpolation():
     """The analytic bound against bilinear interpolation of the same nodes in float64 (no rounding)."""
-    from ifmi.camera_models import distort_radtan
+    from ifmi.geometry.camera_models import distort_radtan
     from omnisim.camera_rays import undistortion_table
 
     model = EXAMPLES["omni-radtan"].scaled(0.5)
@@ -285,7 +285,7 @@ def test_rendered_rotation_sequence_is_estimated(tmp_path, name):
     from ifmi.io.kalibr import read_kalibr
     from ifmi.io.tum import read_tum
     from ifmi.pipeline import estimate_dataset
-    from ifmi.rotations import geodesic_angle
+    from ifmi.geometry.rotations import geodesic_angle
     from omnisim.config import write_scene_with_kalibr_camera
     from omnisim.render import render_dataset
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.odometry import KeyframeOptions, track_sequence
+from ifmi.tracking.odometry import KeyframeOptions, track_sequence
 from ifmi.pipeline import Correspondences
-from ifmi.relative_pose import RelativePoseOptions
-from ifmi.rotations import geodesic_angle
+from ifmi.backend.relative_pose import RelativePoseOptions
+from ifmi.geometry.rotations import geodesic_angle
 
 
 # Exact rays: any small angular threshold works.
@@ -234,8 +234,8 @@ def test_each_finished_frame_is_reported_in_order():
 
 
 def test_tracker_steps_frame_by_frame_with_a_given_pose_solver():
-    from ifmi.odometry import Tracker
-    from ifmi.relative_pose import relative_pose_from_rays
+    from ifmi.tracking.odometry import Tracker
+    from ifmi.backend.relative_pose import relative_pose_from_rays
 
     calls = []
 

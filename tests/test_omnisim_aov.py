@@ -93,7 +93,7 @@ def _distance_to_room(points):
 
 def _reprojection(out, k, row_poses):
     """World points and normals of frame k's depth/normal AOVs, each row carried by its pose (H, 4, 4)."""
-    from ifmi.camera import rays_from_pixels
+    from ifmi.geometry.camera import rays_from_pixels
     from ifmi.io.calib import read_calib
 
     model = read_calib(out / "calib_results.txt")

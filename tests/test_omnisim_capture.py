@@ -13,8 +13,8 @@ from ifmi.errors import InputError
 if importlib.util.find_spec("mitsuba") is None:
     pytest.skip("mitsuba is not installed (sim extra)", allow_module_level=True)
 
-from ifmi.camera import model_from_direct_polynomial, radius_from_pixels
-from ifmi.rotations import matrix_from_rpy
+from ifmi.geometry.camera import model_from_direct_polynomial, radius_from_pixels
+from ifmi.geometry.rotations import matrix_from_rpy
 from omnisim.config import CaptureSettings
 from omnisim.motion import WorldPoses, poses_at_times
 
@@ -205,7 +205,7 @@ def test_timed_sensor_reuses_compiled_kernel(mi):
 
 def test_poses_at_times_slerps_and_lerps():
     """Interpolated poses: exact at the samples, constant angular speed, linear position."""
-    from ifmi.rotations import geodesic_angle
+    from ifmi.geometry.rotations import geodesic_angle
 
     poses = poses_at_times(POSES, [0.0, 0.25, 0.5, 1.0])
     np.testing.assert_array_equal(poses.rotations[0], POSES.rotations[0])

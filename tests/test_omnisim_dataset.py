@@ -189,7 +189,7 @@ def _warp_error(image0, imagek, model, rotation_0k, mask):
     """Mean absolute grey difference between frame 0 and frame k warped into it by R_0k."""
     import cv2
 
-    from ifmi.camera import pixels_from_rays, rays_from_pixels
+    from ifmi.geometry.camera import pixels_from_rays, rays_from_pixels
 
     h, w = model.size
     rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -198,7 +198,7 @@ def _warp_error(image0, imagek, model, rotation_0k, mask):
     pix = pixels_from_rays(model, raysk)
     warped = cv2.remap(imagek, pix[..., 1].astype(np.float32), pix[..., 0].astype(np.float32),
                        cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    from ifmi.camera import radius_from_pixels
+    from ifmi.geometry.camera import radius_from_pixels
     rk = radius_from_pixels(model, pix)
     valid = mask & (rk > 12.0) & (rk < 59.5)
     return np.abs(warped.astype(np.float64) - image0.astype(np.float64))[valid].mean()
@@ -215,7 +215,7 @@ def test_ground_truth_agrees_with_pixels(tmp_path):
     """
     import cv2
 
-    from ifmi.camera import radius_from_pixels
+    from ifmi.geometry.camera import radius_from_pixels
     from ifmi.io.calib import read_calib
     from ifmi.io.tum import read_tum
     from omnisim.render import render_dataset

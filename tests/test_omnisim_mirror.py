@@ -13,8 +13,8 @@ import pytest
 if importlib.util.find_spec("mitsuba") is None:
     pytest.skip("mitsuba is not installed (sim extra)", allow_module_level=True)
 
-from ifmi.camera import OcamModel, paracatadioptric_model, radius_from_pixels
-from ifmi.rotations import matrix_from_rpy
+from ifmi.geometry.camera import OcamModel, paracatadioptric_model, radius_from_pixels
+from ifmi.geometry.rotations import matrix_from_rpy
 
 pytestmark = pytest.mark.render
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ifmi.rotations import geodesic_angle, rpy_from_matrix
+from ifmi.geometry.rotations import geodesic_angle, rpy_from_matrix
 
 from omnisim.config import EffectsSettings, TrajectorySettings
 from omnisim.effects import apply_effects, exposure_gains, srgb_uint8_from_linear

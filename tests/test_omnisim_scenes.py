@@ -76,7 +76,7 @@ def _ground_truth_errors(out: Path, frames: int):
     """Photometric error of warping the last frame into frame 0 with R_0k, identity and R_0k^T."""
     import cv2
 
-    from ifmi.camera import radius_from_pixels
+    from ifmi.geometry.camera import radius_from_pixels
     from ifmi.io.calib import read_calib
     from ifmi.io.tum import read_tum
 
@@ -274,7 +274,7 @@ def _render_one(tmp_path, extra, *, position=(0.0, 0.0, 0.0), spp=4, name="one")
 
 def _seen(image, model, rotation, direction):
     """Pixel value seen along a world direction (nearest pixel)."""
-    from ifmi.camera import pixels_from_rays
+    from ifmi.geometry.camera import pixels_from_rays
 
     direction = np.asarray(direction, dtype=np.float64)
     row, col = np.round(pixels_from_rays(model, (direction / np.linalg.norm(direction)) @ rotation)).astype(int)

@@ -11,8 +11,8 @@ import pytest
 if importlib.util.find_spec("mitsuba") is None:
     pytest.skip("mitsuba is not installed (sim extra)", allow_module_level=True)
 
-from ifmi.camera import model_from_direct_polynomial, pixels_from_rays, radius_from_pixels
-from ifmi.rotations import matrix_from_rpy
+from ifmi.geometry.camera import model_from_direct_polynomial, pixels_from_rays, radius_from_pixels
+from ifmi.geometry.rotations import matrix_from_rpy
 
 pytestmark = pytest.mark.render
 

@@ -6,12 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model, pixels_from_rays, radius_from_pixels, rays_from_pixels
+from ifmi.geometry.camera import paracatadioptric_model, pixels_from_rays, radius_from_pixels, rays_from_pixels
 from ifmi.errors import InputError
 from ifmi.io.calib import write_calib
 from ifmi.io.dataset import read_dataset
 from ifmi.io.tum import read_tum
-from ifmi.rotations import geodesic_angle
+from ifmi.geometry.rotations import geodesic_angle
 from ifmi.synthetic import environment_texture, omni_from_environment
 
 SIZE = 128
@@ -141,7 +141,7 @@ LENS_CIRCLE_DEG = 80.0  # the synthetic lens images rays up to this angle from t
 
 def _lens_image(model, environment, rotation):
     """The environment seen by ``model`` turned by ``rotation``; black outside the lens circle."""
-    from ifmi.camera import angles_from_axis
+    from ifmi.geometry.camera import angles_from_axis
 
     h, w = model.size
     grid = np.stack(np.mgrid[0:h, 0:w], axis=-1).astype(np.float64)
@@ -291,7 +291,7 @@ def test_walk_read_between_frames_is_continuous():
 def test_rolling_shutter_rows_are_warped_through_their_own_time(source_files):
     from omnisim.warp import WarpSettings, rotation_walk, valid_source_band, warp_image
 
-    from ifmi.rolling_shutter import row_time_offsets
+    from ifmi.backend.rolling_shutter import row_time_offsets
 
     source = cv2.imread(str(source_files[0]), cv2.IMREAD_GRAYSCALE)
     band = valid_source_band(MODEL, source)
@@ -310,7 +310,7 @@ def test_rolling_shutter_warp_writes_every_rows_pose(tmp_path, source_files):
 
     from omnisim.warp import WarpSettings, rotation_walk, warp_dataset
 
-    from ifmi.rolling_shutter import row_time_offsets
+    from ifmi.backend.rolling_shutter import row_time_offsets
 
     settings = WarpSettings(frames=3, seed=2, max_step_deg=8.0, rolling_shutter=0.4)
     out = tmp_path / "rs"

@@ -17,8 +17,8 @@ from ifmi.cli import main
 from ifmi.errors import OutputError
 from ifmi.io.atomic import check_output_folder, write_folder
 from ifmi.io.tum import Trajectory, write_tum
-from ifmi.report import is_report_dir
-from ifmi.rotations import matrix_from_rpy
+from ifmi.experiments.report import is_report_dir
+from ifmi.geometry.rotations import matrix_from_rpy
 
 # Frames of the synthetic run (tiny: the tests are about files, not numbers).
 N_FRAMES = 8

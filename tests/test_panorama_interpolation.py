@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.camera import paracatadioptric_model, radius_from_pixels, rays_from_pixels
-from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
-from ifmi.unwarp import PanoramaConfig
+from ifmi.geometry.camera import paracatadioptric_model, radius_from_pixels, rays_from_pixels
+from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.spectral.panorama import PanoramaConfig
 from tile_checks import kept_tiles_rotation_error
 
 SIZE = 1024
@@ -67,7 +67,7 @@ def test_lanczos_panorama_lowers_the_pair_error_on_sharp_texture():
 
 @pytest.mark.parametrize("width, expected", [(512, "linear"), (1536, "lanczos4")])
 def test_the_wide_panorama_kernel_applies_from_the_configured_width(monkeypatch, width, expected):
-    import ifmi.spectral_front_end as front_end
+    import ifmi.spectral.ifmi_front_end as front_end
 
     used = []
     original = front_end.panorama_image_from_omni_image

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from ifmi.fourier_mellin import FourierMellin, TileRejection, FourierMellinConfig, transform_points
-from ifmi.phase_correlation import phase_correlation
+from ifmi.spectral.fourier_mellin import FourierMellin, TileRejection, FourierMellinConfig, transform_points
+from ifmi.spectral.phase_correlation import phase_correlation
 
 skimage_data = pytest.importorskip("skimage.data")
 
@@ -22,7 +22,7 @@ def _register_predicted(engine, spectra_a, source_b, origins_b, scale, angle):
     """Tiles of b cut with a predicted similarity (no translation), registered; as a TileMotion-like triple."""
     from types import SimpleNamespace
 
-    from ifmi.fourier_mellin import motion_from_placement, placement_from_motion
+    from ifmi.spectral.fourier_mellin import motion_from_placement, placement_from_motion
 
     n = engine.tile_size
     offsets, linear = placement_from_motion(origins_b, scale, angle, np.zeros((len(scale), 2)), n)
@@ -246,7 +246,7 @@ def test_predicted_rotation_scale_is_refined_only_when_asked(refine):
 
 
 def test_peak_quality_figures_match_their_definitions_and_leave_the_surface_alone():
-    from ifmi.phase_correlation import find_peaks
+    from ifmi.spectral.phase_correlation import find_peaks
 
     rng = np.random.default_rng(4)
     surface = rng.normal(0.0, 0.01, (3, 16, 16)).astype(np.float32)
@@ -312,7 +312,7 @@ def test_curved_lanczos_tiles_resampled_in_chunks_equal_those_cut_one_at_a_time(
 
 
 def test_curved_tile_maps_follow_the_second_order_placement_to_float32_rounding():
-    from ifmi.fourier_mellin import _placement_maps
+    from ifmi.spectral.fourier_mellin import _placement_maps
 
     rng = np.random.default_rng(8)
     n, count = 16, 7
@@ -333,7 +333,7 @@ def test_curved_tile_maps_follow_the_second_order_placement_to_float32_rounding(
 def test_phase_plane_fit_solves_the_weighted_normal_equations():
     # One iteration from a start near the truth is the weighted least-squares shift of the
     # residual phase over the band: the same solve written out in float64.
-    from ifmi.phase_correlation import _frequency_band, refine_shift_phase_plane
+    from ifmi.spectral.phase_correlation import _frequency_band, refine_shift_phase_plane
 
     rng = np.random.default_rng(9)
     count, n = 4, 32
@@ -407,7 +407,7 @@ def test_register_placed_without_refinement_leaves_it_to_refine_placed():
 
 
 def test_gaussian_lowpass_weights_the_half_plane_by_frequency():
-    from ifmi.phase_correlation import gaussian_lowpass
+    from ifmi.spectral.phase_correlation import gaussian_lowpass
 
     weight = gaussian_lowpass((16, 12), 0.2)
     assert weight.shape == (16, 7) and weight.dtype == np.float32 and not weight.flags.writeable
@@ -420,7 +420,7 @@ def test_gaussian_lowpass_weights_the_half_plane_by_frequency():
 
 
 def test_gaussian_highpass_weights_the_half_plane_by_frequency_sample():
-    from ifmi.phase_correlation import gaussian_highpass
+    from ifmi.spectral.phase_correlation import gaussian_highpass
 
     weight = gaussian_highpass((16, 12), 1.5)
     assert weight.shape == (16, 7) and weight.dtype == np.float32 and not weight.flags.writeable
@@ -434,7 +434,7 @@ def test_gaussian_highpass_weights_the_half_plane_by_frequency_sample():
 
 
 def test_lowpassed_surface_is_the_plain_surface_convolved_with_the_kernel():
-    from ifmi.phase_correlation import correlation_surface, gaussian_lowpass, normalized_cross_power
+    from ifmi.spectral.phase_correlation import correlation_surface, gaussian_lowpass, normalized_cross_power
 
     rng = np.random.default_rng(2)
     a, b = rng.normal(size=(2, 3, 16, 16))

@@ -9,14 +9,14 @@ import pytest
 
 from scipy.spatial.transform import Rotation
 
-from ifmi.camera import paracatadioptric_model
-from ifmi.odometry import KeyframeOptions
+from ifmi.geometry.camera import paracatadioptric_model
+from ifmi.tracking.odometry import KeyframeOptions
 from ifmi.pipeline import (EstimateConfig, create_front_end, estimate_sequence, method_names,
                            resolved_config)
-from ifmi.rotations import geodesic_angle
-from ifmi.spectral_front_end import IfmiConfig
-from ifmi.tiling import TilingConfig
-from ifmi.unwarp import PanoramaConfig
+from ifmi.geometry.rotations import geodesic_angle
+from ifmi.spectral.ifmi_front_end import IfmiConfig
+from ifmi.spectral.tiling import TilingConfig
+from ifmi.spectral.panorama import PanoramaConfig
 
 pytest.importorskip("skimage")
 from ifmi.synthetic import synthetic_sequence  # noqa: E402
@@ -76,8 +76,8 @@ def test_unrelated_frames_are_flagged_and_the_trajectory_continues(sequence):
 
 
 def test_prior_rotation_moves_tiles_and_keeps_the_estimate(sequence):
-    from ifmi.relative_pose import relative_pose_from_rays
-    from ifmi.spectral_front_end import IfmiFrontEnd
+    from ifmi.backend.relative_pose import relative_pose_from_rays
+    from ifmi.spectral.ifmi_front_end import IfmiFrontEnd
 
     fe = IfmiFrontEnd(MODEL, CONFIG.ifmi)
     a, b = fe.prepare(sequence.images[0]), fe.prepare(sequence.images[3])
@@ -121,7 +121,7 @@ REAL_CALIB = """#polynomial coefficients for the DIRECT mapping function
 
 def test_real_calibration_with_default_configuration():
     from ifmi.io.calib import parse_calib
-    from ifmi.spectral_front_end import IfmiFrontEnd
+    from ifmi.spectral.ifmi_front_end import IfmiFrontEnd
 
     model = parse_calib(REAL_CALIB)
     seq = synthetic_sequence(model, 6, seed=5, band_px=(60.0, 235.0), noise_std=2.0)
@@ -138,7 +138,7 @@ def test_real_calibration_with_default_configuration():
 
 
 def test_angular_pixel_size_scales_with_resolution():
-    from ifmi.unwarp import angular_pixel_size_in_band as angular_pixel_size
+    from ifmi.spectral.panorama import angular_pixel_size_in_band as angular_pixel_size
 
     # The same mirror imaged at 256, 512 and 800 px: a pixel subtends an angle
     # inversely proportional to the resolution (to the band-sampling accuracy).
@@ -152,7 +152,7 @@ def test_angular_pixel_size_scales_with_resolution():
 
 def test_pixel_threshold_is_resolved_for_the_calibration(sequence):
     from ifmi.pipeline import resolved_config
-    from ifmi.unwarp import angular_pixel_size_in_band
+    from ifmi.spectral.panorama import angular_pixel_size_in_band
 
     config = replace(CONFIG, relative_pose=replace(CONFIG.relative_pose, ransac_threshold_px=1.5))
     pixel = angular_pixel_size_in_band(MODEL, config=CONFIG.ifmi.panorama)
@@ -183,9 +183,9 @@ def test_cubic_tile_resampling_removes_the_interpolation_bias(sequence):
     # A frame registered with itself under a deliberately wrong prior: the truth is the identity,
     # and the tiles of b are cut at sub-pixel places, turned and scaled, so the error left is
     # the interpolation's (no noise, no scene change).
-    from ifmi.fourier_mellin import FourierMellinConfig
-    from ifmi.relative_pose import relative_pose_from_rays
-    from ifmi.spectral_front_end import IfmiFrontEnd
+    from ifmi.spectral.fourier_mellin import FourierMellinConfig
+    from ifmi.backend.relative_pose import relative_pose_from_rays
+    from ifmi.spectral.ifmi_front_end import IfmiFrontEnd
 
     options = resolved_config(CONFIG, MODEL).relative_pose
     rng = np.random.default_rng(2)

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model, radius_from_pixels
+from ifmi.geometry.camera import paracatadioptric_model, radius_from_pixels
 from ifmi.errors import InputError
 from ifmi.io.calib import format_calib, parse_calib
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays, rotation_from_rays
-from ifmi.rotations import geodesic_angle
+from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays, rotation_from_rays
+from ifmi.geometry.rotations import geodesic_angle
 
 
 def _options(**kwargs):
@@ -136,7 +136,7 @@ def test_pixel_threshold_resolves_and_explicit_threshold_wins():
 
 
 def test_noise_sigma_from_truncated_residuals():
-    from ifmi.relative_pose import noise_sigma_from_residuals
+    from ifmi.backend.relative_pose import noise_sigma_from_residuals
 
     rng = np.random.default_rng(5)
     sigma = 1e-3
@@ -191,7 +191,7 @@ def _unit(rng, shape):
 
 
 def test_epipolar_angles_match_the_plane_definition():
-    from ifmi.relative_pose import epipolar_angles
+    from ifmi.backend.relative_pose import epipolar_angles
 
     rng = np.random.default_rng(21)
     rays_a, rays_b = _unit(rng, (50, 3)), _unit(rng, (50, 3))
@@ -206,7 +206,7 @@ def test_epipolar_angles_match_the_plane_definition():
 
 
 def test_rotation_angles_resolve_small_angles():
-    from ifmi.relative_pose import rotation_angles
+    from ifmi.backend.relative_pose import rotation_angles
 
     rng = np.random.default_rng(22)
     rays_b = _unit(rng, (20, 3))
@@ -222,7 +222,7 @@ def test_rotation_angles_resolve_small_angles():
 
 
 def test_symmetric_residual_jacobian_matches_finite_differences():
-    from ifmi.relative_pose import _symmetric_epipolar_residuals
+    from ifmi.backend.relative_pose import _symmetric_epipolar_residuals
 
     rng = np.random.default_rng(23)
     rays_a, rays_b = _unit(rng, (40, 3)), _unit(rng, (40, 3))
@@ -250,7 +250,7 @@ def test_symmetric_residual_jacobian_matches_finite_differences():
 
 
 def test_two_pair_rotations_equal_kabsch():
-    from ifmi.relative_pose import _rotations_from_ray_pairs
+    from ifmi.backend.relative_pose import _rotations_from_ray_pairs
 
     rng = np.random.default_rng(24)
     rays = _unit(rng, (2, 30, 3))
@@ -264,7 +264,7 @@ def test_two_pair_rotations_equal_kabsch():
 
 
 def test_rotation_from_rotation_vector_matches_scipy():
-    from ifmi.relative_pose import _rotation_from_rotvec
+    from ifmi.backend.relative_pose import _rotation_from_rotvec
 
     rng = np.random.default_rng(25)
     for scale in (0.0, 1e-13, 1e-6, 1e-2, 1.0, 3.0):
@@ -275,7 +275,7 @@ def test_rotation_from_rotation_vector_matches_scipy():
 
 
 def test_two_pair_rotations_of_degenerate_pairs_are_rotations():
-    from ifmi.relative_pose import _rotations_from_ray_pairs
+    from ifmi.backend.relative_pose import _rotations_from_ray_pairs
 
     rng = np.random.default_rng(27)
     rays = _unit(rng, (2, 6, 3))
@@ -459,7 +459,7 @@ def test_polish_rounds_out_of_range_are_refused(rounds):
 
 
 def test_rotation_noise_reaching_its_threshold_hands_the_selection_to_the_five_point_noise():
-    from ifmi.relative_pose import _selection_noise
+    from ifmi.backend.relative_pose import _selection_noise
     threshold, rotation_threshold = 0.01, 0.0125
     # The 5-point noise at 0.3 thresholds: above the quarter where it is always used, within a third.
     # A rotation-model estimate of 1.2 of its own threshold has no noise peak inside it: the 5-point noise.
@@ -496,7 +496,7 @@ def test_refining_several_hypotheses_leaves_the_second_minimum():
 def test_refined_hypotheses_never_raise_the_truncated_cost():
     # The best RANSAC hypothesis is always among those refined, so keeping the lowest truncated cost
     # can only lower it: the chosen model's cost with five hypotheses is at most that with one.
-    from ifmi.relative_pose import epipolar_angles
+    from ifmi.backend.relative_pose import epipolar_angles
     threshold = 2e-3
     for seed in range(20):
         rays_a, rays_b, _ = _narrow_translated_scene(seed, step=(0.0, 0.1, 0.02))
@@ -515,7 +515,7 @@ def test_refine_hypotheses_out_of_range_are_refused(keep):
 
 
 def test_distinct_best_orders_by_inliers_then_cost_and_drops_the_same_model():
-    from ifmi.relative_pose import _distinct_best
+    from ifmi.backend.relative_pose import _distinct_best
     threshold = 1e-3
 
     def turned(angle):

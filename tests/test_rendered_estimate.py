@@ -11,8 +11,8 @@ import pytest
 
 from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig, estimate_dataset
-from ifmi.rotations import geodesic_angle
-from ifmi.tiling import TilingConfig
+from ifmi.geometry.rotations import geodesic_angle
+from ifmi.spectral.tiling import TilingConfig
 
 # Mitsuba must not be imported here: omnisim.llvm selects drjit's LLVM before the first import.
 if importlib.util.find_spec("mitsuba") is None:

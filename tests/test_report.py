@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from ifmi.cli import main
-from ifmi.evaluation import evaluate_files
+from ifmi.evaluation.trajectory_files import evaluate_files
 from ifmi.io.atomic import atomic_write_json
 from ifmi.io.tum import Trajectory, write_tum
-from ifmi.report import average_table, baseline_ratios, find_results, scene_tables
+from ifmi.experiments.report import average_table, baseline_ratios, find_results, scene_tables
 from ifmi.io.results import read_evaluation
-from ifmi.rotations import matrix_from_rpy
-from ifmi.sweep import SweepCell, config_digest
+from ifmi.geometry.rotations import matrix_from_rpy
+from ifmi.experiments.sweep import SweepCell, config_digest
 
 # Yaw error (radians) and time per frame (seconds) given to each synthetic method.
 METHODS = {"ifmi": (0.002, 0.01), "orb": (0.02, 0.03), "akaze": (0.01, 0.2)}
@@ -154,7 +154,7 @@ def test_report_of_folder_without_results_is_one_line_error(tmp_path, capsys):
 
 
 def test_failed_report_leaves_the_old_one_intact(tmp_path, capsys, monkeypatch):
-    import ifmi.report
+    import ifmi.experiments.report
 
     root = _make_results(tmp_path, scenes=("office",))
     out = tmp_path / "report"
@@ -165,7 +165,7 @@ def test_failed_report_leaves_the_old_one_intact(tmp_path, capsys, monkeypatch):
     def broken(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(ifmi.report, "_sweep_blocks", broken)
+    monkeypatch.setattr(ifmi.experiments.report, "_sweep_blocks", broken)
     code = main(["report", str(root / "eval"), str(root / "sweep"), "--out", str(out)])
     err = capsys.readouterr().err.strip()
     assert code == 1 and err == f"ifmi report: error: cannot write {out}: No space left on device"
@@ -197,7 +197,7 @@ def test_report_errors_name_the_subcommand(tmp_path, capsys):
 
 
 def test_any_method_gets_a_row_and_a_colour(tmp_path):
-    from ifmi.methods import method_colors
+    from ifmi.tracking.methods import method_colors
 
     root = _make_results(tmp_path, scenes=("office",))
     est_dir = root / "runs" / "office"
@@ -570,7 +570,7 @@ def test_two_sweeps_of_one_folder_name_get_their_own_figures_and_copies(tmp_path
 def test_markdown_keeps_its_structure_whatever_the_names_title_and_command():
     # A title over two lines made a second heading, a | in a name split its table cell, and a command
     # holding ``` ended its code block early: the README's structure was broken, exit 0.
-    from ifmi.report import _render_markdown
+    from ifmi.experiments.report import _render_markdown
 
     text = _render_markdown([("h1", "Report\n# not a heading"), ("code", "ifmi report x\n```\n# evil"),
                              ("table", ["scene", "RMSE"], [["office|v2", "0.1"]]),

@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.camera import pixels_from_rays, rays_from_pixels
-from ifmi.odometry import KeyframeOptions, track_sequence
+from ifmi.geometry.camera import pixels_from_rays, rays_from_pixels
+from ifmi.tracking.odometry import KeyframeOptions, track_sequence
 from ifmi.pipeline import Correspondences, EstimateConfig
-from ifmi.relative_pose import RelativePoseOptions, relative_pose_from_rays
-from ifmi.rolling_shutter import (RollingShutterOptions, angular_velocity_from_rotation, rays_at_middle_row,
+from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays
+from ifmi.backend.rolling_shutter import (RollingShutterOptions, angular_velocity_from_rotation, rays_at_middle_row,
                                   relative_pose_rolling_shutter, row_time_offsets, velocity_after_intervals,
                                   velocity_at_frame)
-from ifmi.rotations import geodesic_angle
+from ifmi.geometry.rotations import geodesic_angle
 from ifmi.synthetic import example_band_px, example_omni_model
 
 SIZE = 512
@@ -209,7 +209,7 @@ def warped_pair(tmp_path_factory):
     and with read-out 0.5 (``omnisim warp``)."""
     import cv2
 
-    from ifmi.camera import paracatadioptric_model
+    from ifmi.geometry.camera import paracatadioptric_model
     from ifmi.io.calib import write_calib
     from ifmi.synthetic import environment_texture, omni_from_environment
     from omnisim.warp import WarpSettings, warp_dataset

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from ifmi.errors import InputError
 from ifmi.io.tum import Trajectory, read_tum, write_tum
-from ifmi.rotations import (
+from ifmi.geometry.rotations import (
     geodesic_angle,
     matrix_aligning_rays,
     matrix_from_quat_xyzw,

@@ -13,8 +13,8 @@ import pytest
 from ifmi.cli import main
 from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig
-from ifmi.rotations import geodesic_angle
-from ifmi.sweep import SweepOptions, config_with_tiling, run_sweep, sweep_cells
+from ifmi.geometry.rotations import geodesic_angle
+from ifmi.experiments.sweep import SweepOptions, config_with_tiling, run_sweep, sweep_cells
 
 pytest.importorskip("skimage")
 from ifmi.synthetic import (example_band_px, example_omni_model, synthetic_sequence,  # noqa: E402
@@ -414,7 +414,7 @@ def test_sweep_cli_refuses_a_method_that_ignores_the_tiling(datasets, tmp_path, 
 
 
 def test_run_sweep_refuses_two_cells_of_one_name(datasets, tmp_path):
-    from ifmi.sweep import SweepCell, SweepOptions, run_sweep
+    from ifmi.experiments.sweep import SweepCell, SweepOptions, run_sweep
 
     good, _ = datasets
     cells = [SweepCell(str(good), "ifmi", 32.0, overlap) for overlap in (0.5, 0.5 + 1e-11)]

@@ -1,6 +1,6 @@
 """The output folder of ``ifmi sweep``: refused when foreign, its result set written as one.
 
-The cells are computed by a stand-in for :func:`ifmi.sweep.run_cell` that writes a
+The cells are computed by a stand-in for :func:`ifmi.experiments.sweep.run_cell` that writes a
 record as the real one does (tests/test_sweep.py runs real cells): these tests are
 about the files, and stay fast.
 """
@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-import ifmi.sweep
+import ifmi.experiments.sweep
 from ifmi.cli import main
 from ifmi.errors import OutputError
 from ifmi.io.atomic import atomic_write_json
-from ifmi.sweep import (SweepOptions, config_digest, dataset_digest, is_sweep_dir, run_sweep,
+from ifmi.experiments.sweep import (SweepOptions, config_digest, dataset_digest, is_sweep_dir, run_sweep,
                         sweep_cells)
 
 OPTIONS = SweepOptions(scheduler="synchronous", progress=False)
@@ -47,7 +47,7 @@ def calls(monkeypatch):
         atomic_write_json(Path(out_dir) / "cells" / f"{cell.cell_id}.json", record)
         return record
 
-    monkeypatch.setattr(ifmi.sweep, "run_cell", fake_run_cell)
+    monkeypatch.setattr(ifmi.experiments.sweep, "run_cell", fake_run_cell)
     return computed
 
 
@@ -62,7 +62,7 @@ def _contents(folder: Path) -> dict:
 
 
 def _result_set(folder: Path) -> dict:
-    return {k: v for k, v in _contents(folder).items() if k.parts[0] in ifmi.sweep.SWEEP_RESULTS}
+    return {k: v for k, v in _contents(folder).items() if k.parts[0] in ifmi.experiments.sweep.SWEEP_RESULTS}
 
 
 def _hidden_leftovers(folder: Path) -> list[str]:
@@ -117,7 +117,7 @@ def test_empty_folder_is_written(tmp_path, calls):
     cells = sweep_cells([str(data)], method="ifmi", tile_sizes=[32], overlaps=[0.0])
     records = run_sweep(cells, out_dir=out, base_config={}, options=OPTIONS)
     assert [r["status"] for r in records] == ["ok"]
-    assert json.loads((out / "sweep.json").read_text())["kind"] == ifmi.sweep.SWEEP_KIND
+    assert json.loads((out / "sweep.json").read_text())["kind"] == ifmi.experiments.sweep.SWEEP_KIND
     assert (out / "sweep.parquet").is_file() and (out / "heatmaps").is_dir()
     assert _hidden_leftovers(tmp_path) == []
 
@@ -148,14 +148,14 @@ def test_failure_writing_the_set_leaves_the_old_set_and_the_cells(tmp_path, call
         raise OutputError(path, "No space left on device")
 
     # sweep.csv is written, then sweep.parquet fails.
-    monkeypatch.setattr(ifmi.sweep, "atomic_write_bytes", full_disk)
+    monkeypatch.setattr(ifmi.experiments.sweep, "atomic_write_bytes", full_disk)
     code, err = _sweep_cli(data, out, capsys, "32", "48")
     assert code == 1 and err == f"ifmi sweep: error: cannot write {out}: No space left on device"
     assert _result_set(out) == before
     assert _hidden_leftovers(tmp_path) == []
     # The new cell's record stays: the rerun writes the set without computing it again.
     monkeypatch.undo()
-    monkeypatch.setattr(ifmi.sweep, "run_cell", lambda *a, **k: pytest.fail("cell computed again"))
+    monkeypatch.setattr(ifmi.experiments.sweep, "run_cell", lambda *a, **k: pytest.fail("cell computed again"))
     assert _sweep_cli(data, out, capsys, "32", "48")[0] == 0
     assert (out / "sweep.csv").read_text().count("\n") == 3
 
@@ -164,18 +164,18 @@ def test_interrupted_first_sweep_is_resumed(tmp_path, calls, monkeypatch):
     data = _dataset(tmp_path, "office")
     out = tmp_path / "sweep"
     cells = sweep_cells([str(data)], method="ifmi", tile_sizes=[32, 48], overlaps=[0.0])
-    computed = ifmi.sweep.run_cell
+    computed = ifmi.experiments.sweep.run_cell
 
     def interrupted_at_the_second(cell, **kwargs):
         if calls:
             raise KeyboardInterrupt
         return computed(cell, **kwargs)
 
-    monkeypatch.setattr(ifmi.sweep, "run_cell", interrupted_at_the_second)
+    monkeypatch.setattr(ifmi.experiments.sweep, "run_cell", interrupted_at_the_second)
     with pytest.raises(KeyboardInterrupt):
         run_sweep(cells, out_dir=out, base_config={}, options=OPTIONS)
     assert is_sweep_dir(out) and not (out / "sweep.csv").exists()
-    monkeypatch.setattr(ifmi.sweep, "run_cell", computed)
+    monkeypatch.setattr(ifmi.experiments.sweep, "run_cell", computed)
     records = run_sweep(cells, out_dir=out, base_config={}, options=OPTIONS)
     assert [r["status"] for r in records] == ["ok", "ok"]
     assert calls == [c.cell_id for c in cells]
@@ -188,7 +188,7 @@ def test_unwritable_parent_is_refused_before_any_cell(tmp_path, calls, capsys, m
     def refused(path):
         raise OutputError(path, "Permission denied")
 
-    monkeypatch.setattr(ifmi.sweep, "probe_writable", refused)
+    monkeypatch.setattr(ifmi.experiments.sweep, "probe_writable", refused)
     code, err = _sweep_cli(data, out, capsys)
     assert code == 1 and len(err.splitlines()) == 1 and calls == [] and not out.exists()
     assert err == (f"ifmi sweep: error: cannot write {out}: Permission denied (the results are "

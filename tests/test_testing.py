@@ -7,9 +7,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ifmi.io.tum import write_tum
-from ifmi.rotations import matrix_from_rpy
+from ifmi.geometry.rotations import matrix_from_rpy
 from ifmi.testing import assert_rotation_close, assert_trajectory_close
-from ifmi.trajectory import Trajectory
+from ifmi.geometry.trajectory import Trajectory
 
 
 def _perturbed(R, angles, rng):

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.camera import paracatadioptric_model
-from ifmi.fourier_mellin import compose_placement, motion_from_placement, placement_from_motion
-from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
-from ifmi.unwarp import PanoramaConfig, panorama_pixels_from_rays, rays_from_panorama_pixels
+from ifmi.geometry.camera import paracatadioptric_model
+from ifmi.spectral.fourier_mellin import compose_placement, motion_from_placement, placement_from_motion
+from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.spectral.panorama import PanoramaConfig, panorama_pixels_from_rays, rays_from_panorama_pixels
 
 pytest.importorskip("skimage")
 from ifmi.synthetic import environment_texture, omni_from_environment  # noqa: E402
@@ -163,8 +163,8 @@ def test_distortion_limit_is_validated():
 
 
 def test_layout_tiles_of_a_frame_are_cut_across_the_seam(clean_frames):
-    from ifmi.tiling import TilingConfig, tiles_from_panorama
-    from ifmi.unwarp import panorama_image_from_omni_image
+    from ifmi.spectral.tiling import TilingConfig, tiles_from_panorama
+    from ifmi.spectral.panorama import panorama_image_from_omni_image
 
     # 40 px tiles at half overlap on a 512 px wide panorama: the last column of tiles wraps.
     fe = IfmiFrontEnd(MODEL, replace(CONFIG, tiling=TilingConfig(tile_size=40, overlap=0.5)))
@@ -179,8 +179,8 @@ def test_layout_tiles_of_a_frame_are_cut_across_the_seam(clean_frames):
 
 
 def test_dense_retry_registers_a_denser_layout_and_leaves_frame_bs_tracked_tiles(clean_frames):
-    from ifmi.relative_pose import rotation_from_rays
-    from ifmi.rotations import geodesic_angle
+    from ifmi.backend.relative_pose import rotation_from_rays
+    from ifmi.geometry.rotations import geodesic_angle
 
     # Forced on every pair (fraction 1): the half-overlap layout's tiles, cut anew from frame a,
     # are found where the true rotation puts them and give the rays; frame b keeps the regular
@@ -209,7 +209,7 @@ def test_dense_retry_registers_a_denser_layout_and_leaves_frame_bs_tracked_tiles
 
 
 def test_dense_retry_on_the_most_textured_tiles_of_each_column(clean_frames):
-    from ifmi.tiling import strongest_tiles_per_column, tile_corner_strengths
+    from ifmi.spectral.tiling import strongest_tiles_per_column, tile_corner_strengths
 
     fe = IfmiFrontEnd(MODEL, replace(CONFIG, dense_retry_fraction=1.0, dense_tiles_per_column=2))
     s0, s1 = fe.prepare(clean_frames[0]), fe.prepare(clean_frames[1])
@@ -246,8 +246,8 @@ def test_dense_retry_options_are_validated():
 
 def test_a_weak_pair_is_registered_again_at_the_solved_rotation_and_both_rays_averaged(clean_frames):
     from ifmi.front_end import Correspondences
-    from ifmi.relative_pose import rotation_from_rays
-    from ifmi.rotations import geodesic_angle
+    from ifmi.backend.relative_pose import rotation_from_rays
+    from ifmi.geometry.rotations import geodesic_angle
 
     # Forced (fraction 1): the reference's tiles are registered a second time where the given
     # R_ab puts them, here 0.02 rad (1.6 panorama pixels) off the truth; the tiles measure the
@@ -288,7 +288,7 @@ def test_reregister_fraction_is_validated():
 
 def test_averaged_correspondences_mean_the_rays_of_frame_b_matched_twice():
     from ifmi.front_end import Correspondences
-    from ifmi.spectral_front_end import averaged_correspondences
+    from ifmi.spectral.ifmi_front_end import averaged_correspondences
 
     def rays(angles):
         return np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ifmi.fourier_mellin import FourierMellin, FourierMellinConfig, max_tile_count
-from ifmi.tiling import (TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_grid_shape, tile_layout,
+from ifmi.spectral.fourier_mellin import FourierMellin, FourierMellinConfig, max_tile_count
+from ifmi.spectral.tiling import (TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_grid_shape, tile_layout,
                          tile_size_px, tiles_from_panorama)
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model, radius_from_pixels
-from ifmi.unwarp import (PanoramaConfig, omni_pixels_from_panorama_pixels, panorama_image_from_omni_image,
+from ifmi.geometry.camera import paracatadioptric_model, radius_from_pixels
+from ifmi.spectral.panorama import (PanoramaConfig, omni_pixels_from_panorama_pixels, panorama_image_from_omni_image,
                          panorama_pixels_from_omni_pixels, panorama_mapping, radius_band, rays_from_panorama_pixels)
 
 # An off-centre, non-identity-affine paracatadioptric camera.
@@ -38,8 +38,8 @@ def test_panorama_omni_round_trip():
 def test_prepared_panorama_repeats_the_columns_across_the_seam(tile_size):
     # The front end pads the panorama by two tiles on each side with copies of the columns
     # across the seam; 80 px tiles pad by more than the 128 columns, which repeat.
-    from ifmi.spectral_front_end import IfmiConfig, IfmiFrontEnd
-    from ifmi.tiling import TilingConfig
+    from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
+    from ifmi.spectral.tiling import TilingConfig
 
     panorama = PanoramaConfig(width=128, height=96, radius_min_px=30, radius_max_px=110)
     image = _band_image(MODEL, 30, 110)

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model
+from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.errors import InputError, InputWarning
 from ifmi.io.calib import write_calib
 from ifmi.io.tum import read_tum
 from ifmi.io.video import VideoFrames, is_video_path
-from ifmi.rotations import geodesic_angle
+from ifmi.geometry.rotations import geodesic_angle
 from ifmi.synthetic import synthetic_sequence
 from video_files import write_gray_video
 
@@ -146,7 +146,7 @@ def test_spread_frames_of_a_broken_video_name_the_file(shaded_clip, tmp_path):
 
 def test_a_dark_first_frame_does_not_narrow_a_videos_band(shaded_clip, tmp_path):
     from ifmi.pipeline import EstimateConfig, estimate_video
-    from ifmi.unwarp import radius_band
+    from ifmi.spectral.panorama import radius_band
 
     root, images = shaded_clip
     config = EstimateConfig()

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
-from ifmi.camera import paracatadioptric_model
+from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.errors import InputError, InputWarning
 from ifmi.frames import MissingFrame
 from ifmi.io.calib import write_calib

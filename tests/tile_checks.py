@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ifmi.relative_pose import rotation_from_rays
-from ifmi.spectral_front_end import IfmiFrontEnd
-from ifmi.unwarp import rays_from_panorama_pixels
+from ifmi.backend.relative_pose import rotation_from_rays
+from ifmi.spectral.ifmi_front_end import IfmiFrontEnd
+from ifmi.spectral.panorama import rays_from_panorama_pixels
 
 
 def kept_tiles_rotation_error(model, config, frames, rotation) -> float:

@@ -12,9 +12,9 @@ import importlib
 import os
 import sys
 
-from ..errors import InputError, OutputError
-from ..interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
-from .warning_lines import input_warnings_as_lines
+from ifmi.errors import InputError, OutputError
+from ifmi.runtime.interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
+from ifmi.runtime.warning_lines import input_warnings_as_lines
 
 __all__ = ["main"]
 

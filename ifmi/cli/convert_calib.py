@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import sys
 
-from ..calib_fit import TARGETS, percent_below
-from ..io.calibration_conversion import convert_calibration_file
+from ifmi.geometry.calib_fit import TARGETS, percent_below
+from ifmi.io.calibration_conversion import convert_calibration_file
 
 __all__ = ["add_parser", "run", "fit_summary", "frame_change_note"]
 

@@ -23,10 +23,10 @@ import sys
 import warnings
 from pathlib import Path
 
-from ..errors import CalibrationFitError, InputError, InputWarning
-from ..methods import load_factory
-from ..options import RejectedValues, replaced_at_paths
-from ..pipeline import EstimateConfig, estimate_dataset, estimate_video
+from ifmi.errors import CalibrationFitError, InputError, InputWarning
+from ifmi.tracking.methods import load_factory
+from ifmi.options import RejectedValues, replaced_at_paths
+from ifmi.pipeline import EstimateConfig, estimate_dataset, estimate_video
 
 # Exit status when the outputs were written but more than half of the frames failed.
 EXIT_MOSTLY_FAILED = 3
@@ -214,7 +214,7 @@ def _with_values(config, values: dict):
 
 def _configuration(args) -> tuple:
     """``(--config file or None, options given, configuration)``: the file's, then the options, which win."""
-    from ..io.config import read_config_file
+    from ifmi.io.config import read_config_file
 
     config_file = read_config_file(args.config) if args.config else None
     given = _given_options(args)
@@ -286,7 +286,7 @@ def _blamed(exc: InputError, given: dict, config_file) -> InputError:
 
 def _check_folder_calib(dataset: str, calib: str) -> None:
     """Refuse a ``--calib`` other than the dataset folder's own calibration file."""
-    from ..io.camera_file import calibration_path
+    from ifmi.io.camera_file import calibration_path
 
     if not Path(dataset).is_dir():
         return  # the dataset reader names what is wrong with it
@@ -306,14 +306,14 @@ def _check_folder_calib(dataset: str, calib: str) -> None:
 
 def _derived_keys(config: EstimateConfig, used: EstimateConfig) -> list:
     """Key paths the run derived from the camera and frames (None in ``config``, set in ``used``)."""
-    from ..io.config import DERIVED_KEYS
+    from ifmi.io.config import DERIVED_KEYS
 
     return [key for key in DERIVED_KEYS if _value_at(config, key) is None and _value_at(used, key) is not None]
 
 
 def _warn_ignored_options(method: str, given: dict) -> None:
     """One warning line naming the options given that ``method`` (a built-in keypoint method) does not read."""
-    from ..methods import ignores_tiling
+    from ifmi.tracking.methods import ignores_tiling
 
     if not ignores_tiling(method):
         return
@@ -324,8 +324,8 @@ def _warn_ignored_options(method: str, given: dict) -> None:
 
 
 def run(args) -> int:
-    from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
-    from ..io.video import VIDEO_SUFFIXES, is_video_path
+    from ifmi.io.results import check_estimate_outputs, side_file_paths, write_estimate_run
+    from ifmi.io.video import VIDEO_SUFFIXES, is_video_path
 
     config_file, given, config = _configuration(args)
     method = chosen_method(args.method, config_file)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..errors import InputError
-from ..evaluation import EvaluateOptions, evaluate_files, format_summary_table, gate_verdict, summary_of
-from ..io.results import side_file_paths
+from ifmi.errors import InputError
+from ifmi.evaluation.trajectory_files import EvaluateOptions, evaluate_files, format_summary_table, gate_verdict, summary_of
+from ifmi.io.results import side_file_paths
 
 __all__ = ["add_parser", "run"]
 

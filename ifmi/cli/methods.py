@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..methods import ENTRY_POINT_GROUP, available_methods
+from ifmi.tracking.methods import ENTRY_POINT_GROUP, available_methods
 
 __all__ = ["add_parser", "run"]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import shlex
 import sys
 
-from ..report import ReportOptions, build_report
+from ifmi.experiments.report import ReportOptions, build_report
 
 __all__ = ["add_parser", "run"]
 

@@ -6,12 +6,12 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..errors import InputError
-from ..local_workers import DEFAULT_LOCAL_WORKERS, max_local_workers
-from ..methods import ignores_tiling
-from ..sweep import CELL_NAME_DIGITS, SweepOptions, cell_value_name, run_sweep, sweep_cells
-from ..tiling import TilingConfig
-from .estimate import chosen_method
+from ifmi.errors import InputError
+from ifmi.runtime.local_workers import DEFAULT_LOCAL_WORKERS, max_local_workers
+from ifmi.tracking.methods import ignores_tiling
+from ifmi.experiments.sweep import CELL_NAME_DIGITS, SweepOptions, cell_value_name, run_sweep, sweep_cells
+from ifmi.spectral.tiling import TilingConfig
+from ifmi.cli.estimate import chosen_method
 
 __all__ = ["add_parser", "run"]
 
@@ -33,7 +33,7 @@ def _overlap(text: str) -> float:
 
 
 def _workers(text: str) -> int:
-    """A local cluster's worker count: from 1 to :func:`ifmi.local_workers.max_local_workers`."""
+    """A local cluster's worker count: from 1 to :func:`ifmi.runtime.local_workers.max_local_workers`."""
     try:
         value = int(text)
     except ValueError:
@@ -86,9 +86,9 @@ def add_parser(subparsers) -> None:
 
 def _base_config(path: str | None, method: str | None) -> tuple[dict, str]:
     """The base configuration as a dict, and the method: ``method``, a run file's, or ifmi."""
-    from ..io.config import read_config_file
-    from ..methods import load_factory
-    from ..pipeline import EstimateConfig
+    from ifmi.io.config import read_config_file
+    from ifmi.tracking.methods import load_factory
+    from ifmi.pipeline import EstimateConfig
 
     config_file = None if path is None else read_config_file(path)
     method = chosen_method(method, config_file)
@@ -114,7 +114,7 @@ def _refuse_repeats(args) -> None:
 
 
 def _refuse_one_name(option: str, values: list[float]) -> None:
-    """Two values a cell's name spells alike (:attr:`ifmi.sweep.SweepCell.cell_id`) would share its record."""
+    """Two values a cell's name spells alike (:attr:`ifmi.experiments.sweep.SweepCell.cell_id`) would share its record."""
     named: dict[str, float] = {}
     for value in values:
         name = cell_value_name(value)

@@ -34,7 +34,7 @@ import warnings
 from pathlib import Path
 from typing import Callable, Collection, Mapping
 
-from ..errors import OutputError
+from ifmi.errors import OutputError
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "atomic_write_files",
            "writable_target", "probe_writable", "json_text", "check_output_folder", "write_folder",

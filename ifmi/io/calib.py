@@ -10,9 +10,9 @@ lines, in this order:
 5. image size: ``height width``.
 
 Reading checks more than the layout: every value must be finite; the image
-sides must be integers from :data:`~ifmi.camera.MIN_IMAGE_SIDE_PX` to
-:data:`~ifmi.camera.MAX_IMAGE_SIDE_PX`; the affine part must be close to the
-identity (:data:`~ifmi.camera.AFFINE_MAX_DEVIATION`); the centre must lie
+sides must be integers from :data:`~ifmi.geometry.camera.MIN_IMAGE_SIDE_PX` to
+:data:`~ifmi.geometry.camera.MAX_IMAGE_SIDE_PX`; the affine part must be close to the
+identity (:data:`~ifmi.geometry.camera.AFFINE_MAX_DEVIATION`); the centre must lie
 inside the image; and the inverse polynomial must invert the direct one over
 the image band to within :data:`INVERSE_TOLERANCE_PX` (see
 :func:`inverse_polynomial_error`). A missing block is named from the comment
@@ -28,11 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import INVERSE_TOLERANCE_PX, OcamModel, check_affine, check_center_inside, check_image_size
-from ..errors import InputError
-from ..unwarp import inverse_polynomial_error
-from .atomic import atomic_write_text
-from .text_file import number_from_text, read_text_file
+from ifmi.geometry.camera import INVERSE_TOLERANCE_PX, OcamModel, check_affine, check_center_inside, check_image_size
+from ifmi.errors import InputError
+from ifmi.spectral.panorama import inverse_polynomial_error
+from ifmi.io.atomic import atomic_write_text
+from ifmi.io.text_file import number_from_text, read_text_file
 
 __all__ = ["read_calib", "write_calib", "format_calib", "parse_calib", "inverse_polynomial_error",
            "INVERSE_TOLERANCE_PX"]
@@ -43,7 +43,7 @@ _BLOCKS = ("direct polynomial", "inverse polynomial", "center (row col)",
 _BLOCK_WORDS = (("direct", "cam2world"), ("inverse", "world2cam"), ("center", "centre"),
                 ("affine",), ("size",))
 # The inverse polynomial check: INVERSE_TOLERANCE_PX, the largest accepted round-trip error,
-# over a band from INVERSE_CHECK_INNER_FRACTION of its outer radius out (both in ifmi.camera,
+# over a band from INVERSE_CHECK_INNER_FRACTION of its outer radius out (both in ifmi.geometry.camera,
 # with their reasons).
 
 
@@ -135,7 +135,7 @@ def parse_calib(text: str, *, source: str | os.PathLike = "<calib>") -> OcamMode
 
 
 def _checked(source, block: str, check, *args) -> None:
-    """Run a ``check`` of :mod:`ifmi.camera` on ``args``; its ``ValueError`` becomes a one-line error on ``block``."""
+    """Run a ``check`` of :mod:`ifmi.geometry.camera` on ``args``; its ``ValueError`` becomes a one-line error on ``block``."""
     try:
         check(*args)
     except ValueError as exc:

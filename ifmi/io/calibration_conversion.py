@@ -11,12 +11,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ..camera import OcamModel
-from ..errors import InputError, OutputError
-from .calib import write_calib
-from .camera_file import KALIBR_FILE, OCAMCALIB_FILE, calibration_path, read_camera
-from .dataset import refuse_output_in_datasets
-from .kalibr import write_kalibr
+from ifmi.geometry.camera import OcamModel
+from ifmi.errors import InputError, OutputError
+from ifmi.io.calib import write_calib
+from ifmi.io.camera_file import KALIBR_FILE, OCAMCALIB_FILE, calibration_path, read_camera
+from ifmi.io.dataset import refuse_output_in_datasets
+from ifmi.io.kalibr import write_kalibr
 
 __all__ = ["convert_calibration_file", "check_out_suffix", "check_out_spares_inputs"]
 
@@ -92,7 +92,7 @@ def convert_calibration_file(source: str | os.PathLike, target: str, out: str | 
     source : path
         ``calib_results.txt``, ``camera.yaml`` or a dataset folder holding one.
     target : str
-        One of :data:`ifmi.calib_fit.TARGETS`; ``ocamcalib`` is written as
+        One of :data:`ifmi.geometry.calib_fit.TARGETS`; ``ocamcalib`` is written as
         OCamCalib text, the others as a Kalibr camchain.
     out : path
     overwrite : bool, keyword-only
@@ -100,7 +100,7 @@ def convert_calibration_file(source: str | os.PathLike, target: str, out: str | 
 
     Returns
     -------
-    ifmi.calib_fit.CalibrationFit
+    ifmi.geometry.calib_fit.CalibrationFit
 
     Raises
     ------
@@ -110,7 +110,7 @@ def convert_calibration_file(source: str | os.PathLike, target: str, out: str | 
     OutputError
         ``out`` would replace the input calibration or harm its dataset.
     """
-    from ..calib_fit import fit_camera_model
+    from ifmi.geometry.calib_fit import fit_camera_model
 
     check_out_suffix(out, target)
     check_out_spares_inputs(source, out)

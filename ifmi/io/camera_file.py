@@ -11,11 +11,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ..camera import OcamModel
-from ..errors import InputError
-from .calib import read_calib, write_calib
-from .kalibr import read_kalibr, write_kalibr
-from .text_file import refuse_special_file
+from ifmi.geometry.camera import OcamModel
+from ifmi.errors import InputError
+from ifmi.io.calib import read_calib, write_calib
+from ifmi.io.kalibr import read_kalibr, write_kalibr
+from ifmi.io.text_file import refuse_special_file
 
 __all__ = ["OCAMCALIB_FILE", "KALIBR_FILE", "calibration_path", "read_camera", "write_camera",
            "camera_file_name"]

@@ -26,12 +26,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..errors import InputError
-from ..options import replaced_at_paths
-from .text_file import read_text_file
+from ifmi.errors import InputError
+from ifmi.options import replaced_at_paths
+from ifmi.io.text_file import read_text_file
 
 if TYPE_CHECKING:
-    from ..pipeline import EstimateConfig
+    from ifmi.pipeline import EstimateConfig
 
 __all__ = ["read_json_object", "read_estimate_config", "estimate_config_from_document", "read_config_file",
            "ConfigFile", "DERIVED_KEYS"]
@@ -158,7 +158,7 @@ def estimate_config_from_document(data: dict, *, source: str | os.PathLike):
 
 def _config_document(data: dict, *, source) -> tuple:
     """``(EstimateConfig, method or None)`` of a configuration document."""
-    from ..pipeline import EstimateConfig
+    from ifmi.pipeline import EstimateConfig
 
     method, derived = None, ()
     if "config" in data and "method" in data:

@@ -31,12 +31,12 @@ from typing import Iterator
 
 import numpy as np
 
-from ..camera import OcamModel
-from ..errors import InputError, InputWarning, OutputError
-from ..frames import MissingFrame
-from .atomic import path_within
-from .camera_file import calibration_path, read_camera
-from .images import IMAGE_SUFFIXES, read_image
+from ifmi.geometry.camera import OcamModel
+from ifmi.errors import InputError, InputWarning, OutputError
+from ifmi.frames import MissingFrame
+from ifmi.io.atomic import path_within
+from ifmi.io.camera_file import calibration_path, read_camera
+from ifmi.io.images import IMAGE_SUFFIXES, read_image
 
 __all__ = ["Dataset", "FrameFiles", "read_dataset", "read_image", "frame_files", "frame_index",
            "dataset_conflict", "dataset_meta", "refuse_output_in_datasets", "IMAGE_SUFFIXES", "DATASET_FILES", "DATASET_FOLDERS"]

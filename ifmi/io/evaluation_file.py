@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset_names import display_name
-from ..errors import InputError, json_excerpt
-from ..metrics import AXES
+from ifmi.evaluation.dataset_names import display_name
+from ifmi.errors import InputError, json_excerpt
+from ifmi.evaluation.metrics import AXES
 
 __all__ = ["check_evaluation_document", "check_per_frame_arrays", "check_run_config",
            "PER_FRAME_REQUIRED"]

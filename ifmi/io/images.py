@@ -31,9 +31,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..errors import InputError, InputWarning
-from .native_stderr import call_with_captured_stderr
-from .text_file import refuse_special_file
+from ifmi.errors import InputError, InputWarning
+from ifmi.io.native_stderr import call_with_captured_stderr
+from ifmi.io.text_file import refuse_special_file
 
 __all__ = ["read_image", "IMAGE_SUFFIXES", "SENSOR_BIT_DEPTHS", "eight_bit_from_sixteen", "image_file_problem",
            "image_header_size", "sensor_bit_depth", "size_problem"]

@@ -23,9 +23,9 @@ camera_model       intrinsics                  distortion_model (coefficients)
 =================  ==========================  ==================================
 
 Reading checks every value: numbers must be finite floats; ``resolution``
-two integers from :data:`~ifmi.camera.MIN_IMAGE_SIDE_PX` to
-:data:`~ifmi.camera.MAX_IMAGE_SIDE_PX`; and the model must image a usable
-region (:func:`~ifmi.camera_models.check_usable_region`: the principal point
+two integers from :data:`~ifmi.geometry.camera.MIN_IMAGE_SIDE_PX` to
+:data:`~ifmi.geometry.camera.MAX_IMAGE_SIDE_PX`; and the model must image a usable
+region (:func:`~ifmi.geometry.camera_models.check_usable_region`: the principal point
 inside the image, the pixel there valid and of a plausible angle).
 
 Numbers are written with Python's shortest round-trip representation, so
@@ -41,8 +41,8 @@ import reprlib
 import warnings
 from pathlib import Path
 
-from ..camera import MAX_IMAGE_SIDE_PX, MIN_IMAGE_SIDE_PX
-from ..camera_models import (
+from ifmi.geometry.camera import MAX_IMAGE_SIDE_PX, MIN_IMAGE_SIDE_PX
+from ifmi.geometry.camera_models import (
     DoubleSphereModel,
     EquirectangularModel,
     ExtendedUnifiedModel,
@@ -51,9 +51,9 @@ from ..camera_models import (
     UnifiedModel,
     check_usable_region,
 )
-from ..errors import InputError, InputWarning
-from .atomic import atomic_write_text
-from .text_file import read_text_file
+from ifmi.errors import InputError, InputWarning
+from ifmi.io.atomic import atomic_write_text
+from ifmi.io.text_file import read_text_file
 
 __all__ = ["read_kalibr", "parse_kalibr", "format_kalibr", "write_kalibr", "KALIBR_INTRINSICS"]
 

@@ -33,16 +33,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, OutputError
-from .atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
+from ifmi.errors import InputError, OutputError
+from ifmi.io.atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
                      check_output_folder, folder_of_kind, json_text, probe_writable, utf8_bytes,
                      write_folder)
-from .camera_file import calibration_path
-from .config import read_json_object
-from .evaluation_file import (check_evaluation_document, check_per_frame_arrays,
+from ifmi.io.camera_file import calibration_path
+from ifmi.io.config import read_json_object
+from ifmi.io.evaluation_file import (check_evaluation_document, check_per_frame_arrays,
                               check_run_config)
-from .provenance import package_versions
-from .text_file import number_from_text, read_text_file, refuse_special_file
+from ifmi.io.provenance import package_versions
+from ifmi.io.text_file import number_from_text, read_text_file, refuse_special_file
 
 __all__ = [
     "EVALUATION_KIND",
@@ -532,7 +532,7 @@ def check_estimate_outputs(path: str | os.PathLike, *, dataset_dir: str | os.Pat
         its path should be, or its folder cannot be written
         (:func:`~ifmi.io.atomic.probe_writable`).
     """
-    from .dataset import dataset_conflict
+    from ifmi.io.dataset import dataset_conflict
 
     if str(path).endswith(("/", os.sep)):
         raise OutputError(path, "expected the estimate's file path (DIR/NAME.txt), got a folder path "
@@ -644,7 +644,7 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
         See :func:`check_estimate_outputs`; or a write failed (the user's
         path and the OS reason).
     """
-    from .tum import format_tum
+    from ifmi.io.tum import format_tum
 
     path, frames_path, config_path = check_estimate_outputs(path, dataset_dir=dataset_dir,
                                                             input_files=input_files, overwrite=overwrite)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ..errors import InputError
+from ifmi.errors import InputError
 
 __all__ = ["read_text_file", "read_failure", "number_from_text", "refuse_special_file"]
 

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, InputWarning
-from ..rotations import matrix_from_quat_xyzw, quat_xyzw_from_matrix
-from ..trajectory import Trajectory
-from .atomic import atomic_write_text
-from .text_file import number_from_text, read_text_file
+from ifmi.errors import InputError, InputWarning
+from ifmi.geometry.rotations import matrix_from_quat_xyzw, quat_xyzw_from_matrix
+from ifmi.geometry.trajectory import Trajectory
+from ifmi.io.atomic import atomic_write_text
+from ifmi.io.text_file import number_from_text, read_text_file
 
 __all__ = ["Trajectory", "read_tum", "write_tum", "format_tum", "QUATERNION_NORM_TOLERANCE"]
 

@@ -44,10 +44,10 @@ from typing import Callable, Iterator, TypeVar
 import cv2
 import numpy as np
 
-from ..errors import InputError, InputWarning
-from ..frames import MissingFrame
-from .images import eight_bit_from_sixteen
-from .native_stderr import call_with_captured_stderr
+from ifmi.errors import InputError, InputWarning
+from ifmi.frames import MissingFrame
+from ifmi.io.images import eight_bit_from_sixteen
+from ifmi.io.native_stderr import call_with_captured_stderr
 
 __all__ = ["VideoFrames", "VIDEO_SUFFIXES", "is_video_path"]
 

@@ -12,7 +12,7 @@ Conventions
 -----------
 * Frame ``k``'s pose is ``R_0k`` (maps camera-k directions into the world,
   i.e. camera 0's coordinates) and its centre ``p_k`` in the world, as in
-  :mod:`ifmi.odometry`: ``X_0 = R_0k @ X_k + p_k``.
+  :mod:`ifmi.tracking.odometry`: ``X_0 = R_0k @ X_k + p_k``.
 * An observation is a unit ray in its camera's coordinates. All
   observations of one track are one scene point.
 * A track's point is its first observation's ray (in frame order) at
@@ -39,8 +39,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from .options import check_finite_fields
-from .rotations import cross_product_matrix
+from ifmi.options import check_finite_fields
+from ifmi.geometry.rotations import cross_product_matrix
 
 __all__ = [
     "BundleAdjustmentOptions",

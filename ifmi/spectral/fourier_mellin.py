@@ -16,7 +16,7 @@ Per pair (all tiles of a frame at once, one FFT call per step):
 2. phase-only matched filter of the two log-polar magnitudes: the peak gives
    ``theta`` (mod pi) along the angle axis and ``log s`` along the log-radius
    axis, with a parabolic sub-pixel fit refined by a phase-plane fit
-   (:func:`ifmi.phase_correlation.refine_shift_phase_plane`); the log-polar
+   (:func:`ifmi.spectral.phase_correlation.refine_shift_phase_plane`); the log-polar
    grid starts at a fraction of the largest radius, because the window blurs
    the low frequencies by a fixed amount that would bias the scale;
 3. tile b is resampled from its source image at ``M(q)`` without the
@@ -53,10 +53,10 @@ import cv2
 import numpy as np
 import scipy.fft
 
-from .options import check_finite_fields
-from .phase_correlation import (Peaks, correlation_surface, find_peaks, hann_window,
+from ifmi.options import check_finite_fields
+from ifmi.spectral.phase_correlation import (Peaks, correlation_surface, find_peaks, hann_window,
                                 normalized_cross_power, refine_shift_phase_plane)
-from .tiling import MIN_TILE_SIZE_PX
+from ifmi.spectral.tiling import MIN_TILE_SIZE_PX
 
 __all__ = [
     "FourierMellinConfig",
@@ -88,7 +88,7 @@ _MAP_CHUNK_PIXELS = 2 ** 17
 _PEAK_BYTES_PER_TILE_PIXEL = 72
 _PEAK_BYTES_PER_LOG_POLAR_SAMPLE = 24
 # Memory one frame pair's tile registration may take, which bounds the tiles of a frame. ``ifmi
-# sweep`` runs two estimates at once by default (ifmi.local_workers.DEFAULT_LOCAL_WORKERS), and a
+# sweep`` runs two estimates at once by default (ifmi.runtime.local_workers.DEFAULT_LOCAL_WORKERS), and a
 # run keeps its reference frame's tiles besides, so this keeps a sweep within a few GiB. Time
 # grows with it too: 31232 tiles of 32 px (1.6 GiB) took 10.6 s per frame pair on 2 cores,
 # 7936 tiles (0.4 GiB) 3.3 s; the default layouts hold 32 to 1000 tiles (2 to 250 MB).
@@ -138,7 +138,7 @@ class FourierMellinConfig:
     correlation_lowpass : float or None
         Standard deviation (cycles per pixel) of a Gaussian weight on the
         phase-only cross-power spectrum of the tiles' translation search
-        (:func:`~ifmi.phase_correlation.gaussian_lowpass`); None weights all
+        (:func:`~ifmi.spectral.phase_correlation.gaussian_lowpass`); None weights all
         frequencies alike. Phase correlation gives each frequency the same
         say, and at the high ones image noise outweighs the texture of flat
         surfaces: their peak drowns and the tile fails ``th_pr``. The weight
@@ -158,7 +158,7 @@ class FourierMellinConfig:
     correlation_highpass_bins : float
         Standard deviation (frequency samples of the tile) of a Gaussian
         high-pass weight on the same spectrum
-        (:func:`~ifmi.phase_correlation.gaussian_highpass`); 0 is off. It
+        (:func:`~ifmi.spectral.phase_correlation.gaussian_highpass`); 0 is off. It
         takes away the few lowest frequencies, where the window's spectrum
         and structures larger than a tile weigh most. With the low-pass
         above (0.15, 1 sample, ``th_pr`` 2.0) office_trans_x10 kept its
@@ -197,7 +197,7 @@ class FourierMellinConfig:
         passes, where tile b has been resampled onto tile a and the shift is
         a small fraction of a pixel; 1 weights each frequency by about the
         inverse variance of its phase under white image noise (see
-        :func:`~ifmi.phase_correlation.refine_shift_phase_plane`).
+        :func:`~ifmi.spectral.phase_correlation.refine_shift_phase_plane`).
     phase_plane_iterations : int
         Iterations of the phase-plane fit. Frequencies dominated by noise
         shrink each step toward zero, so a few iterations are needed to

@@ -44,7 +44,8 @@ from typing import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .options import check_finite_fields
+from ifmi.geometry.row_timing import row_time_offsets
+from ifmi.options import check_finite_fields
 
 __all__ = ["RollingShutterOptions", "row_time_offsets", "angular_velocity_from_rotation",
            "velocity_at_frame", "velocity_after_intervals", "rays_at_middle_row",
@@ -83,27 +84,6 @@ class RollingShutterOptions:
             raise ValueError(f"iterations must be in 1..{_MAX_ITERATIONS}, got {self.iterations}")
 
 
-def row_time_offsets(rows: np.ndarray, *, height: int, readout: float) -> np.ndarray:
-    """Time of each image row relative to the middle row, in frame intervals.
-
-    Parameters
-    ----------
-    rows : (N,) array_like
-        Image row coordinates (pixels, 0-based; sub-pixel values allowed).
-    height : int, keyword-only
-        Image height ``H`` in pixels (at least 2).
-    readout : float, keyword-only
-        :attr:`RollingShutterOptions.readout`.
-
-    Returns
-    -------
-    (N,) ndarray
-        ``readout * (row - (H - 1) / 2) / (H - 1)``.
-    """
-    if height < 2:
-        raise ValueError(f"expected an image height of at least 2 rows, got {height}")
-    middle = 0.5 * (height - 1)
-    return readout * (np.asarray(rows, dtype=np.float64) - middle) / (height - 1)
 
 
 def angular_velocity_from_rotation(rotation_ab: np.ndarray, frames: float) -> np.ndarray:
@@ -208,7 +188,7 @@ def relative_pose_rolling_shutter(solve: Callable, rays_a: np.ndarray, rays_b: n
     solve : callable
         ``solve(rays_a, rays_b) -> (pose, info)`` with ``pose.rotation``
         (``R_ab``) and ``info.success``, e.g.
-        :func:`ifmi.relative_pose.relative_pose_from_rays` with its options
+        :func:`ifmi.backend.relative_pose.relative_pose_from_rays` with its options
         bound.
     rays_a, rays_b : (N, 3) ndarray
         Matched unit rays as measured (each in its own row's camera frame).

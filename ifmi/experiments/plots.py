@@ -17,8 +17,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .io.atomic import atomic_write_bytes  # noqa: E402
-from .methods import method_colors  # noqa: E402
+from ifmi.io.atomic import atomic_write_bytes  # noqa: E402
+from ifmi.tracking.methods import method_colors  # noqa: E402
 
 __all__ = ["save_figure", "rpy_over_frames", "sweep_heatmap", "motion_flow_figure"]
 
@@ -45,7 +45,7 @@ def rpy_over_frames(series: Mapping[str, Mapping[str, np.ndarray]], *, title: st
         Per method: ``timestamp`` (N,), ``roll_est``/``pitch_est``/``yaw_est``
         (N,) and ``roll_gt``/``pitch_gt``/``yaw_gt`` (N,), radians; the
         ground truth is drawn from the first method. Any method name is drawn,
-        in its colour of :func:`ifmi.methods.method_colors`.
+        in its colour of :func:`ifmi.tracking.methods.method_colors`.
     title : str, keyword-only
     path : path, keyword-only
         PNG to write.

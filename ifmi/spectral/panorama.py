@@ -18,7 +18,7 @@ scale follows the mirror's distortion.
 Pixel coordinates are ``(row, col)``, 0-based, pixel centres at integers, in
 both the omni image and the panorama.
 
-Other camera models (:mod:`ifmi.camera_models`: Kalibr fisheyes, pinhole,
+Other camera models (:mod:`ifmi.geometry.camera_models`: Kalibr fisheyes, pinhole,
 equirectangular) are sampled the same way along their own rays: azimuth and
 elevation are taken about the model's ``panorama_axis`` (its optical axis,
 or up for an equirectangular camera), and the band of elevations follows
@@ -38,7 +38,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from .camera import (INVERSE_CHECK_INNER_FRACTION, OcamModel, angles_from_axis, angular_pixel_size,
+from ifmi.geometry.camera import (INVERSE_CHECK_INNER_FRACTION, OcamModel, angles_from_axis, angular_pixel_size,
                      elevation_from_radius, inverse_round_trip_error, pixel_offsets_from_sensor, pixels_from_rays,
                      pixels_from_sensor, rays_from_pixels)
 
@@ -680,7 +680,7 @@ def lit_off_axis_band(model, image: np.ndarray, *, margin_rad: float = 0.0,
     """Off-axis angles ``(inner, outer)`` (radians) of the lit rings of an image of a non-OCamCalib model.
 
     The image counterpart of :func:`radius_band` for the models of
-    :mod:`ifmi.camera_models`: rings of rays at a fixed angle from the
+    :mod:`ifmi.geometry.camera_models`: rings of rays at a fixed angle from the
     panorama axis (:func:`panorama_axis_rotation`) are probed from 0 to pi,
     each on the pixels of it that lie inside the image and the model's
     valid region. A ring is lit when at least ``config.rim_lit_fraction``
@@ -692,7 +692,7 @@ def lit_off_axis_band(model, image: np.ndarray, *, margin_rad: float = 0.0,
     Parameters
     ----------
     model : CameraModel
-        Not an :class:`~ifmi.camera.OcamModel` (use :func:`radius_band`).
+        Not an :class:`~ifmi.geometry.camera.OcamModel` (use :func:`radius_band`).
     image : (H, W) or (H, W, 3) ndarray
     margin_rad : float, keyword-only
         Taken off each edge of the band that is not the axis or its opposite
@@ -796,7 +796,7 @@ def angular_pixel_size_in_band(model, *, config: PanoramaConfig = PanoramaConfig
                                band: tuple[float, float] | None = None) -> float:
     """Angle (radians) one image pixel subtends in the panorama band of a camera model.
 
-    :func:`ifmi.camera.angular_pixel_size` is measured at sample points of
+    :func:`ifmi.geometry.camera.angular_pixel_size` is measured at sample points of
     the band. For an OCamCalib model they lie on the calibration's circles at
     sensor radii evenly spread over the band (through the affine part), and
     the result is the median over the radii of each circle's median; for

@@ -22,8 +22,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .camera import OcamModel, pixel_offsets_from_sensor, pixels_from_sensor
-from .unwarp import denoised_gray_from_image  # pixels are judged lit as for the radius band
+from ifmi.geometry.camera import OcamModel, pixel_offsets_from_sensor, pixels_from_sensor
+from ifmi.spectral.panorama import denoised_gray_from_image  # pixels are judged lit as for the radius band
 
 __all__ = ["RimCircle", "model_images_a_rim", "rim_circle_from_frames"]
 

@@ -19,7 +19,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 __all__ = ["TilingConfig", "TileLayout", "tile_layout", "tiles_from_panorama", "tile_size_px", "tile_step_px",
            "tile_grid_shape", "tile_corner_strengths", "strongest_tiles_per_column", "MIN_TILE_SIZE_PX"]
 
-# Smallest tile side in pixels: the Fourier-Mellin registration (ifmi.fourier_mellin.FourierMellin)
+# Smallest tile side in pixels: the Fourier-Mellin registration (ifmi.spectral.fourier_mellin.FourierMellin)
 # needs at least 8 samples along each axis of a tile and of its log-polar grid.
 MIN_TILE_SIZE_PX = 8
 
@@ -35,7 +35,7 @@ class TilingConfig:
         rounded to an even number, which suits the FFT), a fraction of the
         panorama width when < 1 (the tile it gives must have at least
         :data:`MIN_TILE_SIZE_PX` pixels too, checked against the camera by
-        :func:`ifmi.config_limits.check_config_for_model`); ``None``
+        :func:`ifmi.spectral.config_limits.check_config_for_model`); ``None``
         is a 16th of the width, kept within 32..64 pixels (64 at the usual
         1024 px width: smaller tiles carry too little texture on noisy
         images, larger ones move less rigidly).
@@ -43,8 +43,8 @@ class TilingConfig:
         Fraction of a tile shared with its neighbour, in ``[0, 1)``. Near 1
         the step from tile to tile is a pixel or two and a frame gets tens
         of thousands of tiles; the estimate's entry points refuse more than
-        :func:`ifmi.fourier_mellin.max_tile_count`
-        (:func:`ifmi.config_limits.check_config_for_model`).
+        :func:`ifmi.spectral.fourier_mellin.max_tile_count`
+        (:func:`ifmi.spectral.config_limits.check_config_for_model`).
     """
 
     tile_size: float | None = None

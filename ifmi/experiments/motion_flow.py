@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from .errors import InputError
+from ifmi.errors import InputError
 
 __all__ = ["MOTION_FLOW_FILE", "motion_flow_sample"]
 
@@ -45,10 +45,10 @@ def motion_flow_sample(dataset_dir: str | os.PathLike, *, config,
     InputError
         An unreadable dataset, or frames outside it.
     """
-    from .flow import flow_from_tile_motion, flow_sample_points
-    from .io.dataset import read_dataset, read_image
-    from .spectral_front_end import IfmiFrontEnd
-    from .unwarp import panorama_image_from_omni_image
+    from ifmi.spectral.flow import flow_from_tile_motion, flow_sample_points
+    from ifmi.io.dataset import read_dataset, read_image
+    from ifmi.spectral.ifmi_front_end import IfmiFrontEnd
+    from ifmi.spectral.panorama import panorama_image_from_omni_image
 
     dataset = read_dataset(dataset_dir)
     a, b = (int(f) for f in frames)

@@ -13,11 +13,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from .camera import OcamModel, max_image_radius
-from .errors import InputError
-from .fourier_mellin import TILE_MEMORY_BUDGET_BYTES, max_tile_count, registration_bytes_per_tile
-from .tiling import MIN_TILE_SIZE_PX, TilingConfig, tile_grid_shape, tile_size_px, tile_step_px
-from .unwarp import angular_pixel_size_in_band, off_axis_band, panorama_mapping, radius_band
+from ifmi.geometry.camera import OcamModel, max_image_radius
+from ifmi.errors import InputError
+from ifmi.spectral.fourier_mellin import TILE_MEMORY_BUDGET_BYTES, max_tile_count, registration_bytes_per_tile
+from ifmi.spectral.tiling import MIN_TILE_SIZE_PX, TilingConfig, tile_grid_shape, tile_size_px, tile_step_px
+from ifmi.spectral.panorama import angular_pixel_size_in_band, off_axis_band, panorama_mapping, radius_band
 
 __all__ = ["check_config_for_model"]
 
@@ -38,10 +38,10 @@ def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=No
     image band; half the image diagonal for camera models other than
     OCamCalib, which take no band radii), for the ``"ifmi"`` method a tile
     given as a fraction of the panorama width has at least
-    :data:`~ifmi.tiling.MIN_TILE_SIZE_PX` pixels and the log-polar grids
+    :data:`~ifmi.spectral.tiling.MIN_TILE_SIZE_PX` pixels and the log-polar grids
     are at most four times the tile side, the tiles of a frame (of the
     layout, and of the dense retry's at ``ifmi.dense_overlap``) at most
-    :func:`ifmi.fourier_mellin.max_tile_count` (a tile larger than the
+    :func:`ifmi.spectral.fourier_mellin.max_tile_count` (a tile larger than the
     panorama is reported by the front end, naming the calibration), and a feature
     front end's ``radius_band`` lies inside the image. Explicit band radii in ``config`` (e.g. decided from the frames)
     are the band checked. A bundle-adjustment window needs a global shutter.
@@ -50,7 +50,7 @@ def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=No
     Parameters
     ----------
     config : ifmi.pipeline.EstimateConfig
-    model : OcamModel or another camera model (:mod:`ifmi.camera_models`)
+    model : OcamModel or another camera model (:mod:`ifmi.geometry.camera_models`)
     method : str, keyword-only
     calib_path : path, optional, keyword-only
         The calibration file ``model`` was read from: a problem of the
@@ -102,7 +102,7 @@ def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=No
 def _check_pixel_threshold(config, model) -> None:
     """A RANSAC threshold in pixels must convert to under pi radians for this camera.
 
-    Rays are at most pi apart, so :class:`~ifmi.relative_pose.RelativePoseOptions`
+    Rays are at most pi apart, so :class:`~ifmi.backend.relative_pose.RelativePoseOptions`
     takes a radian threshold in (0, pi) only; the pixel threshold is converted
     with the angle a pixel of the camera's band subtends.
     """
@@ -187,8 +187,8 @@ def _check_tiles(config, mapping) -> None:
 def _tile_count_problem(shape: tuple, tiling: TilingConfig, registration) -> str | None:
     """Why the layout ``tiling`` gives a panorama of ``shape`` too many tiles to register, or None.
 
-    The limit is :func:`ifmi.fourier_mellin.max_tile_count`: the tiles whose registration fits
-    :data:`~ifmi.fourier_mellin.TILE_MEMORY_BUDGET_BYTES`. A near-1 overlap makes steps of a pixel
+    The limit is :func:`ifmi.spectral.fourier_mellin.max_tile_count`: the tiles whose registration fits
+    :data:`~ifmi.spectral.fourier_mellin.TILE_MEMORY_BUDGET_BYTES`. A near-1 overlap makes steps of a pixel
     or two between tiles, and hundreds of thousands of tiles per frame.
     """
     tile = tile_size_px(tiling.tile_size, shape[1])

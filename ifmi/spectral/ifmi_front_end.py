@@ -14,20 +14,20 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .camera import OcamModel
-from .options import options_from_dict
-from .front_end import Correspondences
-from .flow import (flow_from_placements, flow_from_tile_motion, flow_sample_points, pairs_with_rays_a,
+from ifmi.geometry.camera import OcamModel
+from ifmi.options import options_from_dict
+from ifmi.front_end import Correspondences
+from ifmi.spectral.flow import (flow_from_placements, flow_from_tile_motion, flow_sample_points, pairs_with_rays_a,
                    points_on_centroids)
-from .global_motion import GlobalMotion, GlobalMotionConfig, GlobalMotionEstimator
-from .fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, PlacedRegistration, PlacedTiles,
+from ifmi.spectral.global_motion import GlobalMotion, GlobalMotionConfig, GlobalMotionEstimator
+from ifmi.spectral.fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, PlacedRegistration, PlacedTiles,
                             TileSpectra)
-from .errors import CalibrationFitError
-from .relative_pose import rotation_angles, rotation_from_rays
-from .rotations import geodesic_angle, matrix_aligning_rays
-from .tiling import (TileLayout, TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_layout,
+from ifmi.errors import CalibrationFitError
+from ifmi.backend.relative_pose import rotation_angles, rotation_from_rays
+from ifmi.geometry.rotations import geodesic_angle, matrix_aligning_rays
+from ifmi.spectral.tiling import (TileLayout, TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_layout,
                      tile_size_px, tiles_from_panorama)
-from .unwarp import (PANORAMA_INTERPOLATIONS, PanoramaConfig, PanoramaMapping, gray_from_image,
+from ifmi.spectral.panorama import (PANORAMA_INTERPOLATIONS, PanoramaConfig, PanoramaMapping, gray_from_image,
                      panorama_image_from_omni_image, panorama_mapping, panorama_pixels_from_rays,
                      rays_from_panorama_pixels)
 
@@ -60,7 +60,7 @@ class IfmiConfig:
         Offset of the outer flow points from the tile centre, fraction of the tile size.
     flow_at_energy_centroid : bool
         Centre each tile's flow points on the energy centroid of its
-        reference tile (:func:`ifmi.fourier_mellin.energy_centroids`)
+        reference tile (:func:`ifmi.spectral.fourier_mellin.energy_centroids`)
         instead of the tile centre. Under translation the motion varies
         across a tile with the depth of what it sees; the registration
         measures the motion where the tile's texture energy lies, which on
@@ -86,7 +86,7 @@ class IfmiConfig:
         are cut anew from the layout.
     coarse_to_fine : bool
         Before the tiles, estimate the large part of the rotation from whole
-        low-resolution panoramas (:mod:`ifmi.global_motion`), starting from
+        low-resolution panoramas (:mod:`ifmi.spectral.global_motion`), starting from
         the predicted rotation, and cut the tiles where that estimate puts
         them; when the tiles then fail, search again from the identity
         (re-acquisition after a lost track). Needs ``use_prior``.
@@ -105,7 +105,7 @@ class IfmiConfig:
         When at most this fraction of the tiles pass at the coarse stage's
         rotation (after any re-acquisition) and that rotation is more than
         ``global_motion.confirm_angle_rad`` from the prediction, its wide
-        search (:meth:`ifmi.global_motion.GlobalMotionEstimator.wide_search`,
+        search (:meth:`ifmi.spectral.global_motion.GlobalMotionEstimator.wide_search`,
         from starts tilted around the prediction) looks for a clearly better
         rotation, and the tiles are registered there instead. A tilt of ten
         degrees between frames can smear the whole-panorama correlation into
@@ -148,7 +148,7 @@ class IfmiConfig:
     dense_tiles_per_column : int or None
         The retry registers only this many tiles of each column of the
         denser layout, those whose texture best fixes a shift in frame a
-        (:func:`ifmi.tiling.tile_corner_strengths`), instead of all of them
+        (:func:`ifmi.spectral.tiling.tile_corner_strengths`), instead of all of them
         (None). Its cost falls with the tile count; see the README's retry
         section for what it does to the accuracy.
     anchor_templates : bool
@@ -187,7 +187,7 @@ class IfmiConfig:
         ``min_width_curved`` wide (sharp high-resolution images); narrower
         ones are bilinear. Bilinear interpolation shifts fine texture by a
         sub-pixel amount fixed in the omni image
-        (:func:`~ifmi.unwarp.panorama_image_from_omni_image`); an anchored
+        (:func:`~ifmi.spectral.panorama.panorama_image_from_omni_image`); an anchored
         template keeps its frame's shift for its whole track. See the
         README's sharp-image section for what the Lanczos kernel gains and costs.
     min_width_curved : int
@@ -242,7 +242,7 @@ class IfmiConfig:
     half_turn_yaw_window_rad : float
         The turned rotation is refined by the coarse stage with its yaw kept
         within this of the start (radians, 0.35 = 20 degrees;
-        :meth:`~ifmi.global_motion.GlobalMotionEstimator.search_near`). The
+        :meth:`~ifmi.spectral.global_motion.GlobalMotionEstimator.search_near`). The
         turn is about the vertical, so the start's yaw is right to within
         the cameras' tilt from it and its tilt is off by up to twice that
         (0.10-0.26 rad on the atelier pairs that took the half turn). With
@@ -397,7 +397,7 @@ class IfmiFrameState:
     layout : TileLayout
     engine : FourierMellin
     coarse_panorama : (h, w) float32 ndarray or None
-        Low-resolution panorama of the coarse stage (:mod:`ifmi.global_motion`).
+        Low-resolution panorama of the coarse stage (:mod:`ifmi.spectral.global_motion`).
     """
 
     def __init__(self, padded_panorama: np.ndarray, pad: int, layout: TileLayout, engine: FourierMellin,
@@ -435,7 +435,7 @@ class IfmiFrameState:
 
     @property
     def spectra(self) -> TileSpectra:
-        """Spectra of all layout tiles (:class:`~ifmi.fourier_mellin.TileSpectra`), computed on first access."""
+        """Spectra of all layout tiles (:class:`~ifmi.spectral.fourier_mellin.TileSpectra`), computed on first access."""
         if self._spectra is None:
             self._spectra = self._engine.spectra(self.layout_tiles())
         return self._spectra
@@ -632,7 +632,7 @@ class IfmiFrontEnd:
             Panorama ``(row, col)`` of the tile centres in frame a.
         linear_a : (T, 2, 2) ndarray
         curvature_a : (T, 2, 2, 2) ndarray or None
-            ``Q_a`` (see :meth:`ifmi.fourier_mellin.FourierMellin.resample_placed`); None is zero.
+            ``Q_a`` (see :meth:`ifmi.spectral.fourier_mellin.FourierMellin.resample_placed`); None is zero.
         prior_rotation : (3, 3) ndarray
             Predicted ``R_ab``.
 

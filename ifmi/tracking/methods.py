@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from typing import Any, Callable, Iterable
 
-from .errors import InputError, one_line
+from ifmi.errors import InputError, one_line
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -76,14 +76,14 @@ class MethodInfo:
 
 def ifmi_front_end(model, config):
     """The extended iFMI front end: per-tile Fourier-Mellin registration on the panorama."""
-    from .spectral_front_end import IfmiFrontEnd
+    from ifmi.spectral.ifmi_front_end import IfmiFrontEnd
 
     return IfmiFrontEnd(model, config.ifmi)
 
 
 # The built-in methods, in report order, with their colours in every figure.
 BUILTIN_METHODS = (
-    MethodInfo("ifmi", "ifmi.methods:ifmi_front_end",
+    MethodInfo("ifmi", "ifmi.tracking.methods:ifmi_front_end",
                "extended iFMI: per-tile Fourier-Mellin registration on the panorama, "
                "flow rays", "built-in", "tab:red", uses_tiling=True),
     MethodInfo("orb", "ifmi.features:orb_front_end",
@@ -219,14 +219,14 @@ def create_front_end(method: str, model, config):
     something without ``prepare`` and ``correspondences``, is reported as
     an :class:`InputError` naming the method (built-in factories' errors
     pass unchanged). A third-party front end comes back wrapped in
-    :class:`~ifmi.checked_front_end.CheckedFrontEnd`, which holds what it
+    :class:`~ifmi.tracking.checked_front_end.CheckedFrontEnd`, which holds what it
     returns to the contract.
 
     Returns
     -------
     FrontEnd
     """
-    from .checked_front_end import CheckedFrontEnd
+    from ifmi.tracking.checked_front_end import CheckedFrontEnd
 
     factory = load_factory(method)
     if method in builtin_method_names():

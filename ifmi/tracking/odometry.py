@@ -20,10 +20,10 @@ Front ends that declare ``uses_prior_rotation`` receive a predicted
 estimated poses) and may use it to look for the motion near the prediction.
 Front ends with ``accept_pose`` are told each successful frame's ``R_0k``
 (:mod:`ifmi.front_end`). Two more hooks are the iFMI front end's own (a
-plugin's are not passed through :class:`~ifmi.checked_front_end.CheckedFrontEnd`):
+plugin's are not passed through :class:`~ifmi.tracking.checked_front_end.CheckedFrontEnd`):
 ``rescue_correspondences`` gets a pair that failed to match or to solve,
 and ``half_turn_alternative`` every solved pair, for which it may return
-another solution (see their docstrings in :mod:`ifmi.spectral_front_end`).
+another solution (see their docstrings in :mod:`ifmi.spectral.ifmi_front_end`).
 
 A frame whose estimate fails keeps the last pose (flagged with a reason)
 and never becomes a reference: its held pose is not its true pose, and its
@@ -39,9 +39,9 @@ keep failing after a reset, each is also matched against the last good
 frame before it, and a match with at least ``KeyframeOptions.min_inliers``
 inliers puts the track back on the true chain, without the offset.
 
-With a rolling-shutter read-out time (:class:`~ifmi.rolling_shutter.RollingShutterOptions`)
+With a rolling-shutter read-out time (:class:`~ifmi.backend.rolling_shutter.RollingShutterOptions`)
 each relative pose is re-fitted with every ray moved to its image's middle
-row (:mod:`ifmi.rolling_shutter`). Each frame's angular velocity comes
+row (:mod:`ifmi.backend.rolling_shutter`). Each frame's angular velocity comes
 from the relative rotations of the successfully estimated frames around it,
 taken as linear in time: interpolated at the reference, extrapolated half
 an interval at the new frame (given the current fit).
@@ -49,12 +49,12 @@ an interval at the new frame (given the current fit).
 Positions chain the estimated translation directions as unit-length steps
 per frame: monocular translation is known only up to scale.
 
-With a bundle-adjustment window (:class:`~ifmi.bundle_adjustment.BundleAdjustmentOptions`,
+With a bundle-adjustment window (:class:`~ifmi.backend.bundle_adjustment.BundleAdjustmentOptions`,
 off by default) the trajectory is refined over the points the frames
 share: each accepted pair's inlier rays are kept, rays of one frame handed
 to two pairs are joined into tracks, and the chained poses are adjusted
 by a fixed-lag smoother over the last ``window`` frames
-(:func:`~ifmi.bundle_adjustment.poses_from_sliding_window`). The records
+(:func:`~ifmi.backend.bundle_adjustment.poses_from_sliding_window`). The records
 keep each pair's own estimate; the trajectory holds the refined poses.
 It needs a global shutter (a rolling-shutter fit moves each pair's rays
 by its own velocities).
@@ -70,13 +70,13 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .bundle_adjustment import BundleAdjustmentOptions, poses_from_sliding_window, tracks_from_pair_rays
-from .errors import InputError
-from .frames import MissingFrame
-from .relative_pose import RelativePoseOptions, relative_pose_from_rays
-from .rolling_shutter import (RollingShutterOptions, angular_velocity_from_rotation, relative_pose_rolling_shutter,
+from ifmi.backend.bundle_adjustment import BundleAdjustmentOptions, poses_from_sliding_window, tracks_from_pair_rays
+from ifmi.errors import InputError
+from ifmi.frames import MissingFrame
+from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays
+from ifmi.backend.rolling_shutter import (RollingShutterOptions, angular_velocity_from_rotation, relative_pose_rolling_shutter,
                               velocity_after_intervals, velocity_at_frame)
-from .trajectory import Trajectory
+from ifmi.geometry.trajectory import Trajectory
 
 __all__ = ["KeyframeOptions", "FrameRecord", "FRAME_COLUMNS", "RECOVERED_AFTER_RESET", "REFINE_FAILURE", "Tracker", "track_sequence"]
 
@@ -143,7 +143,7 @@ class FrameRecord:
         Rotation angle from the reference frame, radians.
     rotation_sigma_rad : float
         Predicted RMS error of that rotation from the relative-pose fit's
-        noise and geometry (:attr:`ifmi.relative_pose.RelativePoseInfo.rotation_sigma_rad`),
+        noise and geometry (:attr:`ifmi.backend.relative_pose.RelativePoseInfo.rotation_sigma_rad`),
         radians; NaN for frame 0, failed frames and unknown noise.
     diagnostics : dict
         Front-end figures (JSON scalars).
@@ -250,11 +250,11 @@ class Tracker:
     keyframe : KeyframeOptions, keyword-only
     pose_solver : callable, keyword-only
         ``pose_solver(rays_a, rays_b, *, options, rays_per_measurement) -> (pose, info)``
-        like :func:`ifmi.relative_pose.relative_pose_from_rays` (the default);
+        like :func:`ifmi.backend.relative_pose.relative_pose_from_rays` (the default);
         another solver can be compared on the same front end.
     rolling_shutter : RollingShutterOptions, keyword-only
         With a read-out time, every pose is re-fitted with the rays moved
-        to their image's middle row (:mod:`ifmi.rolling_shutter`; the rows
+        to their image's middle row (:mod:`ifmi.backend.rolling_shutter`; the rows
         are those of the correspondences' ``pixels_a`` and ``pixels_b``,
         frames taken as equally spaced). Default: a global shutter.
     bundle_adjustment : BundleAdjustmentOptions, keyword-only

@@ -1,6 +1,6 @@
 """Motion flow: pixel pairs from tile motions, in the panorama and the omni image.
 
-For each kept tile the flow equation (:func:`ifmi.fourier_mellin.transform_points`)
+For each kept tile the flow equation (:func:`ifmi.spectral.fourier_mellin.transform_points`)
 maps a few points ``q`` of tile b (its centre and points around it) to
 ``M(q)`` in tile a; adding the tile's origin gives panorama ``(row, col)``
 pairs, which the panorama mapping turns into omni-image pixels and rays.
@@ -12,10 +12,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .fourier_mellin import TileMotion, transform_points
-from .tiling import TileLayout
-from .camera import pixels_from_rays
-from .unwarp import PanoramaMapping, panorama_pixels_from_rays, rays_from_panorama_pixels
+from ifmi.spectral.fourier_mellin import TileMotion, transform_points
+from ifmi.spectral.tiling import TileLayout
+from ifmi.geometry.camera import pixels_from_rays
+from ifmi.spectral.panorama import PanoramaMapping, panorama_pixels_from_rays, rays_from_panorama_pixels
 
 __all__ = ["FlowPairs", "flow_sample_points", "points_on_centroids", "flow_from_tile_motion",
            "flow_from_placements", "pairs_with_rays_a"]
@@ -117,7 +117,7 @@ def points_on_centroids(points: np.ndarray, centroids: np.ndarray) -> np.ndarray
         Tile ``(row, col)`` points of :func:`flow_sample_points` (around the tile centre).
     centroids : (T, 2) ndarray
         ``(row, col)`` of each tile's centroid, pixels from its centre
-        (:attr:`ifmi.fourier_mellin.TileSpectra.centroid`).
+        (:attr:`ifmi.spectral.fourier_mellin.TileSpectra.centroid`).
 
     Returns
     -------

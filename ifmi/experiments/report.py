@@ -28,16 +28,16 @@ from typing import Sequence
 
 import numpy as np
 
-from .dataset_names import dataset_labels, resolved_folder
-from .errors import InputError, OutputError
-from .io.atomic import (atomic_write_json, atomic_write_text, check_output_folder, folder_of_kind,
+from ifmi.evaluation.dataset_names import dataset_labels, resolved_folder
+from ifmi.errors import InputError, OutputError
+from ifmi.io.atomic import (atomic_write_json, atomic_write_text, check_output_folder, folder_of_kind,
                         path_within, write_folder)
-from .io.provenance import package_versions as _package_versions
-from .io.results import (EvaluationRecord, is_evaluation_dir, jsonable, read_evaluation,
+from ifmi.io.provenance import package_versions as _package_versions
+from ifmi.io.results import (EvaluationRecord, is_evaluation_dir, jsonable, read_evaluation,
                          read_motion_flow, write_motion_flow)
-from .methods import method_sort_key
-from .metrics import AXES, EvaluationSummary
-from .motion_flow import MOTION_FLOW_FILE
+from ifmi.tracking.methods import method_sort_key
+from ifmi.evaluation.metrics import AXES, EvaluationSummary
+from ifmi.experiments.motion_flow import MOTION_FLOW_FILE
 
 __all__ = [
     "ReportInputs",
@@ -153,7 +153,7 @@ def records_with_distinct_scenes(records: Sequence[EvaluationRecord]) -> list[Ev
     come from different dataset folders (``office_200`` and
     ``office_200_phone``, or ``site_a/office`` and ``site_b/office``), each
     such record's scene becomes ``SCENE-LABEL`` (LABEL the folder's
-    distinct display name, :func:`ifmi.dataset_names.dataset_labels`, with
+    distinct display name, :func:`ifmi.evaluation.dataset_names.dataset_labels`, with
     ``/`` as ``_``) so that no row, figure or copied folder replaces another.
     A scene evaluated on a single dataset keeps its name.
     """
@@ -196,11 +196,11 @@ def scene_tables(records: Sequence[EvaluationRecord]) -> dict:
     -------
     dict
         ``{scene: {method: row}}``; a row is
-        :meth:`ifmi.metrics.EvaluationSummary.flat` (``rmse_roll_rad``,
+        :meth:`ifmi.evaluation.metrics.EvaluationSummary.flat` (``rmse_roll_rad``,
         ``mean_roll_rad``, ``std_roll_rad``, ..., ``rmse_mean_rad``,
         ``rmse_geodesic_rad``, ``time_per_frame_s``, ``failures``,
         ``frames``) plus ``evaluation`` (the folder). Methods are in
-        :func:`ifmi.methods.method_sort_key` order, any name included.
+        :func:`ifmi.tracking.methods.method_sort_key` order, any name included.
     """
     tables: dict = {}
     for rec in records:
@@ -432,7 +432,7 @@ def _ratio_blocks(ratios: dict) -> list:
 
 def _rpy_blocks(records: Sequence[EvaluationRecord], figures: Path) -> tuple[list, dict]:
     """Fig. 4-style orientation plots, one per scene with every method in it."""
-    from .plots import rpy_over_frames
+    from ifmi.experiments.plots import rpy_over_frames
 
     by_scene: dict = {}
     for rec in records:
@@ -463,7 +463,7 @@ def _flow_sample(rec: EvaluationRecord, *, compute: bool, store: Path | None) ->
     dataset's images there is no sample; a dataset that cannot be read is a
     warning, not an error.
     """
-    from .motion_flow import motion_flow_sample
+    from ifmi.experiments.motion_flow import motion_flow_sample
 
     stored = rec.path / MOTION_FLOW_FILE
     if stored.is_file():
@@ -472,7 +472,7 @@ def _flow_sample(rec: EvaluationRecord, *, compute: bool, store: Path | None) ->
     if (not compute or not rec.config or rec.config.get("config") is None or not dataset
             or not Path(dataset, "images").is_dir()):
         return None
-    from .pipeline import EstimateConfig
+    from ifmi.pipeline import EstimateConfig
 
     try:
         sample = motion_flow_sample(dataset, config=EstimateConfig.from_dict(rec.config["config"]))
@@ -486,7 +486,7 @@ def _flow_sample(rec: EvaluationRecord, *, compute: bool, store: Path | None) ->
 
 def _motion_flow_blocks(records: Sequence[EvaluationRecord], figures: Path, *, compute: bool,
                         data: Path | None) -> list:
-    from .plots import motion_flow_figure
+    from ifmi.experiments.plots import motion_flow_figure
 
     blocks = []
     for rec in records:
@@ -524,8 +524,8 @@ def _sweep_names(sweeps: Sequence[Path]) -> dict:
 
 
 def _sweep_blocks(sweep_dir: Path, figures: Path, *, name: str) -> tuple[list, dict]:
-    from .plots import sweep_heatmap
-    from .sweep import METRICS, records_table, sweep_records
+    from ifmi.experiments.plots import sweep_heatmap
+    from ifmi.experiments.sweep import METRICS, records_table, sweep_records
 
     records = sweep_records(sweep_dir)
     blocks = [("h3", f"Sweep: {name}")]

@@ -47,9 +47,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from .dataset_names import dataset_folder_id, dataset_labels, display_name, resolved_folder
-from .errors import InputError, OutputError, json_excerpt, one_line
-from .io.atomic import (atomic_write_bytes, atomic_write_json, atomic_write_text, check_output_folder,
+from ifmi.evaluation.dataset_names import dataset_folder_id, dataset_labels, display_name, resolved_folder
+from ifmi.errors import InputError, OutputError, json_excerpt, one_line
+from ifmi.io.atomic import (atomic_write_bytes, atomic_write_json, atomic_write_text, check_output_folder,
                         folder_of_kind, probe_writable, write_folder)
 
 __all__ = [
@@ -221,7 +221,7 @@ def dataset_digest(dataset: str | os.PathLike) -> str:
 
 def config_with_tiling(config, *, tile_size: float, overlap: float):
     """Copy of an :class:`ifmi.pipeline.EstimateConfig` with the iFMI tiling replaced."""
-    from .tiling import TilingConfig
+    from ifmi.spectral.tiling import TilingConfig
 
     tiling = TilingConfig(tile_size=tile_size, overlap=overlap)
     return replace(config, ifmi=replace(config.ifmi, tiling=tiling))
@@ -343,9 +343,9 @@ def run_cell(cell: SweepCell, *, out_dir: str, base_config: dict) -> dict:
               "config_digest": config_digest(base_config)}
     start = time.perf_counter()
     try:
-        from .evaluation import evaluate_files, summary_of
-        from .io.results import write_estimate_run
-        from .pipeline import EstimateConfig, estimate_dataset
+        from ifmi.evaluation.trajectory_files import evaluate_files, summary_of
+        from ifmi.io.results import write_estimate_run
+        from ifmi.pipeline import EstimateConfig, estimate_dataset
 
         gt = Path(cell.dataset) / "groundtruth.txt"
         if not gt.is_file():
@@ -393,7 +393,7 @@ def _prepare_output(out_dir: str | os.PathLike, document: dict) -> Path:
     folder of an input dataset (``images/``, ...) is refused: it would add
     entries to the frames.
     """
-    from .io.dataset import refuse_output_in_datasets
+    from ifmi.io.dataset import refuse_output_in_datasets
 
     refuse_output_in_datasets(out_dir, (cell["dataset"] for cell in document["cells"]))
     out = check_output_folder(out_dir, is_own=is_sweep_dir,
@@ -560,7 +560,7 @@ def sweep_records(sweep_dir: str | os.PathLike) -> list[dict]:
         ``sweep.json`` unreadable, or its ``cells`` or ``base_config`` not
         of the form :func:`run_sweep` writes.
     """
-    from .io.config import read_json_object
+    from ifmi.io.config import read_json_object
 
     path = Path(sweep_dir) / "sweep.json"
     document = read_json_object(path, what="sweep file")
@@ -610,7 +610,7 @@ def _listed_cells(path: Path, document: dict) -> list[SweepCell]:
 def records_table(records: list[dict]):
     """Cell records as a pandas DataFrame, one row each, without their tracebacks.
 
-    Text values are display names (:func:`~ifmi.dataset_names.display_name`):
+    Text values are display names (:func:`~ifmi.evaluation.dataset_names.display_name`):
     a dataset path with bytes that are not UTF-8 holds lone surrogates, which
     Arrow, CSV and figure titles cannot take (the exact path stays in the
     cell's JSON).
@@ -631,7 +631,7 @@ def write_sweep_table(out_dir: str | os.PathLike, records: list[dict]) -> None:
     """
     import io
 
-    from .plots import sweep_heatmap
+    from ifmi.experiments.plots import sweep_heatmap
 
     out = Path(out_dir)
     table = records_table(records)

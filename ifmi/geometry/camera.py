@@ -1,7 +1,7 @@
 """Camera-model protocol, and the OCamCalib (Scaramuzza) omnidirectional model.
 
 Every camera model of the project (this OCamCalib model and the Kalibr and
-equirectangular models of :mod:`ifmi.camera_models`) is a frozen object with
+equirectangular models of :mod:`ifmi.geometry.camera_models`) is a frozen object with
 
 * ``size`` ``(height, width)``, ``height``, ``width``;
 * ``rays_from_pixels(pixels)``: ``(..., 2)`` ``(row, col)`` -> ``(..., 3)``
@@ -101,7 +101,7 @@ class CameraModel(Protocol):
 # Pixels whose lifted ray re-projects farther than this (px) are outside a model's valid region.
 VALID_ROUND_TRIP_PX = 1e-3
 # Smallest image side a calibration file may name, pixels: a panorama is at least 8 px
-# on a side (ifmi.unwarp.PanoramaConfig) and omnisim renders at least 8 px.
+# on a side (ifmi.spectral.panorama.PanoramaConfig) and omnisim renders at least 8 px.
 MIN_IMAGE_SIDE_PX = 8
 # Largest image side a calibration file may name, pixels: the panorama's fixed-point remap
 # maps (OpenCV CV_16SC2) hold pixel coordinates up to 32767.

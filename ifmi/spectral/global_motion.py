@@ -36,10 +36,10 @@ import cv2
 import numpy as np
 import scipy.fft
 
-from .rotations import matrix_from_rpy
-from .phase_correlation import (correlation_surface, find_peaks, hann_window, normalized_cross_power,
+from ifmi.geometry.rotations import matrix_from_rpy
+from ifmi.spectral.phase_correlation import (correlation_surface, find_peaks, hann_window, normalized_cross_power,
                                 windowed_spectra)
-from .unwarp import PanoramaMapping, rays_from_panorama_pixels
+from ifmi.spectral.panorama import PanoramaMapping, rays_from_panorama_pixels
 
 __all__ = ["GlobalMotionConfig", "GlobalMotion", "GlobalMotionEstimator", "rotation_from_ray_pairs"]
 
@@ -131,7 +131,7 @@ class GlobalMotionConfig:
         0.32 against 0.30), and there the scores do not rank rotations a
         few degrees apart: a result that only matches better is taken
         only for a pair that cannot be solved otherwise
-        (:meth:`ifmi.spectral_front_end.IfmiFrontEnd.rescue_correspondences`).
+        (:meth:`ifmi.spectral.ifmi_front_end.IfmiFrontEnd.rescue_correspondences`).
     settled_shift_px : float
         When the whole-panorama shift from a start is below this (coarse
         pixels) along both axes, the start is returned as it is and the
@@ -265,7 +265,7 @@ class _ReferenceSpectra:
 
 
 class GlobalMotionEstimator:
-    """Coarse rotation between two panoramas of one :class:`~ifmi.unwarp.PanoramaMapping`.
+    """Coarse rotation between two panoramas of one :class:`~ifmi.spectral.panorama.PanoramaMapping`.
 
     Parameters
     ----------

@@ -33,9 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError, one_line
-from .front_end import Correspondences
-from .odometry import FRAME_COLUMNS, RECOVERED_AFTER_RESET, REFINE_FAILURE
+from ifmi.errors import InputError, one_line
+from ifmi.front_end import Correspondences
+from ifmi.tracking.odometry import FRAME_COLUMNS, RECOVERED_AFTER_RESET, REFINE_FAILURE
 
 __all__ = ["RAY_NORM_TOLERANCE", "CheckedFrontEnd", "checked_correspondences"]
 

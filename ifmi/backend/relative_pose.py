@@ -36,7 +36,7 @@ that are inliers of either model only.
 
 The inlier threshold is an angle. Its default is a number of pixels
 (``ransac_threshold_px``) times the angle one pixel subtends, which only the
-caller knows (:func:`ifmi.unwarp.angular_pixel_size_in_band` for a calibration);
+caller knows (:func:`ifmi.spectral.panorama.angular_pixel_size_in_band` for a calibration);
 :meth:`RelativePoseOptions.resolved` turns one into the other, and an
 explicit ``ransac_threshold_rad`` overrides it.
 
@@ -58,8 +58,8 @@ import poselib
 from scipy.optimize import brentq
 from scipy.special import bdtrc
 
-from .options import check_finite_fields
-from .rotations import cross_product_matrix, geodesic_angle
+from ifmi.options import check_finite_fields
+from ifmi.geometry.rotations import cross_product_matrix, geodesic_angle
 
 __all__ = [
     "RelativePoseOptions",

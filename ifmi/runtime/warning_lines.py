@@ -9,7 +9,7 @@ file, a fallback) only the message matters. Inside
 * :class:`~ifmi.errors.InputWarning`, and a plain ``UserWarning`` (or
   subclass) raised by the project's own packages (``ifmi``, ``omnisim``):
   these are messages for the user, e.g. the mirror band fallback of
-  :func:`ifmi.unwarp.radius_band`; each message once (a message raised for
+  :func:`ifmi.spectral.panorama.radius_band`; each message once (a message raised for
   every frame of a folder, e.g. the bit depth of its 16-bit images, is
   printed the first time);
 * a ``RuntimeWarning`` (e.g. NumPy's ``invalid value encountered in
@@ -29,7 +29,7 @@ import warnings
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
-from ..errors import InputWarning
+from ifmi.errors import InputWarning
 
 __all__ = ["input_warnings_as_lines"]
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from .camera import (
+from ifmi.geometry.camera import (
     INVERSE_TOLERANCE_PX,
     OcamModel,
     check_affine,
@@ -32,7 +32,7 @@ from .camera import (
     model_from_direct_polynomial,
     valid_mask,
 )
-from .camera_models import (
+from ifmi.geometry.camera_models import (
     DoubleSphereModel,
     ExtendedUnifiedModel,
     KannalaBrandtModel,
@@ -40,7 +40,7 @@ from .camera_models import (
     UnifiedModel,
     check_usable_region,
 )
-from .unwarp import inverse_polynomial_error
+from ifmi.spectral.panorama import inverse_polynomial_error
 
 __all__ = ["TARGETS", "CalibrationFit", "fit_camera_model", "reprojection_errors", "rays_in_frame_of",
            "percent_below"]
@@ -306,7 +306,7 @@ def fit_camera_model(source, target: str) -> CalibrationFit:
     Parameters
     ----------
     source : camera model
-        Any model of :mod:`ifmi.camera` / :mod:`ifmi.camera_models`
+        Any model of :mod:`ifmi.geometry.camera` / :mod:`ifmi.geometry.camera_models`
         (equirectangular cameras are no source: no lens model fits them).
     target : str
 

@@ -9,7 +9,7 @@ Conventions
   identity in both, so no alignment is applied (as ``evo_ape`` without
   ``--align``).
 * Per-axis error is the wrapped difference ``est - gt`` of roll, pitch and
-  yaw (:func:`ifmi.rotations.rpy_from_matrix`), in radians.
+  yaw (:func:`ifmi.geometry.rotations.rpy_from_matrix`), in radians.
 * Geodesic error is the angle of ``R_gt^T R_est``; the relative error is the
   geodesic error of the motion between consecutive associated frames.
 """
@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .trajectory import Trajectory
-from .rotations import geodesic_angle, rpy_from_matrix, wrap_angle
+from ifmi.geometry.trajectory import Trajectory
+from ifmi.geometry.rotations import geodesic_angle, rpy_from_matrix, wrap_angle
 
 __all__ = [
     "AXES",

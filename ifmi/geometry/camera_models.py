@@ -1,6 +1,6 @@
 """Central wide-angle camera models of Kalibr, and the equirectangular 360-degree camera.
 
-Every model here follows the camera-model protocol of :mod:`ifmi.camera`
+Every model here follows the camera-model protocol of :mod:`ifmi.geometry.camera`
 (``rays_from_pixels``, ``pixels_from_rays``, ``valid_pixels``,
 ``field_of_view_rad``, ``scaled``) and keeps its toolbox's camera frame:
 
@@ -37,7 +37,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .camera import VALID_ROUND_TRIP_PX, SizedImage, angular_pixel_size, measured_field_of_view
+from ifmi.geometry.camera import VALID_ROUND_TRIP_PX, SizedImage, angular_pixel_size, measured_field_of_view
 
 __all__ = [
     "UnifiedModel",

@@ -1,7 +1,7 @@
 """Evaluate an estimate run against ground truth and save the result as files.
 
 Reads the TUM files and the run's side files, computes the errors of
-:mod:`ifmi.metrics` and writes an evaluation folder
+:mod:`ifmi.evaluation.metrics` and writes an evaluation folder
 (:func:`ifmi.io.results.write_evaluation`).
 """
 
@@ -15,14 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .dataset_names import display_name
-from .errors import InputError, InputWarning, OutputError
-from .io.dataset import dataset_meta, refuse_output_in_datasets
-from .io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
-from .io.tum import read_tum
-from .metrics import (AXES, MAX_POSITION, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors,
+from ifmi.evaluation.dataset_names import display_name
+from ifmi.errors import InputError, InputWarning, OutputError
+from ifmi.io.dataset import dataset_meta, refuse_output_in_datasets
+from ifmi.io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
+from ifmi.io.tum import read_tum
+from ifmi.evaluation.metrics import (AXES, MAX_POSITION, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors,
                       trajectory_errors)
-from .trajectory import Trajectory
+from ifmi.geometry.trajectory import Trajectory
 
 __all__ = ["EvaluateOptions", "GateVerdict", "MIN_ASSOCIATED", "default_evaluation_dir",
            "evaluate_files", "format_summary_table", "dataset_label", "dataset_provenance",
@@ -46,7 +46,7 @@ class EvaluateOptions:
         :data:`MIN_ASSOCIATED` poses must be associated.
     origin_tolerance_rad : float
         The trajectories are compared re-based to their first associated
-        frame (:func:`~ifmi.metrics.trajectory_errors`); a ground-truth
+        frame (:func:`~ifmi.evaluation.metrics.trajectory_errors`); a ground-truth
         pose there further than this from the identity (radians, > 0; the
         default allows quaternions written with five decimals) is reported
         with a warning, since it means the files do not start on the same
@@ -82,7 +82,7 @@ def dataset_label(dataset_dir: str | os.PathLike | None) -> tuple[str, str]:
     ``scene``: a string, or a mapping with ``name``) entry of its
     ``meta.json`` when present, otherwise the dataset name. Bytes of a
     folder name that are not UTF-8 show as U+FFFD
-    (:func:`~ifmi.dataset_names.display_name`).
+    (:func:`~ifmi.evaluation.dataset_names.display_name`).
     """
     if dataset_dir is None:
         return "unknown", "unknown"
@@ -173,7 +173,7 @@ def _check_matched(gt_path: Path, est_path: Path, n_matched: int, n_gt: int, n_e
 
 
 def _check_positions(path: Path, trajectory: Trajectory) -> None:
-    """Refuse a position coordinate beyond :data:`~ifmi.metrics.MAX_POSITION` (errors would overflow)."""
+    """Refuse a position coordinate beyond :data:`~ifmi.evaluation.metrics.MAX_POSITION` (errors would overflow)."""
     largest = np.abs(trajectory.positions).max(axis=1)
     if largest.max() > MAX_POSITION:
         k = int(np.argmax(largest > MAX_POSITION))
@@ -253,7 +253,7 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     InputError
         Missing or malformed input files, the estimate being the ground-truth
         file itself, a position coordinate beyond
-        :data:`~ifmi.metrics.MAX_POSITION`, duplicate timestamps, side files
+        :data:`~ifmi.evaluation.metrics.MAX_POSITION`, duplicate timestamps, side files
         that do not belong to the estimate, fewer associated poses than
         ``options.min_matched`` of the ground truth's or of the estimate's,
         or fewer than :data:`MIN_ASSOCIATED`.

@@ -1,0 +1,1 @@
+"""The shared back end: relative pose with model selection, bundle adjustment, rolling-shutter compensation."""

@@ -1,0 +1,1 @@
+"""Errors of an estimate against ground truth: metrics, and the evaluation of trajectory files."""

@@ -1,0 +1,1 @@
+"""Sweeps of the tiling parameters, reports and their plots."""

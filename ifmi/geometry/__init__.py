@@ -1,0 +1,1 @@
+"""Camera models, rotations, trajectories and calibration fitting: pure geometry, no I/O."""

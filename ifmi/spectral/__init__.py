@@ -1,0 +1,1 @@
+"""The iFMI front end: panorama, tiling, phase correlation, Fourier-Mellin registration, tile flow and the coarse stage."""

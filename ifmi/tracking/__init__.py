@@ -1,0 +1,1 @@
+"""Sequences: the odometry (frame to frame and keyframes), the front-end registry and the plugin checks."""
