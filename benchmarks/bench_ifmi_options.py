@@ -4,7 +4,7 @@ Measures what one option costs or buys, e.g. the dense retry
 (``dense_retry_fraction=0`` turns it off) or the coarse stage
 (``coarse_to_fine=false``)::
 
-    python benchmarks/bench_ifmi_options.py /work/data/sets36/office_trans_x10 \
+    python benchmarks/bench_ifmi_options.py DATA/fast/office_trans_x10 \
         --variant no_retry:dense_retry_fraction=0 --rounds 5 --out out/bench_ifmi_options
 
 A variant is ``NAME:KEY=VALUE[,KEY=VALUE...]`` with keys of the ``ifmi``
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench_methods import mode_config, run_method
+from benchlib import mode_config, run_method
 from ifmi.evaluation.dataset_names import dataset_labels, resolved_folder
 from ifmi.io.atomic import atomic_write_json
 from ifmi.io.camera_file import calibration_path, read_camera

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench_methods import METHODS, MODES, labelled_datasets, mode_config, run_method
+from benchlib import METHODS, MODES, labelled_datasets, mode_config, run_method
 from ifmi.errors import InputError
 from ifmi.io.camera_file import calibration_path, read_camera
 from ifmi.io.config import read_estimate_config
