@@ -115,155 +115,181 @@ def _film_dict(width: int, height: int) -> dict:
             "rfilter": {"type": "box"}, "pixel_format": "rgb"}
 
 
+class _OmniSensorMethods:
+    """The ``omnicam`` sensor's methods; :func:`register_omni_sensor` copies them into a ``mi.Sensor`` subclass.
+
+    ``self._mi`` is the imported ``mitsuba`` module (its variant set) the sensor was registered with.
+    """
+
+    def _setup(self, props):
+        # A pinhole-like viewpoint: no aperture sample is drawn (as Mitsuba's perspective camera).
+        self.m_needs_sample_3 = False
+        self.camera_model = props.get("camera_model", "ocamcalib")
+        if self.camera_model != "ocamcalib":
+            self._setup_model_params(props)
+        else:
+            self._setup_polynomial(props)
+        self._setup_pose(props)
+
+    def _setup_polynomial(self, props):
+        mi = self._mi
+        pol = _parse_floats(props.get("pol", "1"))
+        if len(pol) < 1:
+            raise ValueError("omnicam: 'pol' needs at least one coefficient")
+        self.n_coeffs = max(len(pol), MIN_POLY_COEFFS)
+        pol = pol + [0.0] * (self.n_coeffs - len(pol))
+        self.pol = mi.Float(pol)
+        self._coeffs = []
+        self.center = mi.Point2f(props.get("center_row", 0.0), props.get("center_col", 0.0))
+        self.affine = mi.Vector3f(props.get("affine_c", 1.0), props.get("affine_d", 0.0),
+                                  props.get("affine_e", 0.0))
+        self.band = mi.Vector2f(props.get("radius_min", 0.0),
+                                props.get("radius_max", float("inf")))
+
+    def _setup_model_params(self, props):
+        from .camera_rays import RAY_KINDS, parameter_count
+
+        if self.camera_model not in RAY_KINDS:
+            raise ValueError(f"omnicam: unknown camera_model {self.camera_model!r}; expected "
+                             f"ocamcalib or one of {RAY_KINDS}")
+        values = _parse_floats(props.get("params", ""))
+        self.n_coeffs = parameter_count(self.camera_model)
+        if len(values) != self.n_coeffs:
+            raise ValueError(f"omnicam: {self.camera_model} expects {self.n_coeffs} params, "
+                             f"got {len(values)}")
+        self.params = self._mi.Float(values)
+
+    def _setup_pose(self, props):
+        from .capture import RayTiming
+
+        mi = self._mi
+        matrix = np.eye(4, dtype=np.float32)
+        if "to_world" in props:
+            matrix = np.array(props["to_world"].matrix, dtype=np.float32)
+        self.to_world = mi.Transform4f(np.ascontiguousarray(matrix))
+        self.timing = RayTiming(mi, props, self.film().size().y, matrix)
+        self._make_opaque()
+
+    def _kernel_data(self):
+        """Scalars (width-1 opaque variables) and lookup table of the model's ray code."""
+        import drjit as dr
+
+        from .camera_rays import kernel_data, model_from_parameters
+
+        size = self.film().size()
+        model = model_from_parameters(self.camera_model, np.array(self.params, dtype=np.float64),
+                                      (size.y, size.x))
+        scalars, table = kernel_data(model)
+        self.table = self._mi.Float(table)
+        self._coeffs = [self._mi.Float(v) for v in scalars]
+        dr.make_opaque(self.table)
+
+    def _make_opaque(self, calibration_changed: bool = True):
+        import drjit as dr
+
+        if self.camera_model != "ocamcalib":
+            dr.make_opaque(self.params, self.to_world)
+            # Derived from the calibration (and the film size) on the host: a new calibration
+            # gives new values of the same opaque variables, not a new kernel. A new pose alone
+            # keeps them (building a radtan table takes up to seconds).
+            if calibration_changed:
+                self._kernel_data()
+        else:
+            dr.make_opaque(self.pol, self.center, self.affine, self.band, self.to_world)
+            # One width-1 opaque variable per coefficient: a kernel parameter, not a per-lane gather.
+            self._coeffs = [dr.gather(self._mi.Float, self.pol, i) for i in range(self.n_coeffs)]
+        dr.make_opaque(*self._coeffs)
+        if self.timing.enabled:
+            self.timing.update(self.to_world)
+
+    def traverse(self, callback):
+        flag = self._mi.ParamFlags.NonDifferentiable
+        callback.put("to_world", self.to_world, flag)
+        if self.camera_model != "ocamcalib":
+            callback.put("params", self.params, flag)
+        else:
+            callback.put("pol", self.pol, flag)
+            callback.put("center", self.center, flag)
+            callback.put("affine", self.affine, flag)
+            callback.put("band", self.band, flag)
+        self.timing.traverse(callback)
+
+    def parameters_changed(self, keys=None):
+        import drjit as dr
+
+        if self.camera_model != "ocamcalib" and dr.width(self.params) != self.n_coeffs:
+            raise ValueError(f"omnicam: expected {self.n_coeffs} {self.camera_model} params, "
+                             f"got {dr.width(self.params)}")
+        if self.camera_model == "ocamcalib" and dr.width(self.pol) != self.n_coeffs:
+            raise ValueError(f"omnicam: expected {self.n_coeffs} polynomial coefficients "
+                             f"(zero-padded), got {dr.width(self.pol)}")
+        self._make_opaque(calibration_changed=not keys or "params" in keys)
+
+    def _camera_ray(self, sample2):
+        import drjit as dr
+
+        mi = self._mi
+        film = self.film()
+        crop_size = mi.ScalarVector2f(film.crop_size())
+        crop_offset = mi.ScalarVector2f(film.crop_offset())
+        # Film position in pixels; pixel centres sit at x + 0.5, hence the shift.
+        col = dr.fma(sample2.x, crop_size.x, crop_offset.x - 0.5)
+        row = dr.fma(sample2.y, crop_size.y, crop_offset.y - 0.5)
+        if self.camera_model != "ocamcalib":
+            from .camera_rays import rays_from_film
+
+            return rays_from_film(dr, mi, self.camera_model, self._coeffs, self.table, row, col)
+        c, d, e = self.affine.x, self.affine.y, self.affine.z
+        inv_det = dr.rcp(c - d * e)
+        dr_ = row - self.center.x
+        dc_ = col - self.center.y
+        xp = (dr_ - d * dc_) * inv_det
+        yp = (c * dc_ - e * dr_) * inv_det
+        radius = dr.sqrt(dr.fma(xp, xp, yp * yp))
+        zp = self._coeffs[-1]
+        for coeff in self._coeffs[-2::-1]:
+            zp = dr.fma(zp, radius, coeff)
+        in_band = (radius >= self.band.x) & (radius <= self.band.y)
+        direction = dr.normalize(mi.Vector3f(xp, yp, zp))
+        return direction, in_band
+
+    def sample_ray(self, time, sample1, sample2, sample3, active=True):
+        import drjit as dr
+
+        mi = self._mi
+        wavelengths, wav_weight = self.sample_wavelengths(
+            dr.zeros(mi.SurfaceInteraction3f), sample1, active)
+        direction, in_band = self._camera_ray(sample2)
+        if self.timing.enabled:
+            origin, world_dir = self.timing.posed_ray(self.to_world, time, sample2, self.film(), direction)
+        else:
+            origin = self.to_world @ mi.Point3f(0.0, 0.0, 0.0)
+            world_dir = self.to_world @ direction
+        maxt = dr.select(in_band, dr.largest(mi.Float), 0.0)
+        ray = mi.Ray3f(origin, world_dir, maxt, time, wavelengths)
+        weight = dr.select(in_band, wav_weight, 0.0)
+        return ray, weight
+
+    def sample_ray_differential(self, time, sample1, sample2, sample3, active=True):
+        ray, weight = self.sample_ray(time, sample1, sample2, sample3, active)
+        ray_diff = self._mi.RayDifferential3f(ray)
+        ray_diff.has_differentials = False
+        return ray_diff, weight
+
+    def to_string(self):
+        return f"OmniSensor[{self.camera_model}, n_coeffs={self.n_coeffs}]"
+
+
 def register_omni_sensor(mi) -> None:
-    """Register the ``omnicam`` sensor plugin with the imported Mitsuba module."""
-    import drjit as dr
+    """Register the ``omnicam`` sensor plugin with the imported Mitsuba module (its variant set)."""
 
-    from .capture import RayTiming
+    def __init__(self, props):
+        mi.Sensor.__init__(self, props)
+        self._mi = mi
+        self._setup(props)
 
-    class OmniSensor(mi.Sensor):
-        """OCamCalib catadioptric camera as a Mitsuba sensor."""
-
-        def __init__(self, props):
-            super().__init__(props)
-            # A pinhole-like viewpoint: no aperture sample is drawn (as Mitsuba's perspective camera).
-            self.m_needs_sample_3 = False
-            self.camera_model = props.get("camera_model", "ocamcalib")
-            if self.camera_model != "ocamcalib":
-                self._init_model_params(props)
-                return
-            pol = _parse_floats(props.get("pol", "1"))
-            if len(pol) < 1:
-                raise ValueError("omnicam: 'pol' needs at least one coefficient")
-            self.n_coeffs = max(len(pol), MIN_POLY_COEFFS)
-            pol = pol + [0.0] * (self.n_coeffs - len(pol))
-            self.pol = mi.Float(pol)
-            self._coeffs = []
-            self.center = mi.Point2f(props.get("center_row", 0.0), props.get("center_col", 0.0))
-            self.affine = mi.Vector3f(props.get("affine_c", 1.0), props.get("affine_d", 0.0),
-                                      props.get("affine_e", 0.0))
-            self.band = mi.Vector2f(props.get("radius_min", 0.0),
-                                    props.get("radius_max", float("inf")))
-            matrix = np.eye(4, dtype=np.float32)
-            if "to_world" in props:
-                matrix = np.array(props["to_world"].matrix, dtype=np.float32)
-            self.to_world = mi.Transform4f(np.ascontiguousarray(matrix))
-            self.timing = RayTiming(mi, props, self.film().size().y, matrix)
-            self._make_opaque()
-
-        def _init_model_params(self, props):
-            from .camera_rays import RAY_KINDS, parameter_count
-
-            if self.camera_model not in RAY_KINDS:
-                raise ValueError(f"omnicam: unknown camera_model {self.camera_model!r}; expected "
-                                 f"ocamcalib or one of {RAY_KINDS}")
-            values = _parse_floats(props.get("params", ""))
-            self.n_coeffs = parameter_count(self.camera_model)
-            if len(values) != self.n_coeffs:
-                raise ValueError(f"omnicam: {self.camera_model} expects {self.n_coeffs} params, "
-                                 f"got {len(values)}")
-            self.params = mi.Float(values)
-            matrix = np.eye(4, dtype=np.float32)
-            if "to_world" in props:
-                matrix = np.array(props["to_world"].matrix, dtype=np.float32)
-            self.to_world = mi.Transform4f(np.ascontiguousarray(matrix))
-            self.timing = RayTiming(mi, props, self.film().size().y, matrix)
-            self._make_opaque()
-
-        def _kernel_data(self):
-            """Scalars (width-1 opaque variables) and lookup table of the model's ray code."""
-            from .camera_rays import kernel_data, model_from_parameters
-
-            size = self.film().size()
-            model = model_from_parameters(self.camera_model, np.array(self.params, dtype=np.float64),
-                                          (size.y, size.x))
-            scalars, table = kernel_data(model)
-            self.table = mi.Float(table)
-            self._coeffs = [mi.Float(v) for v in scalars]
-            dr.make_opaque(self.table)
-
-        def _make_opaque(self, calibration_changed: bool = True):
-            if self.camera_model != "ocamcalib":
-                dr.make_opaque(self.params, self.to_world)
-                # Derived from the calibration (and the film size) on the host: a new calibration
-                # gives new values of the same opaque variables, not a new kernel. A new pose alone
-                # keeps them (building a radtan table takes up to seconds).
-                if calibration_changed:
-                    self._kernel_data()
-            else:
-                dr.make_opaque(self.pol, self.center, self.affine, self.band, self.to_world)
-                # One width-1 opaque variable per coefficient: a kernel parameter, not a per-lane gather.
-                self._coeffs = [dr.gather(mi.Float, self.pol, i) for i in range(self.n_coeffs)]
-            dr.make_opaque(*self._coeffs)
-            if self.timing.enabled:
-                self.timing.update(self.to_world)
-
-        def traverse(self, callback):
-            callback.put("to_world", self.to_world, mi.ParamFlags.NonDifferentiable)
-            if self.camera_model != "ocamcalib":
-                callback.put("params", self.params, mi.ParamFlags.NonDifferentiable)
-            else:
-                callback.put("pol", self.pol, mi.ParamFlags.NonDifferentiable)
-                callback.put("center", self.center, mi.ParamFlags.NonDifferentiable)
-                callback.put("affine", self.affine, mi.ParamFlags.NonDifferentiable)
-                callback.put("band", self.band, mi.ParamFlags.NonDifferentiable)
-            self.timing.traverse(callback)
-
-        def parameters_changed(self, keys=None):
-            if self.camera_model != "ocamcalib" and dr.width(self.params) != self.n_coeffs:
-                raise ValueError(f"omnicam: expected {self.n_coeffs} {self.camera_model} params, "
-                                 f"got {dr.width(self.params)}")
-            if self.camera_model == "ocamcalib" and dr.width(self.pol) != self.n_coeffs:
-                raise ValueError(f"omnicam: expected {self.n_coeffs} polynomial coefficients "
-                                 f"(zero-padded), got {dr.width(self.pol)}")
-            self._make_opaque(calibration_changed=not keys or "params" in keys)
-
-        def _camera_ray(self, sample2):
-            film = self.film()
-            crop_size = mi.ScalarVector2f(film.crop_size())
-            crop_offset = mi.ScalarVector2f(film.crop_offset())
-            # Film position in pixels; pixel centres sit at x + 0.5, hence the shift.
-            col = dr.fma(sample2.x, crop_size.x, crop_offset.x - 0.5)
-            row = dr.fma(sample2.y, crop_size.y, crop_offset.y - 0.5)
-            if self.camera_model != "ocamcalib":
-                from .camera_rays import rays_from_film
-
-                return rays_from_film(dr, mi, self.camera_model, self._coeffs, self.table, row, col)
-            c, d, e = self.affine.x, self.affine.y, self.affine.z
-            inv_det = dr.rcp(c - d * e)
-            dr_ = row - self.center.x
-            dc_ = col - self.center.y
-            xp = (dr_ - d * dc_) * inv_det
-            yp = (c * dc_ - e * dr_) * inv_det
-            radius = dr.sqrt(dr.fma(xp, xp, yp * yp))
-            zp = self._coeffs[-1]
-            for coeff in self._coeffs[-2::-1]:
-                zp = dr.fma(zp, radius, coeff)
-            in_band = (radius >= self.band.x) & (radius <= self.band.y)
-            direction = dr.normalize(mi.Vector3f(xp, yp, zp))
-            return direction, in_band
-
-        def sample_ray(self, time, sample1, sample2, sample3, active=True):
-            wavelengths, wav_weight = self.sample_wavelengths(
-                dr.zeros(mi.SurfaceInteraction3f), sample1, active)
-            direction, in_band = self._camera_ray(sample2)
-            if self.timing.enabled:
-                origin, world_dir = self.timing.posed_ray(self.to_world, time, sample2, self.film(), direction)
-            else:
-                origin = self.to_world @ mi.Point3f(0.0, 0.0, 0.0)
-                world_dir = self.to_world @ direction
-            maxt = dr.select(in_band, dr.largest(mi.Float), 0.0)
-            ray = mi.Ray3f(origin, world_dir, maxt, time, wavelengths)
-            weight = dr.select(in_band, wav_weight, 0.0)
-            return ray, weight
-
-        def sample_ray_differential(self, time, sample1, sample2, sample3, active=True):
-            ray, weight = self.sample_ray(time, sample1, sample2, sample3, active)
-            ray_diff = mi.RayDifferential3f(ray)
-            ray_diff.has_differentials = False
-            return ray_diff, weight
-
-        def to_string(self):
-            return f"OmniSensor[{self.camera_model}, n_coeffs={self.n_coeffs}]"
-
+    # nanobind types take one base: the methods are copied into the subclass of mi.Sensor.
+    methods = {k: v for k, v in vars(_OmniSensorMethods).items() if callable(v) and not k.startswith("__")}
+    OmniSensor = type("OmniSensor", (mi.Sensor,), {**methods, "__init__": __init__,
+                                                  "__doc__": _OmniSensorMethods.__doc__})
     mi.register_sensor(PLUGIN_NAME, lambda props: OmniSensor(props))
