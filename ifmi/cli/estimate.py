@@ -26,7 +26,7 @@ from pathlib import Path
 from ..errors import CalibrationFitError, InputError, InputWarning
 from ..methods import load_factory
 from ..options import RejectedValues, replaced_at_paths
-from ..pipeline import EstimateConfig, estimate_dataset, estimate_video
+from ..pipeline import EstimateConfig, estimate_bag, estimate_dataset, estimate_video
 
 # Exit status when the outputs were written but more than half of the frames failed.
 EXIT_MOSTLY_FAILED = 3
@@ -87,11 +87,15 @@ def add_parser(subparsers) -> None:
                "frames failed.",
     )
     p.add_argument("dataset", metavar="DATASET",
-                   help="dataset folder, or a video file (.mp4, .avi, ...; needs --calib)")
+                   help="dataset folder, a video file (.mp4, .avi, ...; needs --calib), or a ROS bag "
+                        "(.bag, .mcap, .db3, or a ROS 2 bag folder; needs --calib)")
     p.add_argument("--calib", metavar="CALIB",
-                   help="calib_results.txt (or camera.yaml) of a video's camera (timestamps come "
-                        "from the video). A dataset folder is estimated with its own calibration: "
-                        "with a folder, --calib must name that file or is refused")
+                   help="calib_results.txt (or camera.yaml) of a video's or a bag's camera (timestamps "
+                        "come from the video or the messages). A dataset folder is estimated with its own "
+                        "calibration: with a folder, --calib must name that file or is refused")
+    p.add_argument("--topic", metavar="TOPIC",
+                   help="a bag's image topic (sensor_msgs/Image or CompressedImage; default: the bag's "
+                        "only image topic)")
     p.add_argument("--method", metavar="METHOD",
                    help="front end: a name that 'ifmi methods' lists, or package.module:factory "
                         "(default: the method of a --config run file, else ifmi)")
@@ -325,6 +329,7 @@ def _warn_ignored_options(method: str, given: dict) -> None:
 
 def run(args) -> int:
     from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
+    from ..io.bags import BAG_SUFFIXES, BagFrames, is_bag_path
     from ..io.video import VIDEO_SUFFIXES, is_video_path
 
     config_file, given, config = _configuration(args)
@@ -332,20 +337,29 @@ def run(args) -> int:
     load_factory(method)  # an unknown or broken method fails before any work
     _warn_ignored_options(method, given)
     out = Path(args.out)
-    video = is_video_path(args.dataset)
+    bag = is_bag_path(args.dataset)
+    video = bag or is_video_path(args.dataset)  # a sequence file with its own --calib
     if not video and Path(args.dataset).is_file():
-        raise InputError(args.dataset, f"neither a dataset folder nor a video (expected a folder with "
-                                       f"calib_results.txt or camera.yaml and images/, or a video file ending "
-                                       f"in {', '.join(VIDEO_SUFFIXES)} with --calib)")
+        raise InputError(args.dataset, f"neither a dataset folder, a video nor a ROS bag (expected a folder "
+                                       f"with calib_results.txt or camera.yaml and images/, a video file "
+                                       f"ending in {', '.join(VIDEO_SUFFIXES)}, or a bag ending in "
+                                       f"{', '.join(BAG_SUFFIXES)} or a ROS 2 bag folder, with --calib)")
     if video and not args.calib:
-        raise InputError(args.dataset, "a video needs --calib CALIB (calib_results.txt)")
+        raise InputError(args.dataset, f"a {'bag' if bag else 'video'} needs --calib CALIB (calib_results.txt)")
+    if args.topic is not None and not bag:
+        raise InputError("--topic", f"is for a ROS bag; {args.dataset} is not one")
     if args.calib and not video:
         _check_folder_calib(args.dataset, args.calib)
     inputs = ((args.dataset, args.calib) if video else ()) + ((args.config,) if args.config else ())
     dataset_dir = None if video else args.dataset
     check_estimate_outputs(args.out, dataset_dir=dataset_dir, input_files=inputs, overwrite=args.force)
     try:
-        if video:
+        # The topic is checked (and chosen when not given) before the calibration is read.
+        topic = BagFrames(args.dataset, topic=args.topic).topic if bag else None
+        if bag:
+            estimate = estimate_bag(args.dataset, args.calib, topic=topic, method=method, config=config,
+                                    progress=not args.no_progress)
+        elif video:
             estimate = estimate_video(args.dataset, args.calib, method=method, config=config,
                                       progress=not args.no_progress)
         else:
@@ -354,7 +368,10 @@ def run(args) -> int:
     except InputError as exc:
         raise _blamed(exc, given, config_file) from None
     extra = {"derived": _derived_keys(config, estimate.config)}
-    if video:
+    if bag:
+        extra.update(bag=str(Path(args.dataset).resolve()), topic=topic,
+                     calib=str(Path(args.calib).resolve()))
+    elif video:
         extra.update(video=str(Path(args.dataset).resolve()), calib=str(Path(args.calib).resolve()))
     write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs, extra=extra,
                        overwrite=args.force)
