@@ -81,18 +81,21 @@ _LISTED_TOPICS = 8
 
 # What the libraries under the bag readers (files, SQLite, MCAP's decompressors, struct unpacking)
 # raise for a damaged or truncated bag.
+# (lz4 raises RuntimeError; a damaged length field in MCAP an OverflowError.)
 _STORAGE_ERRORS = (OSError, EOFError, ValueError, KeyError, IndexError, struct.error, sqlite3.Error,
-                   RuntimeError, AssertionError, UnicodeDecodeError)
+                   RuntimeError, AssertionError, ArithmeticError, UnicodeDecodeError)
 
 
 def bag_read_errors() -> tuple:
     """The exception types raised for a bag's content: ``rosbags``' own and those of the storage under it."""
+    import apsw  # the SQLite binding of ROS 2 .db3 storage (a dependency of rosbags)
     from rosbags.highlevel import AnyReaderError
     from rosbags.rosbag1 import ReaderError as Reader1Error
     from rosbags.rosbag2 import ReaderError as Reader2Error
     from rosbags.serde import SerdeError
+    from ruamel.yaml.error import YAMLError  # metadata.yaml of a ROS 2 bag folder
 
-    return (AnyReaderError, Reader1Error, Reader2Error, SerdeError) + _STORAGE_ERRORS
+    return (AnyReaderError, Reader1Error, Reader2Error, SerdeError, apsw.Error, YAMLError) + _STORAGE_ERRORS
 
 
 def is_bag_path(path: str | os.PathLike) -> bool:
