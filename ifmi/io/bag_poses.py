@@ -9,8 +9,8 @@ topics. :func:`read_bag_trajectory` reads them with the ``rosbags`` library
 * ``tf2_msgs/TFMessage`` (``/tf``): the pose of a ``child`` frame in a
   ``parent`` frame, composed along the tree's chain of transforms when they
   are several (``world -> base -> camera``). The chain is evaluated at the
-  stamps of its transform with the most messages; every other moving
-  transform is interpolated there (positions linearly, rotations along the
+  stamps of its moving transform nearest the child (the tracked body's own
+  measurements); every other moving transform is interpolated there (positions linearly, rotations along the
   shortest arc), and a time outside one's span is left out. Transforms of
   ``/tf_static`` are constant.
 
@@ -208,7 +208,7 @@ def _tf_trajectory(path: Path, reader, topic: str, frames: tuple[str, str]) -> T
     timed = [edge for edge, _ in chain if edge in moving and edge not in static]
     if not timed:
         raise InputError(path, f"the transforms from {parent} to {child} never change (all in {_STATIC_TF_TOPIC})")
-    clock = max(timed, key=lambda e: len(moving[e]))
+    clock = timed[-1]  # the moving transform nearest the child: its own measurement times
     times = np.unique([s[0] for s in moving[clock]])
     keep = np.ones(len(times), bool)
     rotations, positions = np.repeat(np.eye(3)[None], len(times), 0), np.zeros((len(times), 3))
