@@ -278,3 +278,26 @@ def test_estimate_cli_bad_bag_input_is_one_line(dataset, tmp_path, capsys):
         assert main(["estimate", *map(str, args), "--out", str(tmp_path / "e.txt"), "--no-progress"]) == 2
         err = capsys.readouterr().err
         assert expected in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_sweep_takes_a_bag_as_it_takes_the_folder(dataset, tmp_path, capsys):
+    import pandas as pd
+
+    bag = tmp_path / "ds_bag"
+    from omnisim.export import export_dataset
+
+    export_dataset(dataset, bag)
+    grid = ["--tile-size", "32", "--overlap", "0.5", "--scheduler", "synchronous", "--no-progress"]
+    assert main(["sweep", str(dataset), str(bag), "--calib", str(dataset / "calib_results.txt"),
+                 "--gt-topic", "/groundtruth/pose", "--out", str(tmp_path / "sweep"), *grid]) == 0
+    table = pd.read_csv(tmp_path / "sweep" / "sweep.csv").set_index("dataset")
+    assert list(table["status"]) == ["ok", "ok"]
+    for column in ("rmse_geodesic_rad", "rmse_relative_rad", "failures", "frames"):
+        # The bag's ground truth is not rounded to the TUM file's 12 decimals: equal to rounding.
+        assert table.loc["ds_bag", column] == pytest.approx(table.loc["ds", column], rel=1e-9), column
+    capsys.readouterr()
+    assert main(["sweep", str(bag), "--out", str(tmp_path / "other"), *grid]) == 2
+    assert "a bag needs --calib" in capsys.readouterr().err
+    assert main(["sweep", str(dataset), "--calib", str(dataset / "calib_results.txt"),
+                 "--out", str(tmp_path / "other"), *grid]) == 2
+    assert "--calib: is for ROS bags; no DATASET is one" in capsys.readouterr().err
