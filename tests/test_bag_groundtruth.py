@@ -141,12 +141,14 @@ def test_evaluate_reads_bag_ground_truth_as_it_reads_a_tum_file(tmp_path, capsys
     write_tum(tmp_path / "gt.txt", truth)
     bag = _write_poses(tmp_path / "gt.bag", truth, kind="Odometry", bag_format="ros1", topic="/odom")
     _write_estimate(tmp_path / "est.txt", truth)
-    from_tum = _evaluate(["--gt", tmp_path / "gt.txt", "--est", tmp_path / "est.txt", "--out", tmp_path / "a"], capsys)
+    from_tum = _evaluate(["--gt", tmp_path / "gt.txt", "--est", tmp_path / "est.txt", "--out", tmp_path / "a"],
+                         capsys)
     from_bag = _evaluate(["--gt", bag, "--gt-topic", "/odom", "--est", tmp_path / "est.txt", "--out", tmp_path / "b"],
                          capsys)
     assert from_bag.keys() == from_tum.keys() and from_tum["rmse_geodesic_rad"] > 0
     for name, value in from_tum.items():  # the TUM file rounds poses to 12 decimals, the bag does not
-        assert from_bag[name] == (None if value is None else pytest.approx(value, rel=1e-8, abs=1e-12, nan_ok=True)), name
+        expected = None if value is None else pytest.approx(value, rel=1e-8, abs=1e-12, nan_ok=True)
+        assert from_bag[name] == expected, name
 
 
 def test_evaluate_refuses_too_few_matches_as_for_tum_files(tmp_path, capsys):
@@ -156,7 +158,8 @@ def test_evaluate_refuses_too_few_matches_as_for_tum_files(tmp_path, capsys):
     _write_estimate(tmp_path / "est.txt", truth)
     errors = []
     for gt in (tmp_path / "gt.txt", bag):
-        assert main(["evaluate", "--gt", str(gt), "--est", str(tmp_path / "est.txt"), "--out", str(tmp_path / "e")]) == 2
+        assert main(["evaluate", "--gt", str(gt), "--est", str(tmp_path / "est.txt"),
+                     "--out", str(tmp_path / "e")]) == 2
         err = capsys.readouterr().err
         assert len(err.strip().splitlines()) == 1
         errors.append(err.replace(str(gt), "GT"))

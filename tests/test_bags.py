@@ -278,6 +278,9 @@ def test_estimate_cli_bad_bag_input_is_one_line(dataset, tmp_path, capsys):
         assert main(["estimate", *map(str, args), "--out", str(tmp_path / "e.txt"), "--no-progress"]) == 2
         err = capsys.readouterr().err
         assert expected in err and len(err.strip().splitlines()) == 1, err
+    single = _write_frames(tmp_path / "single", [np.zeros(MODEL.size, np.uint8)])
+    assert main(["estimate", str(single), "--calib", str(calib), "--out", str(single / "e.txt")]) == 1
+    assert "lies in the bag folder" in capsys.readouterr().err and not (single / "e.txt").exists()
 
 
 def test_a_sweep_takes_a_bag_as_it_takes_the_folder(dataset, tmp_path, capsys):

@@ -23,7 +23,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from ..errors import CalibrationFitError, InputError, InputWarning
+from ..errors import CalibrationFitError, InputError, InputWarning, OutputError
 from ..methods import load_factory
 from ..options import RejectedValues, replaced_at_paths
 from ..pipeline import EstimateConfig, estimate_bag, estimate_dataset, estimate_video
@@ -327,16 +327,22 @@ def _warn_ignored_options(method: str, given: dict) -> None:
                       f"--method {method} does not read {'it' if len(ignored) == 1 else 'them'}", InputWarning)
 
 
-def run(args) -> int:
-    from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
-    from ..io.bags import BAG_SUFFIXES, BagFrames, is_bag_path
+def _input_kind(args) -> tuple[bool, bool]:
+    """``(bag, video or bag)`` of the DATASET argument, with its options checked.
+
+    Raises
+    ------
+    InputError
+        A file that is neither a video nor a bag, a video or bag without
+        ``--calib``, ``--topic`` without a bag, or a folder's ``--calib``
+        that is not its own calibration.
+    OutputError
+        ``--out`` inside a ROS 2 bag folder.
+    """
+    from ..io.atomic import path_within
+    from ..io.bags import BAG_SUFFIXES, is_bag_path
     from ..io.video import VIDEO_SUFFIXES, is_video_path
 
-    config_file, given, config = _configuration(args)
-    method = chosen_method(args.method, config_file)
-    load_factory(method)  # an unknown or broken method fails before any work
-    _warn_ignored_options(method, given)
-    out = Path(args.out)
     bag = is_bag_path(args.dataset)
     video = bag or is_video_path(args.dataset)  # a sequence file with its own --calib
     if not video and Path(args.dataset).is_file():
@@ -348,8 +354,23 @@ def run(args) -> int:
         raise InputError(args.dataset, f"a {'bag' if bag else 'video'} needs --calib CALIB (calib_results.txt)")
     if args.topic is not None and not bag:
         raise InputError("--topic", f"is for a ROS bag; {args.dataset} is not one")
+    if bag and Path(args.dataset).is_dir() and path_within(args.out, args.dataset):
+        raise OutputError(args.out, f"lies in the bag folder {args.dataset}; choose a path outside it")
     if args.calib and not video:
         _check_folder_calib(args.dataset, args.calib)
+    return bag, video
+
+
+def run(args) -> int:
+    from ..io.bags import BagFrames
+    from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
+
+    config_file, given, config = _configuration(args)
+    method = chosen_method(args.method, config_file)
+    load_factory(method)  # an unknown or broken method fails before any work
+    _warn_ignored_options(method, given)
+    out = Path(args.out)
+    bag, video = _input_kind(args)
     inputs = ((args.dataset, args.calib) if video else ()) + ((args.config,) if args.config else ())
     dataset_dir = None if video else args.dataset
     check_estimate_outputs(args.out, dataset_dir=dataset_dir, input_files=inputs, overwrite=args.force)
