@@ -248,6 +248,10 @@ def test_a_frame_of_another_size_is_flagged(sequence, tmp_path):
     images[1] = images[1][:100]
     decoded = list(BagFrames(_write_frames(tmp_path / "b", images), size=MODEL.size))
     assert isinstance(decoded[1], MissingFrame) and "calibration" in decoded[1].reason
+    first_small = BagFrames(_write_frames(tmp_path / "first", images[1:]), size=MODEL.size)
+    for read in (first_small.spread_frames, lambda count: list(first_small)):  # the band's frames, the sequence
+        with pytest.raises(InputError, match="frame 0: image is 100x160 .* the calibration names 160x160"):
+            read(5)
 
 
 def _estimate(args, out):

@@ -37,7 +37,7 @@ import os
 import sqlite3
 import struct
 import warnings
-from contextlib import contextmanager
+from contextlib import closing, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -345,7 +345,8 @@ class BagFrames:
         source = f"{self.path} {self.topic} frame {message.index}"
         try:
             if self.msgtype == COMPRESSED_IMAGE_TYPE:
-                frame = image_from_bytes(bytes(ros.data), source=source, size=self.size, gray=gray)
+                frame = image_from_bytes(bytes(ros.data), source=source, size=self.size, gray=gray,
+                                         depth_source=self.path)
             else:
                 frame = _raw_frame(ros, source=str(self.path), gray=gray)
         except InputError as exc:
@@ -407,8 +408,8 @@ class BagFrames:
         """Up to ``count`` usable frames spread evenly over the topic, the first and the last included.
 
         The frames are those at ``linspace(0, frame_count - 1, count)``
-        rounded, as for a dataset folder; frames that cannot be used are
-        left out. Does not touch :attr:`timestamps` and warns of nothing.
+        rounded, as for a dataset folder; later frames that cannot be used
+        are left out. Does not touch :attr:`timestamps`.
 
         Parameters
         ----------
@@ -418,16 +419,23 @@ class BagFrames:
         Returns
         -------
         list of (H, W) or (H, W, 3) uint8 ndarray
+
+        Raises
+        ------
+        InputError
+            The first frame cannot be used or has another size than ``size``.
         """
         if count < 1:
             raise ValueError(f"expected count >= 1, got {count}")
         wanted = set(np.unique(np.linspace(0, self.frame_count - 1, min(count, self.frame_count))
                                .round().astype(int)).tolist())
         frames = []
-        with open_bag(self.path) as reader:
-            for message in self._messages(reader, []):
+        with open_bag(self.path) as reader, closing(self._messages(reader, [])) as messages:
+            for message in messages:
                 if message.index in wanted:
                     _, frame = self._decoded(reader, message, gray=self.gray)
+                    if isinstance(frame, str) and message.index == 0:
+                        raise InputError(self.path, f"{self.topic} frame 0: {frame}")
                     frames += [] if isinstance(frame, str) else [frame]
                 if message.index >= max(wanted):
                     break

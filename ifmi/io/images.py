@@ -372,7 +372,7 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
 
 
 def image_from_bytes(data: bytes, *, source: str | os.PathLike, size: tuple[int, int] | None = None,
-                     gray: bool = True) -> np.ndarray:
+                     gray: bool = True, depth_source: str | os.PathLike | None = None) -> np.ndarray:
     """Decode the bytes of a PNG or JPEG file exactly as :func:`read_image` decodes the file.
 
     For images that do not come from a file of their own (a compressed
@@ -387,6 +387,9 @@ def image_from_bytes(data: bytes, *, source: str | os.PathLike, size: tuple[int,
         What the bytes are, named in errors and warnings (a file, or a bag's frame).
     size, gray
         As for :func:`read_image`.
+    depth_source : str or path-like, optional, keyword-only
+        What the warning of a 16-bit image read at a smaller depth names
+        (default ``source``; one name for a whole sequence gives one line).
 
     Returns
     -------
@@ -399,7 +402,8 @@ def image_from_bytes(data: bytes, *, source: str | os.PathLike, size: tuple[int,
         Damaged or unreadable image data, or another size than ``size``,
         naming ``source``.
     """
-    return _decoded(data, source=source, size=size, gray=gray, depth_source=source)
+    return _decoded(data, source=source, size=size, gray=gray,
+                    depth_source=source if depth_source is None else depth_source)
 
 
 def _decoded(data: bytes, *, source, size, gray: bool, depth_source) -> np.ndarray:
