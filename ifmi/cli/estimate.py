@@ -79,7 +79,9 @@ def add_parser(subparsers) -> None:
         description="Estimate R_0k for every image of DATASET (calib_results.txt + images/) and "
                     "write a TUM trajectory plus NAME.frames.csv and NAME.config.json beside it. "
                     "Frame k is the image named by the integer k (000123.png is frame 123), and "
-                    "the trajectory's timestamps are those indices. A frame that fails keeps the "
+                    "the trajectory's timestamps are those indices. A video or a ROS bag (with "
+                    "--calib; a bag's image topic with --topic) is read frame by frame, its timestamps "
+                    "the frames' times in seconds. A frame that fails keeps the "
                     "previous orientation and is flagged.",
         epilog="exit status: 0 done; 1 an output could not be written or would replace a file of "
                "the dataset or an input file (--config, --calib, the video); 2 bad input (dataset, "
