@@ -1,8 +1,10 @@
 """Sweeps of the iFMI tiling parameters (tile size x overlap) with Dask.
 
 Each cell of the grid (dataset, method, tile size, overlap) estimates the
-dataset's trajectory, evaluates it against its ``groundtruth.txt`` and writes
-one JSON record atomically to ``OUT/cells/<cell id>.json``. A cell is keyed
+dataset's trajectory, evaluates it against its ``groundtruth.txt`` (a ROS
+bag: against its ground-truth topic, the frames read with the calibration
+the cell names) and writes one JSON record atomically to
+``OUT/cells/<cell id>.json``. A cell is keyed
 by its dataset's identity: the resolved folder (in the cell id, so two
 datasets of one name never share a cell) and a digest of its content
 (``meta.json``, calibration, ground truth, and the image files' names,

@@ -6,7 +6,7 @@ topics. :func:`read_bag_trajectory` reads them with the ``rosbags`` library
 
 * ``geometry_msgs/PoseStamped``, ``PoseWithCovarianceStamped``,
   ``TransformStamped`` and ``nav_msgs/Odometry``: one pose per message;
-* ``tf2_msgs/TFMessage`` (``/tf``): the pose of a ``child`` frame in a
+* ``tf2_msgs/TFMessage`` (``/tf``; also ROS 1's older ``tf/tfMessage``): the pose of a ``child`` frame in a
   ``parent`` frame, composed along the tree's chain of transforms when they
   are several (``world -> base -> camera``). The chain is evaluated at the
   stamps of its moving transform nearest the child (the tracked body's own
@@ -34,12 +34,13 @@ from ..rotations import matrix_from_quat_xyzw
 from ..trajectory import Trajectory
 from .bags import bag_read_errors, chosen_topic, open_bag, stamp_seconds
 
-__all__ = ["read_bag_trajectory", "POSE_TYPES", "TF_TYPE"]
+__all__ = ["read_bag_trajectory", "POSE_TYPES", "TF_TYPES"]
 
-TF_TYPE = "tf2_msgs/msg/TFMessage"
+#: Messages of a tf topic: tf2's, and the older tf's of early ROS 1 recordings (the same fields).
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 #: Message types of a pose topic, and where each keeps its pose.
 POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped",
-              "geometry_msgs/msg/TransformStamped", "nav_msgs/msg/Odometry", TF_TYPE)
+              "geometry_msgs/msg/TransformStamped", "nav_msgs/msg/Odometry") + TF_TYPES
 # The topic of transforms that do not change.
 _STATIC_TF_TOPIC = "/tf_static"
 # Nanoseconds per second.
@@ -124,13 +125,13 @@ def read_bag_trajectory(path: str | os.PathLike, *, topic: str | None = None,
     with open_bag(path) as reader:
         topic = chosen_topic(path, reader, topic, POSE_TYPES, what="pose", option=options[0])
         msgtype = reader.topics[topic].msgtype
-        if msgtype == TF_TYPE:
+        if msgtype in TF_TYPES:
             if frames is None:
                 raise InputError(path, f"topic {topic} holds transforms between frames; name the pose wanted "
                                        f"with {options[1]} PARENT CHILD")
             return _tf_trajectory(path, reader, topic, frames)
         if frames is not None:
-            raise InputError(path, f"{options[1]} is for a tf topic ({TF_TYPE}); {topic} holds {msgtype}")
+            raise InputError(path, f"{options[1]} is for a tf topic ({TF_TYPES[0]}); {topic} holds {msgtype}")
         stamps, positions, quaternions = [], [], []
         for _, receive_ns, message in _messages(path, reader, [topic]):
             position, quaternion = _pose_of(message, msgtype)
