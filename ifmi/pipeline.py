@@ -405,7 +405,7 @@ def estimate_bag(bag_path: str | os.PathLike, calib_path: str | os.PathLike, *, 
     from .io.camera_file import read_camera
 
     model = read_camera(Path(calib_path))
-    frames = BagFrames(bag_path, topic=topic, size=model.size)
+    frames = BagFrames(bag_path, topic=topic, size=model.size, prefetch=True)
     return _estimate_frames(frames, model, calib_path, method=method, config=config, progress=progress)
 
 

@@ -79,6 +79,22 @@ def test_every_bag_kind_yields_the_folder_frames_and_stamps(sequence, dataset, t
     assert frames.timestamps == pytest.approx(100 + np.arange(6) / 10, abs=1e-9)
 
 
+def test_prefetching_yields_the_same_frames_flags_and_warning(sequence, tmp_path):
+    images = [cv2.imencode(".png", image)[1].tobytes() for image in sequence.images]
+    images[3] = images[3][:200]  # a cut PNG: a flagged frame
+    stamps = [k * SECOND_NS for k in (0, 1, 1, 2, 3, 4)]  # a duplicate: one warning
+    bag = _write_frames(tmp_path / "b", images, stamps_ns=stamps, compressed="png")
+    read = {}
+    for prefetch in (False, True):
+        frames = BagFrames(bag, size=MODEL.size, prefetch=prefetch)
+        with pytest.warns(InputWarning) as caught:
+            read[prefetch] = (list(frames), frames.timestamps, [str(w.message) for w in caught])
+    plain, ahead = read[False], read[True]
+    assert plain[1:] == ahead[1:] and len(plain[2]) == 1
+    assert all(np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b for a, b in zip(plain[0], ahead[0]))
+    assert isinstance(ahead[0][3], MissingFrame)
+
+
 def test_a_bare_mcap_file_is_a_bag(sequence, tmp_path):
     folder = _write_frames(tmp_path / "folder", sequence.images[:3])
     bare = tmp_path / "frames.mcap"

@@ -37,7 +37,8 @@ import os
 import sqlite3
 import struct
 import warnings
-from contextlib import closing, contextmanager
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import closing, contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -285,6 +286,10 @@ class BagFrames:
     gray : bool, keyword-only
         Yield ``(H, W)`` gray frames (default); otherwise ``(H, W, 3)`` RGB
         (gray frames stay ``(H, W)``).
+    prefetch : bool, keyword-only
+        Decode the next frame in a background thread while the caller works
+        on the current one (decoding releases the GIL), as a dataset folder's
+        frames are read for an estimate.
 
     Attributes
     ----------
@@ -308,8 +313,9 @@ class BagFrames:
     """
 
     def __init__(self, path: str | os.PathLike, *, topic: str | None = None,
-                 size: tuple[int, int] | None = None, gray: bool = True):
+                 size: tuple[int, int] | None = None, gray: bool = True, prefetch: bool = False):
         self.path = Path(path)
+        self.prefetch = prefetch
         self.size = None if size is None else tuple(int(v) for v in size)
         self.gray = gray
         self.timestamps: list[float] = []
@@ -356,6 +362,23 @@ class BagFrames:
         problem = size_problem(*frame.shape[:2], self.size)
         return ros, (problem if problem else frame)
 
+    def _decoded_messages(self, reader, broke: list, pool: ThreadPoolExecutor | None):
+        """``(message, _decoded(message))`` in order; with ``pool`` the next message is decoded there
+        while the current one is with the caller."""
+        messages = self._messages(reader, broke)
+        if pool is None:
+            for message in messages:
+                yield message, self._decoded(reader, message, gray=self.gray)
+            return
+        pending = None
+        for message in messages:
+            future = pool.submit(self._decoded, reader, message, gray=self.gray)
+            if pending is not None:
+                yield pending[0], pending[1].result()
+            pending = (message, future)
+        if pending is not None:
+            yield pending[0], pending[1].result()
+
     def _time(self, ros, message: _Message, previous: float | None, spacing: float) -> tuple[float, bool]:
         """The frame's time in seconds and whether it was restamped (not after ``previous``)."""
         seconds = message.receive_ns / _NS_PER_S if ros is None else stamp_seconds(ros, message.receive_ns)
@@ -367,9 +390,9 @@ class BagFrames:
         self.timestamps = []
         broke: list[str] = []
         restamped: list[int] = []
-        with open_bag(self.path) as reader:
-            for message in self._messages(reader, broke):
-                ros, frame = self._decoded(reader, message, gray=self.gray)
+        with open_bag(self.path) as reader, \
+                (ThreadPoolExecutor(max_workers=1) if self.prefetch else nullcontext()) as pool:
+            for message, (ros, frame) in self._decoded_messages(reader, broke, pool):
                 seconds, moved = self._time(ros, message, self.timestamps[-1] if self.timestamps else None,
                                             self._spacing())
                 self.timestamps.append(seconds)
