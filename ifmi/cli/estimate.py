@@ -348,7 +348,7 @@ def _input_kind(args) -> tuple[bool, bool]:
     bag = is_bag_path(args.dataset)
     video = bag or is_video_path(args.dataset)  # a sequence file with its own --calib
     if not video and Path(args.dataset).is_file():
-        raise InputError(args.dataset, f"neither a dataset folder, a video nor a ROS bag (expected a folder "
+        raise InputError(args.dataset, f"neither a dataset folder nor a video nor a ROS bag (expected a folder "
                                        f"with calib_results.txt or camera.yaml and images/, a video file "
                                        f"ending in {', '.join(VIDEO_SUFFIXES)}, or a bag ending in "
                                        f"{', '.join(BAG_SUFFIXES)} or a ROS 2 bag folder, with --calib)")
