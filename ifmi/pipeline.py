@@ -49,6 +49,7 @@ __all__ = [
     "estimate_sequence",
     "estimate_dataset",
     "estimate_video",
+    "estimate_bag",
     "resolved_config",
     "check_config_for_model",
 ]
@@ -365,6 +366,52 @@ def estimate_video(video_path: str | os.PathLike, calib_path: str | os.PathLike,
 
     model = read_camera(Path(calib_path))  # calib_results.txt or a Kalibr camera.yaml
     frames = VideoFrames(video_path, size=model.size)
+    return _estimate_frames(frames, model, calib_path, method=method, config=config, progress=progress)
+
+
+def estimate_bag(bag_path: str | os.PathLike, calib_path: str | os.PathLike, *, topic: str | None = None,
+                 method: str, config: EstimateConfig = EstimateConfig(),
+                 progress: bool = False) -> SequenceEstimate:
+    """Estimate the frames of one image topic of a ROS bag with one calibration.
+
+    As :func:`estimate_video`, with the frames of :class:`ifmi.io.bags.BagFrames`:
+    the trajectory's timestamps are the frames' stamps in seconds
+    (``header.stamp``, or the receive time where it is zero), the records'
+    ``frame`` the position in the topic. A frame that cannot be used is
+    flagged failed; the mirror band is decided from up to five frames
+    spread over the topic, the frames a dataset folder of the same images
+    would use, so a bag of lossless images gives the folder's estimate.
+
+    Parameters
+    ----------
+    bag_path : path-like
+        A ``.bag``, ``.mcap`` or ``.db3`` file or a ROS 2 bag folder.
+    calib_path : path-like
+        ``calib_results.txt`` or ``camera.yaml`` of the camera.
+    topic : str, optional, keyword-only
+        The image topic; default the bag's only one.
+    method, config, progress
+        As for :func:`estimate_sequence`.
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable calibration or bag, a topic the bag lacks or
+        of another type (the message lists the bag's image topics), a first
+        frame that cannot be used or has another size than the
+        calibration's, or a calibration too small for the method.
+    """
+    from ifmi.io.bags import BagFrames
+    from ifmi.io.camera_file import read_camera
+
+    model = read_camera(Path(calib_path))
+    frames = BagFrames(bag_path, topic=topic, size=model.size, prefetch=True)
+    return _estimate_frames(frames, model, calib_path, method=method, config=config, progress=progress)
+
+
+def _estimate_frames(frames, model, calib_path, *, method: str, config: EstimateConfig,
+                     progress: bool) -> SequenceEstimate:
+    """Estimate ``frames`` (a video's or a bag's: iterable, ``spread_frames``, ``timestamps``)."""
     check_config_for_model(config, model, method=method, calib_path=calib_path)
     try:
         # The RANSAC threshold is resolved on the calibration's band, then the band is decided.

@@ -30,6 +30,28 @@ def _resolution(text: str):
     raise argparse.ArgumentTypeError(f"expected N or HEIGHTxWIDTH, got {text!r}")
 
 
+def _add_export_parser(sub) -> None:
+    """The ``export`` command's options (:mod:`omnisim.export`)."""
+    export = sub.add_parser("export", help="write a dataset folder as a ROS bag (ROS 2 MCAP/SQLite3 folder "
+                            "or ROS 1 .bag): images, ground truth, world poses on /tf")
+    export.add_argument("dataset", help="source DATASET folder")
+    export.add_argument("--out", required=True,
+                        help="bag to write: a folder (ros2) or a .bag file (ros1); must not exist")
+    export.add_argument("--format", dest="bag_format", choices=("ros2", "ros1"), default="ros2",
+                        help="ros2: a bag folder (default); ros1: a .bag file")
+    export.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
+                        help="storage of a ROS 2 bag (default mcap)")
+    export.add_argument("--compressed", choices=("png", "jpeg"),
+                        help="images as sensor_msgs/CompressedImage of this format (png is lossless); "
+                             "default raw sensor_msgs/Image")
+    export.add_argument("--start-time", type=float, default=0.0, metavar="S",
+                        help="stamp of frame 0 in seconds (default 0: stamps equal groundtruth.txt's times "
+                             "with the default interval)")
+    export.add_argument("--frame-interval", type=float, default=1.0, metavar="S",
+                        help="seconds between frames (default 1); frame k is stamped start + k x interval")
+    export.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .config import EffectsSettings
     from .settings import field_docs
@@ -80,6 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="read the output rows one after another over READOUT frame intervals "
                            "(0..1; default 0, a global shutter); the middle row holds the ground truth")
     warp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_export_parser(sub)
     sub.add_parser("check-llvm", help="print the LLVM drjit will use, or how to install one")
     sub.add_parser("generators", help="list the [[objects]] generators of scene files and their parameters")
     return parser
@@ -129,6 +152,16 @@ def _warp(args) -> int:
     return 0
 
 
+def _export(args) -> int:
+    from .export import ExportSettings, export_dataset
+
+    settings = ExportSettings(bag_format=args.bag_format, storage=args.storage, compressed=args.compressed,
+                              start_time=args.start_time, frame_interval=args.frame_interval)
+    result = export_dataset(args.dataset, args.out, settings=settings, progress=not args.no_progress)
+    print(f"{result.out}: {result.frames} frames; topics {', '.join(result.topics)}")
+    return 0
+
+
 def _generators(args) -> int:
     from .generators import describe_generators
 
@@ -142,7 +175,7 @@ def _check_llvm(args) -> int:
     return llvm_main([])
 
 
-COMMANDS = {"render": _render, "degrade": _degrade, "warp": _warp, "generators": _generators,
+COMMANDS = {"render": _render, "degrade": _degrade, "warp": _warp, "export": _export, "generators": _generators,
             "check-llvm": _check_llvm}
 
 

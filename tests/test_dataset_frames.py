@@ -226,9 +226,9 @@ def test_missing_folder_and_a_file_instead_of_a_folder(tmp_path, capsys):
     assert main(["estimate", str(tmp_path / "clip.mpg"), "--calib", str(tmp_path / "c.txt"),
                  "--out", str(tmp_path / "e.txt")]) == 2
     assert capsys.readouterr().err.strip() == (
-        f"ifmi estimate: error: {tmp_path / 'clip.mpg'}: neither a dataset folder nor a video (expected a "
-        "folder with calib_results.txt or camera.yaml and images/, or a video file ending in .mp4, .avi, "
-        ".mov, .mkv, .m4v, .webm with --calib)")
+        f"ifmi estimate: error: {tmp_path / 'clip.mpg'}: neither a dataset folder nor a video nor a ROS bag "
+        "(expected a folder with calib_results.txt or camera.yaml and images/, a video file ending in .mp4, "
+        ".avi, .mov, .mkv, .m4v, .webm, or a bag ending in .bag, .mcap, .db3 or a ROS 2 bag folder, with --calib)")
     # read_dataset itself, which no video reaches, keeps its own words.
     with pytest.raises(InputError, match="not a folder"):
         read_dataset(tmp_path / "file")

@@ -19,7 +19,7 @@ from ifmi.runtime.warning_lines import input_warnings_as_lines
 __all__ = ["main"]
 
 # Subcommand modules, in the order ``ifmi --help`` lists them.
-_SUBCOMMANDS = ("estimate", "evaluate", "sweep", "report", "convert_calib", "methods")
+_SUBCOMMANDS = ("estimate", "evaluate", "sweep", "report", "convert_calib", "convert_gt", "methods")
 
 
 def build_parser() -> argparse.ArgumentParser:

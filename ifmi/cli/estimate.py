@@ -23,10 +23,10 @@ import sys
 import warnings
 from pathlib import Path
 
-from ifmi.errors import CalibrationFitError, InputError, InputWarning
+from ifmi.errors import CalibrationFitError, InputError, InputWarning, OutputError
 from ifmi.tracking.methods import load_factory
 from ifmi.options import RejectedValues, replaced_at_paths
-from ifmi.pipeline import EstimateConfig, estimate_dataset, estimate_video
+from ifmi.pipeline import EstimateConfig, estimate_bag, estimate_dataset, estimate_video
 
 # Exit status when the outputs were written but more than half of the frames failed.
 EXIT_MOSTLY_FAILED = 3
@@ -79,7 +79,9 @@ def add_parser(subparsers) -> None:
         description="Estimate R_0k for every image of DATASET (calib_results.txt + images/) and "
                     "write a TUM trajectory plus NAME.frames.csv and NAME.config.json beside it. "
                     "Frame k is the image named by the integer k (000123.png is frame 123), and "
-                    "the trajectory's timestamps are those indices. A frame that fails keeps the "
+                    "the trajectory's timestamps are those indices. A video or a ROS bag (with "
+                    "--calib; a bag's image topic with --topic) is read frame by frame, its timestamps "
+                    "the frames' times in seconds. A frame that fails keeps the "
                     "previous orientation and is flagged.",
         epilog="exit status: 0 done; 1 an output could not be written or would replace a file of "
                "the dataset or an input file (--config, --calib, the video); 2 bad input (dataset, "
@@ -87,11 +89,15 @@ def add_parser(subparsers) -> None:
                "frames failed.",
     )
     p.add_argument("dataset", metavar="DATASET",
-                   help="dataset folder, or a video file (.mp4, .avi, ...; needs --calib)")
+                   help="dataset folder, a video file (.mp4, .avi, ...; needs --calib), or a ROS bag "
+                        "(.bag, .mcap, .db3, or a ROS 2 bag folder; needs --calib)")
     p.add_argument("--calib", metavar="CALIB",
-                   help="calib_results.txt (or camera.yaml) of a video's camera (timestamps come "
-                        "from the video). A dataset folder is estimated with its own calibration: "
-                        "with a folder, --calib must name that file or is refused")
+                   help="calib_results.txt (or camera.yaml) of a video's or a bag's camera (timestamps "
+                        "come from the video or the messages). A dataset folder is estimated with its own "
+                        "calibration: with a folder, --calib must name that file or is refused")
+    p.add_argument("--topic", metavar="TOPIC",
+                   help="a bag's image topic (sensor_msgs/Image or CompressedImage; default: the bag's "
+                        "only image topic)")
     p.add_argument("--method", metavar="METHOD",
                    help="front end: a name that 'ifmi methods' lists, or package.module:factory "
                         "(default: the method of a --config run file, else ifmi)")
@@ -323,29 +329,60 @@ def _warn_ignored_options(method: str, given: dict) -> None:
                       f"--method {method} does not read {'it' if len(ignored) == 1 else 'them'}", InputWarning)
 
 
-def run(args) -> int:
-    from ifmi.io.results import check_estimate_outputs, side_file_paths, write_estimate_run
+def _input_kind(args) -> tuple[bool, bool]:
+    """``(bag, video or bag)`` of the DATASET argument, with its options checked.
+
+    Raises
+    ------
+    InputError
+        A file that is neither a video nor a bag, a video or bag without
+        ``--calib``, ``--topic`` without a bag, or a folder's ``--calib``
+        that is not its own calibration.
+    OutputError
+        ``--out`` inside a ROS 2 bag folder.
+    """
+    from ifmi.io.atomic import path_within
+    from ifmi.io.bags import BAG_SUFFIXES, is_bag_path
     from ifmi.io.video import VIDEO_SUFFIXES, is_video_path
+
+    bag = is_bag_path(args.dataset)
+    video = bag or is_video_path(args.dataset)  # a sequence file with its own --calib
+    if not video and Path(args.dataset).is_file():
+        raise InputError(args.dataset, f"neither a dataset folder nor a video nor a ROS bag (expected a folder "
+                                       f"with calib_results.txt or camera.yaml and images/, a video file "
+                                       f"ending in {', '.join(VIDEO_SUFFIXES)}, or a bag ending in "
+                                       f"{', '.join(BAG_SUFFIXES)} or a ROS 2 bag folder, with --calib)")
+    if video and not args.calib:
+        raise InputError(args.dataset, f"a {'bag' if bag else 'video'} needs --calib CALIB (calib_results.txt)")
+    if args.topic is not None and not bag:
+        raise InputError("--topic", f"is for a ROS bag; {args.dataset} is not one")
+    if bag and Path(args.dataset).is_dir() and path_within(args.out, args.dataset):
+        raise OutputError(args.out, f"lies in the bag folder {args.dataset}; choose a path outside it")
+    if args.calib and not video:
+        _check_folder_calib(args.dataset, args.calib)
+    return bag, video
+
+
+def run(args) -> int:
+    from ifmi.io.bags import BagFrames
+    from ifmi.io.results import check_estimate_outputs, side_file_paths, write_estimate_run
 
     config_file, given, config = _configuration(args)
     method = chosen_method(args.method, config_file)
     load_factory(method)  # an unknown or broken method fails before any work
     _warn_ignored_options(method, given)
     out = Path(args.out)
-    video = is_video_path(args.dataset)
-    if not video and Path(args.dataset).is_file():
-        raise InputError(args.dataset, f"neither a dataset folder nor a video (expected a folder with "
-                                       f"calib_results.txt or camera.yaml and images/, or a video file ending "
-                                       f"in {', '.join(VIDEO_SUFFIXES)} with --calib)")
-    if video and not args.calib:
-        raise InputError(args.dataset, "a video needs --calib CALIB (calib_results.txt)")
-    if args.calib and not video:
-        _check_folder_calib(args.dataset, args.calib)
+    bag, video = _input_kind(args)
     inputs = ((args.dataset, args.calib) if video else ()) + ((args.config,) if args.config else ())
     dataset_dir = None if video else args.dataset
     check_estimate_outputs(args.out, dataset_dir=dataset_dir, input_files=inputs, overwrite=args.force)
     try:
-        if video:
+        # The topic is checked (and chosen when not given) before the calibration is read.
+        topic = BagFrames(args.dataset, topic=args.topic).topic if bag else None
+        if bag:
+            estimate = estimate_bag(args.dataset, args.calib, topic=topic, method=method, config=config,
+                                    progress=not args.no_progress)
+        elif video:
             estimate = estimate_video(args.dataset, args.calib, method=method, config=config,
                                       progress=not args.no_progress)
         else:
@@ -354,7 +391,10 @@ def run(args) -> int:
     except InputError as exc:
         raise _blamed(exc, given, config_file) from None
     extra = {"derived": _derived_keys(config, estimate.config)}
-    if video:
+    if bag:
+        extra.update(bag=str(Path(args.dataset).resolve()), topic=topic,
+                     calib=str(Path(args.calib).resolve()))
+    elif video:
         extra.update(video=str(Path(args.dataset).resolve()), calib=str(Path(args.calib).resolve()))
     write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs, extra=extra,
                        overwrite=args.force)

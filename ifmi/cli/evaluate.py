@@ -7,6 +7,7 @@ import json
 
 from ifmi.errors import InputError
 from ifmi.evaluation.trajectory_files import EvaluateOptions, evaluate_files, format_summary_table, gate_verdict, summary_of
+from ifmi.io.bags import is_bag_path
 from ifmi.io.results import side_file_paths
 
 __all__ = ["add_parser", "run"]
@@ -57,7 +58,15 @@ def add_parser(subparsers) -> None:
                     "an existing --out must be an earlier evaluation folder or empty. With "
                     "--max-rmse it is a CI gate: one PASS/FAIL line, exit 0 on PASS, 1 on FAIL.",
     )
-    p.add_argument("--gt", required=True, metavar="GROUNDTRUTH", help="ground-truth TUM file")
+    p.add_argument("--gt", required=True, metavar="GROUNDTRUTH",
+                   help="ground-truth TUM file, or a ROS bag (.bag, .mcap, .db3 or a ROS 2 bag folder)")
+    p.add_argument("--gt-topic", metavar="TOPIC",
+                   help="the bag's ground-truth topic: PoseStamped, PoseWithCovarianceStamped, "
+                        "TransformStamped, Odometry, or a tf topic with --gt-frames (default: the bag's "
+                        "only pose topic)")
+    p.add_argument("--gt-frames", nargs=2, metavar=("PARENT", "CHILD"),
+                   help="with a tf topic (/tf): the pose of CHILD in PARENT, composed along the chain of "
+                        "transforms between them")
     p.add_argument("--est", required=True, metavar="ESTIMATE", help="estimated TUM file")
     p.add_argument("--out", metavar="DIR",
                    help="evaluation folder to write (new, empty or an earlier evaluation)")
@@ -84,9 +93,12 @@ def run(args) -> int:
             # Refused before anything is written: no evaluation folder for a gate that cannot run.
             raise InputError(frames_path, "not found: the failed-frame count is unknown; "
                                           "expected the estimate's frames.csv for --max-failed")
+    if (args.gt_topic or args.gt_frames) and not is_bag_path(args.gt):
+        raise InputError(args.gt, "--gt-topic and --gt-frames are for a ROS bag; this is not one")
     meta = evaluate_files(args.gt, args.est, out_dir=args.out,
                           options=EvaluateOptions(max_time_difference=args.max_time_difference,
-                                                  min_matched=args.min_matched))
+                                                  min_matched=args.min_matched),
+                          gt_topic=args.gt_topic, gt_frames=None if args.gt_frames is None else tuple(args.gt_frames))
     if args.max_rmse is not None:
         try:
             verdict = gate_verdict(summary_of(meta), max_rmse_rad=args.max_rmse,

@@ -59,7 +59,16 @@ def add_parser(subparsers) -> None:
                     "files in it are kept) or empty.",
     )
     p.add_argument("datasets", nargs="+", metavar="DATASET",
-                   help="dataset folders with calib_results.txt, images/ and groundtruth.txt")
+                   help="dataset folders with calib_results.txt, images/ and groundtruth.txt, or ROS bags "
+                        "(.bag, .mcap, .db3, ROS 2 bag folders) with --calib and their ground truth on a topic")
+    g = p.add_argument_group("ROS bags")
+    g.add_argument("--calib", metavar="CALIB", help="calib_results.txt or camera.yaml of the bags' camera")
+    g.add_argument("--topic", metavar="TOPIC", help="the bags' image topic (default: each bag's only one)")
+    g.add_argument("--gt-topic", metavar="TOPIC",
+                   help="the bags' ground-truth topic: PoseStamped, PoseWithCovarianceStamped, TransformStamped, "
+                        "Odometry, or a tf topic with --gt-frames (default: each bag's only pose topic)")
+    g.add_argument("--gt-frames", nargs=2, metavar=("PARENT", "CHILD"),
+                   help="with a tf ground-truth topic: the pose of CHILD in PARENT")
     p.add_argument("--tile-size", nargs="+", type=_tile_size, required=True, metavar="N",
                    help="tile sides: pixels (>= 1) or fractions of the panorama width (< 1)")
     p.add_argument("--overlap", nargs="+", type=_overlap, required=True, metavar="F",
@@ -125,12 +134,38 @@ def _refuse_one_name(option: str, values: list[float]) -> None:
         named[name] = value
 
 
-def run(args) -> int:
+def _check_inputs(args) -> dict | None:
+    """Refuse missing datasets, folders without ground truth, and bags without --calib; the bag
+    options as :func:`ifmi.sweep.sweep_cells` takes them (None when no dataset is a bag)."""
+    from ifmi.io.bags import is_bag_path
+
+    bags = [d for d in args.datasets if is_bag_path(d)]
     for d in args.datasets:
+        if d in bags:
+            if not Path(d).exists():
+                raise InputError(d, "bag not found")
+            continue
         if not Path(d).is_dir():
             raise InputError(d, "dataset folder not found")
         if not (Path(d) / "groundtruth.txt").is_file():
             raise InputError(Path(d) / "groundtruth.txt", "ground truth not found (a sweep needs it)")
+    options = {"--calib": args.calib, "--topic": args.topic, "--gt-topic": args.gt_topic,
+               "--gt-frames": args.gt_frames}
+    if not bags:
+        given = [option for option, value in options.items() if value is not None]
+        if given:
+            raise InputError(given[0], "is for ROS bags; no DATASET is one")
+        return None
+    if args.calib is None:
+        raise InputError(bags[0], "a bag needs --calib CALIB (calib_results.txt or camera.yaml)")
+    if not Path(args.calib).is_file():
+        raise InputError(args.calib, "calibration file not found")
+    return {"calib": str(Path(args.calib).resolve()), "topic": args.topic, "gt_topic": args.gt_topic,
+            "gt_frames": args.gt_frames}
+
+
+def run(args) -> int:
+    bag_input = _check_inputs(args)
     _refuse_repeats(args)
     base_config, method = _base_config(args.config, args.method)
     if ignores_tiling(method):
@@ -139,7 +174,7 @@ def run(args) -> int:
                          f"are iFMI's): every cell would repeat one run; expected --method ifmi or a method "
                          f"of your own that reads config.ifmi.tiling")
     cells = sweep_cells([str(Path(d).resolve()) for d in args.datasets], method=method,
-                        tile_sizes=args.tile_size, overlaps=args.overlap)
+                        tile_sizes=args.tile_size, overlaps=args.overlap, bag_input=bag_input)
     options = SweepOptions(scheduler=args.scheduler, n_workers=args.workers,
                            progress=not args.no_progress)
     records = run_sweep(cells, out_dir=args.out, base_config=base_config, options=options)

@@ -19,6 +19,8 @@ from ifmi.evaluation.dataset_names import display_name
 from ifmi.errors import InputError, InputWarning, OutputError
 from ifmi.io.dataset import dataset_meta, refuse_output_in_datasets
 from ifmi.io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
+from ifmi.io.bag_poses import read_bag_trajectory
+from ifmi.io.bags import is_bag_path
 from ifmi.io.tum import read_tum
 from ifmi.evaluation.metrics import (AXES, MAX_POSITION, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors,
                       trajectory_errors)
@@ -226,7 +228,8 @@ def _run_meta(gt_path: Path, est_path: Path, side: EstimateSideFiles, summary: E
 
 def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
                    out_dir: str | os.PathLike | None = None,
-                   options: EvaluateOptions = EvaluateOptions()) -> dict:
+                   options: EvaluateOptions = EvaluateOptions(),
+                   gt_topic: str | None = None, gt_frames: tuple[str, str] | None = None) -> dict:
     """Evaluate ``est_path`` against ``gt_path`` and write an evaluation folder.
 
     Only reads the trajectories and the estimate's side files; nothing is
@@ -241,6 +244,13 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
         ``est_path``, written if it can be; if not (a read-only folder, a
         file of that name), a warning says so and ``path`` is None.
     options : EvaluateOptions, keyword-only
+    gt_topic : str, optional, keyword-only
+        With a ROS bag as ``gt_path``: its pose, odometry or tf topic
+        (:func:`ifmi.io.bag_poses.read_bag_trajectory`; default its only
+        one). Such ground truth is in its own world frame, so its not
+        starting at the identity is expected and not warned of.
+    gt_frames : (str, str), optional, keyword-only
+        ``(parent, child)`` of the pose read from a tf topic.
 
     Returns
     -------
@@ -261,7 +271,8 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
         The ``out_dir`` given cannot be written.
     """
     gt_path, est_path = Path(gt_path), Path(est_path)
-    gt = read_tum(gt_path)
+    from_bag = gt_topic is not None or gt_frames is not None or is_bag_path(gt_path)
+    gt = read_bag_trajectory(gt_path, topic=gt_topic, frames=gt_frames) if from_bag else read_tum(gt_path)
     est = read_tum(est_path)
     _refuse_same_file(gt_path, est_path)
     _check_positions(gt_path, gt)
@@ -276,7 +287,8 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     except ValueError as exc:
         raise InputError(est_path, str(exc)) from None
     _check_matched(gt_path, est_path, len(errors), len(gt), len(est), options)
-    _warn_if_rebased(gt_path, est_path, errors, options)
+    if not from_bag:
+        _warn_if_rebased(gt_path, est_path, errors, options)
     frames = side.frames
     summary = summary_from_errors(errors, n_gt=len(gt), n_est=len(est),
                                   frame_success=None if frames is None else frames.success,

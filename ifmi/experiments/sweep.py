@@ -1,8 +1,10 @@
 """Sweeps of the iFMI tiling parameters (tile size x overlap) with Dask.
 
 Each cell of the grid (dataset, method, tile size, overlap) estimates the
-dataset's trajectory, evaluates it against its ``groundtruth.txt`` and writes
-one JSON record atomically to ``OUT/cells/<cell id>.json``. A cell is keyed
+dataset's trajectory, evaluates it against its ``groundtruth.txt`` (a ROS
+bag: against its ground-truth topic, the frames read with the calibration
+the cell names) and writes one JSON record atomically to
+``OUT/cells/<cell id>.json``. A cell is keyed
 by its dataset's identity: the resolved folder (in the cell id, so two
 datasets of one name never share a cell) and a digest of its content
 (``meta.json``, calibration, ground truth, and the image files' names,
@@ -72,6 +74,7 @@ __all__ = [
     "write_sweep_table",
     "config_digest",
     "dataset_digest",
+    "cell_input_digest",
     "dataset_labels",
 ]
 
@@ -129,6 +132,13 @@ class SweepCell:
     label : str or None
         Name of the dataset in tables and figures (default its folder name);
         :func:`sweep_cells` makes it unique within a sweep.
+    calib : str or None
+        For a ROS bag as ``dataset`` (:func:`ifmi.io.bags.is_bag_path`):
+        the camera's calibration file; None for a dataset folder.
+    topic, gt_topic : str or None
+        A bag's image topic and ground-truth topic (None: its only one).
+    gt_frames : (str, str) or None
+        ``(parent, child)`` of a tf ground-truth topic.
     """
 
     dataset: str
@@ -136,6 +146,10 @@ class SweepCell:
     tile_size: float
     overlap: float
     label: str | None = None
+    calib: str | None = None
+    topic: str | None = None
+    gt_topic: str | None = None
+    gt_frames: tuple | None = None
 
     @property
     def dataset_name(self) -> str:
@@ -183,11 +197,53 @@ class SweepOptions:
 
 
 def sweep_cells(datasets: Sequence[str], *, method: str, tile_sizes: Sequence[float],
-                overlaps: Sequence[float]) -> list[SweepCell]:
-    """All cells of the grid, dataset-major; datasets labelled distinctly (:func:`dataset_labels`)."""
+                overlaps: Sequence[float], bag_input: dict | None = None) -> list[SweepCell]:
+    """All cells of the grid, dataset-major; datasets labelled distinctly (:func:`dataset_labels`).
+
+    ``bag_input`` (``calib``, ``topic``, ``gt_topic``, ``gt_frames``; see
+    :class:`SweepCell`) is given to the cells of the datasets that are ROS bags.
+    """
+    from ifmi.io.bags import is_bag_path
+
     labels = dataset_labels([str(d) for d in datasets])
-    return [SweepCell(str(d), method, float(t), float(o), label=labels[resolved_folder(d)])
+    bag_fields = dict(bag_input or {})
+    if bag_fields.get("gt_frames") is not None:
+        bag_fields["gt_frames"] = tuple(bag_fields["gt_frames"])
+    return [SweepCell(str(d), method, float(t), float(o), label=labels[resolved_folder(d)],
+                      **(bag_fields if is_bag_path(d) else {}))
             for d in datasets for t in tile_sizes for o in overlaps]
+
+
+def _file_stamps(h, paths) -> None:
+    """Add the names, sizes and modification times of ``paths`` (os.DirEntry or Path) to ``h``."""
+    for entry in paths:
+        try:
+            st = entry.stat()
+        except OSError:
+            continue
+        h.update(os.fsencode(entry.name) + f"\0{st.st_size}\0{st.st_mtime_ns}\0".encode())
+
+
+def _bag_digest(cell: SweepCell) -> str:
+    """Short digest of a bag cell's input: the bag's files (names, sizes, times), the calibration's
+    bytes and the topics read."""
+    h = hashlib.sha256(json.dumps([cell.topic, cell.gt_topic, cell.gt_frames and list(cell.gt_frames)]).encode())
+    try:
+        h.update(Path(cell.calib).read_bytes() if Path(cell.calib).is_file() else b"absent")
+    except OSError:
+        h.update(b"unreadable")
+    bag = Path(cell.dataset)
+    try:
+        files = sorted(bag.iterdir()) if bag.is_dir() else [bag]
+    except OSError:
+        files = []
+    _file_stamps(h, files)
+    return h.hexdigest()[:_ID_DIGITS]
+
+
+def cell_input_digest(cell: SweepCell) -> str:
+    """Digest of a cell's input: :func:`dataset_digest` of a folder, or of a bag and its calibration."""
+    return dataset_digest(cell.dataset) if cell.calib is None else _bag_digest(cell)
 
 
 def dataset_digest(dataset: str | os.PathLike) -> str:
@@ -210,12 +266,7 @@ def dataset_digest(dataset: str | os.PathLike) -> str:
         entries = sorted(os.scandir(folder / "images"), key=lambda e: e.name)
     except OSError:
         entries = []
-    for entry in entries:
-        try:
-            st = entry.stat()
-        except OSError:
-            continue
-        h.update(os.fsencode(entry.name) + f"\0{st.st_size}\0{st.st_mtime_ns}\0".encode())
+    _file_stamps(h, entries)
     return h.hexdigest()[:_ID_DIGITS]
 
 
@@ -338,25 +389,18 @@ def run_cell(cell: SweepCell, *, out_dir: str, base_config: dict) -> dict:
     out = Path(out_dir)
     record = {"cell_id": cell.cell_id, "dataset": cell.dataset_name,
               "dataset_path": resolved_folder(cell.dataset),
-              "dataset_digest": dataset_digest(cell.dataset),
+              "dataset_digest": cell_input_digest(cell),
               "method": cell.method, "tile_size": cell.tile_size, "overlap": cell.overlap,
               "config_digest": config_digest(base_config)}
     start = time.perf_counter()
     try:
-        from ifmi.evaluation.trajectory_files import evaluate_files, summary_of
-        from ifmi.io.results import write_estimate_run
-        from ifmi.pipeline import EstimateConfig, estimate_dataset
+        from ifmi.evaluation.trajectory_files import summary_of
+        from ifmi.pipeline import EstimateConfig
 
-        gt = Path(cell.dataset) / "groundtruth.txt"
-        if not gt.is_file():
-            raise FileNotFoundError(f"{gt}: ground truth not found")
         config = config_with_tiling(EstimateConfig.from_dict(base_config),
                                     tile_size=cell.tile_size, overlap=cell.overlap)
-        estimate = estimate_dataset(cell.dataset, method=cell.method, config=config)
         run_dir = out / "runs" / cell.cell_id
-        est_path = run_dir / "estimate.txt"
-        write_estimate_run(est_path, estimate, dataset_dir=cell.dataset)
-        meta = evaluate_files(gt, est_path, out_dir=run_dir / "eval")
+        meta = (_run_folder_cell if cell.calib is None else _run_bag_cell)(cell, config, run_dir)
         record.update(summary_of(meta).flat())
         record.update({"status": "ok", "error": "",
                        "evaluation": str((run_dir / "eval").relative_to(out))})
@@ -366,6 +410,36 @@ def run_cell(cell: SweepCell, *, out_dir: str, base_config: dict) -> dict:
     record["wall_s"] = time.perf_counter() - start
     atomic_write_json(_cell_path(out, cell), record)
     return record
+
+
+def _run_folder_cell(cell: SweepCell, config, run_dir: Path) -> dict:
+    """Estimate a dataset folder's cell into ``run_dir`` and evaluate it against its ``groundtruth.txt``."""
+    from ifmi.evaluation.trajectory_files import evaluate_files
+    from ifmi.io.results import write_estimate_run
+    from ifmi.pipeline import estimate_dataset
+
+    gt = Path(cell.dataset) / "groundtruth.txt"
+    if not gt.is_file():
+        raise FileNotFoundError(f"{gt}: ground truth not found")
+    estimate = estimate_dataset(cell.dataset, method=cell.method, config=config)
+    est_path = run_dir / "estimate.txt"
+    write_estimate_run(est_path, estimate, dataset_dir=cell.dataset)
+    return evaluate_files(gt, est_path, out_dir=run_dir / "eval")
+
+
+def _run_bag_cell(cell: SweepCell, config, run_dir: Path) -> dict:
+    """Estimate a bag's cell into ``run_dir`` and evaluate it against the bag's ground-truth topic."""
+    from ifmi.evaluation.trajectory_files import evaluate_files
+    from ifmi.io.results import write_estimate_run
+    from ifmi.pipeline import estimate_bag
+
+    estimate = estimate_bag(cell.dataset, cell.calib, topic=cell.topic, method=cell.method, config=config)
+    est_path = run_dir / "estimate.txt"
+    write_estimate_run(est_path, estimate, dataset_dir=None, input_files=(cell.dataset, cell.calib),
+                       extra={"bag": resolved_folder(cell.dataset), "topic": cell.topic,
+                              "calib": resolved_folder(cell.calib)})
+    return evaluate_files(cell.dataset, est_path, out_dir=run_dir / "eval", gt_topic=cell.gt_topic,
+                          gt_frames=cell.gt_frames)
 
 
 def _progress(total: int, enabled: bool):
@@ -455,7 +529,7 @@ def run_sweep(cells: Iterable[SweepCell], *, out_dir: str | os.PathLike, base_co
                 "base_config": base_config, "scheduler": options.scheduler or "local-cluster"}
     out = _prepare_output(out_dir, document)
     digest = config_digest(base_config)
-    contents = {d: dataset_digest(d) for d in {c.dataset for c in cells}}
+    contents = {c.dataset: cell_input_digest(c) for c in cells}  # one input per dataset path
     pending = [c for c in cells if not _finished(out, c, digest, contents[c.dataset])]
     skipped = len(cells) - len(pending)
     if skipped and options.progress:
@@ -602,8 +676,12 @@ def _listed_cells(path: Path, document: dict) -> list[SweepCell]:
                 and _is_number(cell.get("overlap")) and isinstance(cell.get("label"), (str, type(None)))):
             raise InputError(path, f"cells[{k}]: expected an object with text dataset and method, numbers "
                                    f"tile_size and overlap, and a label (text or null), got {json_excerpt(cell)}")
+        bag = {key: cell.get(key) for key in ("calib", "topic", "gt_topic") if isinstance(cell.get(key), str)}
+        frames = cell.get("gt_frames")
+        if isinstance(frames, list) and len(frames) == 2 and all(isinstance(f, str) for f in frames):
+            bag["gt_frames"] = tuple(frames)
         cells.append(SweepCell(cell["dataset"], cell["method"], float(cell["tile_size"]),
-                               float(cell["overlap"]), label=cell["label"]))
+                               float(cell["overlap"]), label=cell["label"], **bag))
     return cells
 
 

@@ -35,7 +35,7 @@ from ifmi.errors import InputError, InputWarning
 from ifmi.io.native_stderr import call_with_captured_stderr
 from ifmi.io.text_file import refuse_special_file
 
-__all__ = ["read_image", "IMAGE_SUFFIXES", "SENSOR_BIT_DEPTHS", "eight_bit_from_sixteen", "image_file_problem",
+__all__ = ["read_image", "image_from_bytes", "IMAGE_SUFFIXES", "SENSOR_BIT_DEPTHS", "eight_bit_from_sixteen", "image_file_problem",
            "image_header_size", "sensor_bit_depth", "size_problem"]
 
 #: Sample depths of common image sensors, in bits; a 16-bit file whose values
@@ -368,6 +368,47 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
         raise InputError(path, "image file not found") from None
     except OSError as exc:
         raise InputError(path, f"cannot read image ({exc.strerror or exc.__class__.__name__})") from None
+    return _decoded(data, source=path, size=size, gray=gray, depth_source=path.parent)
+
+
+def image_from_bytes(data: bytes, *, source: str | os.PathLike, size: tuple[int, int] | None = None,
+                     gray: bool = True, depth_source: str | os.PathLike | None = None) -> np.ndarray:
+    """Decode the bytes of a PNG or JPEG file exactly as :func:`read_image` decodes the file.
+
+    For images that do not come from a file of their own (a compressed
+    frame of a ROS bag): the checks, the decoding, the bit depth and the
+    colour order are those of :func:`read_image`.
+
+    Parameters
+    ----------
+    data : bytes
+        The PNG or JPEG file's content.
+    source : str or path-like, keyword-only
+        What the bytes are, named in errors and warnings (a file, or a bag's frame).
+    size, gray
+        As for :func:`read_image`.
+    depth_source : str or path-like, optional, keyword-only
+        What the warning of a 16-bit image read at a smaller depth names
+        (default ``source``; one name for a whole sequence gives one line).
+
+    Returns
+    -------
+    ndarray of uint8
+        ``(H, W)`` or ``(H, W, 3)`` RGB, indexed ``[row, col]``.
+
+    Raises
+    ------
+    InputError
+        Damaged or unreadable image data, or another size than ``size``,
+        naming ``source``.
+    """
+    return _decoded(data, source=source, size=size, gray=gray,
+                    depth_source=source if depth_source is None else depth_source)
+
+
+def _decoded(data: bytes, *, source, size, gray: bool, depth_source) -> np.ndarray:
+    """:func:`image_from_bytes`; a 16-bit image's depth warning names ``depth_source``."""
+    path = source
     problem = image_file_problem(data, size=size)
     if problem:
         raise InputError(path, problem)
@@ -375,7 +416,7 @@ def read_image(path: str | os.PathLike, *, size: tuple[int, int] | None = None,
     if image.ndim == 3 and image.shape[2] == 4:
         image = image[..., :3]  # the alpha channel goes before the bit depth is judged
     if image.dtype == np.uint16:
-        image = eight_bit_from_sixteen(image, source=path.parent)
+        image = eight_bit_from_sixteen(image, source=depth_source)
     elif image.dtype != np.uint8:
         raise InputError(path, f"expected an 8- or 16-bit image, got {image.dtype}")
     if image.ndim == 3:
