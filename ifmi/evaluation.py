@@ -20,12 +20,13 @@ from .errors import InputError, InputWarning, OutputError
 from .io.dataset import dataset_meta, refuse_output_in_datasets
 from .io.results import EstimateSideFiles, jsonable, read_estimate_side_files, write_evaluation
 from .io.tum import read_tum
-from .metrics import (AXES, MAX_POSITION, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors,
-                      trajectory_errors)
+from .metrics import (AXES, MAX_POSITION, MIN_ASSOCIATED, EvaluationSummary, TrajectoryErrors,
+                      summary_from_errors, trajectory_errors)
 from .trajectory import Trajectory
 
 __all__ = ["EvaluateOptions", "GateVerdict", "MIN_ASSOCIATED", "default_evaluation_dir",
-           "evaluate_files", "format_summary_table", "dataset_label", "dataset_provenance",
+           "evaluate_files", "evaluate_files_with_errors", "evaluate_trajectories",
+           "read_and_evaluate", "format_summary_table", "dataset_label", "dataset_provenance",
            "gate_verdict", "summary_of"]
 
 
@@ -205,6 +206,11 @@ def _warn_if_rebased(gt_path: Path, est_path: Path, errors, options: EvaluateOpt
                   InputWarning, stacklevel=3)
 
 
+def _resolved_name(path: Path) -> str:
+    """The absolute path of an input file; the name as given of one held in memory (no file)."""
+    return str(path.resolve()) if path.exists() else str(path)
+
+
 def _run_meta(gt_path: Path, est_path: Path, side: EstimateSideFiles, summary: EvaluationSummary,
               options: EvaluateOptions) -> dict:
     config = side.config or {}
@@ -217,8 +223,8 @@ def _run_meta(gt_path: Path, est_path: Path, side: EstimateSideFiles, summary: E
         "scene": scene,
         "dataset_path": str(dataset_dir),
         "dataset_meta": dataset_provenance(dataset_dir),
-        "groundtruth_path": str(gt_path.resolve()),
-        "estimate_path": str(est_path.resolve()),
+        "groundtruth_path": _resolved_name(gt_path),
+        "estimate_path": _resolved_name(est_path),
         "options": options.to_dict(),
         "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
     }
@@ -260,15 +266,65 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     OutputError
         The ``out_dir`` given cannot be written.
     """
+    return evaluate_files_with_errors(gt_path, est_path, out_dir=out_dir, options=options)[0]
+
+
+def evaluate_files_with_errors(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
+                               out_dir: str | os.PathLike | None = None,
+                               options: EvaluateOptions = EvaluateOptions()) -> tuple[dict, TrajectoryErrors]:
+    """:func:`evaluate_files`'s result and the per-frame errors it wrote."""
+    gt_path, est_path = Path(gt_path), Path(est_path)
+    meta, errors, side = read_and_evaluate(gt_path, est_path, options=options)
+    out = Path(out_dir) if out_dir is not None else default_evaluation_dir(est_path)
+    _refuse_dataset_output(out, gt_path, side)
+    try:
+        write_evaluation(out, meta=meta, arrays=errors.arrays(), side_files=side)
+    except OSError as exc:  # OutputError, or e.g. the folder cannot be made: a regular file in the way
+        error = OutputError.from_os_error(out, exc)
+        if out_dir is not None:
+            raise error from None
+        # The default folder is a convenience: the result still stands (and a gate's verdict with it).
+        warnings.warn(f"{error}; the evaluation is not saved (--out chooses a folder)", InputWarning,
+                      stacklevel=3)
+        out = None
+    meta = jsonable(meta)
+    meta["path"] = None if out is None else str(out)
+    return meta, errors
+
+
+def read_and_evaluate(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
+                      options: EvaluateOptions = EvaluateOptions()) -> tuple[dict, TrajectoryErrors,
+                                                                            EstimateSideFiles]:
+    """Read two TUM files (and the estimate's side files) and evaluate them, writing nothing:
+    ``(meta, errors, side files)``; raises as :func:`evaluate_files`."""
     gt_path, est_path = Path(gt_path), Path(est_path)
     gt = read_tum(gt_path)
     est = read_tum(est_path)
     _refuse_same_file(gt_path, est_path)
+    side = read_estimate_side_files(est_path)
+    meta, errors = evaluate_trajectories(gt, est, side=side, gt_path=gt_path, est_path=est_path,
+                                         options=options)
+    return meta, errors, side
+
+
+def evaluate_trajectories(gt: Trajectory, est: Trajectory, *, side: EstimateSideFiles, gt_path: Path,
+                          est_path: Path, options: EvaluateOptions = EvaluateOptions()
+                          ) -> tuple[dict, TrajectoryErrors]:
+    """The evaluation of two trajectories in memory: ``(meta, errors)``, nothing written.
+
+    ``meta`` is what ``evaluation.json`` holds; ``gt_path`` and ``est_path``
+    name the inputs in messages and in ``meta``; ``side`` holds the
+    estimate's per-frame records (failures, time) and configuration.
+
+    Raises
+    ------
+    InputError
+        As :func:`evaluate_files`, for the checks of the poses themselves.
+    """
     _check_positions(gt_path, gt)
     _check_positions(est_path, est)
     _check_unique_timestamps(gt_path, gt)
     _check_unique_timestamps(est_path, est)
-    side = read_estimate_side_files(est_path)
     _check_side_files(est_path, est, side)
     try:
         errors = trajectory_errors(gt, est, max_time_difference=options.max_time_difference,
@@ -286,21 +342,7 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
                       "groundtruth_angle_rad": errors.gt_origin_angle,
                       "estimate_angle_rad": errors.est_origin_angle}
     meta["per_frame_columns"] = list(errors.arrays())
-    out = Path(out_dir) if out_dir is not None else default_evaluation_dir(est_path)
-    _refuse_dataset_output(out, gt_path, side)
-    try:
-        write_evaluation(out, meta=meta, arrays=errors.arrays(), side_files=side)
-    except OSError as exc:  # OutputError, or e.g. the folder cannot be made: a regular file in the way
-        error = OutputError.from_os_error(out, exc)
-        if out_dir is not None:
-            raise error from None
-        # The default folder is a convenience: the result still stands (and a gate's verdict with it).
-        warnings.warn(f"{error}; the evaluation is not saved (--out chooses a folder)", InputWarning,
-                      stacklevel=2)
-        out = None
-    meta = jsonable(meta)
-    meta["path"] = None if out is None else str(out)
-    return meta
+    return meta, errors
 
 
 def _refuse_dataset_output(out: Path, gt_path: Path, side: EstimateSideFiles) -> None:

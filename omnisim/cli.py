@@ -103,9 +103,9 @@ def _degrade(args) -> int:
 
 
 def _render(args) -> int:
-    from .render import render_dataset
+    from .api import render
 
-    result = render_dataset(args.scene, args.out, frames=args.frames, seed=args.seed, spp=args.spp,
+    result = render(args.scene, args.out, frames=args.frames, seed=args.seed, spp=args.spp,
                             resolution=args.resolution, progress=not args.no_progress,
                             variant=args.variant, aovs=args.aov, workers=args.workers,
                             scheduler=args.scheduler)

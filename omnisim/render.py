@@ -22,7 +22,9 @@ import hashlib
 import json
 import os
 import platform
+import sys
 import time
+import types
 import warnings
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -794,3 +796,21 @@ def _open_dataset(scene_path, out_dir: Path, config: SceneConfig, seed: int, var
         meta["rolling_shutter"] = rows
     atomic_write_json(out_dir / "meta.json", meta)
     return meta
+
+
+class _CallableRenderModule(types.ModuleType):
+    """This module, callable as :func:`omnisim.api.render`.
+
+    ``omnisim.render(scene, out)`` is the package's render function, and
+    importing this module binds the module to the same attribute of the
+    package; so that the call works whichever is bound, the module renders
+    when called.
+    """
+
+    def __call__(self, *args, **kwargs):
+        from .api import render
+
+        return render(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableRenderModule

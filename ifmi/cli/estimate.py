@@ -26,7 +26,8 @@ from pathlib import Path
 from ..errors import CalibrationFitError, InputError, InputWarning
 from ..methods import load_factory
 from ..options import RejectedValues, replaced_at_paths
-from ..pipeline import EstimateConfig, estimate_dataset, estimate_video
+from ..api import estimate as estimate_run
+from ..pipeline import EstimateConfig
 
 # Exit status when the outputs were written but more than half of the frames failed.
 EXIT_MOSTLY_FAILED = 3
@@ -324,7 +325,7 @@ def _warn_ignored_options(method: str, given: dict) -> None:
 
 
 def run(args) -> int:
-    from ..io.results import check_estimate_outputs, side_file_paths, write_estimate_run
+    from ..io.results import check_estimate_outputs, side_file_paths
     from ..io.video import VIDEO_SUFFIXES, is_video_path
 
     config_file, given, config = _configuration(args)
@@ -345,19 +346,12 @@ def run(args) -> int:
     dataset_dir = None if video else args.dataset
     check_estimate_outputs(args.out, dataset_dir=dataset_dir, input_files=inputs, overwrite=args.force)
     try:
-        if video:
-            estimate = estimate_video(args.dataset, args.calib, method=method, config=config,
-                                      progress=not args.no_progress)
-        else:
-            estimate = estimate_dataset(args.dataset, method=method, config=config,
-                                        progress=not args.no_progress)
+        estimate = estimate_run(args.dataset, method=method, config=config,
+                                calib=args.calib if video else None, progress=not args.no_progress)
     except InputError as exc:
         raise _blamed(exc, given, config_file) from None
-    extra = {"derived": _derived_keys(config, estimate.config)}
-    if video:
-        extra.update(video=str(Path(args.dataset).resolve()), calib=str(Path(args.calib).resolve()))
-    write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs, extra=extra,
-                       overwrite=args.force)
+    estimate.write(out, input_files=inputs, extra={"derived": _derived_keys(config, estimate.config)},
+                   overwrite=args.force)
     failed = sum(not r.success for r in estimate.frames)
     least_certain = estimate.least_certain_frame()
     certainty = "" if least_certain is None else (

@@ -6,7 +6,8 @@ import argparse
 import json
 
 from ..errors import InputError
-from ..evaluation import EvaluateOptions, evaluate_files, format_summary_table, gate_verdict, summary_of
+from ..api import evaluate
+from ..evaluation import EvaluateOptions, format_summary_table, gate_verdict, summary_of
 from ..io.results import side_file_paths
 
 __all__ = ["add_parser", "run"]
@@ -84,9 +85,9 @@ def run(args) -> int:
             # Refused before anything is written: no evaluation folder for a gate that cannot run.
             raise InputError(frames_path, "not found: the failed-frame count is unknown; "
                                           "expected the estimate's frames.csv for --max-failed")
-    meta = evaluate_files(args.gt, args.est, out_dir=args.out,
-                          options=EvaluateOptions(max_time_difference=args.max_time_difference,
-                                                  min_matched=args.min_matched))
+    options = EvaluateOptions(max_time_difference=args.max_time_difference, min_matched=args.min_matched)
+    # Written to --out, or to ESTIMATE.eval/ beside the estimate when that can be written.
+    meta = evaluate(args.gt, args.est, out=args.out or True, options=options).meta
     if args.max_rmse is not None:
         try:
             verdict = gate_verdict(summary_of(meta), max_rmse_rad=args.max_rmse,
