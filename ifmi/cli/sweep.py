@@ -54,7 +54,7 @@ def add_parser(subparsers) -> None:
         description="Estimate and evaluate every (dataset, tile size, overlap) cell; one JSON "
                     "per cell in OUT/cells/ (failed cells recorded, finished ones skipped on a "
                     "rerun), then OUT/sweep.json, OUT/sweep.csv, OUT/sweep.parquet and "
-                    "OUT/heatmaps/*.png as one set (built beside OUT and swapped in when "
+                    "the heatmaps in OUT/heatmaps/ as one set (built beside OUT and swapped in when "
                     "complete). An existing --out must be an earlier sweep folder (your other "
                     "files in it are kept) or empty.",
     )
