@@ -4,7 +4,7 @@ Measures what one option costs or buys, e.g. the dense retry
 (``dense_retry_fraction=0`` turns it off) or the coarse stage
 (``coarse_to_fine=false``)::
 
-    python benchmarks/bench_ifmi_options.py /work/data/sets36/office_trans_x10 \
+    python benchmarks/bench_ifmi_options.py DATA/office_trans_x10 \
         --variant no_retry:dense_retry_fraction=0 --rounds 5 --out out/bench_ifmi_options
 
 A variant is ``NAME:KEY=VALUE[,KEY=VALUE...]`` with keys of the ``ifmi``

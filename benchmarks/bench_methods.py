@@ -10,8 +10,8 @@ OUT/MODE --out ...`` turns one mode into a report.
 
 Usage::
 
-    python benchmarks/bench_methods.py /work/data/office_200 /work/data/lawn_200 \
-        /work/data/urban_200 --out out/bench_methods [--modes frame keyframe]
+    python benchmarks/bench_methods.py DATA/office_200 DATA/lawn_200 \
+        DATA/urban_200 --out out/bench_methods [--modes frame keyframe]
 
 Modes: ``frame`` (frame to frame) and ``keyframe`` (estimates against
 keyframes); both by default.

@@ -29,7 +29,7 @@ estimated with ``ifmi estimate`` (ifmi, orb, akaze), and the geodesic ATE
 (RMS of the geodesic angle of R_gt^T R_est over the frames, radians) is printed.
 
 Run: python benchmarks/bench_models.py [--width 384] [--spp 16] [--frames 12] [--rounds 15]
-     [--out /work/data/cameras/bench] [--skip-ate]
+     [--out out/cameras_bench] [--skip-ate]
 """
 
 from __future__ import annotations
@@ -233,7 +233,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--rounds", type=int, default=15,
                         help="model frames per ratio (each between two perspective frames)")
-    parser.add_argument("--out", default="/work/data/cameras/bench", help="folder for the rendered datasets")
+    parser.add_argument("--out", default="out/cameras_bench", help="folder for the rendered datasets")
     parser.add_argument("--scene", default=str(ROOT / "scenes" / "urban.toml"),
                         help="scene of the ATE sequences (its [camera] table is replaced)")
     parser.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS,

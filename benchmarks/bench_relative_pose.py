@@ -62,7 +62,7 @@ from ifmi.rotations import geodesic_angle
 
 # Last revision of the back end before the speed work (the default baseline).
 BASELINE_REVISION = "14b6bb94f4dcda893b8df02ed9cad3562c0a2927"
-DEFAULT_DATASETS = ("/work/data/office_200", "/work/data/lawn_200")
+DEFAULT_DATASETS = ("DATA/office_200", "DATA/lawn_200")
 # Synthetic pairs: rays, outlier fraction, ray noise and threshold (radians; the
 # threshold is about one pixel of the 800 x 800 datasets, the noise a fraction of it).
 SYNTHETIC_RAYS = (300, 600)

@@ -11,7 +11,7 @@ which also counts OpenCV's and the FFT's worker threads).
 
 Usage::
 
-    python benchmarks/bench_versions.py /work/main /work/wt/speed --sets SET [SET ...] \
+    python benchmarks/bench_versions.py MAIN_CHECKOUT BRANCH_CHECKOUT --sets SET [SET ...] \
         [--frames 40] [--rounds 5] [--repeats 1] [--mode frame] [--out result.json]
 
 Prints per set and tree the median over the rounds of both times per frame,

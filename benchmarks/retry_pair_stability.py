@@ -10,7 +10,7 @@ leave-one-out sets (radians). When the leave-one-out median is far from the
 all-tiles error, the pair's figure is luck: any change to which tiles the
 retry registers moves it::
 
-    python benchmarks/retry_pair_stability.py /work/data/sets36/office_trans_x10 --pair 1
+    python benchmarks/retry_pair_stability.py DATA/office_trans_x10 --pair 1
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ and the error came from a translation direction the rays fix only weakly
 about the tile noise), not from biased tile measurements. Summaries are
 binned by the true step length, and split by the model the back end chose::
 
-    python benchmarks/translation_ambiguity.py /work/data/sets36/*trans* --out out/translation_ambiguity
+    python benchmarks/translation_ambiguity.py DATA/*trans* --out out/translation_ambiguity
 
 Errors are rotation vectors of ``R_ab_true^T R_ab`` in camera a, milliradians;
 "bias" is the length of their mean vector over a bin; "prev deg" the median
