@@ -73,6 +73,8 @@ sphinx_gallery_conf = {
     "within_subsection_order": "FileNameSortKey",
     "matplotlib_animations": False,
     "reset_modules": ("matplotlib",),
+    # A full build runs every example again: after a DOCS_FAST build the slow ones have no figures yet.
+    "run_stale_examples": not fast,
 }
 
 suppress_warnings = ["config.cache"]

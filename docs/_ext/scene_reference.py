@@ -10,6 +10,7 @@ what the scene reader accepts.
 from __future__ import annotations
 
 from dataclasses import MISSING, fields
+from pathlib import Path
 
 from docutils import nodes
 from docutils.statemachine import StringList
@@ -43,8 +44,12 @@ def _cell(text: str) -> str:
     return " ".join(str(text).split()).replace("|", "\\|") or " "
 
 
+def _code(text: str) -> str:
+    return f"`{_cell(text)}`" if str(text) else " "
+
+
 def settings_rows(cls) -> list[str]:
-    """reST list-table rows of one settings dataclass (key, type, default, bounds, meaning)."""
+    """Markdown table rows of one settings dataclass (key, type, default, bounds, meaning)."""
     from omnisim.settings import type_name
     import typing
 
@@ -53,23 +58,21 @@ def settings_rows(cls) -> list[str]:
     for f in fields(cls):
         if not f.init:
             continue
-        rows += [f"   * - ``{f.name}``", f"     - {_cell(type_name(hints[f.name]))}",
-                 f"     - {_cell(_show(f.default))}", f"     - {_cell(_bounds(f.metadata))}",
-                 f"     - {_cell(f.metadata.get('doc', ''))}"]
+        rows.append(f"| `{f.name}` | {_cell(type_name(hints[f.name]))} | {_code(_show(f.default))} | "
+                    f"{_cell(_bounds(f.metadata))} | {_cell(f.metadata.get('doc', ''))} |")
     return rows
 
 
 def _table(title: str, rows: list[str], intro: str = "") -> list[str]:
-    header = [".. list-table::", "   :header-rows: 1", "   :widths: 18 14 12 18 38", "",
-              "   * - key", "     - type", "     - default", "     - bounds", "     - meaning"]
-    lines = [f".. rubric:: {title}", ""]
+    header = ["| key | type | default | bounds | meaning |", "|---|---|---|---|---|"]
+    lines = [f"**`{title}`**", ""]
     if intro:
         lines += [intro, ""]
     return lines + header + rows + [""]
 
 
 def scene_tables() -> list[str]:
-    """reST of every scene-file table."""
+    """Markdown of every scene-file table."""
     from omnisim import config, lights, materials, textures
 
     lines = []
@@ -90,7 +93,7 @@ def _first_line(cls) -> str:
 
 
 def generator_tables() -> list[str]:
-    """reST of every registered ``[[objects]]`` generator and its parameters."""
+    """Markdown of every registered ``[[objects]]`` generator and its parameters."""
     from omnisim.config import registered_generators
 
     lines = []
@@ -98,19 +101,25 @@ def generator_tables() -> list[str]:
         rows = []
         for p in gen.params:
             bounds = p.bounds() + [r.doc for r in gen.relations if r.key == p.name]
-            rows += [f"   * - ``{p.name}``", f"     - {_cell(p.kind)}",
-                     f"     - {'required' if p.required else _cell(_show(p.default))}",
-                     f"     - {_cell('; '.join(bounds))}", f"     - {_cell(p.doc)}"]
+            default = "required" if p.required else _code(_show(p.default))
+            rows.append(f"| `{p.name}` | {_cell(p.kind)} | {default} | {_cell('; '.join(bounds))} | "
+                        f"{_cell(p.doc)} |")
         lines += _table(f'[[objects]] generator = "{name}"', rows, _cell(gen.doc))
     return lines
 
 
 class SceneReference(SphinxDirective):
-    """``.. scene-reference::`` with the argument ``tables`` or ``generators``."""
+    """``scene-reference`` with the argument ``tables`` or ``generators`` (in a MyST page: the
+    content is parsed as Markdown)."""
 
     required_arguments = 1
 
     def run(self):
+        import omnisim
+
+        # The page is read again whenever a module the tables come from changes.
+        for path in sorted(Path(omnisim.__file__).parent.glob("*.py")):
+            self.env.note_dependency(str(path))
         which = self.arguments[0]
         lines = scene_tables() if which == "tables" else generator_tables()
         container = nodes.container()
