@@ -571,7 +571,7 @@ def sweep_records(sweep_dir: str | os.PathLike) -> list[dict]:
     for cell in cells:
         record = read_cell_record(_cell_path(Path(sweep_dir), cell), action="skipped")
         if record is None:  # a folder whose dataset paths were rewritten (made relative): found by content
-            record = by_dataset.get((cell.dataset, cell.method, cell.tile_size, cell.overlap))
+            record = by_dataset.get((cell.dataset_name, cell.method, cell.tile_size, cell.overlap))
         if record is not None and _of_cell(record, cell, digest):
             records.append(record)
         others += record is not None and not _of_cell(record, cell, digest)
@@ -588,7 +588,7 @@ def sweep_records(sweep_dir: str | os.PathLike) -> list[dict]:
 
 
 def _records_by_dataset(sweep_dir: Path, cells: list) -> dict:
-    """Records in ``cells/`` of no listed cell's file name, by (dataset, method, tile size, overlap).
+    """Records in ``cells/`` of no listed cell's file name, by (dataset label, method, tile size, overlap).
 
     A cell's file is named by its dataset's resolved folder; a sweep folder
     whose recorded dataset paths were rewritten (a report's copy, made
@@ -600,6 +600,7 @@ def _records_by_dataset(sweep_dir: Path, cells: list) -> dict:
             continue
         record = read_cell_record(path, action="skipped")
         if record is not None:
+            # A record's dataset is its cell's label, unique within a sweep (sweep_cells).
             found[(record["dataset"], record["method"], record["tile_size"], record["overlap"])] = record
     return found
 
