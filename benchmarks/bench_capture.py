@@ -32,7 +32,7 @@ def main() -> None:
 
     from omnisim.config import CaptureSettings, load_scene_config
     from omnisim.motion import poses_for_settings
-    from omnisim.render import OmniRenderer
+    from omnisim.renderer import OmniRenderer
 
     config = load_scene_config(args.scene, spp=args.spp, resolution=args.resolution, frames=args.repeats + 2)
     poses = poses_for_settings(config.trajectory, seed=config.layout_seed)

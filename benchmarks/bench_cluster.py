@@ -1,6 +1,6 @@
 """Frames per second of a Dask render (local cluster) against one process.
 
-Renders the same frames of a scene twice through :func:`omnisim.render.frame_results`
+Renders the same frames of a scene twice through :func:`omnisim.renderer.frame_results`
 -- once in this process, once with ``workers=N`` (a local cluster of N
 processes sharing the cores) -- checks that every file is byte-identical and
 prints, for each: the time to the first frame (scene loading, and for the
@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _run(plan, jobs, **where):
-    from omnisim.render import frame_results
+    from omnisim.renderer import frame_results
 
     start = time.perf_counter()
     stamps, files = [], {}
@@ -41,7 +41,7 @@ def main() -> None:
     parser.add_argument("--spp", type=int, default=16)
     args = parser.parse_args()
 
-    from omnisim.render import frame_plan
+    from omnisim.renderer import frame_plan
 
     plan = frame_plan(args.scene, frames=args.frames, spp=args.spp, resolution=args.resolution)
     jobs = [(k, ("images",)) for k in range(args.frames)]

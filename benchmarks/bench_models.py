@@ -205,7 +205,7 @@ def estimator_ates(args) -> dict:
     from ifmi.pipeline import estimate_dataset
     from ifmi.geometry.rotations import geodesic_angle
     from omnisim.config import write_scene_with_kalibr_camera
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     ates = {}
     for name in args.models:

@@ -128,7 +128,7 @@ def main() -> None:
               f"{med[1] / med[3]:.3f} / {med[2] / med[3]:.3f}   (different view, for information)")
 
     # As the dataset renderer runs: pose set through traverse, then render.
-    from omnisim.render import OmniRenderer
+    from omnisim.renderer import OmniRenderer
     from omnisim.motion import poses_for_settings
 
     renderer = OmniRenderer(config)

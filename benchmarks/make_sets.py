@@ -149,7 +149,7 @@ def build(recipe: SetRecipe, data: Path) -> str:
 
 
 def _render(recipe: SetRecipe, data: Path, out: Path) -> str:
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
     options = dict(recipe.options)
     scene = ROOT / options.pop("scene")
     overrides = options.pop("overrides", None)

@@ -1,4 +1,4 @@
-"""Command line of ``omnisim``: parsing only; rendering lives in :mod:`omnisim.render`."""
+"""Command line of ``omnisim``: parsing only; rendering lives in :mod:`omnisim.renderer`."""
 
 from __future__ import annotations
 
@@ -53,8 +53,8 @@ def _add_export_parser(sub) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .config import EffectsSettings
-    from .settings import field_docs
+    from omnisim.config import EffectsSettings
+    from omnisim.settings import field_docs
 
     parser = argparse.ArgumentParser(prog="omnisim", description="Render catadioptric omni-image "
                                      "sequences with exact ground truth (Mitsuba 3).")
@@ -109,9 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _degrade(args) -> int:
-    from .config import EffectsSettings
-    from .degrade import degrade_dataset
-    from .settings import SettingError, field_docs
+    from omnisim.config import EffectsSettings
+    from omnisim.degrade import degrade_dataset
+    from omnisim.settings import SettingError, field_docs
 
     given = {name: getattr(args, name) for name, *_ in field_docs(EffectsSettings)
              if getattr(args, name) is not None}
@@ -126,9 +126,9 @@ def _degrade(args) -> int:
 
 
 def _render(args) -> int:
-    from .render import render_dataset
+    from omnisim.api import render
 
-    result = render_dataset(args.scene, args.out, frames=args.frames, seed=args.seed, spp=args.spp,
+    result = render(args.scene, args.out, frames=args.frames, seed=args.seed, spp=args.spp,
                             resolution=args.resolution, progress=not args.no_progress,
                             variant=args.variant, aovs=args.aov, workers=args.workers,
                             scheduler=args.scheduler)
@@ -140,7 +140,7 @@ def _render(args) -> int:
 def _warp(args) -> int:
     from ifmi.errors import OptionError
 
-    from .warp import WarpSettings, warp_dataset
+    from omnisim.warp import WarpSettings, warp_dataset
 
     try:
         settings = WarpSettings(frames=args.frames, seed=args.seed, max_step_deg=args.max_step_deg,
@@ -153,7 +153,7 @@ def _warp(args) -> int:
 
 
 def _export(args) -> int:
-    from .export import ExportSettings, export_dataset
+    from omnisim.export import ExportSettings, export_dataset
 
     settings = ExportSettings(bag_format=args.bag_format, storage=args.storage, compressed=args.compressed,
                               start_time=args.start_time, frame_interval=args.frame_interval)
@@ -163,14 +163,14 @@ def _export(args) -> int:
 
 
 def _generators(args) -> int:
-    from .generators import describe_generators
+    from omnisim.generators import describe_generators
 
     print(describe_generators(), end="")
     return 0
 
 
 def _check_llvm(args) -> int:
-    from .llvm import main as llvm_main
+    from omnisim.llvm import main as llvm_main
 
     return llvm_main([])
 
@@ -181,7 +181,7 @@ COMMANDS = {"render": _render, "degrade": _degrade, "warp": _warp, "export": _ex
 
 def _exit_status(exc: BaseException, *, interrupted: bool, command: str) -> int | None:
     """Print the one-line report of ``exc`` and return the exit status, or None for a bug (re-raised)."""
-    from .llvm import BackendError
+    from omnisim.llvm import BackendError
 
     command = f"omnisim {command}".strip()
     if interrupted or caused_by_interrupt(exc):

@@ -32,7 +32,7 @@ from ifmi.io.text_file import read_failure
 
 from .config import EffectsSettings
 from .effects import apply_effects, exposure_gains, linear_from_srgb_uint8, srgb_uint8_from_linear
-from .render import META_FORMAT, encode_png, open_output_folder, pending_images, sha256_file
+from .renderer import META_FORMAT, encode_png, open_output_folder, pending_images, sha256_file
 
 __all__ = ["DegradeResult", "degrade_image", "degrade_dataset"]
 

@@ -67,7 +67,7 @@ from ifmi.geometry.trajectory import Trajectory
 from ifmi.spectral.panorama import PanoramaConfig, gray_from_image, lit_off_axis_band, panorama_axis_rotation, radius_band
 
 from .config import MAX_FRAMES
-from .render import META_FORMAT, encode_png, open_output_folder, pending_images, write_row_poses
+from .renderer import META_FORMAT, encode_png, open_output_folder, pending_images, write_row_poses
 
 __all__ = ["WarpSettings", "WarpResult", "rotation_walk", "valid_source_band", "warp_image",
            "round_trip_error", "rotations_in_camera_frame", "warp_dataset"]

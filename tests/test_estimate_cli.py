@@ -332,7 +332,7 @@ def test_interrupt_swallowed_by_library_code_still_exits_130(dataset, tmp_path, 
     estimate it lets finish is written, and the exit status says it was interrupted."""
     import ifmi.cli.estimate
 
-    real = ifmi.cli.estimate.estimate_dataset
+    real = ifmi.cli.estimate.estimate_run
 
     def swallowing(*args, **kwargs):
         try:
@@ -341,7 +341,7 @@ def test_interrupt_swallowed_by_library_code_still_exits_130(dataset, tmp_path, 
             pass
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(ifmi.cli.estimate, "estimate_dataset", swallowing)
+    monkeypatch.setattr(ifmi.cli.estimate, "estimate_run", swallowing)
     root, _ = dataset
     code = main(["estimate", str(root), "--out", str(tmp_path / "est.txt"), "--width", "512",
                  "--tile-size", "64", "--no-progress"])

@@ -309,7 +309,7 @@ def test_an_unwritable_output_folder_fails_before_the_estimate(dataset, tmp_path
 
     def not_called(*args, **kwargs):
         raise AssertionError("the estimate ran although its outputs cannot be written")
-    monkeypatch.setattr(ifmi.cli.estimate, "estimate_dataset", not_called)
+    monkeypatch.setattr(ifmi.cli.estimate, "estimate_run", not_called)
     monkeypatch.setattr(atomic.tempfile, "mkstemp", _failing_on_call(atomic.tempfile.mkstemp, 1, errno.EROFS))
     assert main(["estimate", str(dataset), "--out", str(tmp_path / "e.txt"), *FAST]) == 1
     assert capsys.readouterr().err.strip() == (f"ifmi estimate: error: cannot write {tmp_path / 'e.txt'}: "

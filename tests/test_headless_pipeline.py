@@ -49,7 +49,7 @@ BASELINE_MAX_RMSE = {"orb": 0.02, "akaze": 0.01}
 
 @pytest.mark.render
 def test_render_estimate_evaluate_report(tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     data = tmp_path / "office"
     render_dataset(SCENES / "office.toml", data, frames=FRAMES, resolution=RESOLUTION, spp=SPP,

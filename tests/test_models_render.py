@@ -287,7 +287,7 @@ def test_rendered_rotation_sequence_is_estimated(tmp_path, name):
     from ifmi.pipeline import estimate_dataset
     from ifmi.geometry.rotations import geodesic_angle
     from omnisim.config import write_scene_with_kalibr_camera
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     model = EXAMPLES[name].scaled(SEQUENCE_WIDTH_PX / EXAMPLES[name].width)
     scene = write_scene_with_kalibr_camera(SCENE, EXAMPLES[name], tmp_path)

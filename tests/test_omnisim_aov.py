@@ -129,7 +129,7 @@ def test_depth_and_normals_land_on_room_walls(tmp_path, exposure):
     pose the mid-exposure rays see.
     """
     from ifmi.io.tum import read_tum
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path, exposure=exposure)
     out = tmp_path / "out"
@@ -157,7 +157,7 @@ def test_rolling_shutter_row_poses_explain_the_depth(tmp_path):
     rows: their points miss the walls by centimetres.
     """
     from ifmi.io.tum import read_tum
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path, exposure=0.3, rolling=0.6)
     out = tmp_path / "out"
@@ -188,7 +188,7 @@ def test_ground_truth_is_the_pose_at_mid_exposure_of_the_middle_row(tmp_path):
     """
     from ifmi.io.tum import read_tum
     from omnisim.motion import WorldPoses, poses_at_times
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     render_dataset(_scene(tmp_path, frames=3, size=16), tmp_path / "sharp", progress=False)
     render_dataset(_scene(tmp_path, frames=4, size=16, name="next.toml"), tmp_path / "next", progress=False)
@@ -207,7 +207,7 @@ def test_ground_truth_is_the_pose_at_mid_exposure_of_the_middle_row(tmp_path):
 
 
 def test_missing_aov_files_are_rendered_again_identically(tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path, size=32)
     out = tmp_path / "out"
@@ -224,7 +224,7 @@ def test_missing_aov_files_are_rendered_again_identically(tmp_path):
 
 
 def test_unknown_aov_is_one_line_error(tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     with pytest.raises(InputError, match=r"--aov: expected AOV names from depth, normal, got albedo"):
         render_dataset(_scene(tmp_path), tmp_path / "out", progress=False, aovs="depth,albedo")
@@ -255,7 +255,7 @@ def test_no_aov_names_mean_no_aovs():
 
 
 def test_timed_capture_needs_the_pose_after_the_last_frame(tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     (tmp_path / "path.txt").write_text("0 0 0 0 0 0 0 1\n1 0.1 0 0 0 0 0.0998 0.995\n")
     scene = _scene(tmp_path, frames=2, exposure=0.5, tum='tum = "path.txt"')

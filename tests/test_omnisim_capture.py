@@ -73,7 +73,7 @@ def _checker_scene(mi, capture, *, spp):
 
 
 def _pose(mi, scene, rotation, position, end=None):
-    from omnisim.render import set_sensor_pose
+    from omnisim.renderer import set_sensor_pose
 
     set_sensor_pose(mi, mi.traverse(scene), "sensor.", rotation, position, end=end)
 
@@ -223,7 +223,7 @@ def test_vignetting_follows_its_formula_on_a_uniform_scene(tmp_path):
     """Under a constant environment every ray sees radiance L, so pixel = L (1 + (v rho/rho_max)^2)^-2."""
     from omnisim.config import load_scene_config
     from omnisim.effects import srgb_uint8_from_linear
-    from omnisim.render import FramePlan, FrameRenderer, render_dataset
+    from omnisim.renderer import FramePlan, FrameRenderer, render_dataset
 
     strength, radiance = 0.8, 0.5
     scene = tmp_path / "uniform.toml"
@@ -284,7 +284,7 @@ def test_timed_capture_with_the_most_frames_is_one_line_error(tmp_path):
     """A timed capture needs the pose after the last frame: with [trajectory] frames at its bound
     that one pose more failed the bound inside the render and ended in a traceback (SettingError)."""
     from omnisim.config import MAX_FRAMES
-    from omnisim.render import frame_plan
+    from omnisim.renderer import frame_plan
 
     path = tmp_path / "cap.toml"
     path.write_text(f"[camera]\npol = [-20.0, 0.0, 0.01]\ncenter = [32, 32]\nsize = [64, 64]\n"

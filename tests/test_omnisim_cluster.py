@@ -23,7 +23,7 @@ def _files(folder):
 
 def test_workers_write_the_same_bytes_as_one_process(tmp_path):
     """Two worker processes render a timed capture with AOVs; every file equals the single-process one."""
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path, frames=3, exposure=0.3, rolling=0.2, size=16)
     single, parallel = tmp_path / "single", tmp_path / "parallel"
@@ -43,7 +43,7 @@ def test_existing_scheduler_renders_the_same_bytes(tmp_path):
     """--scheduler ADDRESS: a cluster started elsewhere (here: in this test) renders the same files."""
     from distributed import LocalCluster
 
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path, frames=2, size=16)
     render_dataset(scene, tmp_path / "single", progress=False, aovs="depth")

@@ -481,7 +481,7 @@ def test_cli_obj_with_a_nan_texture_coordinate_is_one_line_exit_2(tmp_path, caps
 
 @pytest.mark.parametrize("content", ["[]", "{\"images\": []}", "{broken"])
 def test_meta_json_that_is_not_a_dataset_record_is_refused_in_one_line(tmp_path, content):
-    from omnisim.render import check_output_folder
+    from omnisim.renderer import check_output_folder
 
     (tmp_path / "meta.json").write_text(content)
     with pytest.raises(InputError, match=r"meta.json: (expected a JSON object|unreadable meta.json)"):

@@ -100,7 +100,7 @@ def _sha(path):
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
     """A 3-frame dataset rendered once for the module."""
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     tmp = tmp_path_factory.mktemp("ds")
     scene = _scene(tmp)
@@ -131,7 +131,7 @@ def test_dataset_folder_contents(rendered):
 
 
 def test_resume_rerenders_missing_frame_identically(rendered, tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene, out, _ = rendered
     copy = tmp_path / "copy"
@@ -148,7 +148,7 @@ def test_resume_rerenders_missing_frame_identically(rendered, tmp_path):
 
 
 def test_same_seed_gives_identical_bytes_and_other_seed_differs(rendered, tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene, out, _ = rendered
     render_dataset(scene, tmp_path / "same", progress=False)
@@ -160,7 +160,7 @@ def test_same_seed_gives_identical_bytes_and_other_seed_differs(rendered, tmp_pa
 
 
 def test_changed_seed_into_existing_folder_is_refused(rendered):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene, out, _ = rendered
     with pytest.raises(InputError, match="different seed"):
@@ -168,7 +168,7 @@ def test_changed_seed_into_existing_folder_is_refused(rendered):
 
 
 def test_changed_scene_into_existing_folder_is_refused(rendered, tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     _, out, _ = rendered
     other = _scene(tmp_path, spp=3)
@@ -177,7 +177,7 @@ def test_changed_scene_into_existing_folder_is_refused(rendered, tmp_path):
 
 
 def test_foreign_nonempty_folder_is_refused(rendered, tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene, _, _ = rendered
     (tmp_path / "notes.txt").write_text("mine")
@@ -218,7 +218,7 @@ def test_ground_truth_agrees_with_pixels(tmp_path):
     from ifmi.geometry.camera import radius_from_pixels
     from ifmi.io.calib import read_calib
     from ifmi.io.tum import read_tum
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path, frames=6, spp=16, yaw=4.0)
     out = tmp_path / "rot"
@@ -262,7 +262,7 @@ def test_bad_value_names_key(tmp_path):
 
 
 def test_unknown_generator_is_one_line_error(tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     path = tmp_path / "gen.toml"
     path.write_text(SCENE.format(frames=1, spp=1, yaw=3.0) + '\n[[objects]]\ngenerator = "spaceship"\n')
@@ -287,7 +287,7 @@ def test_shipped_scenes_render(name, tmp_path):
     """Each shipped scene file loads, builds and renders a small frame with content in the band."""
     from pathlib import Path
 
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = Path(__file__).resolve().parents[1] / "scenes" / f"{name}.toml"
     render_dataset(scene, tmp_path / name, frames=1, spp=1, resolution=64, progress=False)
@@ -298,7 +298,7 @@ def test_shipped_scenes_render(name, tmp_path):
 
 
 def test_bad_light_value_is_one_line_error(tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     path = tmp_path / "light.toml"
     path.write_text(SCENE.format(frames=1, spp=1, yaw=3.0) + '\n[[lights]]\ntype = "sun"\nirradiance = 3\n')
@@ -307,7 +307,7 @@ def test_bad_light_value_is_one_line_error(tmp_path):
 
 
 def test_bad_material_value_is_one_line_error(tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     path = tmp_path / "mat.toml"
     text = SCENE.format(frames=1, spp=1, yaw=3.0).replace('[materials.wood]\ncolor = [0.5, 0.35, 0.2]',

@@ -61,7 +61,7 @@ def _run_cli(argv, capsys):
 
 
 def test_broken_mesh_file_fails_before_the_output_folder_exists(tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     (tmp_path / "chair.obj").write_text("v 0 0 0\nf 1 2 9\nthis is not obj\n")
     scene = _scene(tmp_path, extra='\n[[objects]]\ngenerator = "mesh"\nfile = "chair.obj"\n')
@@ -73,7 +73,7 @@ def test_broken_mesh_file_fails_before_the_output_folder_exists(tmp_path):
 def test_folder_with_no_frames_is_reused_whatever_it_was_started_with(tmp_path):
     """A folder left by a run that stopped before its first frame (meta with no images, or only an
     empty images/ from older versions) is not refused."""
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path)
     started = tmp_path / "started"
@@ -88,7 +88,7 @@ def test_folder_with_no_frames_is_reused_whatever_it_was_started_with(tmp_path):
 
 @pytest.mark.parametrize("meta", [{"camera": "my real rig"}, {}, {"identity": "x", "images": {}}])
 def test_folder_with_a_meta_json_omnisim_did_not_write_is_refused_and_kept(tmp_path, meta):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path)
     mine = tmp_path / "rig"
@@ -102,7 +102,7 @@ def test_folder_with_a_meta_json_omnisim_did_not_write_is_refused_and_kept(tmp_p
 
 
 def test_refusal_names_the_setting_that_differs(tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path)
     render_dataset(scene, tmp_path / "out", progress=False)
@@ -153,7 +153,7 @@ def test_render_into_read_only_folder_is_one_line_exit_1(tmp_path, capsys):
 
 
 def test_degrade_out_below_a_regular_file_is_one_line_exit_1(tmp_path, capsys):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     render_dataset(_scene(tmp_path), tmp_path / "src", progress=False)
     (tmp_path / "file").write_text("mine")
@@ -164,7 +164,7 @@ def test_degrade_out_below_a_regular_file_is_one_line_exit_1(tmp_path, capsys):
 
 
 def test_open_output_folder_raises_output_error_naming_the_folder(tmp_path):
-    from omnisim.render import open_output_folder
+    from omnisim.renderer import open_output_folder
 
     (tmp_path / "file").write_text("mine")
     with pytest.raises(OutputError, match=r"cannot write .*file/out: Not a directory"):
@@ -193,7 +193,7 @@ def _cli_run(args, tmp_path):
 def test_frame_file_replaced_by_a_folder_or_fifo_is_one_line_exit_2(tmp_path, kind):
     """A frame's file in the output folder that is no regular file: the resume gave a traceback
     (a folder) or waited forever reading it (a FIFO)."""
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path)
     render_dataset(scene, tmp_path / "out", progress=False)
@@ -210,7 +210,7 @@ def test_frame_file_replaced_by_a_folder_or_fifo_is_one_line_exit_2(tmp_path, ki
 def test_frame_file_linked_to_another_file_is_refused_and_that_file_kept(tmp_path):
     """A frame file that was a symbolic link to another file: the resume wrote the frame through
     the link, replacing the file it led to (outside the output folder)."""
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path)
     render_dataset(scene, tmp_path / "out", progress=False)
@@ -300,7 +300,7 @@ def test_interrupt_swallowed_by_library_code_still_exits_130(monkeypatch, capsys
 
 
 def test_broken_envmap_file_fails_before_the_output_folder_exists(tmp_path):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     (tmp_path / "sky.exr").write_bytes(b"not an image")
     scene = _scene(tmp_path)  # its constant light replaced by the envmap: a scene holds one environment light
@@ -348,7 +348,7 @@ def test_spp_the_sampler_rounds_up_is_rendered_as_the_rounded_count_and_recorded
     """multijitter renders 6 samples when asked for 5: said once, recorded, and the images are those
     of spp 6 (Mitsuba is asked for the rounded count, so it does not log the rounding per frame)."""
     from ifmi.errors import InputWarning
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     with pytest.warns(InputWarning, match=r"\[render\] spp 5: the multijitter sampler renders 6 samples per pixel"):
         render_dataset(_scene(tmp_path, spp=5, frames=1, name="five.toml"), tmp_path / "five", progress=False)
@@ -365,7 +365,7 @@ def test_frames_with_no_light_are_warned_about(tmp_path):
     import warnings
 
     from ifmi.errors import InputWarning
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     dark = _scene(tmp_path, name="dark.toml")
     dark.write_text(dark.read_text().replace('[[lights]]\ntype = "constant"\n', ""))
@@ -377,7 +377,7 @@ def test_frames_with_no_light_are_warned_about(tmp_path):
 
 
 def test_refusal_names_the_asset_file_that_changed(tmp_path):
-    from omnisim.render import check_output_folder
+    from omnisim.renderer import check_output_folder
 
     identity = {"format": 1, "settings": {"assets": [["a.obj", "1" * 64], ["wood.png", "2" * 64]]}}
     (tmp_path / "meta.json").write_text(json.dumps({"identity": identity, "images": {"000000.png": "0" * 64}}))

@@ -101,7 +101,7 @@ def test_textured_mesh_room_ground_truth_agrees_with_pixels(tmp_path):
     frame with frame 0 three times better than the identity or the transposed
     rotation. The texture must reach the image (no flat grey walls).
     """
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     _textured_room_obj(tmp_path)
     scene = tmp_path / "mesh_room.toml"
@@ -178,7 +178,7 @@ def test_mitsuba_xml_scene_ground_truth_agrees_with_pixels(tmp_path):
     ground truth aligns the frames as for the procedural room."""
     import cv2
 
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _xml_scene(tmp_path)
     out = tmp_path / "out"
@@ -194,7 +194,7 @@ def test_mitsuba_xml_scene_ground_truth_agrees_with_pixels(tmp_path):
 def test_mitsuba_xml_adds_its_shapes_and_toml_objects_on_top(tmp_path):
     """The loaded scene holds the XML's two shapes, the procedural boxes, the omni sensor only."""
     from omnisim.config import load_scene_config
-    from omnisim.render import OmniRenderer
+    from omnisim.renderer import OmniRenderer
 
     renderer = OmniRenderer(load_scene_config(_xml_scene(tmp_path), spp=1, resolution=32))
     scene = renderer.scene
@@ -209,7 +209,7 @@ def test_mitsuba_xml_adds_its_shapes_and_toml_objects_on_top(tmp_path):
 
 def test_mitsuba_xml_without_integrator_uses_the_toml_render_settings(tmp_path):
     from omnisim.config import load_scene_config
-    from omnisim.render import OmniRenderer
+    from omnisim.renderer import OmniRenderer
 
     scene = _xml_scene(tmp_path)
     xml = tmp_path / "room.xml"
@@ -223,7 +223,7 @@ def test_mitsuba_xml_without_integrator_uses_the_toml_render_settings(tmp_path):
 
 def test_broken_mitsuba_xml_is_one_line_error_before_the_folder_exists(tmp_path):
     from ifmi.errors import InputError
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _xml_scene(tmp_path)
     (tmp_path / "room.xml").write_text(XML_SCENE.replace("textures/walls.png", "textures/missing.png"))
@@ -262,7 +262,7 @@ def _render_one(tmp_path, extra, *, position=(0.0, 0.0, 0.0), spp=4, name="one")
     from ifmi.io.calib import read_calib
     from ifmi.io.tum import read_tum
     from omnisim.effects import linear_from_srgb_uint8
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = tmp_path / f"{name}.toml"
     scene.write_text(_scene_text(frames=1, spp=spp, yaw=0.0, position=position, extra=extra))
@@ -434,7 +434,7 @@ def test_mitsuba_xml_integrator_that_renders_no_radiance_image_is_refused(tmp_pa
     crashed in the render, after the folder was made); AOV and depth integrators would be written as
     if they were images."""
     from ifmi.errors import InputError
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _xml_scene(tmp_path)
     (tmp_path / "room.xml").write_text(XML_SCENE.replace(

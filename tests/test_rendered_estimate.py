@@ -26,7 +26,7 @@ FRAMES = 8
 
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     out = tmp_path_factory.mktemp("render") / "urban"
     render_dataset(SCENE, out, frames=FRAMES, resolution=256, spp=8, progress=False)

@@ -553,7 +553,8 @@ def test_report_inside_its_results_folder_leaves_out_its_own_copies_on_a_rerun(t
     for _ in range(2):
         assert main(["report", str(root / "eval"), "--out", str(out), "--no-motion-flow"]) == 0
     doc = json.loads((out / "report.json").read_text())
-    assert sorted(doc["evaluations"]) == sorted(str(root / "eval" / "office" / m) for m in METHODS)
+    # Inputs are recorded without the machine's folders above them (ifmi.io.portable_paths).
+    assert sorted(doc["evaluations"]) == sorted(f"eval/office/{m}" for m in METHODS)
 
 
 def test_two_sweeps_of_one_folder_name_get_their_own_figures_and_copies(tmp_path):
@@ -594,3 +595,20 @@ def test_average_table_names_scenes_a_method_lacks(tmp_path, capsys):
     assert capsys.readouterr().err.strip() == f"warning: {note}"
     readme = (out / "README.md").read_text()
     assert note in readme and "| scenes |  | 2 | 1 | 2 |" in readme.splitlines()
+
+
+def test_a_report_names_its_data_sets_not_the_machines_folders(tmp_path):
+    """Evaluations and sweeps record absolute paths; the report's copies and report.json hold them
+    relative to the folder above all of them, and the report still rebuilds from its copies."""
+    root = _make_results(tmp_path / "results")
+    out = tmp_path / "report"
+    assert main(["report", str(root / "eval"), str(root / "sweep"), "--out", str(out), "--no-motion-flow"]) == 0
+    texts = {p: p.read_text() for p in out.rglob("*") if p.suffix in (".json", ".csv", ".md", ".html")}
+    assert texts and not [p for p, text in texts.items() if str(tmp_path) in text]
+    evaluation = json.loads((out / "data" / "eval" / "office" / "ifmi" / "evaluation.json").read_text())
+    assert evaluation["groundtruth_path"] == "data/office_20/groundtruth.txt"
+    rebuilt = tmp_path / "rebuilt"
+    assert main(["report", str(out / "data"), "--out", str(rebuilt), "--no-motion-flow"]) == 0
+    first, again = (json.loads((p / "report.json").read_text()) for p in (out, rebuilt))
+    assert again["scenes"] == first["scenes"]
+    assert [s["cells"] for s in again["sweeps"]] == [s["cells"] for s in first["sweeps"]]

@@ -3,7 +3,7 @@
 One pair's rays fix its translation direction only loosely when the step
 is short: the parallax of a 1-2 cm step is a few milliradians, about the
 noise of one ray, and the pair's solver then lets the rotation take up part
-of it (``reports/fast_motion``). A point seen in three or more frames ties
+of it. A point seen in three or more frames ties
 the pairs together: its depth, fixed by the longer steps, turns a short
 step's parallax into a translation instead of a tilt. This module refines
 the poses of a window of frames and the depths of the points they share.

@@ -23,10 +23,11 @@ import sys
 import warnings
 from pathlib import Path
 
+from ifmi.api import estimate as estimate_run
 from ifmi.errors import CalibrationFitError, InputError, InputWarning, OutputError
-from ifmi.tracking.methods import load_factory
 from ifmi.options import RejectedValues, replaced_at_paths
-from ifmi.pipeline import EstimateConfig, estimate_bag, estimate_dataset, estimate_video
+from ifmi.pipeline import EstimateConfig
+from ifmi.tracking.methods import load_factory
 
 # Exit status when the outputs were written but more than half of the frames failed.
 EXIT_MOSTLY_FAILED = 3
@@ -364,8 +365,7 @@ def _input_kind(args) -> tuple[bool, bool]:
 
 
 def run(args) -> int:
-    from ifmi.io.bags import BagFrames
-    from ifmi.io.results import check_estimate_outputs, side_file_paths, write_estimate_run
+    from ifmi.io.results import check_estimate_outputs, side_file_paths
 
     config_file, given, config = _configuration(args)
     method = chosen_method(args.method, config_file)
@@ -377,27 +377,12 @@ def run(args) -> int:
     dataset_dir = None if video else args.dataset
     check_estimate_outputs(args.out, dataset_dir=dataset_dir, input_files=inputs, overwrite=args.force)
     try:
-        # The topic is checked (and chosen when not given) before the calibration is read.
-        topic = BagFrames(args.dataset, topic=args.topic).topic if bag else None
-        if bag:
-            estimate = estimate_bag(args.dataset, args.calib, topic=topic, method=method, config=config,
-                                    progress=not args.no_progress)
-        elif video:
-            estimate = estimate_video(args.dataset, args.calib, method=method, config=config,
-                                      progress=not args.no_progress)
-        else:
-            estimate = estimate_dataset(args.dataset, method=method, config=config,
-                                        progress=not args.no_progress)
+        estimate = estimate_run(args.dataset, method=method, config=config, calib=args.calib if video else None,
+                                topic=args.topic if bag else None, progress=not args.no_progress)
     except InputError as exc:
         raise _blamed(exc, given, config_file) from None
-    extra = {"derived": _derived_keys(config, estimate.config)}
-    if bag:
-        extra.update(bag=str(Path(args.dataset).resolve()), topic=topic,
-                     calib=str(Path(args.calib).resolve()))
-    elif video:
-        extra.update(video=str(Path(args.dataset).resolve()), calib=str(Path(args.calib).resolve()))
-    write_estimate_run(out, estimate, dataset_dir=dataset_dir, input_files=inputs, extra=extra,
-                       overwrite=args.force)
+    estimate.write(out, input_files=inputs, extra={"derived": _derived_keys(config, estimate.config)},
+                   overwrite=args.force)
     failed = sum(not r.success for r in estimate.frames)
     least_certain = estimate.least_certain_frame()
     certainty = "" if least_certain is None else (

@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
+from ifmi.api import evaluate
 from ifmi.errors import InputError
-from ifmi.evaluation.trajectory_files import EvaluateOptions, evaluate_files, format_summary_table, gate_verdict, summary_of
+from ifmi.evaluation.trajectory_files import EvaluateOptions, format_summary_table, gate_verdict, summary_of
 from ifmi.io.bags import is_bag_path
 from ifmi.io.results import side_file_paths
 
@@ -95,10 +96,10 @@ def run(args) -> int:
                                           "expected the estimate's frames.csv for --max-failed")
     if (args.gt_topic or args.gt_frames) and not is_bag_path(args.gt):
         raise InputError(args.gt, "--gt-topic and --gt-frames are for a ROS bag; this is not one")
-    meta = evaluate_files(args.gt, args.est, out_dir=args.out,
-                          options=EvaluateOptions(max_time_difference=args.max_time_difference,
-                                                  min_matched=args.min_matched),
-                          gt_topic=args.gt_topic, gt_frames=None if args.gt_frames is None else tuple(args.gt_frames))
+    options = EvaluateOptions(max_time_difference=args.max_time_difference, min_matched=args.min_matched)
+    # Written to --out, or to ESTIMATE.eval/ beside the estimate when that can be written.
+    meta = evaluate(args.gt, args.est, out=args.out or True, options=options, gt_topic=args.gt_topic,
+                    gt_frames=None if args.gt_frames is None else tuple(args.gt_frames)).meta
     if args.max_rmse is not None:
         try:
             verdict = gate_verdict(summary_of(meta), max_rmse_rad=args.max_rmse,

@@ -54,7 +54,7 @@ def add_parser(subparsers) -> None:
         description="Estimate and evaluate every (dataset, tile size, overlap) cell; one JSON "
                     "per cell in OUT/cells/ (failed cells recorded, finished ones skipped on a "
                     "rerun), then OUT/sweep.json, OUT/sweep.csv, OUT/sweep.parquet and "
-                    "OUT/heatmaps/*.png as one set (built beside OUT and swapped in when "
+                    "the heatmaps in OUT/heatmaps/ as one set (built beside OUT and swapped in when "
                     "complete). An existing --out must be an earlier sweep folder (your other "
                     "files in it are kept) or empty.",
     )
@@ -136,7 +136,7 @@ def _refuse_one_name(option: str, values: list[float]) -> None:
 
 def _check_inputs(args) -> dict | None:
     """Refuse missing datasets, folders without ground truth, and bags without --calib; the bag
-    options as :func:`ifmi.sweep.sweep_cells` takes them (None when no dataset is a bag)."""
+    options as :func:`ifmi.experiments.sweep.sweep_cells` takes them (None when no dataset is a bag)."""
     from ifmi.io.bags import is_bag_path
 
     bags = [d for d in args.datasets if is_bag_path(d)]

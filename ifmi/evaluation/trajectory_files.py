@@ -22,12 +22,13 @@ from ifmi.io.results import EstimateSideFiles, jsonable, read_estimate_side_file
 from ifmi.io.bag_poses import read_bag_trajectory
 from ifmi.io.bags import is_bag_path
 from ifmi.io.tum import read_tum
-from ifmi.evaluation.metrics import (AXES, MAX_POSITION, MIN_ASSOCIATED, EvaluationSummary, summary_from_errors,
-                      trajectory_errors)
+from ifmi.evaluation.metrics import (AXES, MAX_POSITION, MIN_ASSOCIATED, EvaluationSummary, TrajectoryErrors,
+                                    summary_from_errors, trajectory_errors)
 from ifmi.geometry.trajectory import Trajectory
 
 __all__ = ["EvaluateOptions", "GateVerdict", "MIN_ASSOCIATED", "default_evaluation_dir",
-           "evaluate_files", "format_summary_table", "dataset_label", "dataset_provenance",
+           "evaluate_files", "evaluate_files_with_errors", "evaluate_trajectories",
+           "read_and_evaluate", "format_summary_table", "dataset_label", "dataset_provenance",
            "gate_verdict", "summary_of"]
 
 
@@ -207,6 +208,11 @@ def _warn_if_rebased(gt_path: Path, est_path: Path, errors, options: EvaluateOpt
                   InputWarning, stacklevel=3)
 
 
+def _resolved_name(path: Path) -> str:
+    """The absolute path of an input file; the name as given of one held in memory (no file)."""
+    return str(path.resolve()) if path.exists() else str(path)
+
+
 def _run_meta(gt_path: Path, est_path: Path, side: EstimateSideFiles, summary: EvaluationSummary,
               options: EvaluateOptions) -> dict:
     config = side.config or {}
@@ -219,8 +225,8 @@ def _run_meta(gt_path: Path, est_path: Path, side: EstimateSideFiles, summary: E
         "scene": scene,
         "dataset_path": str(dataset_dir),
         "dataset_meta": dataset_provenance(dataset_dir),
-        "groundtruth_path": str(gt_path.resolve()),
-        "estimate_path": str(est_path.resolve()),
+        "groundtruth_path": _resolved_name(gt_path),
+        "estimate_path": _resolved_name(est_path),
         "options": options.to_dict(),
         "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
     }
@@ -270,34 +276,18 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
     OutputError
         The ``out_dir`` given cannot be written.
     """
+    return evaluate_files_with_errors(gt_path, est_path, out_dir=out_dir, options=options,
+                                      gt_topic=gt_topic, gt_frames=gt_frames)[0]
+
+
+def evaluate_files_with_errors(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
+                               out_dir: str | os.PathLike | None = None,
+                               options: EvaluateOptions = EvaluateOptions(), gt_topic: str | None = None,
+                               gt_frames: tuple[str, str] | None = None) -> tuple[dict, TrajectoryErrors]:
+    """:func:`evaluate_files`'s result and the per-frame errors it wrote."""
     gt_path, est_path = Path(gt_path), Path(est_path)
-    from_bag = gt_topic is not None or gt_frames is not None or is_bag_path(gt_path)
-    gt = read_bag_trajectory(gt_path, topic=gt_topic, frames=gt_frames) if from_bag else read_tum(gt_path)
-    est = read_tum(est_path)
-    _refuse_same_file(gt_path, est_path)
-    _check_positions(gt_path, gt)
-    _check_positions(est_path, est)
-    _check_unique_timestamps(gt_path, gt)
-    _check_unique_timestamps(est_path, est)
-    side = read_estimate_side_files(est_path)
-    _check_side_files(est_path, est, side)
-    try:
-        errors = trajectory_errors(gt, est, max_time_difference=options.max_time_difference,
-                                   reference_timestamps=_reference_timestamps(est, side))
-    except ValueError as exc:
-        raise InputError(est_path, str(exc)) from None
-    _check_matched(gt_path, est_path, len(errors), len(gt), len(est), options)
-    if not from_bag:
-        _warn_if_rebased(gt_path, est_path, errors, options)
-    frames = side.frames
-    summary = summary_from_errors(errors, n_gt=len(gt), n_est=len(est),
-                                  frame_success=None if frames is None else frames.success,
-                                  frame_seconds=None if frames is None else frames.seconds)
-    meta = _run_meta(gt_path, est_path, side, summary, options)
-    meta["origin"] = {"timestamp": float(errors.timestamps[0]),
-                      "groundtruth_angle_rad": errors.gt_origin_angle,
-                      "estimate_angle_rad": errors.est_origin_angle}
-    meta["per_frame_columns"] = list(errors.arrays())
+    meta, errors, side = read_and_evaluate(gt_path, est_path, options=options, gt_topic=gt_topic,
+                                           gt_frames=gt_frames)
     out = Path(out_dir) if out_dir is not None else default_evaluation_dir(est_path)
     _refuse_dataset_output(out, gt_path, side)
     try:
@@ -308,11 +298,69 @@ def evaluate_files(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
             raise error from None
         # The default folder is a convenience: the result still stands (and a gate's verdict with it).
         warnings.warn(f"{error}; the evaluation is not saved (--out chooses a folder)", InputWarning,
-                      stacklevel=2)
+                      stacklevel=3)
         out = None
     meta = jsonable(meta)
     meta["path"] = None if out is None else str(out)
-    return meta
+    return meta, errors
+
+
+def read_and_evaluate(gt_path: str | os.PathLike, est_path: str | os.PathLike, *,
+                      options: EvaluateOptions = EvaluateOptions(), gt_topic: str | None = None,
+                      gt_frames: tuple[str, str] | None = None
+                      ) -> tuple[dict, TrajectoryErrors, EstimateSideFiles]:
+    """Read the ground truth (a TUM file or a ROS bag), the estimate's TUM file and side files, and
+    evaluate them, writing nothing: ``(meta, errors, side files)``; raises as :func:`evaluate_files`."""
+    gt_path, est_path = Path(gt_path), Path(est_path)
+    from_bag = gt_topic is not None or gt_frames is not None or is_bag_path(gt_path)
+    gt = read_bag_trajectory(gt_path, topic=gt_topic, frames=gt_frames) if from_bag else read_tum(gt_path)
+    est = read_tum(est_path)
+    _refuse_same_file(gt_path, est_path)
+    side = read_estimate_side_files(est_path)
+    meta, errors = evaluate_trajectories(gt, est, side=side, gt_path=gt_path, est_path=est_path,
+                                         options=options, warn_if_rebased=not from_bag)
+    return meta, errors, side
+
+
+def evaluate_trajectories(gt: Trajectory, est: Trajectory, *, side: EstimateSideFiles, gt_path: Path,
+                          est_path: Path, options: EvaluateOptions = EvaluateOptions(),
+                          warn_if_rebased: bool = True) -> tuple[dict, TrajectoryErrors]:
+    """The evaluation of two trajectories in memory: ``(meta, errors)``, nothing written.
+
+    ``meta`` is what ``evaluation.json`` holds; ``gt_path`` and ``est_path``
+    name the inputs in messages and in ``meta``; ``side`` holds the
+    estimate's per-frame records (failures, time) and configuration. With
+    ``warn_if_rebased``, ground truth that does not start at the identity is
+    warned of (a bag's ground truth lies in its own world frame: no warning).
+
+    Raises
+    ------
+    InputError
+        As :func:`evaluate_files`, for the checks of the poses themselves.
+    """
+    _check_positions(gt_path, gt)
+    _check_positions(est_path, est)
+    _check_unique_timestamps(gt_path, gt)
+    _check_unique_timestamps(est_path, est)
+    _check_side_files(est_path, est, side)
+    try:
+        errors = trajectory_errors(gt, est, max_time_difference=options.max_time_difference,
+                                   reference_timestamps=_reference_timestamps(est, side))
+    except ValueError as exc:
+        raise InputError(est_path, str(exc)) from None
+    _check_matched(gt_path, est_path, len(errors), len(gt), len(est), options)
+    if warn_if_rebased:
+        _warn_if_rebased(gt_path, est_path, errors, options)
+    frames = side.frames
+    summary = summary_from_errors(errors, n_gt=len(gt), n_est=len(est),
+                                  frame_success=None if frames is None else frames.success,
+                                  frame_seconds=None if frames is None else frames.seconds)
+    meta = _run_meta(gt_path, est_path, side, summary, options)
+    meta["origin"] = {"timestamp": float(errors.timestamps[0]),
+                      "groundtruth_angle_rad": errors.gt_origin_angle,
+                      "estimate_angle_rad": errors.est_origin_angle}
+    meta["per_frame_columns"] = list(errors.arrays())
+    return meta, errors
 
 
 def _refuse_dataset_output(out: Path, gt_path: Path, side: EstimateSideFiles) -> None:

@@ -606,6 +606,25 @@ def _copy_data(inputs: ReportInputs, records: Sequence[EvaluationRecord], data: 
             shutil.copy2(cell, dst / "cells" / cell.name)
 
 
+def _portable_paths(data: Path | None, document: dict):
+    """The rewriter of the machine paths in ``document`` (``report.json``) and the JSON files of
+    ``data`` (:mod:`ifmi.io.portable_paths`): a report names its data sets, not one machine's folders."""
+    from ifmi.io.portable_paths import PortablePaths, absolute_paths_in, read_json_or_none
+
+    paths = absolute_paths_in(document)
+    for path in [] if data is None else sorted(data.rglob("*.json")):
+        paths |= absolute_paths_in(read_json_or_none(path))
+    return PortablePaths.for_paths(paths, base=Path.cwd())
+
+
+def _make_data_portable(data: Path, portable) -> None:
+    """Rewrite the copied JSON files and sweep tables under ``data`` with ``portable``."""
+    for path in sorted(data.rglob("*.json")):
+        portable.rewrite_json_file(path)
+    for sweep in sorted(data.glob("sweep/*")):
+        portable.rewrite_table_files(sweep / "sweep.csv", sweep / "sweep.parquet")
+
+
 def _series(records: Sequence[EvaluationRecord]) -> dict:
     keys = ["timestamp"] + [f"{a}_{k}" for a in AXES for k in ("gt", "est")] + ["geodesic_error"]
     series = {r.scene: {} for r in records}
@@ -677,12 +696,16 @@ def _write_report(inputs: ReportInputs, records: list[EvaluationRecord], out: Pa
         blocks += [("h2", "Configurations"),
                    ("p", "Each estimate run's configuration is in its evaluation folder "
                          "(config.json) and in report.json.")]
-    atomic_write_json(out / "report.json", jsonable({
+    document = jsonable({
         "kind": REPORT_KIND, "title": options.title, "command": options.command, "scenes": tables, "average": avg,
         "ratios": ratios, "plots": plots, "series": _series(records), "sweeps": sweeps,
         "datasets": provenance, "machine": machine, "versions": versions, "configs": configs,
         "evaluations": [str(p) for p in inputs.evaluations],
-    }))
+    })
+    portable = _portable_paths(data, document)
+    if data is not None:
+        _make_data_portable(data, portable)
+    atomic_write_json(out / "report.json", portable.value(document))
     atomic_write_text(out / "index.html", _render_html(blocks, options.title))
     atomic_write_text(out / "README.md", _render_markdown(blocks))
 

@@ -641,19 +641,42 @@ def sweep_records(sweep_dir: str | os.PathLike) -> list[dict]:
     cells = _listed_cells(path, document)
     digest = config_digest(document["base_config"])
     records, others = [], 0
+    by_dataset = _records_by_dataset(Path(sweep_dir), cells)
     for cell in cells:
         record = read_cell_record(_cell_path(Path(sweep_dir), cell), action="skipped")
+        if record is None:  # a folder whose dataset paths were rewritten (made relative): found by content
+            record = by_dataset.get((cell.dataset_name, cell.method, cell.tile_size, cell.overlap))
         if record is not None and _of_cell(record, cell, digest):
             records.append(record)
         others += record is not None and not _of_cell(record, cell, digest)
     names = {f"{cell.cell_id}.json" for cell in cells}
-    others += sum(1 for path in (Path(sweep_dir) / "cells").glob("*.json") if path.name not in names)
+    used = {record.get("cell_id") for record in records}
+    others += sum(1 for path in (Path(sweep_dir) / "cells").glob("*.json")
+                  if path.name not in names and path.stem not in used)
     if others > 0:
         grid = f"{len(cells)} cell{'s' if len(cells) != 1 else ''}"
         _warn(f"{sweep_dir}: {others} cell record{'s' if others > 1 else ''} in cells/ not of the grid and base "
               f"configuration of sweep.json ({grid}), left out: from earlier sweeps in this folder, or an "
               f"unfinished rerun")
     return records
+
+
+def _records_by_dataset(sweep_dir: Path, cells: list) -> dict:
+    """Records in ``cells/`` of no listed cell's file name, by (dataset label, method, tile size, overlap).
+
+    A cell's file is named by its dataset's resolved folder; a sweep folder
+    whose recorded dataset paths were rewritten (a report's copy, made
+    relative) still holds each cell's record under its first name."""
+    names = {f"{cell.cell_id}.json" for cell in cells}
+    found = {}
+    for path in sorted((sweep_dir / "cells").glob("*.json")):
+        if path.name in names:
+            continue
+        record = read_cell_record(path, action="skipped")
+        if record is not None:
+            # A record's dataset is its cell's label, unique within a sweep (sweep_cells).
+            found[(record["dataset"], record["method"], record["tile_size"], record["overlap"])] = record
+    return found
 
 
 def _of_cell(record: dict, cell: SweepCell, digest: str) -> bool:

@@ -152,7 +152,7 @@ class FourierMellinConfig:
         0.010 rad ATE, and on 126 fast sequences the median ATE over three
         seeds improved by more than 5 % on 67 and worsened on 43 (frame
         mode), but a frame of office_trans_x10 took a wrong peak (ATE 0.004
-        -> 0.09 rad on two of three seeds); see ``reports/fast_motion``.
+        -> 0.09 rad on two of three seeds).
         For noisy footage use it with ``correlation_highpass_bins=1.0`` and
         ``th_pr=2.0``.
     correlation_highpass_bins : float

@@ -136,7 +136,7 @@ class IfmiConfig:
         positions, so their errors partly average out. Measured on 108 fast
         sets and 12 warehouse sets (3 RANSAC seeds, both modes): the sets
         where iFMI's ATE exceeded the better feature method's went from 25
-        to 15 (`reports/fast_motion`, thirteenth stop). 0 disables it.
+        to 15. 0 disables it.
     reregister_min_px : float
         The second registration is made only when the solved rotation moves
         the tiles at least this far from where they were registered

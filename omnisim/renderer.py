@@ -36,14 +36,14 @@ from ifmi.io.provenance import package_versions
 from ifmi.io.tum import format_tum, write_tum
 from ifmi.runtime.local_workers import max_local_workers
 
-from .aov import AOV_NAMES, aov_integrator_dict, aov_names_from_text, aov_sensor_dict, depth_normal_from_aov, npy_bytes
-from .capture import ground_truth_time, row_mid_times, sensor_timing_props, vignetting_from_pixels
-from .config import MAX_FRAMES, SceneConfig, load_scene_config
-from .effects import apply_effects, exposure_gains, srgb_uint8_from_linear
-from .motion import (WorldPoses, poses_at_times, poses_for_settings, relative_trajectory, trajectory_in_camera,
+from omnisim.aov import AOV_NAMES, aov_integrator_dict, aov_names_from_text, aov_sensor_dict, depth_normal_from_aov, npy_bytes
+from omnisim.capture import ground_truth_time, row_mid_times, sensor_timing_props, vignetting_from_pixels
+from omnisim.config import MAX_FRAMES, SceneConfig, load_scene_config
+from omnisim.effects import apply_effects, exposure_gains, srgb_uint8_from_linear
+from omnisim.motion import (WorldPoses, poses_at_times, poses_for_settings, relative_trajectory, trajectory_in_camera,
                      world_trajectory)
-from .scene import build_scene_dict, mitsuba_reason
-from .sensor import register_omni_sensor, sensor_dict, to_world_matrix
+from omnisim.scene import build_scene_dict, mitsuba_reason
+from omnisim.sensor import register_omni_sensor, sensor_dict, to_world_matrix
 
 __all__ = ["OmniRenderer", "DatasetResult", "frame_seed", "render_dataset", "encode_png", "sha256_file",
            "check_output_folder", "open_output_folder", "pending_images", "frame_file_matches", "set_sensor_pose",
@@ -112,7 +112,7 @@ class OmniRenderer:
 
     def __init__(self, config: SceneConfig, *, variant: str | None = None,
                  integrator: dict | None = None, sampler: str | None = None):
-        from .llvm import import_mitsuba
+        from omnisim.llvm import import_mitsuba
 
         self.config = config
         self.mi = import_mitsuba(variant or config.render.variant or None)
@@ -590,7 +590,7 @@ def frame_plan(scene_path, *, frames: int | None = None, seed: int | None = None
     except ValueError as exc:
         raise InputError(scene_path, f"--aov: {exc}") from None
     trajectory = _trajectory_samples(config, seed)
-    from .llvm import import_mitsuba
+    from omnisim.llvm import import_mitsuba
     mi = import_mitsuba(config.render.variant or None)
     n = config.trajectory.frames
     return FramePlan(config=config, seed=seed, variant=mi.variant(), trajectory=trajectory,
@@ -607,7 +607,7 @@ def frame_results(plan: FramePlan, jobs: list, *, workers: int | None = None, sc
     used instead of ``workers`` or ``scheduler``.
     """
     if client is not None or workers or scheduler:
-        from .cluster import map_on_client, map_on_cluster
+        from omnisim.cluster import map_on_client, map_on_cluster
 
         if client is not None:
             yield from map_on_client(client, FrameRenderer, render_frame_files, plan, jobs, key=plan.key)
@@ -654,7 +654,7 @@ def _cluster_for(plan: FramePlan, out_dir: Path, *, workers: int | None, schedul
     if previous is not None and not _pending_jobs(out_dir, copy.deepcopy(previous), n,
                                                   ("images",) + plan.aovs):
         return nullcontext()
-    from .cluster import cluster_client
+    from omnisim.cluster import cluster_client
 
     return cluster_client(variant=plan.variant, workers=workers, scheduler=scheduler)
 
