@@ -294,9 +294,6 @@ class GlobalMotionEstimator:
     def _full_from_coarse(self, coarse: np.ndarray) -> np.ndarray:
         return (coarse + 0.5) * self.scale - 0.5
 
-    def _coarse_from_full(self, full: np.ndarray) -> np.ndarray:
-        return (full + 0.5) / self.scale - 0.5
-
     def coarse_panorama(self, panorama: np.ndarray) -> np.ndarray:
         """Downsampled panorama ``(h, w)`` float32 of a full ``(height, width)`` one (area averaging)."""
         if panorama.shape != (self.mapping.height, self.mapping.width):

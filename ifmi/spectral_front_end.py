@@ -660,15 +660,6 @@ class IfmiFrontEnd:
             curvature += np.einsum("tok,tkij->toij", jacobian, curvature_a)
         return curvature
 
-    def predicted_origins(self, prior_rotation: np.ndarray) -> np.ndarray:
-        """Panorama ``(row, col)`` in frame b of each layout tile's first pixel under ``R_ab``.
-
-        Tile a's centre ray ``r_a`` is seen in frame b along ``R_ab^T r_a``.
-        """
-        offsets, linear = self._layout_placement
-        centres, _ = self.predicted_placements(offsets, linear, prior_rotation)
-        return centres - (self.layout.tile_size - 1) / 2.0
-
     def _needs_new_tile(self, tracked: PlacedTiles, valid: np.ndarray) -> np.ndarray:
         # Singular values of each 2x2 map: s1^2 + s2^2 = |L|_F^2 and s1 s2 = |det L|.
         frobenius = np.einsum("tij,tij->t", tracked.linear, tracked.linear)

@@ -81,10 +81,17 @@ def test_prior_rotation_moves_tiles_and_keeps_the_estimate(sequence):
 
     fe = IfmiFrontEnd(MODEL, CONFIG.ifmi)
     a, b = fe.prepare(sequence.images[0]), fe.prepare(sequence.images[3])
-    assert np.allclose(fe.predicted_origins(np.eye(3)), fe.layout.origins, atol=1e-9)
+    centre = (fe.layout.tile_size - 1) / 2.0
+    offsets = fe.layout.origins + centre
+    linear = np.broadcast_to(np.eye(2), (fe.layout.count, 2, 2))
+
+    def predicted_origins(rotation):
+        return fe.predicted_placements(offsets, linear, rotation)[0] - centre
+
+    assert np.allclose(predicted_origins(np.eye(3)), fe.layout.origins, atol=1e-9)
     yaw = 2 * np.pi * 5 / fe.mapping.width
     rz = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
-    moved = fe.predicted_origins(rz)
+    moved = predicted_origins(rz)
     width = fe.mapping.width
     shift = np.mod(moved[:, 1] - fe.layout.origins[:, 1] + width / 2, width) - width / 2
     # R_ab turns camera b by +5 px of azimuth, so tile a's content is 5 px to the left in b.

@@ -69,7 +69,7 @@ _IFMI_ONLY_KEYS = ("ifmi.tiling.", "ifmi.registration.", "ifmi.points_per_tile",
 _TILE_FIT_KEYS = (("ifmi.tiling.tile_size", "ifmi.panorama.width", "ifmi.panorama.height"),
                   ("ifmi.panorama.radius_min_px", "ifmi.panorama.radius_max_px"))
 
-__all__ = ["add_parser", "run", "config_from_args", "chosen_method", "DEFAULT_METHOD"]
+__all__ = ["add_parser", "run", "chosen_method", "DEFAULT_METHOD"]
 
 
 def add_parser(subparsers) -> None:
@@ -225,11 +225,6 @@ def _configuration(args) -> tuple:
 def chosen_method(option: str | None, config_file) -> str:
     """The method to run: ``--method``, else the ``--config`` run file's, else :data:`DEFAULT_METHOD`."""
     return option or (config_file.method if config_file else None) or DEFAULT_METHOD
-
-
-def config_from_args(args) -> EstimateConfig:
-    """EstimateConfig from parsed arguments (``--config`` file, then explicit options, which win)."""
-    return _configuration(args)[2]
 
 
 _NOT_A_KEY = object()

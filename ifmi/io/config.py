@@ -33,7 +33,7 @@ from .text_file import read_text_file
 if TYPE_CHECKING:
     from ..pipeline import EstimateConfig
 
-__all__ = ["read_json_object", "read_estimate_config", "estimate_config_from_document", "read_config_file",
+__all__ = ["read_json_object", "read_estimate_config", "read_config_file",
            "ConfigFile", "DERIVED_KEYS"]
 
 # Configuration values an estimate derives from its camera and frames when they are None; an
@@ -138,22 +138,6 @@ def read_json_object(path: str | os.PathLike, *, what: str = "JSON file") -> dic
             type(data), "a number")
         raise InputError(path, f"expected a JSON object {{...}} at the top level, got {kind}")
     return data
-
-
-def estimate_config_from_document(data: dict, *, source: str | os.PathLike):
-    """:class:`~ifmi.pipeline.EstimateConfig` of a configuration document.
-
-    ``data`` is an ``EstimateConfig.to_dict()`` mapping, or an estimate's
-    ``NAME.config.json`` content (an object with ``method`` and ``config``),
-    whose derived values are set back to ``None`` (see the module docstring).
-
-    Raises
-    ------
-    InputError
-        Named after ``source``: an unknown key, or a value of the wrong type
-        or out of range (the key path, what was expected, what was got).
-    """
-    return _config_document(data, source=source)[0]
 
 
 def _config_document(data: dict, *, source) -> tuple:
