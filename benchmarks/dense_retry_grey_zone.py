@@ -1,11 +1,11 @@
 """Per pair: what the dense retry would do where the default does not run it.
 
 iFMI re-registers a pair with a denser tile layout when at most
-``IfmiConfig.dense_retry_fraction`` of the tiles pass (0.33). This benchmark
+``recovery.dense_retry_fraction`` of the tiles pass (0.33). This benchmark
 runs the default tracker unchanged and, on every pair whose kept share lies
 in the grey zone above that, up to ``--upper`` (0.45), also computes the
-correspondences the retry would give (on copies of the two frames' states,
-so tracking is untouched). Both ray sets are solved with the shared back
+correspondences the retry would give (the pipeline's stages before the pair
+is settled change no frame state, so tracking is untouched). Both ray sets are solved with the shared back
 end, and their rotation errors against the ground truth are recorded with
 the model each one chose (rotation or 5-point) and its predicted error
 (``RelativePoseInfo.rotation_sigma_rad``).
@@ -22,7 +22,6 @@ dense set is better on; then the same split by the models the two chose.
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import re
 import sys
@@ -38,6 +37,7 @@ from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig, estimate_dataset
 from ifmi.relative_pose import relative_pose_from_rays
 from ifmi.rotations import geodesic_angle
+from ifmi import pair_pipeline
 from ifmi.spectral_front_end import IfmiFrontEnd
 
 
@@ -70,19 +70,25 @@ class GreyZoneRecorder(IfmiFrontEnd):
         self._frame_of[id(state)] = (len(self._frame_of), state)  # the state is kept: its id stays unique
         return state
 
-    def correspondences(self, state_a, state_b, *, prior_rotation=None):
-        copies = copy.deepcopy((state_a, state_b))
-        regular = super().correspondences(state_a, state_b, prior_rotation=prior_rotation)
+    def solve_pair(self, state_a, state_b, *, prior_rotation, solve):
+        if prior_rotation is not None:
+            self._record(state_a, state_b, prior_rotation)
+        return super().solve_pair(state_a, state_b, prior_rotation=prior_rotation, solve=solve)
+
+    def _record(self, state_a, state_b, prior_rotation) -> None:
+        """A row for a grey-zone pair: its first registration's rays and the dense retry's, each solved
+        (the pipeline's stages change no frame state until the pair is settled)."""
+        regular = pair_pipeline.matched(self, state_a, state_b, prior_rotation).correspondences
         kept = regular.diagnostics.get("n_tiles_kept")
         count = self.layout.count
-        if (prior_rotation is None or not regular.success or kept is None
-                or "n_tiles_kept_dense" in regular.diagnostics
-                or not self.config.dense_retry_fraction * count < kept <= self.upper * count):
-            return regular
+        retry = self.config.recovery
+        if (not regular.success or kept is None or "n_tiles_kept_dense" in regular.diagnostics
+                or not retry.dense_retry_fraction * count < kept <= self.upper * count):
+            return
         default_config = self.config
-        self.config = replace(default_config, dense_retry_fraction=self.upper)
+        self.config = replace(default_config, recovery=replace(retry, dense_retry_fraction=self.upper))
         try:
-            dense = super().correspondences(*copies, prior_rotation=prior_rotation)
+            dense = pair_pipeline.matched(self, state_a, state_b, prior_rotation).correspondences
         finally:
             self.config = default_config
         a, b = self._frame_of[id(state_a)][0], self._frame_of[id(state_b)][0]
@@ -90,7 +96,6 @@ class GreyZoneRecorder(IfmiFrontEnd):
         self.rows.append({"a": a, "b": b, "kept": kept, "count": count,
                           "regular": self._solve(regular, truth).__dict__,
                           "dense": self._solve(dense, truth).__dict__})
-        return regular
 
     def _solve(self, corr, truth: np.ndarray) -> PairSolve:
         pose, info = relative_pose_from_rays(corr.rays_a, corr.rays_b, options=self.pose_options,

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +28,7 @@ from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig, resolved_config
 from ifmi.relative_pose import relative_pose_from_rays
 from ifmi.rotations import geodesic_angle
-from ifmi.spectral_front_end import IfmiFrontEnd
+from ifmi.spectral_front_end import _POINT_SPREAD, IfmiFrontEnd
 
 
 def pose_errors(rays_a: np.ndarray, rays_b: np.ndarray, per_tile: int, truth: np.ndarray, options) -> tuple:
@@ -49,25 +48,23 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("dataset")
     parser.add_argument("--pair", type=int, required=True, help="frame K: the pair is K-1, K")
-    parser.add_argument("--tiles-per-column", type=int, default=None,
-                        help="IfmiConfig.dense_tiles_per_column (default: all tiles)")
     args = parser.parse_args(argv)
     data = read_dataset(args.dataset)
     if not 1 <= args.pair < len(data.image_paths):
         parser.error(f"--pair: expected 1..{len(data.image_paths) - 1}, got {args.pair}")
     images = list(data.iter_images())
     config = resolved_config(mode_config(EstimateConfig(), "frame"), data.model)
-    ifmi = replace(config.ifmi, dense_tiles_per_column=args.tiles_per_column)
+    ifmi = config.ifmi
     truth_poses = read_tum(Path(args.dataset) / "groundtruth.txt").rotations
     truth = truth_poses[args.pair - 1].T @ truth_poses[args.pair]
     front_end = IfmiFrontEnd(data.model, ifmi)
     state_a, state_b = front_end.prepare(images[args.pair - 1]), front_end.prepare(images[args.pair])
     coarse = front_end.global_stage.estimate(state_a.coarse_panorama, state_b.coarse_panorama,
                                              priors=(np.eye(3), None)).rotation
-    points = flow_sample_points(front_end.dense_layout.tile_size, points_per_tile=ifmi.points_per_tile,
-                                spread=ifmi.point_spread)
+    points = flow_sample_points(front_end.dense_layout.tile_size, points_per_tile=ifmi.rays.points_per_tile,
+                                spread=_POINT_SPREAD)
     for name, prior in (("coarse", coarse), ("truth", truth)):
-        offsets_a, linear_a, placed = front_end.register_dense(state_a, state_b, prior_rotation=prior)
+        offsets_a, linear_a, placed = front_end.register_dense(state_a, state_b, rotation=prior)
         pairs = flow_from_placements(offsets_a, linear_a, placed.offsets, placed.linear, placed.valid,
                                      front_end.mapping, points=points, tile_size=front_end.dense_layout.tile_size)
         whole, left_out = pose_errors(pairs.rays_a, pairs.rays_b, len(points), truth, config.relative_pose)

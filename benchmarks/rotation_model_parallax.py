@@ -52,9 +52,9 @@ class PairNamingFrontEnd(IfmiFrontEnd):
         self._frame_of[id(state)] = (len(self._frame_of), state)  # the state is kept: its id stays unique
         return state
 
-    def correspondences(self, state_a, state_b, **options):
+    def solve_pair(self, state_a, state_b, **options):
         self.pair[:] = [self._frame_of[id(state_a)][0], self._frame_of[id(state_b)][0]]
-        return super().correspondences(state_a, state_b, **options)
+        return super().solve_pair(state_a, state_b, **options)
 
 
 def model_fits(dataset: str) -> list:

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError, one_line
-from .front_end import Correspondences
+from .front_end import Correspondences, FrontEndBase
 from .odometry import FRAME_COLUMNS, RECOVERED_AFTER_RESET, REFINE_FAILURE
 
 __all__ = ["RAY_NORM_TOLERANCE", "CheckedFrontEnd", "checked_correspondences"]
@@ -64,7 +64,7 @@ class _Prepared:
     failure: str = ""
 
 
-class CheckedFrontEnd:
+class CheckedFrontEnd(FrontEndBase):
     """``front_end`` of the plugin ``method`` behind the checks of the module docstring.
 
     Parameters

@@ -131,7 +131,7 @@ class GlobalMotionConfig:
         0.32 against 0.30), and there the scores do not rank rotations a
         few degrees apart: a result that only matches better is taken
         only for a pair that cannot be solved otherwise
-        (:meth:`ifmi.spectral_front_end.IfmiFrontEnd.rescue_correspondences`).
+        (the rescue stage of :mod:`ifmi.pair_pipeline`).
     settled_shift_px : float
         When the whole-panorama shift from a start is below this (coarse
         pixels) along both axes, the start is returned as it is and the

@@ -35,7 +35,7 @@ from .options import options_from_dict
 from .odometry import FrameRecord, KeyframeOptions, track_sequence
 from .relative_pose import RelativePoseOptions
 from .rolling_shutter import RollingShutterOptions
-from .spectral_front_end import IfmiConfig
+from .spectral_front_end import IfmiConfig, translated_ifmi_options
 from .unwarp import angular_pixel_size_in_band
 
 __all__ = [
@@ -104,8 +104,13 @@ class EstimateConfig:
         ifmi.options.OptionError
             An unknown key, a value of the wrong type or out of range; the
             message names the key path (``ifmi.tiling.overlap``), what was
-            expected and what was got.
+            expected and what was got. An ``ifmi`` section of the former
+            flat layout is translated, and one of its former options now
+            fixed is refused when it holds another value
+            (:func:`ifmi.spectral_front_end.translated_ifmi_options`).
         """
+        if isinstance(data, Mapping) and "ifmi" in data:
+            data = {**data, "ifmi": translated_ifmi_options(data["ifmi"])}
         return options_from_dict(cls, data, what="")
 
 

@@ -318,10 +318,10 @@ def test_overlap_near_one_is_refused_naming_the_tile_count(dataset, tmp_path, ca
 
 
 def test_dense_retry_overlap_near_one_in_a_config_file_names_the_file(dataset, tmp_path, capsys):
-    config = _write_config(tmp_path / "c.json", lambda d: d["ifmi"].update(dense_overlap=0.99))
+    config = _write_config(tmp_path / "c.json", lambda d: d["ifmi"]["recovery"].update(dense_overlap=0.99))
     assert main(["estimate", str(dataset), "--config", str(config), "--out", str(tmp_path / "e.txt"),
                  *QUIET]) == 2
-    assert _one_line_error(capsys).startswith(f"ifmi estimate: error: {config}: ifmi.dense_overlap: "
+    assert _one_line_error(capsys).startswith(f"ifmi estimate: error: {config}: ifmi.recovery.dense_overlap: "
                                               f"{TILE_LIMIT_32PX}31232: 32 px tiles overlapping by 0.99 ")
 
 

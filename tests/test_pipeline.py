@@ -14,7 +14,7 @@ from ifmi.odometry import KeyframeOptions
 from ifmi.pipeline import (EstimateConfig, create_front_end, estimate_sequence, method_names,
                            resolved_config)
 from ifmi.rotations import geodesic_angle
-from ifmi.spectral_front_end import IfmiConfig
+from ifmi.spectral_front_end import CoarseOptions, IfmiConfig, RegistrationOptions
 from ifmi.tiling import TilingConfig
 from ifmi.unwarp import PanoramaConfig
 
@@ -190,7 +190,6 @@ def test_cubic_tile_resampling_removes_the_interpolation_bias(sequence):
     # A frame registered with itself under a deliberately wrong prior: the truth is the identity,
     # and the tiles of b are cut at sub-pixel places, turned and scaled, so the error left is
     # the interpolation's (no noise, no scene change).
-    from ifmi.fourier_mellin import FourierMellinConfig
     from ifmi.relative_pose import relative_pose_from_rays
     from ifmi.spectral_front_end import IfmiFrontEnd
 
@@ -204,8 +203,8 @@ def test_cubic_tile_resampling_removes_the_interpolation_bias(sequence):
     rms = {}
     for interpolation in ("linear", "cubic", "lanczos4"):
         # Without the coarse stage, which would replace the wrong prior by its own estimate.
-        config = replace(CONFIG.ifmi, registration=FourierMellinConfig(resample_interpolation=interpolation),
-                         coarse_to_fine=False)
+        config = replace(CONFIG.ifmi, registration=RegistrationOptions(resample_interpolation=interpolation),
+                         coarse=CoarseOptions(enabled=False))
         fe = IfmiFrontEnd(MODEL, config)
         state = fe.prepare(sequence.images[0])
         errors = []
