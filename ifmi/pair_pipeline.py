@@ -204,6 +204,7 @@ class Matched:
     rotation: np.ndarray | None = None
 
     def with_diagnostics(self, diagnostics: PairDiagnostics) -> "Matched":
+        """This result with ``diagnostics``, in its correspondences too."""
         return replace(self, diagnostics=diagnostics,
                        correspondences=replace(self.correspondences, diagnostics=diagnostics.to_dict()))
 
@@ -468,11 +469,19 @@ def solve_pair(front_end: "IfmiFrontEnd", state_a: "IfmiFrameState", state_b: "I
     """
     if not front_end.config.tracking.use_prior or prior_rotation is None:
         corr = front_end.unpredicted_correspondences(state_a, state_b)
-        return SolvedPair(corr, *(solve(corr) if corr.success else (None, None)))
+        if not corr.success:
+            return SolvedPair(corr)
+        started = time.perf_counter()
+        pose, info = solve(corr)
+        elapsed_ms = 1e3 * (time.perf_counter() - started)
+        return SolvedPair(replace(corr, diagnostics={**corr.diagnostics, "t_solve_ms": elapsed_ms}), pose, info)
+    # 1-4: register, verify, recover, rays.
     first = matched(front_end, state_a, state_b, prior_rotation)
     kept, clock = first.kept, _Clock()
+    # 5: solve.
     pose, info = solve(first.correspondences) if first.correspondences.success else (None, None)
     current, diagnostics = first, first.diagnostics.timed("solve", clock.lap())
+    # 6: rescue.
     if info is None or not info.success:
         rescue = rescued(front_end, state_a, state_b, first, prior_rotation)
         if rescue is not None:
@@ -485,17 +494,21 @@ def solve_pair(front_end: "IfmiFrontEnd", state_a: "IfmiFrameState", state_b: "I
             front_end.keep_tracking(state_b, kept)
             return SolvedPair(current.with_diagnostics(_with_times(current.diagnostics, diagnostics)).correspondences,
                               pose, info)
+    # 7: half turn.
     turned = half_turn_checked(front_end, state_a, state_b, (current, pose, info), prior_rotation, solve)
     if turned is not None:
         (current, pose, info), kept = turned, turned[0].kept
     diagnostics = diagnostics.timed("half_turn", clock.lap())
+    # 8: refine.
     second, second_kept = refined(front_end, state_a, state_b, current, pose.rotation)
-    kept = second_kept or kept
+    if second_kept is not None:
+        kept = second_kept
     if second is not None:
         pose_refined, info_refined = solve(second.correspondences)
         if info_refined.success:
             current, pose, info = second, pose_refined, info_refined
     diagnostics = diagnostics.timed("refine", clock.lap())
+    # 9: keep.
     front_end.keep_tracking(state_b, kept)
     return SolvedPair(current.with_diagnostics(_with_times(current.diagnostics, diagnostics)).correspondences,
                       pose, info)

@@ -66,11 +66,11 @@ class RegistrationOptions:
     Attributes
     ----------
     th_pr : float
-        Noise filter: least ratio of the correlation peak to the second peak.
+        Noise filter: smallest accepted peak ratio of a tile's translation correlation (ratio).
     th_pnr : float
-        Noise filter: least ratio of the correlation peak to the noise (dB-free ratio).
+        Noise filter: smallest accepted peak-to-noise ratio of that correlation (ratio).
     refine_passes : int
-        Translation refinement passes after the first registration (count).
+        Passes that resample tile b with the full motion and fit the residual translation (count, at most 10).
     estimate_rotation_scale : bool
         Measure each tile's residual rotation and scale (log-polar stage).
     resample_interpolation : {"cubic", "lanczos4", "linear"}

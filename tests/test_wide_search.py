@@ -211,6 +211,29 @@ def test_a_rescue_whose_tiles_fail_leaves_the_failed_pair(texture, monkeypatch):
     np.testing.assert_array_equal(b.tracked.offsets, kept[1])
 
 
+def test_a_pair_whose_tiles_fail_at_the_prediction_is_reacquired_from_the_identity(texture, monkeypatch):
+    # The coarse stage lands on the wrong yaw from the prediction and on the truth from the identity
+    # (a lost track: the prediction is far off); the re-acquisition's registration keeps more tiles.
+    config = IfmiConfig(panorama=PANORAMA, recovery=RecoveryOptions(dense_retry_fraction=0.0,
+                                                                    wide_search_fraction=0.0))
+    front_end = IfmiFrontEnd(MODEL, config)
+    a, b = _frames(front_end, texture)
+    starts = []
+
+    def estimate(self, coarse_a, coarse_b, *, priors=(None,)):
+        starts.append(priors[0])
+        return GlobalMotion(WRONG if priors[0] is not None else TRUTH, True, "", 1.3, 12, 0.1)
+
+    monkeypatch.setattr(GlobalMotionEstimator, "estimate", estimate)
+    pair = pair_pipeline.matched(front_end, a, b, np.eye(3))
+    assert len(starts) == 2 and starts[0] is not None and starts[1] is None
+    corr = pair.correspondences
+    assert corr.success and corr.diagnostics["reacquired"] and pair.kept.rotation is TRUTH
+    assert corr.diagnostics["n_tiles_kept"] >= config.rays.min_tiles
+    # Measured 0.03 degree (noise-free synthetic frames).
+    assert np.degrees(geodesic_angle(TRUTH, rotation_from_ray_pairs(corr.rays_a, corr.rays_b))) < 0.1
+
+
 def test_there_is_no_rescue_without_a_prediction_or_twice(texture, monkeypatch):
     front_end = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA, recovery=RecoveryOptions(
         dense_retry_fraction=0.0, wide_search_fraction=0.0)))
