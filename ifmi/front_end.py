@@ -47,16 +47,20 @@ it without import cycles.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Correspondences", "FrontEnd", "FrontEndBase", "SolvedPair", "REFINE_FAILURE", "default_solve_pair",
-           "with_contract_defaults"]
+__all__ = ["Correspondences", "FrontEnd", "FrontEndBase", "SolvedPair", "REFINE_FAILURE", "DEFAULT_STAGE_COLUMNS",
+           "default_solve_pair", "with_contract_defaults"]
 
 # Diagnostics column of a pair whose refined correspondences failed (their reason).
 REFINE_FAILURE = "refine_failure"
+# Diagnostics columns of default_solve_pair: the wall time (milliseconds) of matching, of the first
+# solve, and of refining and solving again.
+DEFAULT_STAGE_COLUMNS = ("t_match_ms", "t_solve_ms", "t_refine_ms")
 
 
 @dataclass(frozen=True)
@@ -143,24 +147,38 @@ class SolvedPair:
 def default_solve_pair(front_end, state_a: Any, state_b: Any, *, prior_rotation: np.ndarray | None,
                        solve: Callable) -> SolvedPair:
     """Match a pair (with the prediction when the front end uses one), solve it, and solve again what
-    ``refine_correspondences`` returns for the solution (kept when that succeeds)."""
+    ``refine_correspondences`` returns for the solution (kept when that succeeds). The wall time of
+    each step goes into the diagnostics (:data:`DEFAULT_STAGE_COLUMNS`)."""
+    started = time.perf_counter()
+    times = dict.fromkeys(DEFAULT_STAGE_COLUMNS, 0.0)
+
+    def lap(column: str) -> None:
+        nonlocal started
+        now = time.perf_counter()
+        times[column], started = 1e3 * (now - started), now
+
+    def timed(corr: Correspondences) -> Correspondences:
+        return replace(corr, diagnostics={**corr.diagnostics, **times})
+
     if front_end.uses_prior_rotation:
         corr = front_end.correspondences(state_a, state_b, prior_rotation=prior_rotation)
     else:
         corr = front_end.correspondences(state_a, state_b)
+    lap("t_match_ms")
     if not corr.success:
-        return SolvedPair(corr)
+        return SolvedPair(timed(corr))
     pose, info = solve(corr)
-    if not info.success:
-        return SolvedPair(corr, pose, info)
-    refined = front_end.refine_correspondences(state_a, state_b, corr, rotation_ab=pose.rotation)
-    if refined is not None and not refined.success:
-        return SolvedPair(replace(corr, diagnostics={**corr.diagnostics, REFINE_FAILURE: refined.reason}), pose, info)
-    if refined is not None:
-        pose_refined, info_refined = solve(refined)
-        if info_refined.success:
-            return SolvedPair(refined, pose_refined, info_refined)
-    return SolvedPair(corr, pose, info)
+    lap("t_solve_ms")
+    if info.success:
+        refined = front_end.refine_correspondences(state_a, state_b, corr, rotation_ab=pose.rotation)
+        if refined is not None and not refined.success:
+            corr = replace(corr, diagnostics={**corr.diagnostics, REFINE_FAILURE: refined.reason})
+        elif refined is not None:
+            pose_refined, info_refined = solve(refined)
+            if info_refined.success:
+                corr, pose, info = refined, pose_refined, info_refined
+        lap("t_refine_ms")
+    return SolvedPair(timed(corr), pose, info)
 
 
 class FrontEndBase:

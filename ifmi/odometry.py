@@ -78,7 +78,8 @@ from .rolling_shutter import (RollingShutterOptions, angular_velocity_from_rotat
                               velocity_after_intervals, velocity_at_frame)
 from .trajectory import Trajectory
 
-__all__ = ["KeyframeOptions", "FrameRecord", "FRAME_COLUMNS", "RECOVERED_AFTER_RESET", "REFINE_FAILURE", "Tracker", "track_sequence"]
+__all__ = ["KeyframeOptions", "FrameRecord", "FRAME_COLUMNS", "RECOVERED_AFTER_RESET", "REFINE_FAILURE", "PREPARE_MS",
+           "Tracker", "track_sequence"]
 
 
 @dataclass(frozen=True)
@@ -180,6 +181,8 @@ class FrameRecord:
 # why a front end's refined correspondences failed): names a front end's diagnostics cannot have.
 FRAME_COLUMNS = tuple(f.name for f in fields(FrameRecord) if f.name != "diagnostics")
 RECOVERED_AFTER_RESET = "recovered_after_reset"
+# Diagnostics column of every prepared frame: the wall time of the front end's ``prepare`` (milliseconds).
+PREPARE_MS = "t_prepare_ms"
 
 
 @dataclass
@@ -416,17 +419,21 @@ class Tracker:
             record = FrameRecord(k, self._reference.frame, False, f"image: {image.reason}", 0, 0,
                                  time.perf_counter() - start)
             return self._append(record, self.rotations[-1], self.positions[-1])
+        prepared = time.perf_counter()
         state = self.front_end.prepare(image)
+        prepare_ms = 1e3 * (time.perf_counter() - prepared)
         if self._reference is None:
             if self.rolling_shutter.readout > 0.0:
                 self._height = int(np.shape(image)[0])
             self._accept(state, np.eye(3))
             self._reference = self._last_good = _Reference(0, state, np.eye(3), np.zeros(3))
             self._good = [(0, np.eye(3))]
-            return self._append(FrameRecord(0, 0, True, "", 0, 0, time.perf_counter() - start),
-                                np.eye(3), np.zeros(3))
+            return self._append(FrameRecord(0, 0, True, "", 0, 0, time.perf_counter() - start,
+                                            diagnostics={PREPARE_MS: prepare_ms}), np.eye(3), np.zeros(3))
         record, rotation, position = self._estimate(k, state)
-        return self._append(replace(record, seconds=time.perf_counter() - start), rotation, position)
+        record = replace(record, seconds=time.perf_counter() - start,
+                         diagnostics={**record.diagnostics, PREPARE_MS: prepare_ms})
+        return self._append(record, rotation, position)
 
     def _estimate(self, k: int, state) -> tuple[FrameRecord, np.ndarray, np.ndarray]:
         keyframe = self.keyframe

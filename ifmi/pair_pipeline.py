@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, fields, replace
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 import numpy as np
 
@@ -44,11 +44,12 @@ from .front_end import Correspondences, SolvedPair
 from .fourier_mellin import PlacedRegistration, PlacedTiles, TileRejection
 from .rotations import geodesic_angle
 
-if TYPE_CHECKING:
-    from .spectral_front_end import IfmiFrameState, IfmiFrontEnd
+# The front end and frame states are those of ifmi.spectral_front_end (which imports this module):
+# named in annotations only.
 
-__all__ = ["PairDiagnostics", "TileMatch", "Matched", "STAGES", "HALF_TURN_INLIER_FRACTION", "HALF_TURN_YAW_WINDOW_RAD", "solve_pair", "matched", "registered", "rescued",
-           "half_turn_checked", "refined"]
+__all__ = ["PairDiagnostics", "TileMatch", "Matched", "STAGES", "HALF_TURN_INLIER_FRACTION", "HALF_TURN_YAW_WINDOW_RAD",
+           "solve_pair", "matched", "registered", "rescued", "half_turn_checked", "refined",
+           "averaged_correspondences"]
 
 # The half-turn alternative replaces the first solution only with at least half its inliers: the frames
 # explain both about as well (a scene that does not repeat half round leaves the alternative few tiles).
@@ -401,6 +402,37 @@ def half_turn_checked(front_end: "IfmiFrontEnd", state_a: "IfmiFrameState", stat
     return None
 
 
+def averaged_correspondences(first: Correspondences, second: Correspondences) -> Correspondences:
+    """Two registrations of one pair merged: a match of frame a's pixel in both gets the mean of
+    the two frame-b rays (and pixels); a match in one of them is kept as it is.
+
+    Parameters
+    ----------
+    first, second : Correspondences
+        Matches of the same tiles of frame a (the same ``pixels_a`` and ``rays_a`` for a tile's
+        flow points wherever both registrations kept it), with one ``rays_per_measurement``.
+
+    Returns
+    -------
+    Correspondences
+        ``first``'s matches in its order (averaged where ``second`` has them too), then those of
+        ``second`` alone; ``first``'s diagnostics.
+    """
+    where = {row.tobytes(): k for k, row in enumerate(np.ascontiguousarray(first.pixels_a))}
+    in_first = np.array([where.get(row.tobytes(), -1) for row in np.ascontiguousarray(second.pixels_a)], dtype=int)
+    both = in_first >= 0
+    rays_b = first.rays_b.copy()
+    rays_b[in_first[both]] += second.rays_b[both]
+    rays_b /= np.linalg.norm(rays_b, axis=1, keepdims=True)
+    pixels_b = first.pixels_b.copy()
+    pixels_b[in_first[both]] = (pixels_b[in_first[both]] + second.pixels_b[both]) / 2.0
+    alone = ~both
+    return replace(first, pixels_a=np.concatenate([first.pixels_a, second.pixels_a[alone]]),
+                   pixels_b=np.concatenate([pixels_b, second.pixels_b[alone]]),
+                   rays_a=np.concatenate([first.rays_a, second.rays_a[alone]]),
+                   rays_b=np.concatenate([rays_b, second.rays_b[alone]]))
+
+
 def refined(front_end: "IfmiFrontEnd", state_a: "IfmiFrameState", state_b: "IfmiFrameState", first: Matched,
             rotation_ab: np.ndarray) -> tuple[Matched | None, TileMatch | None]:
     """Stage *refine*: ``first`` averaged with a second registration at the solved ``rotation_ab``.
@@ -413,15 +445,13 @@ def refined(front_end: "IfmiFrontEnd", state_a: "IfmiFrameState", state_b: "Ifmi
     Returns
     -------
     matched : Matched or None
-        Both registrations' matches merged (:func:`~ifmi.spectral_front_end.averaged_correspondences`),
+        Both registrations' matches merged (:func:`averaged_correspondences`),
         with ``n_tiles_kept_reregistered``; None when the pair is not registered again or the second
         registration failed.
     kept : TileMatch or None
         The second registration of the reference's tiles, whose tiles frame b keeps (placed at the
         better rotation), also when it failed; None when there was none.
     """
-    from .spectral_front_end import averaged_correspondences
-
     options = front_end.config.refinement
     diagnostics = first.diagnostics
     if (options.reregister_fraction == 0 or not first.correspondences.success or first.rotation is None

@@ -1,9 +1,18 @@
-"""The extended-iFMI front end: panorama, tiles, per-tile iFMI, flow, rays.
+"""The extended-iFMI front end: panorama, tiles, per-tile iFMI, flow, rays; and its options.
 
 ``prepare`` unwarps a frame into the panorama, cuts the tiles and computes
 their spectra once (a keyframe is prepared once and matched many times);
-``correspondences`` registers the tile pairs, rejects bad tiles with the
-noise filters and returns ray pairs from the flow equation.
+``solve_pair`` runs a pair through the stages of :mod:`ifmi.pair_pipeline`
+(``correspondences``, the plugin contract's matching, runs those before
+the back end), which register the tile pairs, reject bad tiles with the
+noise filters and return ray pairs from the flow equation. The front end
+holds the geometry each stage uses: where a rotation puts the tiles, the
+reference's tracked tiles, the registrations.
+
+:class:`IfmiConfig` groups the options by purpose (panorama, tiling,
+registration, coarse stage, recovery, tracking, refinement, rays); a
+configuration of the former flat layout is translated
+(:func:`translated_ifmi_options`).
 """
 
 from __future__ import annotations
@@ -19,7 +28,7 @@ from .camera import OcamModel
 from .options import OptionError, check_finite_fields, options_from_dict
 from . import pair_pipeline
 from .front_end import Correspondences, FrontEndBase, SolvedPair
-from .pair_pipeline import PairDiagnostics, TileMatch
+from .pair_pipeline import PairDiagnostics, TileMatch, averaged_correspondences
 from .flow import (flow_from_placements, flow_from_tile_motion, flow_sample_points, pairs_with_rays_a,
                    points_on_centroids)
 from .global_motion import GlobalMotion, GlobalMotionConfig, GlobalMotionEstimator
@@ -401,37 +410,6 @@ def _robust_rotation(rays_a: np.ndarray, rays_b: np.ndarray) -> tuple[np.ndarray
         scale = np.median(residual) + np.finfo(np.float64).tiny
         weights = 1.0 / (1.0 + (residual / scale) ** 2)
     return rotation_from_rays(rays_a, rays_b, weights), float(scale)
-
-
-def averaged_correspondences(first: Correspondences, second: Correspondences) -> Correspondences:
-    """Two registrations of one pair merged: a match of frame a's pixel in both gets the mean of
-    the two frame-b rays (and pixels); a match in one of them is kept as it is.
-
-    Parameters
-    ----------
-    first, second : Correspondences
-        Matches of the same tiles of frame a (the same ``pixels_a`` and ``rays_a`` for a tile's
-        flow points wherever both registrations kept it), with one ``rays_per_measurement``.
-
-    Returns
-    -------
-    Correspondences
-        ``first``'s matches in its order (averaged where ``second`` has them too), then those of
-        ``second`` alone; ``first``'s diagnostics.
-    """
-    where = {row.tobytes(): k for k, row in enumerate(np.ascontiguousarray(first.pixels_a))}
-    in_first = np.array([where.get(row.tobytes(), -1) for row in np.ascontiguousarray(second.pixels_a)], dtype=int)
-    both = in_first >= 0
-    rays_b = first.rays_b.copy()
-    rays_b[in_first[both]] += second.rays_b[both]
-    rays_b /= np.linalg.norm(rays_b, axis=1, keepdims=True)
-    pixels_b = first.pixels_b.copy()
-    pixels_b[in_first[both]] = (pixels_b[in_first[both]] + second.pixels_b[both]) / 2.0
-    alone = ~both
-    return replace(first, pixels_a=np.concatenate([first.pixels_a, second.pixels_a[alone]]),
-                   pixels_b=np.concatenate([pixels_b, second.pixels_b[alone]]),
-                   rays_a=np.concatenate([first.rays_a, second.rays_a[alone]]),
-                   rays_b=np.concatenate([rays_b, second.rays_b[alone]]))
 
 
 class IfmiFrameState:
@@ -928,11 +906,9 @@ class IfmiFrontEnd(FrontEndBase):
 
     def register_dense(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
                        rotation: np.ndarray):
-        """Tiles of the denser layout cut from frame a, found in frame b where ``R_ab`` puts them.
+        """Tiles of the denser layout cut from frame a, found in frame b where ``rotation`` (``R_ab``) puts them.
 
-        Frame b's tracked tiles are left as they are. With
-        ``dense_tiles_per_column`` only that many tiles of each layout
-        column are registered (the most textured in frame a).
+        Nothing of either frame is changed (the dense retry's tiles are not tracked).
 
         Returns
         -------
@@ -953,12 +929,9 @@ class IfmiFrontEnd(FrontEndBase):
         if self._curved:
             curvature_b = self.predicted_curvature(offsets_a, linear_a, None, rotation)
         offsets_b[:, 1] = np.mod(offsets_b[:, 1], self.mapping.width)
-        shift = np.array([0.0, self._pad])
-        placed = self.dense_engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + shift, linear_b,
-                                                   curvature_b=curvature_b)
-        offsets = placed.offsets - shift
-        offsets[:, 1] = np.mod(offsets[:, 1], self.mapping.width)
-        return offsets_a, linear_a, replace(placed, offsets=offsets)
+        placed = self.dense_engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + self._shift,
+                                                   linear_b, curvature_b=curvature_b)
+        return offsets_a, linear_a, replace(placed, offsets=self._unpadded(placed.offsets))
 
 
     def _tile_points(self, centroids: np.ndarray) -> np.ndarray:
