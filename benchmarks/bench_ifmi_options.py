@@ -1,15 +1,15 @@
 """iFMI with its default options against variants: accuracy and compute per frame, in one process.
 
 Measures what one option costs or buys, e.g. the dense retry
-(``dense_retry_fraction=0`` turns it off) or the coarse stage
-(``coarse_to_fine=false``)::
+(``recovery.dense_retry_fraction=0`` turns it off) or the coarse stage
+(``coarse.enabled=false``)::
 
     python benchmarks/bench_ifmi_options.py DATA/fast/office_trans_x10 \
-        --variant no_retry:dense_retry_fraction=0 --rounds 5 --out out/bench_ifmi_options
+        --variant no_retry:recovery.dense_retry_fraction=0 --rounds 5 --out out/bench_ifmi_options
 
 A variant is ``NAME:KEY=VALUE[,KEY=VALUE...]`` with keys of the ``ifmi``
-section of the configuration (dotted for nested ones,
-``global_motion.iterations=1``) and JSON values; ``relative_pose.KEY`` sets
+section of the configuration (dotted, ``refinement.refit_passes=0``) and
+JSON values; ``relative_pose.KEY`` sets
 an option of the back end instead. Every configuration runs
 through the same odometry and back end as ``ifmi estimate``.
 

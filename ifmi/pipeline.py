@@ -1,4 +1,4 @@
-"""Estimation pipeline: configuration and sequence estimation for any method.
+"""Estimation pipeline: a sequence, dataset folder, video or bag in, an estimate out, for any method.
 
 A method's front end (:mod:`ifmi.front_end`) turns images into ray
 correspondences; the relative-pose back end (:mod:`ifmi.backend.relative_pose`) and
@@ -16,26 +16,21 @@ from __future__ import annotations
 import os
 import sys
 import warnings
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Iterable, Sequence
 
 import numpy as np
 from tqdm import tqdm
 
-from ifmi.backend.bundle_adjustment import BundleAdjustmentOptions
 from ifmi.geometry.camera import OcamModel
 from ifmi.spectral.config_limits import check_config_for_model
 from ifmi.errors import CalibrationFitError, InputError, InputWarning
-from ifmi.features import FeatureConfig
 from ifmi.front_end import Correspondences, FrontEnd
+from ifmi.config import EstimateConfig
 from ifmi.tracking.methods import create_front_end, method_names
 from ifmi.geometry.trajectory import Trajectory
-from ifmi.options import options_from_dict
-from ifmi.tracking.odometry import FrameRecord, KeyframeOptions, track_sequence
-from ifmi.backend.relative_pose import RelativePoseOptions
-from ifmi.backend.rolling_shutter import RollingShutterOptions
-from ifmi.spectral.ifmi_front_end import IfmiConfig
+from ifmi.tracking.odometry import FrameRecord, track_sequence
 from ifmi.spectral.panorama import angular_pixel_size_in_band
 
 __all__ = [
@@ -53,61 +48,6 @@ __all__ = [
     "resolved_config",
     "check_config_for_model",
 ]
-
-
-@dataclass(frozen=True)
-class EstimateConfig:
-    """Everything that determines an estimate, saved as JSON beside each result.
-
-    Attributes
-    ----------
-    ifmi : IfmiConfig
-        Options of the ``"ifmi"`` front end.
-    features : FeatureConfig or None
-        Options of the ``"orb"``/``"akaze"`` front ends (:mod:`ifmi.features`);
-        ``None`` means :class:`FeatureConfig`'s defaults.
-    relative_pose : RelativePoseOptions
-    keyframe : KeyframeOptions
-    rolling_shutter : RollingShutterOptions
-        The camera's row read-out time; a global shutter by default.
-    bundle_adjustment : BundleAdjustmentOptions
-        Refinement of the trajectory over the points frames share
-        (:mod:`ifmi.backend.bundle_adjustment`); off by default.
-    """
-
-    ifmi: IfmiConfig = field(default_factory=IfmiConfig)
-    features: FeatureConfig | None = None
-    relative_pose: RelativePoseOptions = field(default_factory=RelativePoseOptions)
-    keyframe: KeyframeOptions = field(default_factory=KeyframeOptions)
-    rolling_shutter: RollingShutterOptions = field(default_factory=RollingShutterOptions)
-    bundle_adjustment: BundleAdjustmentOptions = field(default_factory=BundleAdjustmentOptions)
-
-    def to_dict(self) -> dict:
-        """JSON-serialisable nested dict (inverse of :meth:`from_dict`)."""
-        return {
-            "ifmi": asdict(self.ifmi),
-            "features": None if self.features is None else asdict(self.features),
-            "relative_pose": asdict(self.relative_pose),
-            "keyframe": asdict(self.keyframe),
-            "rolling_shutter": asdict(self.rolling_shutter),
-            "bundle_adjustment": asdict(self.bundle_adjustment),
-        }
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "EstimateConfig":
-        """Build a config from :meth:`to_dict` output; missing keys take defaults.
-
-        Every value of every section is type-checked against its field
-        (:func:`ifmi.options.options_from_dict`).
-
-        Raises
-        ------
-        ifmi.options.OptionError
-            An unknown key, a value of the wrong type or out of range; the
-            message names the key path (``ifmi.tiling.overlap``), what was
-            expected and what was got.
-        """
-        return options_from_dict(cls, data, what="")
 
 
 @dataclass(frozen=True)

@@ -208,15 +208,6 @@ class UndistortionTable:
         drawn = nodes[:-1, :-1] & nodes[:-1, 1:] & nodes[1:, :-1] & nodes[1:, 1:]
         return float(self.cell_bounds_px[drawn].max()) if drawn.any() else 0.0
 
-    def rendered_at(self, pixels) -> np.ndarray:
-        """``(...,)`` bool: whether the renderer draws ``(row, col)`` film positions ``(..., 2)`` (pixels)."""
-        pixels = np.asarray(pixels, dtype=np.float64)
-        t = (pixels - _TABLE_ORIGIN_PX) / self.spacing_px
-        nodes = self.rendered_nodes
-        first = np.clip(np.floor(t).astype(int), 0, np.array(nodes.shape) - 2)
-        r, c = first[..., 0], first[..., 1]
-        return nodes[r, c] & nodes[r, c + 1] & nodes[r + 1, c] & nodes[r + 1, c + 1]
-
 
 def undistortion_table(model, *, target_px: float = TABLE_ERROR_TARGET_PX,
                        max_nodes: int = MAX_TABLE_NODES) -> UndistortionTable:

@@ -128,7 +128,7 @@ def test_options_benchmark_names_same_named_sets_apart_and_compares_a_variant(tm
     a = _write_dataset(tmp_path / "site_a" / "office", seed=5, max_step_rad=0.03)
     b = _write_dataset(tmp_path / "site_b" / "office", seed=6, max_step_rad=0.06)
     out = tmp_path / "options"
-    assert options.main([str(a), str(b), "--variant", "affine:use_prior=false", "--rounds", "1",
+    assert options.main([str(a), str(b), "--variant", "affine:tracking.use_prior=false", "--rounds", "1",
                          "--out", str(out)]) == 0
     rows = json.loads((out / "bench_ifmi_options.json").read_text())["rows"]
     assert [(r["dataset"], r["variant"]) for r in rows] == [("site_a/office", "affine"),
@@ -188,9 +188,9 @@ def test_options_benchmark_variant_sets_back_end_options_and_names_unknown_ones(
     from ifmi.pipeline import EstimateConfig
     base = EstimateConfig()
     changed = options.estimate_variant(base, {"relative_pose.rotation_min_inlier_share": 0.0,
-                                              "dense_retry_fraction": 0.0})
+                                              "recovery.dense_retry_fraction": 0.0})
     assert changed.relative_pose.rotation_min_inlier_share == 0.0
-    assert changed.ifmi.dense_retry_fraction == 0.0
+    assert changed.ifmi.recovery.dense_retry_fraction == 0.0
     assert changed.relative_pose.seed == base.relative_pose.seed
     with pytest.raises(ValueError, match="relative_pose"):
         options.estimate_variant(base, {"relative_pose.no_such_option": 1})

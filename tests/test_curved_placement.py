@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.spectral.fourier_mellin import FourierMellin
 from ifmi.spectral.flow import flow_from_placements
-from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
+import ifmi.spectral.ifmi_front_end
+from ifmi.spectral.ifmi_front_end import CoarseOptions, IfmiConfig, IfmiFrontEnd, RefinementOptions
 from ifmi.spectral.tiling import TilingConfig
 from ifmi.spectral.panorama import PanoramaConfig, panorama_pixels_from_rays, rays_from_panorama_pixels
 
@@ -24,8 +25,10 @@ MODEL = paracatadioptric_model((256, 256), horizon_radius_px=80.0, center=(130.3
                                affine=(1.002, 0.003, -0.002))
 BAND = (30.0, 125.0)
 # Curved placements on this small panorama too (they apply from 1536 px by default).
-CURVED = IfmiConfig(panorama=PanoramaConfig(width=512), min_width_curved=0, refit_passes=0, coarse_to_fine=False)
-AFFINE = IfmiConfig(panorama=PanoramaConfig(width=512), curved_placement=False, coarse_to_fine=False)
+CURVED = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(min_width_curved=0, refit_passes=0),
+                    coarse=CoarseOptions(enabled=False))
+AFFINE = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(curved_placement=False),
+                    coarse=CoarseOptions(enabled=False))
 # Rotations with a large tilt (the curvature of the panorama warp grows with it).
 TILTS = [Rotation.from_rotvec(v).as_matrix() for v in ([0.08, -0.06, 0.03], [-0.07, 0.05, -0.1], [0.05, 0.09, 0.2])]
 
@@ -131,32 +134,32 @@ def test_curvature_and_refit_apply_from_the_configured_width(environment):
     for config, expected in ((IfmiConfig(panorama=PanoramaConfig(width=512)), False), (CURVED, True)):
         fe = IfmiFrontEnd(MODEL, config)
         a, b = fe.prepare(frames[0]), fe.prepare(frames[1])
-        fe.register_predicted(a, b, prior_rotation=TILTS[0])
+        fe.keep_tracking(b, fe.tiles_at(a, b, TILTS[0]))
         assert (b.tracked.curvature is not None) == expected
 
 
 def test_refit_pass_corrects_a_wrong_prediction(environment):
     frames = [omni_from_environment(environment, MODEL, r, band_px=BAND) for r in (np.eye(3), TILTS[0])]
     wrong = TILTS[0] @ Rotation.from_rotvec([0.02, -0.015, 0.0]).as_matrix()  # a tilt 1.3 px off
-    refit = IfmiConfig(panorama=PanoramaConfig(width=512), min_width_curved=0, coarse_to_fine=False)
+    refit = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(min_width_curved=0),
+                       coarse=CoarseOptions(enabled=False))
     fe = IfmiFrontEnd(MODEL, refit)
     a, b = fe.prepare(frames[0]), fe.prepare(frames[1])
-    fe.register_predicted(a, b, prior_rotation=wrong)
+    fe.keep_tracking(b, fe.tiles_at(a, b, wrong))
     single = IfmiFrontEnd(MODEL, CURVED)
     a1, b1 = single.prepare(frames[0]), single.prepare(frames[1])
-    single.register_predicted(a1, b1, prior_rotation=wrong)
+    single.keep_tracking(b1, single.tiles_at(a1, b1, wrong))
     exact = single.predicted_curvature(*single._layout_placement, None, TILTS[0])
     # The refit takes the tiles' shape from their own rotation, not from the wrong prediction.
     assert np.abs(b.tracked.curvature - exact).max() < 0.5 * np.abs(b1.tracked.curvature - exact).max()
 
 
-@pytest.mark.parametrize("field, value", [("refit_passes", -1), ("refit_max_residual_px", 0.0),
-                                          ("min_width_curved", -5),
+@pytest.mark.parametrize("field, value", [("refit_passes", -1), ("min_width_curved", -5),
                                           # 10**20 passes were accepted and the estimate never ended
                                           ("refit_passes", 10 ** 20)])
 def test_invalid_refit_options_are_rejected(field, value):
     with pytest.raises(ValueError, match="refit_passes"):
-        IfmiConfig(**{field: value})
+        RefinementOptions(**{field: value})
 
 
 def _resample_count(fe, monkeypatch):
@@ -169,15 +172,16 @@ def _resample_count(fe, monkeypatch):
 def test_a_close_prediction_is_refined_once_on_the_refitted_shape(environment, monkeypatch):
     frames = [omni_from_environment(environment, MODEL, r, band_px=BAND) for r in (np.eye(3), TILTS[0])]
     wrong = TILTS[0] @ Rotation.from_rotvec([0.02, -0.015, 0.0]).as_matrix()  # tiles 1.3 px off
-    refit = IfmiConfig(panorama=PanoramaConfig(width=512), min_width_curved=0, coarse_to_fine=False)
-    twice = replace(refit, single_refinement_max_px=0.0)
+    refit = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(min_width_curved=0),
+                       coarse=CoarseOptions(enabled=False))
     placements = {}
-    for name, config in (("gated", refit), ("twice", twice)):
+    for name, single_max_px in (("gated", 0.5), ("twice", 0.0)):  # 0: the passes always run twice
+        monkeypatch.setattr(ifmi.spectral.ifmi_front_end, "_SINGLE_REFINEMENT_MAX_PX", single_max_px)
         for prior, label in ((TILTS[0], "close"), (wrong, "far")):
-            fe = IfmiFrontEnd(MODEL, config)
+            fe = IfmiFrontEnd(MODEL, refit)
             a, b = fe.prepare(frames[0]), fe.prepare(frames[1])
             calls = _resample_count(fe, monkeypatch)
-            placements[name, label] = fe.register_predicted(a, b, prior_rotation=prior)[2].offsets
+            placements[name, label] = fe.tiles_at(a, b, prior).placed.offsets
             # The search pass, then one refinement pass per shape the tiles were cut with.
             assert len(calls) == (2 if (name, label) == ("gated", "close") else 3), (name, label)
     # Far off, both refine twice; they differ only in the search pass's sub-pixel fit (phase plane
@@ -189,11 +193,10 @@ def test_a_close_prediction_is_refined_once_on_the_refitted_shape(environment, m
     gated = twice_sum = 0.0
     for rotation in TILTS:
         frames = [omni_from_environment(environment, MODEL, r, band_px=BAND) for r in (np.eye(3), rotation)]
+        monkeypatch.setattr(ifmi.spectral.ifmi_front_end, "_SINGLE_REFINEMENT_MAX_PX", 0.5)
         gated += _rotation_error(refit, frames, rotation)
-        twice_sum += _rotation_error(twice, frames, rotation)
+        monkeypatch.setattr(ifmi.spectral.ifmi_front_end, "_SINGLE_REFINEMENT_MAX_PX", 0.0)
+        twice_sum += _rotation_error(refit, frames, rotation)
     assert gated < 1.25 * twice_sum
 
 
-def test_invalid_single_refinement_option_is_rejected():
-    with pytest.raises(ValueError, match="single_refinement_max_px"):
-        IfmiConfig(single_refinement_max_px=-1.0)

@@ -162,7 +162,7 @@ def test_config_file_and_overrides(dataset, tmp_path):
     assert main(["estimate", str(root), "--out", str(second), "--config",
                  str(tmp_path / "first.config.json"), "--overlap", "0.25", "--no-progress"]) == 0
     config = json.loads((tmp_path / "second.config.json").read_text())["config"]
-    assert config["ifmi"]["use_prior"] is False and config["relative_pose"]["rotation_only"] is True
+    assert config["ifmi"]["tracking"]["use_prior"] is False and config["relative_pose"]["rotation_only"] is True
     assert config["ifmi"]["registration"]["th_pr"] == 1.8 and config["ifmi"]["tiling"]["overlap"] == 0.25
     assert config["ifmi"]["panorama"]["width"] == 512
 

@@ -318,11 +318,30 @@ def test_overlap_near_one_is_refused_naming_the_tile_count(dataset, tmp_path, ca
 
 
 def test_dense_retry_overlap_near_one_in_a_config_file_names_the_file(dataset, tmp_path, capsys):
-    config = _write_config(tmp_path / "c.json", lambda d: d["ifmi"].update(dense_overlap=0.99))
+    config = _write_config(tmp_path / "c.json", lambda d: d["ifmi"]["recovery"].update(dense_overlap=0.99))
     assert main(["estimate", str(dataset), "--config", str(config), "--out", str(tmp_path / "e.txt"),
                  *QUIET]) == 2
-    assert _one_line_error(capsys).startswith(f"ifmi estimate: error: {config}: ifmi.dense_overlap: "
+    assert _one_line_error(capsys).startswith(f"ifmi estimate: error: {config}: ifmi.recovery.dense_overlap: "
                                               f"{TILE_LIMIT_32PX}31232: 32 px tiles overlapping by 0.99 ")
+
+
+def test_a_run_file_of_the_former_flat_layout_is_translated_or_refused_naming_the_key(dataset, tmp_path, capsys):
+    # An estimate's NAME.config.json written before the options were grouped: flat iFMI keys, and
+    # options that are now fixed (accepted at their value, refused at another).
+    former = {"tile_size": None, "overlap": 0.0}
+    ifmi = {"tiling": former, "use_prior": True, "dense_retry_fraction": 0.0, "point_spread": 0.1,
+            "global_motion": {"confirm_angle_rad": 0.1, "sectors": 12}}
+    run = tmp_path / "old.config.json"
+    run.write_text(json.dumps({"method": "ifmi", "config": {"ifmi": ifmi}, "derived": []}))
+    out = tmp_path / "e.txt"
+    assert main(["estimate", str(dataset), "--config", str(run), "--out", str(out), *QUIET]) == 0
+    saved = json.loads((tmp_path / "e.config.json").read_text())["config"]["ifmi"]
+    assert saved["recovery"]["dense_retry_fraction"] == 0.0 and saved["tracking"]["use_prior"] is True
+    assert "point_spread" not in saved and "global_motion" not in saved
+    run.write_text(json.dumps({"method": "ifmi", "config": {"ifmi": {**ifmi, "point_spread": 0.2}}, "derived": []}))
+    assert main(["estimate", str(dataset), "--config", str(run), "--out", str(out), *QUIET]) == 2
+    assert _one_line_error(capsys) == (f"ifmi estimate: error: {run}: invalid configuration: ifmi.point_spread: no "
+                                       "longer an option (fixed at 0.1); remove the key")
 
 
 # --- 8. omnisim degrade: the output folder outside the source -------------------------------

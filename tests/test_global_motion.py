@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.spectral.global_motion import GlobalMotionConfig, GlobalMotionEstimator, rotation_from_ray_pairs
 from ifmi.geometry.rotations import geodesic_angle
+from ifmi.spectral.ifmi_front_end import CoarseOptions, RecoveryOptions
 from ifmi.synthetic import environment_texture, omni_from_environment
 from ifmi.spectral.panorama import PanoramaConfig, panorama_image_from_omni_image, panorama_mapping
 
@@ -153,7 +154,7 @@ def test_tracking_survives_an_abrupt_reversal(scene):
     # Measured at most 0.035 degree.
     assert np.degrees(np.max(geodesic_angle(truth, estimate.trajectory.rotations))) < 0.2
     # Without the coarse stage the tiles cannot reach 20-degree steps: every later frame fails.
-    without = replace(config, ifmi=replace(config.ifmi, coarse_to_fine=False))
+    without = replace(config, ifmi=replace(config.ifmi, coarse=CoarseOptions(enabled=False)))
     baseline = estimate_sequence(images, MODEL, method="ifmi", config=without)
     assert not any(r.success for r in baseline.frames[1:])
 
@@ -211,14 +212,14 @@ def _coarse_result_off_by(monkeypatch, yaw_error_deg):
 def test_a_coarse_correction_the_tiles_match_worse_than_the_prediction_is_overruled(scene, monkeypatch):
     from dataclasses import replace
 
-    from ifmi.spectral.ifmi_front_end import IfmiConfig
+    from ifmi.spectral.ifmi_front_end import CoarseOptions, IfmiConfig, RecoveryOptions
 
     texture, _ = scene
     truth = _rotation(12.0, 2.0, 60.0)
     panorama = PanoramaConfig(radius_min_px=BAND[0], radius_max_px=BAND[1])
     # No dense retry and no wide search: the prediction check alone decides.
-    config = IfmiConfig(panorama=panorama, prediction_check_tiles=0.45, dense_retry_fraction=0.0,
-                        wide_search_fraction=0.0)
+    config = IfmiConfig(panorama=panorama, coarse=CoarseOptions(prediction_check_tiles=0.45),
+                        recovery=RecoveryOptions(dense_retry_fraction=0.0, wide_search_fraction=0.0))
     front_end, (a, b) = _front_end_pair(texture, truth, config)
     # The coarse stage moves an exact prediction by 0.4 of a tile (away from the identity, which the
     # re-acquisition starts from): the tiles barely overlap there.
@@ -233,10 +234,10 @@ def test_a_coarse_correction_the_tiles_match_worse_than_the_prediction_is_overru
     # Measured 0.004 degree (noise-free synthetic frames).
     assert np.degrees(geodesic_angle(truth, rotation)) < 0.05
     # Without the check the coarse stage's rotation places the tiles, too few pass and the pair fails.
-    unchecked, (a, b) = _front_end_pair(texture, truth, replace(config, prediction_check_tiles=0.0))
+    unchecked, (a, b) = _front_end_pair(texture, truth, replace(config, coarse=replace(config.coarse, prediction_check_tiles=0.0)))
     plain = unchecked.correspondences(a, b, prior_rotation=truth)
     assert not plain.success and "prediction_kept" not in plain.diagnostics
-    assert plain.diagnostics["n_tiles_kept"] == d["n_tiles_kept_coarse"] < config.min_tiles
+    assert plain.diagnostics["n_tiles_kept"] == d["n_tiles_kept_coarse"] < config.rays.min_tiles
 
 
 def test_the_prediction_is_checked_only_within_the_tiles_reach(scene, monkeypatch):
@@ -258,7 +259,7 @@ def test_prediction_check_option_is_checked():
     from ifmi.spectral.ifmi_front_end import IfmiConfig
 
     with pytest.raises(ValueError, match="prediction_check_tiles"):
-        IfmiConfig(prediction_check_tiles=0.5)
+        CoarseOptions(prediction_check_tiles=0.5)
 
 
 def test_a_prediction_the_coarse_stage_confirmed_is_registered_once(scene, monkeypatch):
@@ -270,8 +271,8 @@ def test_a_prediction_the_coarse_stage_confirmed_is_registered_once(scene, monke
     front_end, (a, b) = _front_end_pair(texture, truth, IfmiConfig(panorama=panorama))
     _coarse_result_off_by(monkeypatch, 0.0)  # returned unchanged: its correction angle is float noise
     calls = []
-    original = IfmiFrontEnd.register_predicted
-    monkeypatch.setattr(IfmiFrontEnd, "register_predicted",
+    original = IfmiFrontEnd.tiles_at
+    monkeypatch.setattr(IfmiFrontEnd, "tiles_at",
                         lambda self, *args, **kwargs: calls.append(1) or original(self, *args, **kwargs))
     diagnostics = front_end.correspondences(a, b, prior_rotation=truth).diagnostics
     assert len(calls) == 1 and "prediction_kept" not in diagnostics

@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from ifmi.spectral import pair_pipeline as pair_pipeline
 from ifmi.geometry.camera import paracatadioptric_model
-from ifmi.front_end import Correspondences
+from ifmi.front_end import Correspondences, FrontEndBase, SolvedPair
 from ifmi.spectral.global_motion import GlobalMotionEstimator
 from ifmi.tracking.odometry import track_sequence
 from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays
 from ifmi.geometry.rotations import geodesic_angle
-from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd, RecoveryOptions
 from ifmi.synthetic import environment_texture, omni_from_environment
 from ifmi.spectral.panorama import PanoramaConfig, panorama_image_from_omni_image, panorama_mapping
 
@@ -52,10 +55,11 @@ def _pair(front_end, environment, rotation):
 
 
 def _solved(front_end, a, b, prior):
-    corr = front_end.correspondences(a, b, prior_rotation=prior)
-    pose, info = _solve(corr)
+    """``(matched, pose, info)`` of the pair's stages up to its rays at ``prior``, solved."""
+    matched = pair_pipeline.matched(front_end, a, b, prior)
+    pose, info = _solve(matched.correspondences)
     assert info.success
-    return pose, info
+    return matched, pose, info
 
 
 def test_a_half_turn_solution_is_replaced_by_the_rotation_near_the_prediction(symmetric_texture):
@@ -64,19 +68,20 @@ def test_a_half_turn_solution_is_replaced_by_the_rotation_near_the_prediction(sy
     wrong = HALF_TURN @ TRUTH
     # The pair solved at the half turn, as the coarse stage's highest peak can put it (measured 0.019
     # degree from it: the frames cannot tell the two apart).
-    first, info = _solved(front_end, a, b, wrong)
+    solved = _solved(front_end, a, b, wrong)
+    first, info = solved[1:]
     assert np.degrees(geodesic_angle(wrong, first.rotation)) < 0.1
-    found = front_end.half_turn_alternative(a, b, rotation_ab=wrong, n_inliers=info.n_inliers,
-                                            prior_rotation=np.eye(3), solve=_solve)
+    found = pair_pipeline.half_turn_checked(front_end, a, b, solved, np.eye(3), _solve)
     assert found is not None
-    pose, alternative, corr = found
+    turned, pose, alternative = found
+    corr = turned.correspondences
     assert corr.diagnostics["half_turn"] and alternative.success
     assert alternative.n_inliers >= 0.5 * info.n_inliers
     # Measured 0.019 degree (noise-free synthetic frames); the half turn was 180 degrees off.
     assert np.degrees(geodesic_angle(TRUTH, pose.rotation)) < 0.1
-    # Frame b now holds the alternative's registration, at the near search's rotation (a fraction of
+    # Frame b would keep the alternative's registration, at the near search's rotation (a fraction of
     # a 2.8-degree coarse pixel off).
-    assert np.degrees(geodesic_angle(TRUTH, b.registered_rotation)) < 2.8
+    assert turned.kept is not None and np.degrees(geodesic_angle(TRUTH, turned.rotation)) < 2.8
 
 
 def test_a_large_true_rotation_keeps_its_solution(texture):
@@ -85,21 +90,21 @@ def test_a_large_true_rotation_keeps_its_solution(texture):
     truth = TRUTH @ Rotation.from_euler("z", -120.0, degrees=True).as_matrix()
     front_end = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA))
     a, b = _pair(front_end, texture, truth)
-    pose, info = _solved(front_end, a, b, truth)
+    first = _solved(front_end, a, b, truth)
+    pose, info = first[1:]
     assert np.degrees(geodesic_angle(truth, pose.rotation)) < 0.1  # measured 0.011 degree
-    kept = b.registration_snapshot()
+    kept = (b.tracked, b.tracked_valid, b.tracked_landmarks)
     solved = []
 
     def observed(corr):
         solved.append(_solve(corr))
         return solved[-1]
 
-    assert front_end.half_turn_alternative(a, b, rotation_ab=pose.rotation, n_inliers=info.n_inliers,
-                                           prior_rotation=np.eye(3), solve=observed) is None
+    assert pair_pipeline.half_turn_checked(front_end, a, b, first, np.eye(3), observed) is None
     # The alternative was tried and not taken (here its tiles fail: nothing reaches the back end),
-    # and frame b keeps the first registration.
+    # and nothing of frame b changed.
     assert len(solved) <= 1 and all(not i.success or i.n_inliers < 0.5 * info.n_inliers for _, i in solved)
-    for now, before in zip(b.registration_snapshot(), kept):
+    for now, before in zip((b.tracked, b.tracked_valid, b.tracked_landmarks), kept):
         assert now is before
 
 
@@ -110,16 +115,16 @@ def test_a_solution_near_the_prediction_is_not_checked(symmetric_texture):
     def never(corr):
         raise AssertionError("nothing is solved again")
 
+    def solution(rotation):  # what the stage reads of a solved pair before it decides to try
+        return None, SimpleNamespace(rotation=rotation), SimpleNamespace(n_inliers=100)
+
     # 31 degrees from the identity: within the default quarter turn.
-    assert front_end.half_turn_alternative(a, b, rotation_ab=TRUTH, n_inliers=100, prior_rotation=np.eye(3),
-                                           solve=never) is None
+    assert pair_pipeline.half_turn_checked(front_end, a, b, solution(TRUTH), np.eye(3), never) is None
     # Turned off (a bound of pi), or no prediction: nothing is tried either.
-    off = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA, half_turn_check_rad=np.pi))
+    off = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA, recovery=RecoveryOptions(half_turn_check_rad=np.pi)))
     a, b = _pair(off, symmetric_texture, TRUTH)
-    assert off.half_turn_alternative(a, b, rotation_ab=HALF_TURN @ TRUTH, n_inliers=100,
-                                     prior_rotation=np.eye(3), solve=never) is None
-    assert front_end.half_turn_alternative(a, b, rotation_ab=HALF_TURN @ TRUTH, n_inliers=100,
-                                           prior_rotation=None, solve=never) is None
+    assert pair_pipeline.half_turn_checked(off, a, b, solution(HALF_TURN @ TRUTH), np.eye(3), never) is None
+    assert pair_pipeline.half_turn_checked(front_end, a, b, solution(HALF_TURN @ TRUTH), None, never) is None
 
 
 def test_the_near_search_keeps_the_yaw_near_its_start(texture):
@@ -142,9 +147,9 @@ def test_the_near_search_keeps_the_yaw_near_its_start(texture):
     assert np.degrees(geodesic_angle(TRUTH, kept.rotation)) > 90.0
 
 
-class _HalfTurnFrontEnd:
-    """Exact rays of ``R_0k`` per frame; frame 1's correspondences give the half turn, and
-    ``half_turn_alternative`` offers the truth (solved by the tracker's back end)."""
+class _HalfTurnFrontEnd(FrontEndBase):
+    """Exact rays of ``R_0k`` per frame; frame 1's correspondences give the half turn, and its own
+    ``solve_pair`` offers the truth (solved by the tracker's back end)."""
 
     uses_prior_rotation = True
 
@@ -166,21 +171,22 @@ class _HalfTurnFrontEnd:
         truth = self.rotations[a].T @ self.rotations[b]
         return self._corr(HALF_TURN @ truth if b == 1 else truth, {})
 
-    def half_turn_alternative(self, a, b, *, rotation_ab, n_inliers, prior_rotation, solve):
-        self.calls.append((a, b, geodesic_angle(prior_rotation, rotation_ab), n_inliers))
-        if not self.offer or b != 1:
-            return None
-        corr = self._corr(self.rotations[a].T @ self.rotations[b], {"half_turn": True})
+    def solve_pair(self, a, b, *, prior_rotation, solve):
+        corr = self.correspondences(a, b, prior_rotation=prior_rotation)
         pose, info = solve(corr)
-        return pose, info, corr
+        self.calls.append((a, b, geodesic_angle(prior_rotation, pose.rotation), info.n_inliers))
+        if not self.offer or b != 1:
+            return SolvedPair(corr, pose, info)
+        corr = self._corr(self.rotations[a].T @ self.rotations[b], {"half_turn": True})
+        return SolvedPair(corr, *solve(corr))
 
 
 @pytest.mark.parametrize("offer", [True, False])
-def test_the_tracker_chains_the_front_ends_alternative(offer):
+def test_the_tracker_chains_what_the_front_ends_pair_solver_settles_on(offer):
     rotations = [Rotation.from_euler("z", 0.3 * k).as_matrix() for k in range(4)]
     front_end = _HalfTurnFrontEnd(rotations, offer=offer)
     trajectory, records = track_sequence(range(4), front_end, pose_options=OPTIONS)
-    # The hook sees every solved pair with its prediction and inlier count.
+    # The front end's solve_pair sees every pair with its prediction and the tracker's back end.
     assert [call[:2] for call in front_end.calls] == [(0, 1), (1, 2), (2, 3)]
     assert front_end.calls[0][2] == pytest.approx(np.pi - 0.3, abs=1e-6) and front_end.calls[0][3] == 80
     error = np.degrees(geodesic_angle(rotations[3], trajectory.rotations[3]))
@@ -190,8 +196,7 @@ def test_the_tracker_chains_the_front_ends_alternative(offer):
         assert "half_turn" not in records[1].diagnostics and error == pytest.approx(180.0, abs=1e-4)
 
 
-@pytest.mark.parametrize("kwargs", [{"half_turn_check_rad": -0.1}, {"half_turn_check_rad": 4.0},
-                                    {"half_turn_inlier_fraction": 1.5}, {"half_turn_yaw_window_rad": 0.0}])
+@pytest.mark.parametrize("kwargs", [{"half_turn_check_rad": -0.1}, {"half_turn_check_rad": 4.0}])
 def test_half_turn_options_are_checked(kwargs):
     with pytest.raises(ValueError, match=next(iter(kwargs))):
-        IfmiConfig(**kwargs)
+        RecoveryOptions(**kwargs)

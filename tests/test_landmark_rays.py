@@ -10,7 +10,7 @@ from ifmi.geometry.camera import rays_from_pixels
 from ifmi.tracking.odometry import track_sequence
 from ifmi.backend.relative_pose import RelativePoseOptions
 from ifmi.geometry.rotations import geodesic_angle
-from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.spectral.ifmi_front_end import _LANDMARK_GATE_PX, IfmiConfig, IfmiFrontEnd, RaysOptions, RefinementOptions, TrackingOptions
 from ifmi.spectral.panorama import rays_from_panorama_pixels
 from test_panorama_interpolation import MODEL, _scene
 
@@ -48,7 +48,8 @@ def test_tracked_tile_rays_follow_the_accepted_pose_within_the_gate(frame, off_p
     # the measured placement stays. Tiles cut anew in frame 1 lie on their landmarks already.
     truth = _walk(3, 1.0, seed=5)
     # Flow points on the tile centres (not their energy centroids): the rays the landmarks turn.
-    fe = IfmiFrontEnd(MODEL, IfmiConfig(points_per_tile=1, landmark_weight=weight, flow_at_energy_centroid=False))
+    fe = IfmiFrontEnd(MODEL, IfmiConfig(rays=RaysOptions(points_per_tile=1, at_energy_centroid=False),
+                                        tracking=TrackingOptions(landmark_weight=weight)))
     states = [fe.prepare(frame(r)) for r in truth]
     fe.accept_pose(states[0], np.eye(3))
     fe.correspondences(states[0], states[1], prior_rotation=truth[1])
@@ -63,7 +64,7 @@ def test_tracked_tile_rays_follow_the_accepted_pose_within_the_gate(frame, off_p
     old = tracked_from_0[kept]
     measured = rays_from_panorama_pixels(fe.mapping, offsets_a)[kept]
     landmark = (_layout_centre_rays(fe) @ accepted)[kept]  # R_01^T applied to each frame-0 ray
-    if off_px <= fe.config.landmark_gate_px:
+    if off_px <= _LANDMARK_GATE_PX:
         assert corr.diagnostics["n_tiles_landmark"] == len(kept)
         apart = _angle(measured[old], landmark[old])
         assert np.abs(_angle(measured[old], corr.rays_a[old]) - weight * apart).max() < 1e-12
@@ -81,7 +82,7 @@ def test_a_reference_without_an_accepted_pose_keeps_measured_rays_and_drops_the_
     # and the tiles carried on from it use measured placements; frame 2, accepted, gives
     # landmarks only to tiles cut anew in it.
     truth = _walk(4, 1.5, seed=6)
-    fe = IfmiFrontEnd(MODEL, IfmiConfig(points_per_tile=1))
+    fe = IfmiFrontEnd(MODEL, IfmiConfig(rays=RaysOptions(points_per_tile=1)))
     states = [fe.prepare(frame(r)) for r in truth]
     fe.accept_pose(states[0], np.eye(3))
     fe.correspondences(states[0], states[1], prior_rotation=truth[1])
@@ -98,9 +99,7 @@ def test_a_reference_without_an_accepted_pose_keeps_measured_rays_and_drops_the_
 
 def test_landmark_options_are_checked():
     with pytest.raises(ValueError, match="landmark_weight"):
-        IfmiConfig(landmark_weight=0.0)
-    with pytest.raises(ValueError, match="landmark_gate_px"):
-        IfmiConfig(landmark_gate_px=float("nan"))
+        TrackingOptions(landmark_weight=0.0)
 
 
 def test_landmark_rays_lower_the_frame_to_frame_drift(frame):
@@ -116,7 +115,7 @@ def test_landmark_rays_lower_the_frame_to_frame_drift(frame):
         truth = _walk(16, 3.0, seed=seed)
         images = [frame(r) for r in truth]
         for landmarks in (True, False):
-            fe = IfmiFrontEnd(MODEL, IfmiConfig(landmark_rays=landmarks))
+            fe = IfmiFrontEnd(MODEL, IfmiConfig(tracking=TrackingOptions(landmark_rays=landmarks)))
             trajectory, records = track_sequence(images, fe, pose_options=pose)
             assert all(r.success for r in records)
             assert ("n_tiles_landmark" in records[2].diagnostics) == landmarks
@@ -127,7 +126,7 @@ def test_landmark_rays_lower_the_frame_to_frame_drift(frame):
 def test_narrow_panoramas_keep_measured_rays(frame):
     # Below min_width_curved (here the 1024 px images' own 2048 px panorama) nothing is turned.
     truth = _walk(3, 1.0, seed=5)
-    fe = IfmiFrontEnd(MODEL, IfmiConfig(min_width_curved=4096))
+    fe = IfmiFrontEnd(MODEL, IfmiConfig(refinement=RefinementOptions(min_width_curved=4096)))
     trajectory, records = track_sequence([frame(r) for r in truth], fe,
                                          pose_options=RelativePoseOptions(ransac_threshold_rad=2 * np.pi / 2048))
     assert all(r.success for r in records) and not any("n_tiles_landmark" in r.diagnostics for r in records)

@@ -231,15 +231,19 @@ def test_an_integer_of_too_many_digits_is_one_line(tmp_path):
     ({"relative_pose": {"ransac_threshold_rad": 1e9}},
      "relative_pose: ransac_threshold_rad must be in (0, pi) or None, got 1000000000.0"),
     ({"ifmi": {"global_motion": {"sectors": 1000}}},
-     "ifmi.global_motion: expected width >= 32, 3 <= sectors <= width // 8 (16), iterations >= 0; got 128, 1000, 2"),
+     "ifmi.global_motion.sectors: no longer an option (fixed at 12); remove the key"),
+    ({"ifmi": {"coarse": {"confirm_angle_rad": float("inf")}}},
+     "ifmi.coarse: confirm_angle_rad must be a finite number"),
     ({"ifmi": {"registration": {"refine_passes": 11}}},
      "ifmi.registration: expected 0 <= refine_passes <= 10 and workers >= 1, got 11, 1"),
     ({"ifmi": {"registration": {"phase_plane_iterations": 51}}},
-     "ifmi.registration: expected phase_plane_iterations <= 50, got 51"),
+     "ifmi.registration.phase_plane_iterations: no longer an option (fixed at 3); remove the key"),
     ({"ifmi": {"registration": {"th_pnr": float("inf")}}}, "ifmi.registration: th_pnr must be a finite number"),
     ({"ifmi": {"registration": {"th_pr": float("inf")}}}, "ifmi.registration: th_pr must be a finite number"),
-    ({"ifmi": {"registration": {"residual_weight_power": float("inf")}}},
-     "ifmi.registration: residual_weight_power must be a finite number"),
+    ({"ifmi": {"point_spread": 0.2, "use_prior": False}},
+     "ifmi.point_spread: no longer an option (fixed at 0.1); remove the key"),
+    ({"ifmi": {"use_prior": False, "tracking": {"use_prior": True}}},
+     "ifmi.use_prior: given twice, here and as ifmi.tracking.use_prior (its new key)"),
     ({"ifmi": {"tiling": {"tile_size": float("inf")}}}, "ifmi.tiling: tile_size must be a fraction in (0, 1)"),
     ({"ifmi": {"tiling": {"tile_size": 6}}}, "ifmi.tiling: tile_size must be a fraction in (0, 1) of the "
                                              "panorama width or at least 8 px, got 6.0"),
@@ -248,6 +252,31 @@ def test_estimator_bounds(data, message):
     with pytest.raises(OptionError) as info:
         EstimateConfig.from_dict(data)
     assert str(info.value).startswith(message)
+
+
+def test_a_configuration_of_the_former_flat_layout_is_translated():
+    # An estimate's NAME.config.json of the former layout holds every option; those now fixed at
+    # their value are dropped, the moved ones go to their group.
+    former = EstimateConfig.from_dict({"ifmi": {"use_prior": False, "coarse_to_fine": False, "min_tiles": 5,
+                                                "point_spread": 0.1, "flow_at_energy_centroid": False,
+                                                "global_motion": {"confirm_angle_rad": 0.2, "sectors": 12},
+                                                "registration": {"th_pr": 2.0, "phase_plane_iterations": 3},
+                                                "half_turn_check_rad": 1.0, "refit_passes": 0}})
+    ifmi = former.ifmi
+    assert not ifmi.tracking.use_prior and not ifmi.coarse.enabled and ifmi.rays.min_tiles == 5
+    assert not ifmi.rays.at_energy_centroid and ifmi.coarse.confirm_angle_rad == 0.2
+    assert ifmi.registration.th_pr == 2.0 and ifmi.recovery.half_turn_check_rad == 1.0
+    assert ifmi.refinement.refit_passes == 0
+    # The saved layout reads back as it is, and the default configuration's own dict does too.
+    assert EstimateConfig.from_dict(former.to_dict()) == former
+    assert EstimateConfig.from_dict(EstimateConfig().to_dict()) == EstimateConfig()
+
+
+def test_the_saved_configuration_has_at_most_40_ifmi_options():
+    def leaves(value):
+        return sum(leaves(v) for v in value.values()) if isinstance(value, dict) else 1
+
+    assert leaves(EstimateConfig().to_dict()["ifmi"]) <= 40
 
 
 def test_estimator_bounds_keep_the_limits_themselves():

@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ifmi.geometry.camera import paracatadioptric_model, radius_from_pixels, rays_from_pixels
-from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.spectral.ifmi_front_end import CoarseOptions, IfmiConfig, IfmiFrontEnd, RefinementOptions
 from ifmi.spectral.panorama import PanoramaConfig
 from tile_checks import kept_tiles_rotation_error
 
@@ -57,10 +57,10 @@ def test_lanczos_panorama_lowers_the_pair_error_on_sharp_texture():
     rotations = [Rotation.from_rotvec(v).as_matrix()
                  for v in np.random.default_rng(7).uniform(-0.04, 0.04, (6, 3))]
     frames = [frame(np.eye(3))] + [frame(r) for r in rotations]
-    base = IfmiConfig(coarse_to_fine=False)
+    base = IfmiConfig(coarse=CoarseOptions(enabled=False))
     errors = {}
     for kernel in ("linear", "lanczos4"):
-        config = replace(base, wide_panorama_interpolation=kernel)
+        config = replace(base, refinement=replace(base.refinement, wide_panorama_interpolation=kernel))
         errors[kernel] = sum(kept_tiles_rotation_error(MODEL, config, [frames[0], frames[k + 1]], r) for k, r in enumerate(rotations))
     assert errors["lanczos4"] < 0.8 * errors["linear"], errors
 
@@ -85,4 +85,4 @@ def test_the_wide_panorama_kernel_applies_from_the_configured_width(monkeypatch,
 
 def test_an_unknown_panorama_kernel_is_rejected():
     with pytest.raises(ValueError, match="wide_panorama_interpolation must be one of"):
-        IfmiConfig(wide_panorama_interpolation="nearest")
+        RefinementOptions(wide_panorama_interpolation="nearest")

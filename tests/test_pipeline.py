@@ -14,7 +14,7 @@ from ifmi.tracking.odometry import KeyframeOptions
 from ifmi.pipeline import (EstimateConfig, create_front_end, estimate_sequence, method_names,
                            resolved_config)
 from ifmi.geometry.rotations import geodesic_angle
-from ifmi.spectral.ifmi_front_end import IfmiConfig
+from ifmi.spectral.ifmi_front_end import CoarseOptions, IfmiConfig, RegistrationOptions
 from ifmi.spectral.tiling import TilingConfig
 from ifmi.spectral.panorama import PanoramaConfig
 
@@ -81,10 +81,17 @@ def test_prior_rotation_moves_tiles_and_keeps_the_estimate(sequence):
 
     fe = IfmiFrontEnd(MODEL, CONFIG.ifmi)
     a, b = fe.prepare(sequence.images[0]), fe.prepare(sequence.images[3])
-    assert np.allclose(fe.predicted_origins(np.eye(3)), fe.layout.origins, atol=1e-9)
+    centre = (fe.layout.tile_size - 1) / 2.0
+    offsets = fe.layout.origins + centre
+    linear = np.broadcast_to(np.eye(2), (fe.layout.count, 2, 2))
+
+    def predicted_origins(rotation):
+        return fe.predicted_placements(offsets, linear, rotation)[0] - centre
+
+    assert np.allclose(predicted_origins(np.eye(3)), fe.layout.origins, atol=1e-9)
     yaw = 2 * np.pi * 5 / fe.mapping.width
     rz = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
-    moved = fe.predicted_origins(rz)
+    moved = predicted_origins(rz)
     width = fe.mapping.width
     shift = np.mod(moved[:, 1] - fe.layout.origins[:, 1] + width / 2, width) - width / 2
     # R_ab turns camera b by +5 px of azimuth, so tile a's content is 5 px to the left in b.
@@ -183,7 +190,6 @@ def test_cubic_tile_resampling_removes_the_interpolation_bias(sequence):
     # A frame registered with itself under a deliberately wrong prior: the truth is the identity,
     # and the tiles of b are cut at sub-pixel places, turned and scaled, so the error left is
     # the interpolation's (no noise, no scene change).
-    from ifmi.spectral.fourier_mellin import FourierMellinConfig
     from ifmi.backend.relative_pose import relative_pose_from_rays
     from ifmi.spectral.ifmi_front_end import IfmiFrontEnd
 
@@ -197,8 +203,8 @@ def test_cubic_tile_resampling_removes_the_interpolation_bias(sequence):
     rms = {}
     for interpolation in ("linear", "cubic", "lanczos4"):
         # Without the coarse stage, which would replace the wrong prior by its own estimate.
-        config = replace(CONFIG.ifmi, registration=FourierMellinConfig(resample_interpolation=interpolation),
-                         coarse_to_fine=False)
+        config = replace(CONFIG.ifmi, registration=RegistrationOptions(resample_interpolation=interpolation),
+                         coarse=CoarseOptions(enabled=False))
         fe = IfmiFrontEnd(MODEL, config)
         state = fe.prepare(sequence.images[0])
         errors = []

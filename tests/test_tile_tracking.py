@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from ifmi.geometry.camera import paracatadioptric_model
 from ifmi.spectral.fourier_mellin import compose_placement, motion_from_placement, placement_from_motion
-from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.spectral import pair_pipeline as pair_pipeline
+from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd, RecoveryOptions, RefinementOptions, TrackingOptions
 from ifmi.spectral.panorama import PanoramaConfig, panorama_pixels_from_rays, rays_from_panorama_pixels
 
 pytest.importorskip("skimage")
@@ -76,9 +77,9 @@ def test_affine_prediction_follows_the_exact_panorama_warp(clean_frames):
 
 
 def test_recut_tracked_tiles_are_the_pixels_the_residual_was_measured_on(clean_frames):
-    fe = IfmiFrontEnd(MODEL, replace(CONFIG, anchor_templates=False))
+    fe = IfmiFrontEnd(MODEL, replace(CONFIG, tracking=replace(CONFIG.tracking, anchor_templates=False)))
     s0, s1 = fe.prepare(clean_frames[0]), fe.prepare(clean_frames[1])
-    fe.register_predicted(s0, s1, prior_rotation=STEP)
+    fe.keep_tracking(s1, fe.tiles_at(s0, s1, STEP))
     tracked = s1.tracked
     pad = np.array([0.0, fe._pad])
     again = fe.engine.resample_placed(s1.padded_panorama, tracked.offsets + pad, tracked.linear)
@@ -92,9 +93,11 @@ def test_recut_tracked_tiles_are_the_pixels_the_residual_was_measured_on(clean_f
 
 def test_anchored_tiles_keep_the_first_frames_template_at_the_found_placement(clean_frames):
     fe = IfmiFrontEnd(MODEL, CONFIG)
-    assert CONFIG.anchor_templates
+    assert CONFIG.tracking.anchor_templates
     s0, s1 = fe.prepare(clean_frames[0]), fe.prepare(clean_frames[1])
-    _, _, placed, _ = fe.register_predicted(s0, s1, prior_rotation=STEP)
+    match = fe.tiles_at(s0, s1, STEP)
+    fe.keep_tracking(s1, match)
+    _, _, placed, _ = match.offsets_a, match.linear_a, match.placed, match.n_new
     offsets, linear, spectra, n_new = fe.reference_tiles(s1)
     assert n_new == (~placed.valid).sum() and n_new < fe.layout.count // 2
     kept = placed.valid
@@ -108,11 +111,15 @@ def test_anchored_templates_keep_a_middle_frames_errors_out_of_later_frames(clea
     # frame 2; a template kept from frame 0 is found in frame 2 from frame 2's pixels only, so
     # its placement there does not depend on frame 1, noisy or not.
     def placement_error_in_frame_2(anchor, middle):
-        fe = IfmiFrontEnd(MODEL, replace(CONFIG, anchor_templates=anchor))
+        fe = IfmiFrontEnd(MODEL, replace(CONFIG, tracking=replace(CONFIG.tracking, anchor_templates=anchor)))
         states = [fe.prepare(image) for image in (clean_frames[0], middle, clean_frames[2])]
         truth_2 = fe.predicted_placements(*fe.predicted_placements(*fe._layout_placement, STEP), STEP)[0]
-        _, _, placed_1, _ = fe.register_predicted(states[0], states[1], prior_rotation=STEP)
-        _, _, placed_2, _ = fe.register_predicted(states[1], states[2], prior_rotation=STEP)
+        match = fe.tiles_at(states[0], states[1], STEP)
+        fe.keep_tracking(states[1], match)
+        _, _, placed_1, _ = match.offsets_a, match.linear_a, match.placed, match.n_new
+        match = fe.tiles_at(states[1], states[2], STEP)
+        fe.keep_tracking(states[2], match)
+        _, _, placed_2, _ = match.offsets_a, match.linear_a, match.placed, match.n_new
         d = placed_2.offsets - truth_2
         d[:, 1] = np.mod(d[:, 1] + fe.mapping.width / 2, fe.mapping.width) - fe.mapping.width / 2
         return d[placed_1.valid & placed_2.valid]
@@ -134,7 +141,7 @@ def test_tracking_makes_a_frames_noise_cancel_between_its_two_pairs(clean_frames
     # pair (1, 2) comes from that frame's noise. With tracked tiles the same pixels enter both
     # pairs and their errors are nearly opposite; with new layout tiles in frame 1 the pixels
     # differ by the motion and the errors are much less related.
-    fe = IfmiFrontEnd(MODEL, replace(CONFIG, track_tiles=track))
+    fe = IfmiFrontEnd(MODEL, replace(CONFIG, tracking=replace(CONFIG.tracking, track_tiles=track)))
     correlations = []
     for seed in range(3):
         rng = np.random.default_rng(seed)
@@ -142,7 +149,9 @@ def test_tracking_makes_a_frames_noise_cancel_between_its_two_pairs(clean_frames
         states = [fe.prepare(image) for image in (clean_frames[0], noisy.astype(np.uint8), clean_frames[2])]
         errors, valid = [], []
         for a, b in ((0, 1), (1, 2)):
-            offsets_a, linear_a, placed, _ = fe.register_predicted(states[a], states[b], prior_rotation=STEP)
+            match = fe.tiles_at(states[a], states[b], STEP)
+            fe.keep_tracking(states[b], match)
+            offsets_a, linear_a, placed, _ = match.offsets_a, match.linear_a, match.placed, match.n_new
             truth, _ = fe.predicted_placements(offsets_a, linear_a, STEP)
             d = placed.offsets - truth
             d[:, 1] = np.mod(d[:, 1] + fe.mapping.width / 2, fe.mapping.width) - fe.mapping.width / 2
@@ -159,7 +168,7 @@ def test_tracking_makes_a_frames_noise_cancel_between_its_two_pairs(clean_frames
 
 def test_distortion_limit_is_validated():
     with pytest.raises(ValueError, match="max_tile_distortion"):
-        IfmiConfig(max_tile_distortion=1.0)
+        TrackingOptions(max_tile_distortion=1.0)
 
 
 def test_layout_tiles_of_a_frame_are_cut_across_the_seam(clean_frames):
@@ -185,9 +194,9 @@ def test_dense_retry_registers_a_denser_layout_and_leaves_frame_bs_tracked_tiles
     # Forced on every pair (fraction 1): the half-overlap layout's tiles, cut anew from frame a,
     # are found where the true rotation puts them and give the rays; frame b keeps the regular
     # layout's tracked tiles for the next pair.
-    fe = IfmiFrontEnd(MODEL, replace(CONFIG, dense_retry_fraction=1.0))
+    fe = IfmiFrontEnd(MODEL, replace(CONFIG, recovery=replace(CONFIG.recovery, dense_retry_fraction=1.0)))
     s0, s1 = fe.prepare(clean_frames[0]), fe.prepare(clean_frames[1])
-    offsets_a, linear_a, placed = fe.register_dense(s0, s1, prior_rotation=STEP)
+    offsets_a, linear_a, placed = fe.register_dense(s0, s1, rotation=STEP)
     assert fe.dense_layout.count > 3 * fe.layout.count
     truth, _ = fe.predicted_placements(offsets_a, linear_a, STEP)
     d = placed.offsets - truth
@@ -202,46 +211,17 @@ def test_dense_retry_registers_a_denser_layout_and_leaves_frame_bs_tracked_tiles
     # Measured: 1.7e-4 rad (the one-pixel angle of the 512 px panorama is 1.2e-2 rad).
     assert geodesic_angle(rotation_from_rays(corr.rays_a, corr.rays_b), STEP) < 1e-3
     # Without the retry the regular tiles give the rays.
-    plain = IfmiFrontEnd(MODEL, replace(CONFIG, dense_retry_fraction=0.0))
+    plain = IfmiFrontEnd(MODEL, replace(CONFIG, recovery=replace(CONFIG.recovery, dense_retry_fraction=0.0)))
     corr = plain.correspondences(plain.prepare(clean_frames[0]), plain.prepare(clean_frames[1]), prior_rotation=STEP)
     assert "n_tiles_kept_dense" not in corr.diagnostics
     assert len(corr.rays_a) == corr.diagnostics["n_tiles_kept"] * corr.rays_per_measurement
 
 
-def test_dense_retry_on_the_most_textured_tiles_of_each_column(clean_frames):
-    from ifmi.spectral.tiling import strongest_tiles_per_column, tile_corner_strengths
-
-    fe = IfmiFrontEnd(MODEL, replace(CONFIG, dense_retry_fraction=1.0, dense_tiles_per_column=2))
-    s0, s1 = fe.prepare(clean_frames[0]), fe.prepare(clean_frames[1])
-    offsets_a, linear_a, placed = fe.register_dense(s0, s1, prior_rotation=STEP)
-    layout = fe.dense_layout
-    rows, cols = layout.grid_shape
-    assert rows > 2 and len(offsets_a) == 2 * cols
-    strength = tile_corner_strengths(s0.padded_panorama, layout, wrapped_columns=fe._pad)
-    chosen = strongest_tiles_per_column(strength, layout, 2)
-    assert np.array_equal(offsets_a, layout.origins[chosen] + (layout.tile_size - 1) / 2.0)
-    # The same tiles as the full retry registers, placed the same way.
-    full = IfmiFrontEnd(MODEL, replace(CONFIG, dense_retry_fraction=1.0))
-    f0, f1 = full.prepare(clean_frames[0]), full.prepare(clean_frames[1])
-    _, _, placed_all = full.register_dense(f0, f1, prior_rotation=STEP)
-    assert np.array_equal(placed.valid, placed_all.valid[chosen])
-    assert np.allclose(placed.offsets, placed_all.offsets[chosen], atol=1e-9)
-    corr = fe.correspondences(s0, s1, prior_rotation=STEP)
-    assert corr.diagnostics["n_tiles_kept_dense"] == placed.valid.sum()
-    assert len(corr.rays_a) == placed.valid.sum() * corr.rays_per_measurement
-    # As many per column as the layout has rows: all tiles, no selection.
-    every = IfmiFrontEnd(MODEL, replace(CONFIG, dense_retry_fraction=1.0, dense_tiles_per_column=rows))
-    e0, e1 = every.prepare(clean_frames[0]), every.prepare(clean_frames[1])
-    assert len(every.register_dense(e0, e1, prior_rotation=STEP)[0]) == layout.count
-
-
 def test_dense_retry_options_are_validated():
     with pytest.raises(ValueError, match="dense_retry_fraction"):
-        IfmiConfig(dense_retry_fraction=1.5)
+        RecoveryOptions(dense_retry_fraction=1.5)
     with pytest.raises(ValueError, match="dense_overlap"):
-        IfmiConfig(dense_overlap=1.0)
-    with pytest.raises(ValueError, match="expected dense_tiles_per_column >= 1 or None, got 0"):
-        IfmiConfig(dense_tiles_per_column=0)
+        RecoveryOptions(dense_overlap=1.0)
 
 
 def test_a_weak_pair_is_registered_again_at_the_solved_rotation_and_both_rays_averaged(clean_frames):
@@ -252,15 +232,21 @@ def test_a_weak_pair_is_registered_again_at_the_solved_rotation_and_both_rays_av
     # Forced (fraction 1): the reference's tiles are registered a second time where the given
     # R_ab puts them, here 0.02 rad (1.6 panorama pixels) off the truth; the tiles measure the
     # rest, and each frame-b ray comes back as the mean of its two registrations.
-    fe = IfmiFrontEnd(MODEL, replace(CONFIG, reregister_fraction=1.0, dense_retry_fraction=0.0))
+    fe = IfmiFrontEnd(MODEL, replace(CONFIG, refinement=replace(CONFIG.refinement, reregister_fraction=1.0), recovery=replace(CONFIG.recovery, dense_retry_fraction=0.0)))
     s0, s1 = fe.prepare(clean_frames[0]), fe.prepare(clean_frames[1])
     first = fe.correspondences(s0, s1, prior_rotation=STEP)
     solved = STEP @ Rotation.from_rotvec([0.0, 0.0, 0.02]).as_matrix()
-    spy = IfmiFrontEnd(MODEL, replace(CONFIG, reregister_fraction=1.0, dense_retry_fraction=0.0))
+    spy = IfmiFrontEnd(MODEL, replace(CONFIG, refinement=replace(CONFIG.refinement, reregister_fraction=1.0), recovery=replace(CONFIG.recovery, dense_retry_fraction=0.0)))
     p0, p1 = spy.prepare(clean_frames[0]), spy.prepare(clean_frames[1])
     spy.correspondences(p0, p1, prior_rotation=STEP)
-    offsets_a, linear_a, placed, _ = spy.register_predicted(p0, p1, prior_rotation=solved)
-    refined = fe.refine_correspondences(s0, s1, first, rotation_ab=solved)
+    match = spy.tiles_at(p0, p1, solved)
+    placed = match.placed
+    first = _matched(fe, s0, s1)
+    refined, kept = pair_pipeline.refined(fe, s0, s1, first, solved)
+    refined = refined.correspondences
+    first = first.correspondences
+    # Frame b would keep the second registration's tiles (placed at the better rotation).
+    assert np.array_equal(kept.tracked_valid, placed.valid) and np.allclose(kept.placed.offsets, placed.offsets)
     assert refined.diagnostics["n_tiles_kept_reregistered"] == placed.valid.sum() == fe.layout.count
     assert refined.diagnostics["n_tiles_kept"] == first.diagnostics["n_tiles_kept"] == fe.layout.count
     # Every tile kept twice: the same matches of frame a, frame b's rays between the two registrations.
@@ -271,19 +257,25 @@ def test_a_weak_pair_is_registered_again_at_the_solved_rotation_and_both_rays_av
     # (one panorama pixel: 1.2e-2 rad).
     assert geodesic_angle(rotation_from_rays(refined.rays_a, refined.rays_b), STEP) < 1e-3
     # Nor when the solved rotation moves the tiles by under reregister_min_px (0.3 px; 0.02 rad: 1.6 px).
-    assert fe.refine_correspondences(s0, s1, first, rotation_ab=s1.registered_rotation) is None
-    nudged = s1.registered_rotation @ Rotation.from_rotvec([0.0, 0.0, 0.003]).as_matrix()
-    assert fe.refine_correspondences(s0, s1, first, rotation_ab=nudged) is None
-    failed = Correspondences.failed("no tiles", {"n_tiles_kept": 0})
-    assert fe.refine_correspondences(s0, s1, failed, rotation_ab=STEP) is None
+    first = _matched(fe, s0, s1)
+    assert pair_pipeline.refined(fe, s0, s1, first, first.rotation) == (None, None)
+    nudged = first.rotation @ Rotation.from_rotvec([0.0, 0.0, 0.003]).as_matrix()
+    assert pair_pipeline.refined(fe, s0, s1, first, nudged) == (None, None)
+    failed = replace(first, correspondences=Correspondences.failed("no tiles"))
+    assert pair_pipeline.refined(fe, s0, s1, failed, STEP) == (None, None)
+
+
+def _matched(fe, state_a, state_b):
+    """The pair's stages up to its rays (:func:`ifmi.spectral.pair_pipeline.matched`) at the prediction ``STEP``."""
+    return pair_pipeline.matched(fe, state_a, state_b, STEP)
 
 
 def test_reregister_fraction_is_validated():
     with pytest.raises(ValueError, match="expected 0 <= reregister_fraction <= 1 and reregister_min_px >= 0, "
                                          "got 1.5, 0.3"):
-        IfmiConfig(reregister_fraction=1.5)
+        RefinementOptions(reregister_fraction=1.5)
     with pytest.raises(ValueError, match="got 0.6, -1"):
-        IfmiConfig(reregister_min_px=-1)
+        RefinementOptions(reregister_min_px=-1)
 
 
 def test_averaged_correspondences_mean_the_rays_of_frame_b_matched_twice():

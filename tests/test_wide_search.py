@@ -13,7 +13,8 @@ from ifmi.spectral.global_motion import GlobalMotion, GlobalMotionConfig, Global
 from ifmi.geometry.rotations import geodesic_angle
 from ifmi.tracking.odometry import track_sequence
 from ifmi.backend.relative_pose import RelativePoseOptions
-from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd
+from ifmi.spectral import pair_pipeline as pair_pipeline
+from ifmi.spectral.ifmi_front_end import IfmiConfig, IfmiFrontEnd, RecoveryOptions
 from ifmi.synthetic import environment_texture, omni_from_environment
 from ifmi.spectral.panorama import PanoramaConfig, panorama_image_from_omni_image, panorama_mapping
 
@@ -114,7 +115,7 @@ def _coarse_stage_returns(monkeypatch, rotation, score):
 
 
 def test_the_front_end_searches_wide_when_the_tiles_fail(texture, monkeypatch):
-    config = IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0)
+    config = IfmiConfig(panorama=PANORAMA, recovery=RecoveryOptions(dense_retry_fraction=0.0))
     front_end = IfmiFrontEnd(MODEL, config)
     a, b = (front_end.prepare(omni_from_environment(texture, MODEL, r, band_px=BAND)) for r in (np.eye(3), TRUTH))
     score = front_end.global_stage.score(a.coarse_panorama, front_end.global_stage.warped(b.coarse_panorama, WRONG))
@@ -122,11 +123,11 @@ def test_the_front_end_searches_wide_when_the_tiles_fail(texture, monkeypatch):
     _coarse_stage_returns(monkeypatch, WRONG, score)
     pair = front_end.correspondences(a, b, prior_rotation=np.eye(3))
     assert pair.success and pair.diagnostics["wide_search"]
-    assert b.tracked_valid.sum() == pair.diagnostics["n_tiles_kept"] >= config.min_tiles
+    assert b.tracked_valid.sum() == pair.diagnostics["n_tiles_kept"] >= config.rays.min_tiles
     # Measured 0.026 degree (noise-free synthetic frames).
     assert np.degrees(geodesic_angle(TRUTH, rotation_from_ray_pairs(pair.rays_a, pair.rays_b))) < 0.1
     # Without the wide search the tiles at the wrong yaw cannot pass: the pair fails.
-    plain = IfmiFrontEnd(MODEL, replace(config, wide_search_fraction=0.0))
+    plain = IfmiFrontEnd(MODEL, replace(config, recovery=replace(config.recovery, wide_search_fraction=0.0)))
     a, b = (plain.prepare(omni_from_environment(texture, MODEL, r, band_px=BAND)) for r in (np.eye(3), TRUTH))
     failed = plain.correspondences(a, b, prior_rotation=np.eye(3))
     assert not failed.success and "wide_search" not in failed.diagnostics
@@ -140,16 +141,16 @@ def test_the_front_end_searches_wide_when_the_coarse_stage_kept_the_prediction(t
     # The first pair of a sequence: the prediction is the identity, 31 degrees from R_01. When the
     # coarse stage's own search matches worse than its start it returns the start unchanged; the
     # tiles then fail there, and the failing pair is rescued by the wide search.
-    config = IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0)
+    config = IfmiConfig(panorama=PANORAMA, recovery=RecoveryOptions(dense_retry_fraction=0.0))
     front_end = IfmiFrontEnd(MODEL, config)
     a, b = _frames(front_end, texture)
     score = front_end.global_stage.score(a.coarse_panorama, b.coarse_panorama)
     monkeypatch.setattr(GlobalMotionEstimator, "estimate",
                         lambda self, coarse_a, coarse_b, *, priors=(None,): GlobalMotion(np.eye(3), True, "", 1.3,
                                                                                           0, score))
-    failed = front_end.correspondences(a, b, prior_rotation=np.eye(3))
-    assert not failed.success
-    pair = front_end.rescue_correspondences(a, b, failed, prior_rotation=np.eye(3))
+    failed = pair_pipeline.matched(front_end, a, b, np.eye(3))
+    assert not failed.correspondences.success
+    pair = pair_pipeline.rescued(front_end, a, b, failed, np.eye(3)).correspondences
     assert pair.success and pair.diagnostics["wide_search"] and pair.diagnostics["wide_rescue"]
     # Measured 0.026 degree, as from the wrong yaw above.
     assert np.degrees(geodesic_angle(TRUTH, rotation_from_ray_pairs(pair.rays_a, pair.rays_b))) < 0.1
@@ -159,7 +160,7 @@ def test_a_failing_pair_takes_a_rotation_that_only_matches_better(texture, monke
     # Under parallax every coarse rotation leaves most of the mismatch, so the wide search's result
     # cannot be clearly better by its score; a pair that would fail takes it when its tiles pass.
     # The coarse stage is told here that the wrong yaw matches almost as well as the truth.
-    config = IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0)
+    config = IfmiConfig(panorama=PANORAMA, recovery=RecoveryOptions(dense_retry_fraction=0.0))
     front_end = IfmiFrontEnd(MODEL, config)
     a, b = _frames(front_end, texture)
     stage = front_end.global_stage
@@ -167,24 +168,26 @@ def test_a_failing_pair_takes_a_rotation_that_only_matches_better(texture, monke
     _coarse_stage_returns(monkeypatch, WRONG, close)
     found = stage.wide_search(a.coarse_panorama, b.coarse_panorama, start=None, current_score=close)
     assert found is not None and not stage.clearly_better(found, current_rotation=WRONG, current_score=close)
-    failed = front_end.correspondences(a, b, prior_rotation=np.eye(3))
-    assert not failed.success
-    pair = front_end.rescue_correspondences(a, b, failed, prior_rotation=np.eye(3))
+    failed = pair_pipeline.matched(front_end, a, b, np.eye(3))
+    assert not failed.correspondences.success
+    rescued = pair_pipeline.rescued(front_end, a, b, failed, np.eye(3))
+    pair = rescued.correspondences
     assert pair.success and pair.diagnostics["wide_search"] and pair.diagnostics["wide_rescue"]
-    assert b.tracked_valid.sum() == pair.diagnostics["n_tiles_kept"] >= config.min_tiles
+    # Frame b would keep the rescue's registration.
+    assert rescued.kept.tracked_valid.sum() == pair.diagnostics["n_tiles_kept"] >= config.rays.min_tiles
     assert np.degrees(geodesic_angle(TRUTH, rotation_from_ray_pairs(pair.rays_a, pair.rays_b))) < 0.1
     # Without the wide search there is nothing to rescue with.
-    plain = IfmiFrontEnd(MODEL, replace(config, wide_search_fraction=0.0))
+    plain = IfmiFrontEnd(MODEL, replace(config, recovery=replace(config.recovery, wide_search_fraction=0.0)))
     a, b = _frames(plain, texture)
-    failed = plain.correspondences(a, b, prior_rotation=np.eye(3))
-    assert not failed.success and "wide_search" not in failed.diagnostics
-    assert plain.rescue_correspondences(a, b, failed, prior_rotation=np.eye(3)) is None
+    failed = pair_pipeline.matched(plain, a, b, np.eye(3))
+    assert not failed.correspondences.success and "wide_search" not in failed.correspondences.diagnostics
+    assert pair_pipeline.rescued(plain, a, b, failed, np.eye(3)) is None
 
 
 def test_a_rescue_whose_tiles_fail_leaves_the_failed_pair(texture, monkeypatch):
     # Frame b shows another scene: the wide search finds some rotation matching better than the
-    # coarse stage's (observed below), its tiles fail too, and frame b keeps the first
-    # registration, as without a rescue.
+    # coarse stage's (observed below), its tiles fail too, and the pair keeps its first
+    # registration, as without a rescue; nothing of frame b changes.
     other = omni_from_environment(environment_texture(height=360, seed=9), MODEL, np.eye(3), band_px=BAND)
     found = []
     search = GlobalMotionEstimator.wide_search
@@ -194,39 +197,62 @@ def test_a_rescue_whose_tiles_fail_leaves_the_failed_pair(texture, monkeypatch):
         return found[-1]
 
     monkeypatch.setattr(GlobalMotionEstimator, "wide_search", observed)
-    front_end = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0))
+    front_end = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA, recovery=RecoveryOptions(dense_retry_fraction=0.0)))
     a = front_end.prepare(omni_from_environment(texture, MODEL, np.eye(3), band_px=BAND))
     b = front_end.prepare(other)
     failed = front_end.correspondences(a, b, prior_rotation=np.eye(3))
     assert not failed.success
-    kept = (b.tracked_valid.copy(), b.tracked.offsets.copy(), b.registered_rotation.copy())
+    matched = pair_pipeline.matched(front_end, a, b, np.eye(3))
+    kept = (b.tracked_valid.copy(), b.tracked.offsets.copy())
     found.clear()
-    assert front_end.rescue_correspondences(a, b, failed, prior_rotation=np.eye(3)) is None
+    assert pair_pipeline.rescued(front_end, a, b, matched, np.eye(3)) is None
     assert len(found) == 1 and found[0] is not None
     np.testing.assert_array_equal(b.tracked_valid, kept[0])
     np.testing.assert_array_equal(b.tracked.offsets, kept[1])
-    np.testing.assert_array_equal(b.registered_rotation, kept[2])
+
+
+def test_a_pair_whose_tiles_fail_at_the_prediction_is_reacquired_from_the_identity(texture, monkeypatch):
+    # The coarse stage lands on the wrong yaw from the prediction and on the truth from the identity
+    # (a lost track: the prediction is far off); the re-acquisition's registration keeps more tiles.
+    config = IfmiConfig(panorama=PANORAMA, recovery=RecoveryOptions(dense_retry_fraction=0.0,
+                                                                    wide_search_fraction=0.0))
+    front_end = IfmiFrontEnd(MODEL, config)
+    a, b = _frames(front_end, texture)
+    starts = []
+
+    def estimate(self, coarse_a, coarse_b, *, priors=(None,)):
+        starts.append(priors[0])
+        return GlobalMotion(WRONG if priors[0] is not None else TRUTH, True, "", 1.3, 12, 0.1)
+
+    monkeypatch.setattr(GlobalMotionEstimator, "estimate", estimate)
+    pair = pair_pipeline.matched(front_end, a, b, np.eye(3))
+    assert len(starts) == 2 and starts[0] is not None and starts[1] is None
+    corr = pair.correspondences
+    assert corr.success and corr.diagnostics["reacquired"] and pair.kept.rotation is TRUTH
+    assert corr.diagnostics["n_tiles_kept"] >= config.rays.min_tiles
+    # Measured 0.03 degree (noise-free synthetic frames).
+    assert np.degrees(geodesic_angle(TRUTH, rotation_from_ray_pairs(corr.rays_a, corr.rays_b))) < 0.1
 
 
 def test_there_is_no_rescue_without_a_prediction_or_twice(texture, monkeypatch):
-    front_end = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0,
-                                               wide_search_fraction=0.0))
+    front_end = IfmiFrontEnd(MODEL, IfmiConfig(panorama=PANORAMA, recovery=RecoveryOptions(
+        dense_retry_fraction=0.0, wide_search_fraction=0.0)))
     a, b = _frames(front_end, texture)
     # The coarse stage lands on the wrong yaw (and the first wide search is off): the pair fails.
     _coarse_stage_returns(monkeypatch, WRONG, 0.1)
-    failed = front_end.correspondences(a, b, prior_rotation=np.eye(3))
-    assert not failed.success
-    front_end.config = replace(front_end.config, wide_search_fraction=0.33)
-    assert front_end.rescue_correspondences(a, b, failed) is None
-    rescued = front_end.rescue_correspondences(a, b, failed, prior_rotation=np.eye(3))
-    assert rescued is not None and rescued.success
-    assert front_end.rescue_correspondences(a, b, rescued, prior_rotation=np.eye(3)) is None
+    failed = pair_pipeline.matched(front_end, a, b, np.eye(3))
+    assert not failed.correspondences.success
+    front_end.config = replace(front_end.config, recovery=RecoveryOptions(dense_retry_fraction=0.0))
+    assert pair_pipeline.rescued(front_end, a, b, failed, None) is None
+    rescued = pair_pipeline.rescued(front_end, a, b, failed, np.eye(3))
+    assert rescued is not None and rescued.correspondences.success
+    assert pair_pipeline.rescued(front_end, a, b, rescued, np.eye(3)) is None
 
 
 def test_the_odometry_rescues_a_first_pair_the_coarse_stage_kept(texture, monkeypatch):
     # As above, the coarse stage keeps the identity for R_01 (31 degrees off) and the tiles fail
     # there; the tracker passes the failure to the front end's rescue and chains its solution.
-    config = IfmiConfig(panorama=PANORAMA, dense_retry_fraction=0.0)
+    config = IfmiConfig(panorama=PANORAMA, recovery=RecoveryOptions(dense_retry_fraction=0.0))
     frames = [omni_from_environment(texture, MODEL, r, band_px=BAND) for r in (np.eye(3), TRUTH)]
     original = GlobalMotionEstimator.estimate
     monkeypatch.setattr(GlobalMotionEstimator, "estimate",
@@ -238,7 +264,7 @@ def test_the_odometry_rescues_a_first_pair_the_coarse_stage_kept(texture, monkey
     assert records[1].success and records[1].diagnostics["wide_rescue"]
     assert np.degrees(geodesic_angle(TRUTH, trajectory.rotations[1])) < 0.1
     # Without the wide search the first pair fails and frame 1 keeps frame 0's pose.
-    _, plain = track_sequence(frames, IfmiFrontEnd(MODEL, replace(config, wide_search_fraction=0.0)),
+    _, plain = track_sequence(frames, IfmiFrontEnd(MODEL, replace(config, recovery=replace(config.recovery, wide_search_fraction=0.0))),
                               pose_options=options)
     assert not plain[1].success
 
@@ -254,4 +280,4 @@ def test_wide_search_options_are_checked(kwargs, name):
 
 def test_wide_search_fraction_is_checked():
     with pytest.raises(ValueError, match="wide_search_fraction"):
-        IfmiConfig(wide_search_fraction=1.5)
+        RecoveryOptions(wide_search_fraction=1.5)

@@ -19,7 +19,9 @@ def kept_tiles_rotation_error(model, config, frames, rotation) -> float:
     """
     fe = IfmiFrontEnd(model, config)
     a, b = fe.prepare(frames[0]), fe.prepare(frames[1])
-    offsets_a, _, placed, _ = fe.register_predicted(a, b, prior_rotation=rotation)
+    match = fe.tiles_at(a, b, rotation)
+    fe.keep_tracking(b, match)
+    offsets_a, _, placed, _ = match.offsets_a, match.linear_a, match.placed, match.n_new
     ok = placed.valid
     fitted = rotation_from_rays(rays_from_panorama_pixels(fe.mapping, offsets_a[ok]),
                                 rays_from_panorama_pixels(fe.mapping, placed.offsets[ok]))

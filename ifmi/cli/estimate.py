@@ -46,7 +46,7 @@ _VALUE_OPTIONS = {
     "th_pr": "ifmi.registration.th_pr",
     "th_pnr": "ifmi.registration.th_pnr",
     "refine_passes": "ifmi.registration.refine_passes",
-    "points_per_tile": "ifmi.points_per_tile",
+    "points_per_tile": "ifmi.rays.points_per_tile",
     "ransac_threshold": "relative_pose.ransac_threshold_rad",
     "ransac_threshold_px": "relative_pose.ransac_threshold_px",
     "seed": "relative_pose.seed",
@@ -59,18 +59,18 @@ _VALUE_OPTIONS = {
 # Flags: argparse destination -> (key path, value when the flag is given).
 _FLAG_OPTIONS = {
     "no_rotation_scale": ("ifmi.registration.estimate_rotation_scale", False),
-    "no_prior": ("ifmi.use_prior", False),
+    "no_prior": ("ifmi.tracking.use_prior", False),
     "rotation_only": ("relative_pose.rotation_only", True),
     "keyframes": ("keyframe.enabled", True),
 }
 # Key paths (and prefixes) of the options only iFMI's front end reads: the tiles and their registration.
-_IFMI_ONLY_KEYS = ("ifmi.tiling.", "ifmi.registration.", "ifmi.points_per_tile", "ifmi.use_prior")
+_IFMI_ONLY_KEYS = ("ifmi.tiling.", "ifmi.registration.", "ifmi.rays.points_per_tile", "ifmi.tracking.use_prior")
 # Values that decide whether a tile fits its panorama (what a CalibrationFitError is about): the
 # sizes first, the band radii (which set the panorama's height) only when no size was set.
 _TILE_FIT_KEYS = (("ifmi.tiling.tile_size", "ifmi.panorama.width", "ifmi.panorama.height"),
                   ("ifmi.panorama.radius_min_px", "ifmi.panorama.radius_max_px"))
 
-__all__ = ["add_parser", "run", "config_from_args", "chosen_method", "DEFAULT_METHOD"]
+__all__ = ["add_parser", "run", "chosen_method", "DEFAULT_METHOD"]
 
 
 def add_parser(subparsers) -> None:
@@ -232,11 +232,6 @@ def _configuration(args) -> tuple:
 def chosen_method(option: str | None, config_file) -> str:
     """The method to run: ``--method``, else the ``--config`` run file's, else :data:`DEFAULT_METHOD`."""
     return option or (config_file.method if config_file else None) or DEFAULT_METHOD
-
-
-def config_from_args(args) -> EstimateConfig:
-    """EstimateConfig from parsed arguments (``--config`` file, then explicit options, which win)."""
-    return _configuration(args)[2]
 
 
 _NOT_A_KEY = object()

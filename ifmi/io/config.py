@@ -2,7 +2,7 @@
 
 ``ifmi estimate --config`` and ``ifmi sweep --config`` both read their file
 with :func:`read_config_file` (or :func:`read_estimate_config`), which
-accepts either an :meth:`~ifmi.pipeline.EstimateConfig.to_dict` document or
+accepts either an :meth:`~ifmi.config.EstimateConfig.to_dict` document or
 an estimate's ``NAME.config.json`` (whose ``config`` entry is that document,
 beside the run's ``method``).
 
@@ -31,9 +31,9 @@ from ifmi.options import replaced_at_paths
 from ifmi.io.text_file import read_text_file
 
 if TYPE_CHECKING:
-    from ifmi.pipeline import EstimateConfig
+    from ifmi.config import EstimateConfig
 
-__all__ = ["read_json_object", "read_estimate_config", "estimate_config_from_document", "read_config_file",
+__all__ = ["read_json_object", "read_estimate_config", "read_config_file",
            "ConfigFile", "DERIVED_KEYS"]
 
 # Configuration values an estimate derives from its camera and frames when they are None; an
@@ -84,7 +84,7 @@ class ConfigFile:
     Attributes
     ----------
     path : Path
-    config : ifmi.pipeline.EstimateConfig
+    config : ifmi.config.EstimateConfig
         With the values the file's run derived set back to ``None``.
     method : str or None
         The run's method (an estimate's ``NAME.config.json``); ``None`` for
@@ -140,25 +140,9 @@ def read_json_object(path: str | os.PathLike, *, what: str = "JSON file") -> dic
     return data
 
 
-def estimate_config_from_document(data: dict, *, source: str | os.PathLike):
-    """:class:`~ifmi.pipeline.EstimateConfig` of a configuration document.
-
-    ``data`` is an ``EstimateConfig.to_dict()`` mapping, or an estimate's
-    ``NAME.config.json`` content (an object with ``method`` and ``config``),
-    whose derived values are set back to ``None`` (see the module docstring).
-
-    Raises
-    ------
-    InputError
-        Named after ``source``: an unknown key, or a value of the wrong type
-        or out of range (the key path, what was expected, what was got).
-    """
-    return _config_document(data, source=source)[0]
-
-
 def _config_document(data: dict, *, source) -> tuple:
     """``(EstimateConfig, method or None)`` of a configuration document."""
-    from ifmi.pipeline import EstimateConfig
+    from ifmi.config import EstimateConfig
 
     method, derived = None, ()
     if "config" in data and "method" in data:
@@ -219,7 +203,7 @@ def read_estimate_config(path: str | os.PathLike):
 
     Returns
     -------
-    ifmi.pipeline.EstimateConfig
+    ifmi.config.EstimateConfig
 
     Raises
     ------

@@ -40,7 +40,7 @@ def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=No
     given as a fraction of the panorama width has at least
     :data:`~ifmi.spectral.tiling.MIN_TILE_SIZE_PX` pixels and the log-polar grids
     are at most four times the tile side, the tiles of a frame (of the
-    layout, and of the dense retry's at ``ifmi.dense_overlap``) at most
+    layout, and of the dense retry's at ``ifmi.recovery.dense_overlap``) at most
     :func:`ifmi.spectral.fourier_mellin.max_tile_count` (a tile larger than the
     panorama is reported by the front end, naming the calibration), and a feature
     front end's ``radius_band`` lies inside the image. Explicit band radii in ``config`` (e.g. decided from the frames)
@@ -60,7 +60,7 @@ def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=No
     ------
     InputError
         Named after the configuration key (``ifmi.panorama.width``; for
-        the tile count ``ifmi.tiling`` or ``ifmi.dense_overlap``): what is
+        the tile count ``ifmi.spectral.tiling`` or ``ifmi.recovery.dense_overlap``): what is
         accepted for this camera and what was given; or after ``calib_path``
         (default ``ifmi.panorama``) when the camera model gives no band.
     """
@@ -169,17 +169,12 @@ def _check_tiles(config, mapping) -> None:
     tile = tile_size_px(size, mapping.width)
     if tile > min(mapping.height, mapping.width):
         return
-    for name in ("log_polar_angles", "log_polar_radii"):
-        value = getattr(config.ifmi.registration, name)
-        if value is not None and value > _MAX_OVERSAMPLING * tile:
-            raise InputError(f"ifmi.registration.{name}", f"expected at most {_MAX_OVERSAMPLING * tile} "
-                                                          f"({_MAX_OVERSAMPLING} x the {tile} px tile side), "
-                                                          f"got {value}")
     layouts = {"ifmi.tiling": config.ifmi.tiling}
-    if config.ifmi.dense_retry_fraction > 0 and config.ifmi.use_prior:
-        layouts["ifmi.dense_overlap"] = replace(config.ifmi.tiling, overlap=config.ifmi.dense_overlap)
+    if config.ifmi.recovery.dense_retry_fraction > 0 and config.ifmi.tracking.use_prior:
+        layouts["ifmi.recovery.dense_overlap"] = replace(config.ifmi.tiling, overlap=config.ifmi.recovery.dense_overlap)
     for key, tiling in layouts.items():
-        problem = _tile_count_problem((mapping.height, mapping.width), tiling, config.ifmi.registration)
+        problem = _tile_count_problem((mapping.height, mapping.width), tiling,
+                                      config.ifmi.registration.engine_config())
         if problem:
             raise InputError(key, problem)
 

@@ -131,7 +131,7 @@ class GlobalMotionConfig:
         0.32 against 0.30), and there the scores do not rank rotations a
         few degrees apart: a result that only matches better is taken
         only for a pair that cannot be solved otherwise
-        (:meth:`ifmi.spectral.ifmi_front_end.IfmiFrontEnd.rescue_correspondences`).
+        (the rescue stage of :mod:`ifmi.spectral.pair_pipeline`).
     settled_shift_px : float
         When the whole-panorama shift from a start is below this (coarse
         pixels) along both axes, the start is returned as it is and the
@@ -293,9 +293,6 @@ class GlobalMotionEstimator:
 
     def _full_from_coarse(self, coarse: np.ndarray) -> np.ndarray:
         return (coarse + 0.5) * self.scale - 0.5
-
-    def _coarse_from_full(self, full: np.ndarray) -> np.ndarray:
-        return (full + 0.5) / self.scale - 0.5
 
     def coarse_panorama(self, panorama: np.ndarray) -> np.ndarray:
         """Downsampled panorama ``(h, w)`` float32 of a full ``(height, width)`` one (area averaging)."""

@@ -1,37 +1,50 @@
-"""The extended-iFMI front end: panorama, tiles, per-tile iFMI, flow, rays.
+"""The extended-iFMI front end: panorama, tiles, per-tile iFMI, flow, rays; and its options.
 
 ``prepare`` unwarps a frame into the panorama, cuts the tiles and computes
 their spectra once (a keyframe is prepared once and matched many times);
-``correspondences`` registers the tile pairs, rejects bad tiles with the
-noise filters and returns ray pairs from the flow equation.
+``solve_pair`` runs a pair through the stages of :mod:`ifmi.spectral.pair_pipeline`
+(``correspondences``, the plugin contract's matching, runs those before
+the back end), which register the tile pairs, reject bad tiles with the
+noise filters and return ray pairs from the flow equation. The front end
+holds the geometry each stage uses: where a rotation puts the tiles, the
+reference's tracked tiles, the registrations.
+
+:class:`IfmiConfig` groups the options by purpose (panorama, tiling,
+registration, coarse stage, recovery, tracking, refinement, rays); a
+configuration of the former flat layout is translated
+(:func:`translated_ifmi_options`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, replace
+import time
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, Mapping
 
 import numpy as np
 
 from ifmi.geometry.camera import OcamModel
-from ifmi.options import options_from_dict
-from ifmi.front_end import Correspondences
+from ifmi.options import OptionError, check_finite_fields, options_from_dict
+from ifmi.spectral import pair_pipeline as pair_pipeline
+from ifmi.front_end import Correspondences, FrontEndBase, SolvedPair
+from ifmi.spectral.pair_pipeline import PairDiagnostics, TileMatch, averaged_correspondences
 from ifmi.spectral.flow import (flow_from_placements, flow_from_tile_motion, flow_sample_points, pairs_with_rays_a,
                    points_on_centroids)
 from ifmi.spectral.global_motion import GlobalMotion, GlobalMotionConfig, GlobalMotionEstimator
-from ifmi.spectral.fourier_mellin import (FourierMellin, TileRejection, FourierMellinConfig, PlacedRegistration, PlacedTiles,
+from ifmi.spectral.fourier_mellin import (FourierMellin, FourierMellinConfig, PlacedRegistration, PlacedTiles,
                             TileSpectra)
 from ifmi.errors import CalibrationFitError
 from ifmi.backend.relative_pose import rotation_angles, rotation_from_rays
-from ifmi.geometry.rotations import geodesic_angle, matrix_aligning_rays
-from ifmi.spectral.tiling import (TileLayout, TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_layout,
-                     tile_size_px, tiles_from_panorama)
+from ifmi.geometry.rotations import matrix_aligning_rays
+from ifmi.spectral.tiling import TileLayout, TilingConfig, tile_layout, tile_size_px, tiles_from_panorama
 from ifmi.spectral.panorama import (PANORAMA_INTERPOLATIONS, PanoramaConfig, PanoramaMapping, gray_from_image,
                      panorama_image_from_omni_image, panorama_mapping, panorama_pixels_from_rays,
                      rays_from_panorama_pixels)
 
-__all__ = ["IfmiConfig", "IfmiFrameState", "IfmiFrontEnd", "averaged_correspondences"]
+__all__ = ["IfmiConfig", "RegistrationOptions", "CoarseOptions", "RecoveryOptions", "TrackingOptions",
+           "RefinementOptions", "RaysOptions", "IfmiFrameState", "IfmiFrontEnd", "averaged_correspondences",
+           "translated_ifmi_options"]
 
 # Step (panorama pixels) of the central differences that give a predicted map's curvature: about
 # a quarter of a 64 px tile, where the second-order term matters, and far above rounding.
@@ -39,301 +52,352 @@ _CURVATURE_STEP_PX = 16.0
 # Cauchy reweighting steps of the tiles' own rotation fit (refit passes), and the fewest kept tiles it needs.
 _REFIT_ITERATIONS = 3
 _MIN_REFIT_TILES = 8
-# Most refit passes: each re-measures the kept tiles (about one registration: 100 passes took 2 s
-# more than one on seven fast 256 px pairs) and the default is one; 10**20 passes never ended.
+# Most refit passes: each re-measures the kept tiles (about one registration) and the default is one.
 _MAX_REFIT_PASSES = 10
+# A refit is skipped when the tiles' median residual against their own rotation exceeds a quarter
+# panorama pixel: a registration's error is a few hundredths of a pixel, so more is parallax or wrong tiles.
+_REFIT_MAX_RESIDUAL_PX = 0.25
+# With a refit to follow, the refinement passes run only on the refitted shape when the search pass
+# moved the kept tiles by at most half a pixel (median): one pass converges from there.
+_SINGLE_REFINEMENT_MAX_PX = 0.5
+# A tile's rays are turned to its landmark only when its measured centre lies within a quarter panorama
+# pixel of it (the registration's error is far below; parallax or a slipped tile moves it farther).
+_LANDMARK_GATE_PX = 0.25
+# Offset of the outer flow points of a tile from its centre, fraction of the tile size: inside the
+# window's bulk (the Hann window falls to half at a quarter of the tile from the centre).
+_POINT_SPREAD = 0.1
 
 
 @dataclass(frozen=True)
-class IfmiConfig:
-    """Options of the iFMI front end.
+class RegistrationOptions:
+    """Per-tile registration (:class:`~ifmi.spectral.fourier_mellin.FourierMellinConfig` holds the rest, at its defaults).
 
     Attributes
     ----------
-    panorama : PanoramaConfig
-    tiling : TilingConfig
-    registration : FourierMellinConfig
-        Includes the noise-filter thresholds ``th_pr`` and ``th_pnr``.
-    points_per_tile : int
-        Flow points per kept tile: 1, 5 or 9.
-    point_spread : float
-        Offset of the outer flow points from the tile centre, fraction of the tile size.
-    flow_at_energy_centroid : bool
-        Centre each tile's flow points on the energy centroid of its
-        reference tile (:func:`ifmi.spectral.fourier_mellin.energy_centroids`)
-        instead of the tile centre. Under translation the motion varies
-        across a tile with the depth of what it sees; the registration
-        measures the motion where the tile's texture energy lies, which on
-        unevenly textured tiles (grass thinning out towards the horizon, an
-        edge near one side) is pixels from the centre.
-    min_tiles : int
-        Fewer kept tiles than this fails the frame pair.
-    use_prior : bool
-        When the odometry passes a predicted rotation, cut each tile of
-        frame b where the prediction moves tile a's content, so that the
-        registration measures only the small residual motion (more overlap,
-        less window bias, keyframes that last longer). Tile b is cut with
-        the local affine map of the predicted rotation (the panorama warp's
-        Jacobian at the tile centre), not only its similarity part.
-    track_tiles : bool
-        With a prediction, a frame that becomes a reference keeps the tiles
-        it was registered with, placed where its previous reference's tiles
-        were found, instead of cutting new ones at the fixed layout, like
-        tracked features. A tile's placement in a frame then enters the
-        pair before and the pair after it with opposite signs, so its error
-        cancels along the trajectory instead of accumulating. Tiles that
-        failed registration, left the panorama rows or became distorted
-        are cut anew from the layout.
-    coarse_to_fine : bool
-        Before the tiles, estimate the large part of the rotation from whole
-        low-resolution panoramas (:mod:`ifmi.spectral.global_motion`), starting from
-        the predicted rotation, and cut the tiles where that estimate puts
-        them; when the tiles then fail, search again from the identity
-        (re-acquisition after a lost track). Needs ``use_prior``.
-    global_motion : GlobalMotionConfig
-        Options of the coarse stage.
-    prediction_check_tiles : float
-        When the coarse stage moves a prediction by at most this many tile
-        widths (panorama pixels of the correction angle over the tile
-        size), the tiles are registered at the prediction as well and the
-        registration that keeps more tiles wins (ties go to the coarse
-        stage). The prediction is then still well inside the tiles' capture
-        range, so the coarse stage's own error, a fraction of a coarse
-        pixel, does not replace a prediction that the tiles match better.
-        0 disables the check.
-    wide_search_fraction : float
-        When at most this fraction of the tiles pass at the coarse stage's
-        rotation (after any re-acquisition) and that rotation is more than
-        ``global_motion.confirm_angle_rad`` from the prediction, its wide
-        search (:meth:`ifmi.spectral.global_motion.GlobalMotionEstimator.wide_search`,
-        from starts tilted around the prediction) looks for a clearly better
-        rotation, and the tiles are registered there instead. A tilt of ten
-        degrees between frames can smear the whole-panorama correlation into
-        a wrong yaw that a few tiles still agree with. A pair that cannot be
-        solved at all is searched again from every start
-        (:meth:`IfmiFrontEnd.rescue_correspondences`). 0 disables both.
-    max_tile_distortion : float
-        A tracked tile whose placement stretches or shrinks the panorama by
-        more than this factor along any direction is cut anew.
-    dense_retry_fraction : float
-        With a prediction, when at most this fraction of the tiles pass
-        the noise filters (fast translation: parallax a rotation cannot
-        predict moves and distorts most tiles), the pair is registered once
-        more with a denser layout, tiles overlapping by ``dense_overlap``,
-        cut anew from frame a at the same coarse rotation; the registration
-        with more kept tiles gives the rays. Frame b keeps the regular
-        layout's tracked tiles. 0 disables it.
-    dense_overlap : float
-        Overlap of the denser layout (``TilingConfig.overlap``).
-    reregister_fraction : float
-        When at most this fraction of the layout's tiles passed and the back
-        end solved the pair, the tiles that gave its rays are registered a
-        second time, directly at the solved rotation (no coarse stage), and
-        the pair is solved again with each ray of frame b the mean of its
-        two registrations (:meth:`IfmiFrontEnd.refine_correspondences`).
-        The solved rotation places the tiles better than the coarse stage
-        did, and the second registration samples them at other sub-pixel
-        positions, so their errors partly average out. Measured on 108 fast
-        sets and 12 warehouse sets (3 RANSAC seeds, both modes): the sets
-        where iFMI's ATE exceeded the better feature method's went from 25
-        to 15. 0 disables it.
-    reregister_min_px : float
-        The second registration is made only when the solved rotation moves
-        the tiles at least this far from where they were registered
-        (panorama pixels: the angle between the two rotations times
-        ``width / 2 pi``). A smaller move samples them at nearly the same
-        sub-pixel positions and changes nearly nothing. On the 18 designed
-        fast sets 84 of 228 pairs are registered again (97 with 0.1 px, 65
-        with 0.5 px).
-    dense_tiles_per_column : int or None
-        The retry registers only this many tiles of each column of the
-        denser layout, those whose texture best fixes a shift in frame a
-        (:func:`ifmi.spectral.tiling.tile_corner_strengths`), instead of all of them
-        (None). Its cost falls with the tile count; see the README's retry
-        section for what it does to the accuracy.
-    anchor_templates : bool
-        Tracked tiles keep the template (spectrum) of the frame they were
-        first cut from, and every later frame's placement of them is
-        measured against that template, so a placement error of one frame
-        does not pass on to the next. Otherwise a tracked tile is re-cut
-        (resampled) from every frame at its last placement and carries that
-        placement's error and the resampling blur along the track (the
-        tests measure 0.05 against 0.17 px two frames on; 20-frame drift on
-        the rendered benchmark, sum of six runs, 227e-5 against 250e-5 rad).
-    curved_placement : bool
-        With a prediction, tile b is cut along the predicted map's second-order
-        term as well as its affine part (the curvature is composed along a
-        tracked tile's frames). The panorama's displacement field of a tilt
-        is sinusoidal in azimuth; under an affine cut the windowed tile
-        measures its mean over the tile, which shrinks a tilt by about
-        ``(2 pi / W)^2 s^2 / 2`` (``s`` the window's spread, a few 1e-4 for
-        64 px tiles at W = 2048). See the README's sharp-image section.
-    refit_passes : int
-        With curved placements: passes that fit a robust rotation to the
-        kept tiles' measured centres and re-measure the kept tiles cut with
-        that rotation's shape instead of the prediction's (0 = none; at most 10).
-    refit_max_residual_px : float
-        A refit is skipped when the tiles' median residual against their own
-        rotation exceeds this (panorama pixels): parallax or wrong tiles.
-    single_refinement_max_px : float
-        With a refit to follow, the refinement passes run only on the refitted
-        shape when the search pass moved the kept tiles by at most this
-        (median, panorama pixels): a good prediction, from which one pass
-        converges. A larger move (fast or erratic motion) first refines on the
-        predicted shape, as without a refit. 0 always refines twice. See the
-        README's sharp-image section for what it saves and costs.
-    wide_panorama_interpolation : {"linear", "cubic", "lanczos4"}
-        OpenCV kernel that resamples the omni image into panoramas at least
-        ``min_width_curved`` wide (sharp high-resolution images); narrower
-        ones are bilinear. Bilinear interpolation shifts fine texture by a
-        sub-pixel amount fixed in the omni image
-        (:func:`~ifmi.spectral.panorama.panorama_image_from_omni_image`); an anchored
-        template keeps its frame's shift for its whole track. See the
-        README's sharp-image section for what the Lanczos kernel gains and costs.
-    min_width_curved : int
-        Curved placements, refit passes, ``wide_panorama_interpolation`` and
-        ``landmark_rays`` apply from this panorama width (pixels) up;
-        narrower panoramas keep the affine cut, bilinear resampling and
-        measured rays.
-    landmark_rays : bool
-        Each tracked tile keeps a landmark: its centre's ray in frame 0's
-        coordinates, fixed when the tile is cut, from the pose the odometry
-        accepted for that frame (:meth:`IfmiFrontEnd.accept_pose`). When a
-        frame is the reference, a tracked tile's rays there are turned
-        towards where the accepted pose of that frame sees the landmark,
-        instead of resting on the tile's measured placement alone. Measured
-        placements telescope along a track only while the tile set stays
-        the same; each tile cut anew starts from a frame whose pose has
-        drifted, so frame-to-frame drift grows with every renewal. The
-        landmarks tie the reference's tiles to the poses they were first
-        seen from. Frames without an accepted pose (a reference reset
-        after failures) keep measured rays, and their tiles lose their
-        landmarks. Only on panoramas at least ``min_width_curved`` wide: on
-        the 256 px sets it lowered the drift of pure rotations but let
-        parallax into translated ones. See the README's sharp-image section.
-    landmark_gate_px : float
-        A tile is turned only when its measured centre lies within this
-        many panorama pixels of its landmark (parallax under translation,
-        or a tile that slipped, moves it farther).
-    landmark_weight : float
-        Part of the way from the measured ray to the landmark's that a
-        tile's rays are turned, in ``(0, 1]``: 1 ties them to the landmarks
-        (least drift), less keeps more of each pair's own measurement
-        (frame-to-frame error closer to the measured one). The trajectory's
-        error then decays by ``1 - landmark_weight`` per frame towards the
-        landmarks'.
-    half_turn_check_rad : float
-        When the back end solves a pair more than this far from its
-        prediction (radians; the first pair's prediction is the identity),
-        the pair is solved once more from that rotation turned half round
-        about the panorama axis (:meth:`IfmiFrontEnd.half_turn_alternative`),
-        and the solution nearer the prediction is taken when it keeps
-        enough inliers. A room of one texture seen from near its middle
-        matches itself half a turn round, and under parallax the half turn
-        can match as well as the truth. A quarter turn by default: no pair
-        of the fast benchmark sets (at most about 30 degrees per frame)
-        lies that far from its prediction unless it took a wrong turn.
-        ``pi`` turns the check off.
-    half_turn_inlier_fraction : float
-        The alternative replaces the first solution only with at least this
-        fraction of its inliers (the frames explain both about as well; a
-        scene that does not repeat half round leaves the alternative few
-        tiles, or none).
-    half_turn_yaw_window_rad : float
-        The turned rotation is refined by the coarse stage with its yaw kept
-        within this of the start (radians, 0.35 = 20 degrees;
-        :meth:`~ifmi.spectral.global_motion.GlobalMotionEstimator.search_near`). The
-        turn is about the vertical, so the start's yaw is right to within
-        the cameras' tilt from it and its tilt is off by up to twice that
-        (0.10-0.26 rad on the atelier pairs that took the half turn). With
-        a quarter turn as the window, the search on one of them jumped to a
-        neighbour of a ring of six alike plinths 60 degrees round.
+    th_pr : float
+        Noise filter: smallest accepted peak ratio of a tile's translation correlation (ratio).
+    th_pnr : float
+        Noise filter: smallest accepted peak-to-noise ratio of that correlation (ratio).
+    refine_passes : int
+        Passes that resample tile b with the full motion and fit the residual translation (count, at most 10).
+    estimate_rotation_scale : bool
+        Measure each tile's residual rotation and scale (log-polar stage).
+    resample_interpolation : {"cubic", "lanczos4", "linear"}
+        Kernel that resamples tiles of frame b at their placements.
+    workers : int
+        FFT threads (count).
     """
 
-    panorama: PanoramaConfig = field(default_factory=PanoramaConfig)
-    tiling: TilingConfig = field(default_factory=TilingConfig)
-    registration: FourierMellinConfig = field(default_factory=FourierMellinConfig)
-    points_per_tile: int = 5
-    point_spread: float = 0.1
-    flow_at_energy_centroid: bool = True
-    min_tiles: int = 3
-    use_prior: bool = True
-    track_tiles: bool = True
-    coarse_to_fine: bool = True
-    global_motion: GlobalMotionConfig = field(default_factory=GlobalMotionConfig)
+    th_pr: float = FourierMellinConfig.th_pr
+    th_pnr: float = FourierMellinConfig.th_pnr
+    refine_passes: int = FourierMellinConfig.refine_passes
+    estimate_rotation_scale: bool = FourierMellinConfig.estimate_rotation_scale
+    resample_interpolation: str = FourierMellinConfig.resample_interpolation
+    workers: int = FourierMellinConfig.workers
+
+    def __post_init__(self) -> None:
+        self.engine_config()  # its checks
+
+    def engine_config(self) -> FourierMellinConfig:
+        """The registration engine's options: these, and the engine's defaults for the rest."""
+        return FourierMellinConfig(th_pr=self.th_pr, th_pnr=self.th_pnr, refine_passes=self.refine_passes,
+                                   estimate_rotation_scale=self.estimate_rotation_scale,
+                                   resample_interpolation=self.resample_interpolation, workers=self.workers)
+
+
+@dataclass(frozen=True)
+class CoarseOptions:
+    """Coarse stage: the rotation from whole low-resolution panoramas (:mod:`ifmi.spectral.global_motion`).
+
+    Attributes
+    ----------
+    enabled : bool
+        Correct the prediction with the coarse stage before the tiles (needs ``tracking.use_prior``).
+    prediction_check_tiles : float
+        A correction of at most this many tile widths is checked by registering the tiles at the
+        prediction too (the one keeping more tiles wins); 0 turns the check off.
+    confirm_angle_rad : float
+        A coarse correction larger than this is confirmed before it is taken, and is what makes a
+        pair with few tiles eligible for the wide search (radians).
+    """
+
+    enabled: bool = True
     prediction_check_tiles: float = 0.125
+    confirm_angle_rad: float = GlobalMotionConfig.confirm_angle_rad
+
+    def __post_init__(self) -> None:
+        check_finite_fields(self, ("confirm_angle_rad",))
+        if not 0 <= self.prediction_check_tiles < 0.5:
+            raise ValueError(f"expected 0 <= prediction_check_tiles < 0.5, got {self.prediction_check_tiles}")
+        self.engine_config()  # its checks
+
+    def engine_config(self) -> GlobalMotionConfig:
+        """The coarse stage's options: these, and its defaults for the rest."""
+        return GlobalMotionConfig(confirm_angle_rad=self.confirm_angle_rad)
+
+
+@dataclass(frozen=True)
+class RecoveryOptions:
+    """What a pair whose first registration is weak, or whose solution is doubtful, tries next.
+
+    Attributes
+    ----------
+    wide_search_fraction : float
+        At most this fraction of the tiles kept after a large coarse correction: search tilted starts
+        around the prediction; an unsolved pair searches from every start. 0 turns both off.
+    dense_retry_fraction : float
+        At most this fraction of the tiles kept: register a denser layout cut anew from frame a at
+        the same rotation, keep the one with more tiles. 0 turns it off.
+    dense_overlap : float
+        Overlap of the dense retry's layout (fraction of a tile).
+    half_turn_check_rad : float
+        A solution farther than this from the prediction is solved again from its half turn about the
+        panorama axis (radians); pi turns the check off.
+    """
+
     wide_search_fraction: float = 0.33
-    max_tile_distortion: float = 1.25
     dense_retry_fraction: float = 0.33
     dense_overlap: float = 0.5
+    half_turn_check_rad: float = math.pi / 2
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.dense_retry_fraction <= 1 or not 0 <= self.dense_overlap < 1:
+            raise ValueError(f"expected 0 <= dense_retry_fraction <= 1 and 0 <= dense_overlap < 1, got "
+                             f"{self.dense_retry_fraction}, {self.dense_overlap}")
+        if not 0 <= self.wide_search_fraction <= 1:
+            raise ValueError(f"expected 0 <= wide_search_fraction <= 1, got {self.wide_search_fraction}")
+        if not 0 <= self.half_turn_check_rad <= math.pi:
+            raise ValueError(f"expected 0 <= half_turn_check_rad <= pi, got {self.half_turn_check_rad}")
+
+
+@dataclass(frozen=True)
+class TrackingOptions:
+    """How tiles follow the motion from frame to frame.
+
+    Attributes
+    ----------
+    use_prior : bool
+        Cut each tile of frame b where the predicted rotation moves tile a's content, with its local affine map.
+    track_tiles : bool
+        A frame that becomes a reference keeps the tiles it was registered with instead of cutting
+        new ones at the layout (placement errors then cancel along the trajectory).
+    anchor_templates : bool
+        Tracked tiles keep the template of the frame they were first cut from, instead of being re-cut
+        from every frame.
+    max_tile_distortion : float
+        A tracked tile stretched or shrunk by more than this factor is cut anew (ratio).
+    landmark_rays : bool
+        On wide panoramas, turn a reference's tracked tiles' rays towards the frame-0 ray each tile was
+        first seen along, as the accepted pose sees it.
+    landmark_weight : float
+        Part of the way to the landmark a tile's rays are turned, in ``(0, 1]``.
+    """
+
+    use_prior: bool = True
+    track_tiles: bool = True
+    anchor_templates: bool = True
+    max_tile_distortion: float = 1.25
+    landmark_rays: bool = True
+    landmark_weight: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not self.max_tile_distortion > 1:
+            raise ValueError(f"expected max_tile_distortion > 1, got {self.max_tile_distortion}")
+        if not 0 < self.landmark_weight <= 1:
+            raise ValueError(f"expected 0 < landmark_weight <= 1, got {self.landmark_weight}")
+
+
+@dataclass(frozen=True)
+class RefinementOptions:
+    """Second looks at a pair's tiles: at the solved rotation, and along the predicted map's curvature.
+
+    Attributes
+    ----------
+    reregister_fraction : float
+        At most this fraction of the tiles kept and the pair solved: register its tiles again at the
+        solved rotation and average the two registrations; 0 turns it off.
+    reregister_min_px : float
+        ... only when the solved rotation moves the tiles at least this far (panorama pixels).
+    curved_placement : bool
+        On wide panoramas, cut tile b along the predicted map's second-order term too.
+    refit_passes : int
+        On wide panoramas with curved placements: passes that re-measure the kept tiles with the shape
+        of their own robust rotation (count, at most 10).
+    min_width_curved : int
+        Panorama width from which curved placements, refit passes, landmark rays and
+        ``wide_panorama_interpolation`` apply (pixels).
+    wide_panorama_interpolation : {"linear", "cubic", "lanczos4"}
+        Kernel that resamples the omni image into panoramas at least ``min_width_curved`` wide
+        (narrower ones are bilinear).
+    """
+
     reregister_fraction: float = 0.6
     reregister_min_px: float = 0.3
-    dense_tiles_per_column: int | None = None
-    anchor_templates: bool = True
     curved_placement: bool = True
     refit_passes: int = 1
-    refit_max_residual_px: float = 0.25
-    single_refinement_max_px: float = 0.5
-    wide_panorama_interpolation: str = "lanczos4"
     min_width_curved: int = 1536
-    landmark_rays: bool = True
-    landmark_gate_px: float = 0.25
-    landmark_weight: float = 0.5
-    half_turn_check_rad: float = math.pi / 2
-    half_turn_inlier_fraction: float = 0.5
-    half_turn_yaw_window_rad: float = 0.35
+    wide_panorama_interpolation: str = "lanczos4"
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.reregister_fraction <= 1 or not self.reregister_min_px >= 0:
+            raise ValueError(f"expected 0 <= reregister_fraction <= 1 and reregister_min_px >= 0, got "
+                             f"{self.reregister_fraction}, {self.reregister_min_px}")
+        if not 0 <= self.refit_passes <= _MAX_REFIT_PASSES or self.min_width_curved < 0:
+            raise ValueError(f"expected 0 <= refit_passes <= {_MAX_REFIT_PASSES} and min_width_curved >= 0, got "
+                             f"{self.refit_passes}, {self.min_width_curved}")
+        if self.wide_panorama_interpolation not in PANORAMA_INTERPOLATIONS:
+            raise ValueError(f"wide_panorama_interpolation must be one of {sorted(PANORAMA_INTERPOLATIONS)}, "
+                             f"got {self.wide_panorama_interpolation!r}")
+
+
+@dataclass(frozen=True)
+class RaysOptions:
+    """How a pair's kept tiles become ray pairs.
+
+    Attributes
+    ----------
+    points_per_tile : int
+        Flow points per kept tile: 1, 5 or 9.
+    at_energy_centroid : bool
+        Centre each tile's flow points on its reference tile's energy centroid instead of its centre.
+    min_tiles : int
+        Fewer kept tiles than this fails the pair (count).
+    """
+
+    points_per_tile: int = 5
+    at_energy_centroid: bool = True
+    min_tiles: int = 3
 
     def __post_init__(self) -> None:
         if self.points_per_tile not in (1, 5, 9):
             raise ValueError(f"points_per_tile must be 1, 5 or 9, got {self.points_per_tile}")
-        if not 0 <= self.point_spread < 0.5 or self.min_tiles < 1:
-            raise ValueError(f"expected 0 <= point_spread < 0.5 and min_tiles >= 1, got "
-                             f"{self.point_spread}, {self.min_tiles}")
-        if not 0 <= self.dense_retry_fraction <= 1 or not 0 <= self.dense_overlap < 1:
-            raise ValueError(f"expected 0 <= dense_retry_fraction <= 1 and 0 <= dense_overlap < 1, got "
-                             f"{self.dense_retry_fraction}, {self.dense_overlap}")
-        if not 0 <= self.reregister_fraction <= 1 or not self.reregister_min_px >= 0:
-            raise ValueError(f"expected 0 <= reregister_fraction <= 1 and reregister_min_px >= 0, got "
-                             f"{self.reregister_fraction}, {self.reregister_min_px}")
-        if self.dense_tiles_per_column is not None and self.dense_tiles_per_column < 1:
-            raise ValueError(f"expected dense_tiles_per_column >= 1 or None, got {self.dense_tiles_per_column}")
-        if not self.landmark_gate_px > 0 or not 0 < self.landmark_weight <= 1:
-            raise ValueError(f"expected landmark_gate_px > 0 and 0 < landmark_weight <= 1, got "
-                             f"{self.landmark_gate_px}, {self.landmark_weight}")
-        if not 0 <= self.refit_passes <= _MAX_REFIT_PASSES or not self.refit_max_residual_px > 0 \
-                or self.min_width_curved < 0:
-            raise ValueError(f"expected 0 <= refit_passes <= {_MAX_REFIT_PASSES}, refit_max_residual_px > 0 and "
-                             f"min_width_curved >= 0, got {self.refit_passes}, {self.refit_max_residual_px}, "
-                             f"{self.min_width_curved}")
-        if self.wide_panorama_interpolation not in PANORAMA_INTERPOLATIONS:
-            raise ValueError(f"wide_panorama_interpolation must be one of {sorted(PANORAMA_INTERPOLATIONS)}, "
-                             f"got {self.wide_panorama_interpolation!r}")
-        if not self.single_refinement_max_px >= 0:
-            raise ValueError(f"expected single_refinement_max_px >= 0, got {self.single_refinement_max_px}")
-        if not 0 <= self.wide_search_fraction <= 1:
-            raise ValueError(f"expected 0 <= wide_search_fraction <= 1, got {self.wide_search_fraction}")
-        if not 0 <= self.prediction_check_tiles < 0.5:
-            raise ValueError(f"expected 0 <= prediction_check_tiles < 0.5, got {self.prediction_check_tiles}")
-        if not self.max_tile_distortion > 1:
-            raise ValueError(f"expected max_tile_distortion > 1, got {self.max_tile_distortion}")
-        if not 0 <= self.half_turn_check_rad <= math.pi or not 0 <= self.half_turn_inlier_fraction <= 1 \
-                or not 0 < self.half_turn_yaw_window_rad <= math.pi:
-            raise ValueError(f"expected 0 <= half_turn_check_rad <= pi, 0 <= half_turn_inlier_fraction <= 1 and "
-                             f"0 < half_turn_yaw_window_rad <= pi, got {self.half_turn_check_rad}, "
-                             f"{self.half_turn_inlier_fraction}, {self.half_turn_yaw_window_rad}")
+        if self.min_tiles < 1:
+            raise ValueError(f"expected min_tiles >= 1, got {self.min_tiles}")
+
+
+@dataclass(frozen=True)
+class IfmiConfig:
+    """Options of the iFMI front end, by purpose.
+
+    Attributes
+    ----------
+    panorama : PanoramaConfig
+        The omni image's band unwarped into a panorama (:mod:`ifmi.spectral.panorama`).
+    tiling : TilingConfig
+        The tile layout on the panorama (:mod:`ifmi.spectral.tiling`).
+    registration : RegistrationOptions
+    coarse : CoarseOptions
+    recovery : RecoveryOptions
+    tracking : TrackingOptions
+    refinement : RefinementOptions
+    rays : RaysOptions
+    """
+
+    panorama: PanoramaConfig = field(default_factory=PanoramaConfig)
+    tiling: TilingConfig = field(default_factory=TilingConfig)
+    registration: RegistrationOptions = field(default_factory=RegistrationOptions)
+    coarse: CoarseOptions = field(default_factory=CoarseOptions)
+    recovery: RecoveryOptions = field(default_factory=RecoveryOptions)
+    tracking: TrackingOptions = field(default_factory=TrackingOptions)
+    refinement: RefinementOptions = field(default_factory=RefinementOptions)
+    rays: RaysOptions = field(default_factory=RaysOptions)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "IfmiConfig":
-        """Inverse of ``dataclasses.asdict``; missing keys take defaults.
+        """Inverse of ``dataclasses.asdict``; missing keys take defaults; a mapping of the former flat
+        layout is translated (:func:`translated_ifmi_options`).
 
         Every value is type-checked (:func:`ifmi.options.options_from_dict`);
         errors name the key path under ``ifmi``.
         """
-        return options_from_dict(cls, data, what="ifmi")
+        return options_from_dict(cls, translated_ifmi_options(data), what="ifmi")
 
     def to_dict(self) -> dict:
         """Nested dict of plain values (inverse of :meth:`from_dict`)."""
         return asdict(self)
+
+
+# Keys of the former flat layout of the ifmi section and where they are now.
+_MOVED_KEYS = {
+    "use_prior": "tracking.use_prior", "track_tiles": "tracking.track_tiles",
+    "anchor_templates": "tracking.anchor_templates", "max_tile_distortion": "tracking.max_tile_distortion",
+    "landmark_rays": "tracking.landmark_rays", "landmark_weight": "tracking.landmark_weight",
+    "coarse_to_fine": "coarse.enabled", "prediction_check_tiles": "coarse.prediction_check_tiles",
+    "global_motion.confirm_angle_rad": "coarse.confirm_angle_rad",
+    "wide_search_fraction": "recovery.wide_search_fraction", "dense_retry_fraction": "recovery.dense_retry_fraction",
+    "dense_overlap": "recovery.dense_overlap", "half_turn_check_rad": "recovery.half_turn_check_rad",
+    "reregister_fraction": "refinement.reregister_fraction", "reregister_min_px": "refinement.reregister_min_px",
+    "curved_placement": "refinement.curved_placement", "refit_passes": "refinement.refit_passes",
+    "min_width_curved": "refinement.min_width_curved",
+    "wide_panorama_interpolation": "refinement.wide_panorama_interpolation",
+    "points_per_tile": "rays.points_per_tile", "flow_at_energy_centroid": "rays.at_energy_centroid",
+    "min_tiles": "rays.min_tiles",
+}
+
+
+def _fixed_values() -> dict:
+    """Former options of the ifmi section that are now fixed, and their value."""
+    from ifmi.spectral.pair_pipeline import HALF_TURN_INLIER_FRACTION, HALF_TURN_YAW_WINDOW_RAD
+
+    fixed = {"point_spread": _POINT_SPREAD, "dense_tiles_per_column": None,
+             "refit_max_residual_px": _REFIT_MAX_RESIDUAL_PX, "single_refinement_max_px": _SINGLE_REFINEMENT_MAX_PX,
+             "landmark_gate_px": _LANDMARK_GATE_PX, "half_turn_inlier_fraction": HALF_TURN_INLIER_FRACTION,
+             "half_turn_yaw_window_rad": HALF_TURN_YAW_WINDOW_RAD}
+    for section, engine, kept in (("registration", FourierMellinConfig(), RegistrationOptions),
+                                  ("global_motion", GlobalMotionConfig(), CoarseOptions)):
+        kept_names = {f.name for f in fields(kept)}
+        fixed.update({f"{section}.{f.name}": getattr(engine, f.name) for f in fields(engine)
+                      if f.name not in kept_names})
+    return fixed
+
+
+def _same_value(given, fixed) -> bool:
+    """Whether a JSON value ``given`` is the fixed value ``fixed`` (a list for a tuple; no bool for a number)."""
+    if isinstance(fixed, tuple):
+        return isinstance(given, (list, tuple)) and list(given) == list(fixed)
+    return isinstance(given, bool) == isinstance(fixed, bool) and given == fixed
+
+
+def translated_ifmi_options(data: Mapping[str, Any]) -> Mapping[str, Any]:
+    """An ``ifmi`` section of the former flat layout in the grouped one; any other mapping as it is.
+
+    A moved key goes to its new place (``use_prior`` to ``tracking.use_prior``); a former option
+    that is now fixed is dropped when it holds the fixed value.
+
+    Raises
+    ------
+    OptionError
+        A former option that is now fixed holds another value, or a moved key is given at both places
+        (named, with the new key or the fixed value).
+    """
+    if not isinstance(data, Mapping):
+        return data
+    flat = {}
+    for key, value in data.items():
+        if key in ("registration", "global_motion") and isinstance(value, Mapping):
+            flat.update({f"{key}.{name}": item for name, item in value.items()})
+        else:
+            flat[key] = value
+    fixed = _fixed_values()
+    if not any(key in _MOVED_KEYS or key in fixed for key in flat):
+        return data
+    result: dict = {}
+    for key, value in flat.items():
+        if key in fixed:
+            if not _same_value(value, fixed[key]):
+                raise OptionError(f"ifmi.{key}", f"no longer an option (fixed at {fixed[key]!r}); remove the key")
+            continue
+        head, _, rest = _MOVED_KEYS.get(key, key).partition(".")
+        items = {rest: value} if rest else value
+        if head not in result or not isinstance(items, Mapping) or not isinstance(result[head], dict):
+            result[head] = dict(items) if isinstance(items, Mapping) else items  # a copy: the input stays as it is
+            continue
+        for name, item in items.items():
+            if name in result[head]:
+                moved = [old for old, new in _MOVED_KEYS.items() if new == f"{head}.{name}"]
+                raise OptionError(f"ifmi.{moved[0]}", f"given twice, here and as ifmi.{head}.{name} (its new key)")
+            result[head][name] = item
+    return result
 
 
 def _robust_rotation(rays_a: np.ndarray, rays_b: np.ndarray) -> tuple[np.ndarray, float]:
@@ -348,37 +412,6 @@ def _robust_rotation(rays_a: np.ndarray, rays_b: np.ndarray) -> tuple[np.ndarray
     return rotation_from_rays(rays_a, rays_b, weights), float(scale)
 
 
-def averaged_correspondences(first: Correspondences, second: Correspondences) -> Correspondences:
-    """Two registrations of one pair merged: a match of frame a's pixel in both gets the mean of
-    the two frame-b rays (and pixels); a match in one of them is kept as it is.
-
-    Parameters
-    ----------
-    first, second : Correspondences
-        Matches of the same tiles of frame a (the same ``pixels_a`` and ``rays_a`` for a tile's
-        flow points wherever both registrations kept it), with one ``rays_per_measurement``.
-
-    Returns
-    -------
-    Correspondences
-        ``first``'s matches in its order (averaged where ``second`` has them too), then those of
-        ``second`` alone; ``first``'s diagnostics.
-    """
-    where = {row.tobytes(): k for k, row in enumerate(np.ascontiguousarray(first.pixels_a))}
-    in_first = np.array([where.get(row.tobytes(), -1) for row in np.ascontiguousarray(second.pixels_a)], dtype=int)
-    both = in_first >= 0
-    rays_b = first.rays_b.copy()
-    rays_b[in_first[both]] += second.rays_b[both]
-    rays_b /= np.linalg.norm(rays_b, axis=1, keepdims=True)
-    pixels_b = first.pixels_b.copy()
-    pixels_b[in_first[both]] = (pixels_b[in_first[both]] + second.pixels_b[both]) / 2.0
-    alone = ~both
-    return replace(first, pixels_a=np.concatenate([first.pixels_a, second.pixels_a[alone]]),
-                   pixels_b=np.concatenate([pixels_b, second.pixels_b[alone]]),
-                   rays_a=np.concatenate([first.rays_a, second.rays_a[alone]]),
-                   rays_b=np.concatenate([rays_b, second.rays_b[alone]]))
-
-
 class IfmiFrameState:
     """Prepared frame: wrap-padded panorama (float32); its layout tiles and their spectra on first use.
 
@@ -386,7 +419,7 @@ class IfmiFrameState:
     without a prediction, or as a reference whose tiles are cut anew; with
     tracked tiles most frames need few of them, or none.
     ``tracked`` holds the tiles this frame was last registered with (set by
-    the front end; see ``IfmiConfig.track_tiles``).
+    :meth:`IfmiFrontEnd.keep_tracking` once per pair; see ``TrackingOptions.track_tiles``).
 
     Parameters
     ----------
@@ -410,24 +443,13 @@ class IfmiFrameState:
         self._spectra: TileSpectra | None = None
         self.tracked: PlacedTiles | None = None
         self.tracked_valid: np.ndarray | None = None
-        # R_ab at which this frame's rays were last registered against a reference (with a prediction).
-        self.registered_rotation: np.ndarray | None = None
         self.reference: tuple | None = None
         self.reference_curvature: np.ndarray | None = None
-        # Landmark rays (IfmiConfig.landmark_rays): this frame's accepted R_0k, the frame-0 rays
+        # Landmark rays (TrackingOptions.landmark_rays): this frame's accepted R_0k, the frame-0 rays
         # of its tracked tiles and of its reference tiles (NaN rows: unknown).
         self.rotation: np.ndarray | None = None
         self.tracked_landmarks: np.ndarray | None = None
         self.reference_landmarks: np.ndarray | None = None
-
-    def registration_snapshot(self) -> tuple:
-        """What registering this frame against a reference sets (tracked tiles, their landmarks, the
-        rotation registered at), for :meth:`restore_registration` when another registration is not kept."""
-        return self.tracked, self.tracked_valid, self.tracked_landmarks, self.registered_rotation
-
-    def restore_registration(self, snapshot: tuple) -> None:
-        """Set back what :meth:`registration_snapshot` saved."""
-        self.tracked, self.tracked_valid, self.tracked_landmarks, self.registered_rotation = snapshot
 
     def layout_tiles(self, index: np.ndarray | None = None) -> np.ndarray:
         """Layout tiles ``(K, N, N)`` float32, all or ``index`` (bool mask or indices) of them."""
@@ -441,40 +463,14 @@ class IfmiFrameState:
         return self._spectra
 
 
-@dataclass(frozen=True)
-class _TileMatch:
-    """One registration of a reference's tiles in frame b (:meth:`IfmiFrontEnd.register_predicted`)
-    at ``rotation`` (``R_ab``), and the tracked tiles it gave frame b."""
-
-    offsets_a: np.ndarray
-    linear_a: np.ndarray
-    placed: PlacedRegistration
-    rotation: np.ndarray
-    n_new: int
-    tracked: PlacedTiles
-    tracked_valid: np.ndarray
-    tracked_landmarks: np.ndarray | None
-
-    def restore_tracking(self, state_b: IfmiFrameState) -> None:
-        """Give frame b this registration's tracked tiles again (after another registration replaced them)."""
-        state_b.tracked, state_b.tracked_valid = self.tracked, self.tracked_valid
-        state_b.tracked_landmarks = self.tracked_landmarks
-
-
-def _coarse_diagnostics(start: np.ndarray, coarse: GlobalMotion) -> dict:
-    """Per-frame figures of a coarse-stage result reached from ``start`` (``R_ab``)."""
-    change = np.clip((np.trace(start.T @ coarse.rotation) - 1.0) / 2.0, -1.0, 1.0)
-    return {"coarse_success": bool(coarse.success), "coarse_correction_rad": float(np.arccos(change)),
-            "coarse_sectors": coarse.n_sectors, "coarse_score": coarse.score}
-
-
-class IfmiFrontEnd:
+class IfmiFrontEnd(FrontEndBase):
     """Extended-iFMI correspondences between omni images of one calibrated camera.
 
     The panorama's radius band is detected from the first prepared image
     (unless the configuration fixes it) and then kept for the sequence.
     ``correspondences`` accepts a predicted rotation ``R_ab``
-    (``uses_prior_rotation`` tells the odometry so).
+    (``uses_prior_rotation`` tells the odometry so); ``solve_pair`` runs a
+    pair through the stages of :mod:`ifmi.spectral.pair_pipeline`.
 
     Parameters
     ----------
@@ -491,37 +487,37 @@ class IfmiFrontEnd:
         self.global_stage: GlobalMotionEstimator | None = None
         self.dense_layout: TileLayout | None = None
         self._dense_engine: FourierMellin | None = None  # built on the first dense retry
+        self._registration = config.registration.engine_config()
         self._points_b: np.ndarray | None = None
         self._wrapped_columns: np.ndarray | None = None
 
     @property
     def uses_prior_rotation(self) -> bool:
-        """True when ``correspondences`` makes use of a predicted rotation (``config.use_prior``)."""
-        return self.config.use_prior
+        """True when ``correspondences`` makes use of a predicted rotation (``tracking.use_prior``)."""
+        return self.config.tracking.use_prior
 
     def _setup(self, image: np.ndarray) -> None:
         self.mapping = panorama_mapping(self.model, image, config=self.config.panorama)
         self._check_tiles_fit()
         self.layout = tile_layout((self.mapping.height, self.mapping.width), config=self.config.tiling)
-        self.engine = FourierMellin(self.layout.tile_size, self.layout.count,
-                                    config=self.config.registration)
+        self.engine = FourierMellin(self.layout.tile_size, self.layout.count, config=self._registration)
         # Columns of the padded panorama: the panorama's, wrapped by ``_pad`` on either side.
         self._wrapped_columns = np.arange(-self._pad, self.mapping.width + self._pad) % self.mapping.width
-        if self.config.coarse_to_fine and self.config.use_prior:
-            self.global_stage = GlobalMotionEstimator(self.mapping, config=self.config.global_motion)
-        if self.config.dense_retry_fraction > 0 and self.config.use_prior:
+        config = self.config
+        if config.coarse.enabled and config.tracking.use_prior:
+            self.global_stage = GlobalMotionEstimator(self.mapping, config=config.coarse.engine_config())
+        if config.recovery.dense_retry_fraction > 0 and config.tracking.use_prior:
             self.dense_layout = tile_layout((self.mapping.height, self.mapping.width),
-                                            config=replace(self.config.tiling, overlap=self.config.dense_overlap))
-        self._points_b = flow_sample_points(self.layout.tile_size,
-                                            points_per_tile=self.config.points_per_tile,
-                                            spread=self.config.point_spread)
+                                            config=replace(config.tiling, overlap=config.recovery.dense_overlap))
+        self._points_b = flow_sample_points(self.layout.tile_size, points_per_tile=config.rays.points_per_tile,
+                                            spread=_POINT_SPREAD)
 
     @property
     def dense_engine(self) -> FourierMellin:
         """Registration engine of the denser layout (built on first use: most sequences never retry)."""
         if self._dense_engine is None:
             self._dense_engine = FourierMellin(self.dense_layout.tile_size, self.dense_layout.count,
-                                               config=self.config.registration)
+                                               config=self._registration)
         return self._dense_engine
 
     def _check_tiles_fit(self) -> None:
@@ -549,7 +545,7 @@ class IfmiFrontEnd:
         # level (on sharp 1024 px images that noise doubled the frame-to-frame error).
         gray = gray_from_image(image).astype(np.float32)
         panorama = panorama_image_from_omni_image(
-            self.mapping, gray, interpolation=self.config.wide_panorama_interpolation if self._wide else "linear")
+            self.mapping, gray, interpolation=self.config.refinement.wide_panorama_interpolation if self._wide else "linear")
         # The wrapped columns are copied, not resampled again: the same values, 2 x _pad fewer columns
         # through the (Lanczos) remap.
         padded = np.take(panorama, self._wrapped_columns, axis=1)
@@ -560,13 +556,13 @@ class IfmiFrontEnd:
 
     @property
     def _wide(self) -> bool:
-        """A panorama of sharp high-resolution images (``IfmiConfig.min_width_curved``)."""
-        return self.mapping.width >= self.config.min_width_curved
+        """A panorama of sharp high-resolution images (``refinement.min_width_curved``)."""
+        return self.mapping.width >= self.config.refinement.min_width_curved
 
     @property
     def _curved(self) -> bool:
-        """Curved placements (and refit passes) on this panorama (``IfmiConfig.min_width_curved``)."""
-        return self.config.curved_placement and self._wide
+        """Curved placements (and refit passes) on this panorama (``refinement.min_width_curved``)."""
+        return self.config.refinement.curved_placement and self._wide
 
     @property
     def _pad(self) -> int:
@@ -660,15 +656,6 @@ class IfmiFrontEnd:
             curvature += np.einsum("tok,tkij->toij", jacobian, curvature_a)
         return curvature
 
-    def predicted_origins(self, prior_rotation: np.ndarray) -> np.ndarray:
-        """Panorama ``(row, col)`` in frame b of each layout tile's first pixel under ``R_ab``.
-
-        Tile a's centre ray ``r_a`` is seen in frame b along ``R_ab^T r_a``.
-        """
-        offsets, linear = self._layout_placement
-        centres, _ = self.predicted_placements(offsets, linear, prior_rotation)
-        return centres - (self.layout.tile_size - 1) / 2.0
-
     def _needs_new_tile(self, tracked: PlacedTiles, valid: np.ndarray) -> np.ndarray:
         # Singular values of each 2x2 map: s1^2 + s2^2 = |L|_F^2 and s1 s2 = |det L|.
         frobenius = np.einsum("tij,tij->t", tracked.linear, tracked.linear)
@@ -676,7 +663,7 @@ class IfmiFrontEnd:
         plus = np.sqrt(frobenius + twice_det)
         minus = np.sqrt(np.maximum(frobenius - twice_det, 0.0))
         largest, smallest = (plus + minus) / 2.0, (plus - minus) / 2.0
-        limit = self.config.max_tile_distortion
+        limit = self.config.tracking.max_tile_distortion
         distorted = (largest > limit) | (smallest < 1.0 / limit)
         # Rows the tile covers: its corners reach (N/2)(|L_00| + |L_01|) from the centre.
         reach = self.layout.tile_size / 2.0 * np.abs(tracked.linear[:, 0, :]).sum(axis=1)
@@ -700,15 +687,14 @@ class IfmiFrontEnd:
         offsets, linear = self._layout_placement
         tracked = state.tracked
         state.reference_curvature = None
-        if not self.config.track_tiles or tracked is None:
+        if not self.config.tracking.track_tiles or tracked is None:
             state.reference = (offsets, linear, state.spectra, self.layout.count)
             state.reference_landmarks = self._landmarks(state, offsets, None, np.ones(self.layout.count, bool))
             return state.reference
         # A tracked reference is matched at predicted placements, where log-polar descriptors
         # serve only when the residual rotation and scale are measured. Tiles the registration
         # resampled (not anchored templates) come without energy centroids.
-        registration = self.config.registration
-        with_descriptor = registration.estimate_rotation_scale and registration.refine_predicted_rotation_scale
+        with_descriptor = self._with_descriptor
         spectra = tracked.spectra
         if spectra is None or spectra.centroid is None or (with_descriptor and spectra.descriptor is None):
             spectra = self.engine.spectra(tracked.tiles)
@@ -742,14 +728,14 @@ class IfmiFrontEnd:
 
     def accept_pose(self, state: IfmiFrameState, rotation: np.ndarray) -> None:
         """Record the odometry's estimate ``R_0k`` of a successfully estimated frame
-        (``IfmiConfig.landmark_rays``); a frame never accepted keeps measured rays."""
+        (``tracking.landmark_rays``); a frame never accepted keeps measured rays."""
         state.rotation = np.asarray(rotation, dtype=np.float64)
 
     def _landmarks(self, state: IfmiFrameState, offsets: np.ndarray, tracked: np.ndarray | None,
                    new: np.ndarray) -> np.ndarray | None:
         """Frame-0 rays of a reference's tiles: carried along the track, or the accepted
         rotation's image of a new tile's ray; None when the frame has no accepted pose."""
-        if not (self.config.landmark_rays and self._wide) or state.rotation is None:
+        if not (self.config.tracking.landmark_rays and self._wide) or state.rotation is None:
             return None
         landmarks = np.full((len(offsets), 3), np.nan) if tracked is None else tracked.copy()
         landmarks[new] = rays_from_panorama_pixels(self.mapping, offsets[new]) @ state.rotation.T
@@ -769,216 +755,160 @@ class IfmiFrontEnd:
                                       self.layout.origins + shift)
         return motion, self.layout.origins.astype(np.float64)
 
-    def register_predicted(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
-                           prior_rotation: np.ndarray):
-        """Find the reference's tiles in frame b where a predicted rotation puts them.
+    def tiles_at(self, state_a: IfmiFrameState, state_b: IfmiFrameState, rotation: np.ndarray) -> TileMatch:
+        """The reference's tiles registered in frame b where the rotation ``R_ab`` puts them.
 
-        Frame b keeps the reference's templates at their final placements
-        in b (``anchor_templates``), or the tiles the final residual was
-        measured on, as its tracked tiles (used when it becomes a reference,
-        ``track_tiles``).
+        Nothing of either frame is changed: the result carries the tiles
+        frame b would track after it (the reference's templates at their
+        final placements in b with ``tracking.anchor_templates``, else the
+        tiles the final residual was measured on), for :meth:`keep_tracking`.
 
         Parameters
         ----------
         state_a, state_b : IfmiFrameState
-        prior_rotation : (3, 3) ndarray, keyword-only
-            Predicted ``R_ab``.
+        rotation : (3, 3) ndarray
+            ``R_ab`` (predicted, or a coarse search's).
 
         Returns
         -------
-        offsets_a : (T, 2) ndarray
-            Panorama ``(row, col)`` of the reference tiles' centres in frame a.
-        linear_a : (T, 2, 2) ndarray
-        placed : PlacedRegistration
-            With panorama coordinates of frame b (columns in ``[0, width)``).
-        n_new : int
-            Reference tiles cut anew from the layout.
+        TileMatch
+            ``offsets_a`` (T, 2) panorama ``(row, col)`` of the reference tiles' centres in frame a,
+            ``linear_a`` (T, 2, 2), ``placed`` with panorama coordinates of frame b (columns in
+            ``[0, width)``), ``n_new`` reference tiles cut anew from the layout.
         """
         offsets_a, linear_a, spectra_a, n_new = self.reference_tiles(state_a)
-        offsets_b, linear_b = self.predicted_placements(offsets_a, linear_a, prior_rotation)
+        offsets_b, linear_b = self.predicted_placements(offsets_a, linear_a, rotation)
         curvature_b = None
         if self._curved:
-            curvature_b = self.predicted_curvature(offsets_a, linear_a, state_a.reference_curvature, prior_rotation)
-        shift = np.array([0.0, self._pad])
-        width = self.mapping.width
+            curvature_b = self.predicted_curvature(offsets_a, linear_a, state_a.reference_curvature, rotation)
+        offsets_b[:, 1] = np.mod(offsets_b[:, 1], self.mapping.width)
+        placed, refined = self._register_for_refit(spectra_a, state_b, offsets_b + self._shift, linear_b,
+                                                   curvature_b)
+        placed, curvature_b, refined = self._refitted(state_a, state_b, spectra_a, (offsets_a, linear_a), placed,
+                                                      curvature_b, refined)
+        if not refined:  # no refit: refine with the predicted shape
+            placed = self.engine.refine_placed(spectra_a, state_b.padded_panorama, placed, linear_b,
+                                               curvature_b=curvature_b)
+        last = replace(placed.last, offsets=self._unpadded(placed.last.offsets))
+        placed = replace(placed, offsets=self._unpadded(placed.offsets), last=last)
+        if self.config.tracking.anchor_templates:
+            # The reference's templates, placed where they were found in b.
+            tracked = PlacedTiles(tiles=None, offsets=placed.offsets, linear=placed.linear, spectra=spectra_a,
+                                  curvature=curvature_b)
+        else:
+            tracked = last
+        return TileMatch(offsets_a, linear_a, placed, rotation, n_new, tracked, placed.valid,
+                         state_a.reference_landmarks)
 
-        def unpadded(offsets):
-            offsets = offsets - shift
-            offsets[:, 1] = np.mod(offsets[:, 1], width)
-            return offsets
-
-        offsets_b[:, 1] = np.mod(offsets_b[:, 1], width)
-        placed, refined = self._register_for_refit(spectra_a, state_b, offsets_b + shift, linear_b, curvature_b)
-        for _ in range(self.config.refit_passes if self._curved else 0):
-            if placed.valid.sum() < max(self.config.min_tiles, _MIN_REFIT_TILES):
+    def _refitted(self, state_a: IfmiFrameState, state_b: IfmiFrameState, spectra_a: TileSpectra,
+                  placement_a: tuple, placed: PlacedRegistration, curvature_b: np.ndarray | None, refined: bool):
+        """``(placed, curvature_b, refined)`` after the refit passes (``refinement.refit_passes``, curved
+        placements only): the tiles' own rotation replaces the prediction in their shape (affine and
+        curvature), which the registration does not measure; the centres stay as measured."""
+        offsets_a, linear_a = placement_a
+        for _ in range(self.config.refinement.refit_passes if self._curved else 0):
+            if placed.valid.sum() < max(self.config.rays.min_tiles, _MIN_REFIT_TILES):
                 break
-            # The tiles' own rotation replaces the prediction in their shape (affine and
-            # curvature), which the registration does not measure; the centres stay as measured.
             rotation, residual = _robust_rotation(
                 rays_from_panorama_pixels(self.mapping, offsets_a[placed.valid]),
-                rays_from_panorama_pixels(self.mapping, unpadded(placed.offsets)[placed.valid]))
-            if residual > self.config.refit_max_residual_px * 2 * np.pi / width:
+                rays_from_panorama_pixels(self.mapping, self._unpadded(placed.offsets)[placed.valid]))
+            if residual > _REFIT_MAX_RESIDUAL_PX * 2 * np.pi / self.mapping.width:
                 break  # parallax or wrong tiles: the tiles do not agree on a rotation
             _, linear_b = self.predicted_placements(offsets_a, linear_a, rotation)
             curvature_b = self.predicted_curvature(offsets_a, linear_a, state_a.reference_curvature, rotation)
             placed = self.engine.refine_placed(spectra_a, state_b.padded_panorama, placed, linear_b,
                                                curvature_b=curvature_b)
             refined = True
-        if not refined:  # no refit: refine with the predicted shape
-            placed = self.engine.refine_placed(spectra_a, state_b.padded_panorama, placed, linear_b,
-                                               curvature_b=curvature_b)
-        last = replace(placed.last, offsets=unpadded(placed.last.offsets))
-        placed = replace(placed, offsets=unpadded(placed.offsets), last=last)
-        if self.config.anchor_templates:
-            # The reference's templates, placed where they were found in b.
-            state_b.tracked = PlacedTiles(tiles=None, offsets=placed.offsets, linear=placed.linear,
-                                          spectra=spectra_a, curvature=curvature_b)
-        else:
-            state_b.tracked = last
-        state_b.tracked_valid = placed.valid
-        state_b.tracked_landmarks = state_a.reference_landmarks
+        return placed, curvature_b, refined
+
+    @property
+    def _shift(self) -> np.ndarray:
+        """``(row, col)`` of a panorama pixel in the padded panorama, less its own."""
+        return np.array([0.0, self._pad])
+
+    def _unpadded(self, offsets: np.ndarray) -> np.ndarray:
+        """Padded-panorama ``(row, col)`` as panorama ``(row, col)``, columns in ``[0, width)``."""
+        offsets = offsets - self._shift
+        offsets[:, 1] = np.mod(offsets[:, 1], self.mapping.width)
+        return offsets
+
+    def keep_tracking(self, state_b: IfmiFrameState, match: TileMatch | None) -> None:
+        """Frame b keeps the tiles of the registration ``match`` to track (None: it keeps its own); the
+        pipeline's one write to a frame, made once per pair."""
+        if match is None:
+            return
+        state_b.tracked, state_b.tracked_valid = match.tracked, match.tracked_valid
+        state_b.tracked_landmarks = match.tracked_landmarks
         state_b.reference = None
-        return offsets_a, linear_a, placed, n_new
 
     def _register_for_refit(self, spectra_a: TileSpectra, state_b: IfmiFrameState, offsets_b: np.ndarray,
                             linear_b: np.ndarray, curvature_b: np.ndarray | None):
         """``register_placed`` at the prediction, and whether its refinement passes ran.
 
         With a refit to follow and the kept tiles' median search move within
-        ``config.single_refinement_max_px`` (panorama pixels), the passes are
+        ``_SINGLE_REFINEMENT_MAX_PX`` (panorama pixels), the passes are
         left to the refit; otherwise they run on the predicted shape.
         """
         engine, source = self.engine, state_b.padded_panorama
-        if not (self._curved and self.config.refit_passes and self.config.single_refinement_max_px > 0):
+        if not (self._curved and self.config.refinement.refit_passes and _SINGLE_REFINEMENT_MAX_PX > 0):
             return engine.register_placed(spectra_a, source, offsets_b, linear_b, curvature_b=curvature_b), True
         placed = engine.register_placed(spectra_a, source, offsets_b, linear_b, curvature_b=curvature_b,
                                         refine=False)
         moved = np.hypot(*(placed.offsets - offsets_b)[placed.valid].T)
-        if moved.size and np.median(moved) <= self.config.single_refinement_max_px:
+        if moved.size and np.median(moved) <= _SINGLE_REFINEMENT_MAX_PX:
             return placed, False
         return engine.refine_placed(spectra_a, source, placed, linear_b, curvature_b=curvature_b), True
+
 
     def _landmark_pairs(self, pairs, offsets_a: np.ndarray, landmarks: np.ndarray,
                         rotation_a: np.ndarray) -> tuple:
         """``pairs`` with each tile's rays in frame a turned so that its centre lies on its
         landmark ray as the accepted ``R_0a`` sees it, where the two are within
-        ``config.landmark_gate_px``; and how many tiles were turned."""
+        ``_LANDMARK_GATE_PX``; and how many tiles were turned."""
         measured = rays_from_panorama_pixels(self.mapping, offsets_a)
         seen = landmarks @ rotation_a  # R_0a^T applied to each frame-0 ray
-        gate = self.config.landmark_gate_px * 2 * np.pi / self.mapping.width
+        gate = _LANDMARK_GATE_PX * 2 * np.pi / self.mapping.width
         close = np.isfinite(seen).all(axis=1) & (np.einsum("ti,ti->t", measured, np.nan_to_num(seen)) >= np.cos(gate))
         if not close.any():
             return pairs, 0
         turns = np.broadcast_to(np.eye(3), (len(offsets_a), 3, 3)).copy()
-        turns[close] = matrix_aligning_rays(measured[close], seen[close], fraction=self.config.landmark_weight)
+        turns[close] = matrix_aligning_rays(measured[close], seen[close], fraction=self.config.tracking.landmark_weight)
         per_point = np.repeat(turns, len(self._points_b), axis=0)
         rays_a = np.einsum("nij,nj->ni", per_point, pairs.rays_a)
         return pairs_with_rays_a(pairs, rays_a, self.mapping), int(close.sum())
 
-    def _diagnostics(self, reason: np.ndarray, peak_ratio: np.ndarray, peak_to_noise: np.ndarray,
-                     n_new: int) -> dict:
-        counts = np.bincount(reason, minlength=len(TileRejection))
-        return {
-            "n_tiles": int(self.layout.count),
-            "n_tiles_kept": int((reason == TileRejection.KEPT).sum()),
-            **{f"n_tiles_{kind.label}": int(counts[kind]) for kind in TileRejection if kind},
-            "n_tiles_new": int(n_new),
-            "median_peak_ratio": float(np.median(peak_ratio)),
-            "median_peak_to_noise": float(np.median(peak_to_noise)),
-        }
 
-    def _coarse_rotation(self, state_a: IfmiFrameState, state_b: IfmiFrameState,
-                         starts: tuple) -> tuple[np.ndarray, dict]:
-        """``R_ab`` of the coarse stage from the best of ``starts`` (None: the identity), and its figures."""
+    def coarse_rotation(self, state_a: IfmiFrameState, state_b: IfmiFrameState, starts: tuple) -> tuple:
+        """``(R_ab, GlobalMotion or None)``: the coarse stage's rotation from the best of ``starts`` (None:
+        the identity); without a coarse stage the first start, and None."""
         first = np.eye(3) if starts[0] is None else starts[0]
         if self.global_stage is None:
-            return first, {}
+            return first, None
         coarse = self.global_stage.estimate(state_a.coarse_panorama, state_b.coarse_panorama, priors=starts)
-        return coarse.rotation, _coarse_diagnostics(first, coarse)
+        return coarse.rotation, coarse
 
-    def _needs_wide_search(self, match: "_TileMatch", diagnostics: dict) -> bool:
-        """Few tiles passed after the coarse stage moved the prediction far (more than
-        ``global_motion.confirm_angle_rad``): it may have jumped to a wrong yaw. Where it kept or
-        nudged the prediction, the tiles fail for noise or parallax, which the wide search cannot
-        help unless the pair cannot be solved (:meth:`rescue_correspondences`)."""
-        return (self._wide_search_on()
-                and match.placed.valid.sum() <= self.config.wide_search_fraction * self.layout.count
-                and diagnostics.get("coarse_correction_rad", 0.0) > self.config.global_motion.confirm_angle_rad)
+    def wide_search_on(self) -> bool:
+        """Whether the wide search can run (a coarse stage, ``recovery.wide_search_fraction`` above 0)."""
+        return self.global_stage is not None and self.config.recovery.wide_search_fraction > 0
 
-    def _wide_search_on(self) -> bool:
-        """Whether the wide search can run (a coarse stage, ``config.wide_search_fraction`` above 0)."""
-        return self.global_stage is not None and self.config.wide_search_fraction > 0
-
-    def _wide_search(self, state_a: IfmiFrameState, state_b: IfmiFrameState, diagnostics: dict,
-                     prediction: np.ndarray, *, every_start: bool = False) -> GlobalMotion | None:
+    def wide_search(self, state_a: IfmiFrameState, state_b: IfmiFrameState, current_score: float,
+                    prediction: np.ndarray, *, every_start: bool = False) -> GlobalMotion | None:
         """The coarse stage's wide search around ``prediction``: a rotation matching better than the
-        coarse rotation the tiles were registered at (``diagnostics["coarse_score"]``), or None."""
+        coarse rotation the tiles were registered at (its mismatch ``current_score``), or None."""
         return self.global_stage.wide_search(state_a.coarse_panorama, state_b.coarse_panorama, start=prediction,
-                                             current_score=diagnostics["coarse_score"], every_start=every_start)
+                                             current_score=current_score, every_start=every_start)
 
-    def _searched_tiles(self, state_a: IfmiFrameState, state_b: IfmiFrameState, coarse: GlobalMotion,
-                        start: np.ndarray, *, search: str) -> tuple["_TileMatch", dict]:
-        """Tiles at the rotation ``coarse`` of a coarse search from ``start``, and their figures, with the
-        search's name (``"wide_search"``, ``"half_turn"``) set true in them."""
-        match = self._tiles_at(state_a, state_b, coarse.rotation)
-        tiles = self._diagnostics(match.placed.reason, match.placed.peak_ratio, match.placed.peak_to_noise,
-                                  match.n_new)
-        return match, {**tiles, **_coarse_diagnostics(start, coarse), search: True}
-
-    def _tiles_at(self, state_a: IfmiFrameState, state_b: IfmiFrameState, rotation: np.ndarray) -> _TileMatch:
-        """:meth:`register_predicted` at ``rotation``, with the tracking it left in frame b."""
-        offsets_a, linear_a, placed, n_new = self.register_predicted(state_a, state_b, prior_rotation=rotation)
-        return _TileMatch(offsets_a, linear_a, placed, rotation, n_new, state_b.tracked, state_b.tracked_valid,
-                          state_b.tracked_landmarks)
-
-    def _checks_prediction(self, prediction: np.ndarray | None, rotation: np.ndarray, correction_rad: float) -> bool:
-        """Whether the tiles are registered at a prediction the coarse stage moved to ``rotation``
-        (by ``correction_rad``); a prediction the coarse stage returned unchanged is not."""
-        if prediction is None or self.config.prediction_check_tiles <= 0 or np.array_equal(rotation, prediction):
-            return False
-        correction_px = correction_rad * self.mapping.width / (2 * np.pi)
-        return correction_px <= self.config.prediction_check_tiles * self.layout.tile_size
-
-    def _match_predicted(self, state_a: IfmiFrameState, state_b: IfmiFrameState,
-                         starts: tuple) -> tuple[_TileMatch, dict]:
-        """Coarse stage from ``starts``, then the tiles at the placements it predicts.
-
-        When the coarse stage moved the first start (the prediction) by less
-        than ``config.prediction_check_tiles`` and not every tile passed, the
-        tiles are registered at the prediction too and the registration
-        keeping more tiles is returned; frame b keeps that registration's
-        tracked tiles.
-        """
-        rotation, coarse = self._coarse_rotation(state_a, state_b, starts)
-        match = self._tiles_at(state_a, state_b, rotation)
-        # With every tile kept the prediction cannot keep more: no second registration.
-        if match.placed.valid.sum() < self.layout.count and \
-                self._checks_prediction(starts[0], rotation, coarse.get("coarse_correction_rad", 0.0)):
-            at_prediction = self._tiles_at(state_a, state_b, starts[0])
-            coarse["n_tiles_kept_coarse"] = int(match.placed.valid.sum())
-            coarse["prediction_kept"] = bool(at_prediction.placed.valid.sum() > match.placed.valid.sum())
-            if coarse["prediction_kept"]:
-                match = at_prediction
-            match.restore_tracking(state_b)
-        diagnostics = self._diagnostics(match.placed.reason, match.placed.peak_ratio, match.placed.peak_to_noise,
-                                        match.n_new)
-        return match, {**diagnostics, **coarse}
-
-    def _dense_selection(self, state_a: IfmiFrameState) -> np.ndarray | None:
-        """Indices of the denser layout's tiles the retry registers (None: all of them)."""
-        per_column = self.config.dense_tiles_per_column
-        if per_column is None or per_column >= self.dense_layout.grid_shape[0]:
-            return None
-        strength = tile_corner_strengths(state_a.padded_panorama, self.dense_layout, wrapped_columns=self._pad)
-        return strongest_tiles_per_column(strength, self.dense_layout, per_column)
+    @property
+    def _with_descriptor(self) -> bool:
+        """Whether tile spectra carry log-polar descriptors (the residual rotation and scale are measured)."""
+        registration = self._registration
+        return registration.estimate_rotation_scale and registration.refine_predicted_rotation_scale
 
     def register_dense(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
-                       prior_rotation: np.ndarray):
-        """Tiles of the denser layout cut from frame a, found in frame b where ``R_ab`` puts them.
+                       rotation: np.ndarray):
+        """Tiles of the denser layout cut from frame a, found in frame b where ``rotation`` (``R_ab``) puts them.
 
-        Frame b's tracked tiles are left as they are. With
-        ``dense_tiles_per_column`` only that many tiles of each layout
-        column are registered (the most textured in frame a).
+        Nothing of either frame is changed (the dense retry's tiles are not tracked).
 
         Returns
         -------
@@ -989,235 +919,99 @@ class IfmiFrontEnd:
             With panorama coordinates of frame b (columns in ``[0, width)``).
         """
         layout = self.dense_layout
-        registration = self.config.registration
-        with_descriptor = registration.estimate_rotation_scale and registration.refine_predicted_rotation_scale
-        index = self._dense_selection(state_a)
-        tiles = tiles_from_panorama(state_a.padded_panorama, layout, index=index, wrapped_columns=self._pad)
-        spectra_a = self.dense_engine.spectra(tiles, with_descriptor=with_descriptor)
-        origins = layout.origins if index is None else layout.origins[index]
+        tiles = tiles_from_panorama(state_a.padded_panorama, layout, wrapped_columns=self._pad)
+        spectra_a = self.dense_engine.spectra(tiles, with_descriptor=self._with_descriptor)
+        origins = layout.origins
         offsets_a = origins.astype(np.float64) + (layout.tile_size - 1) / 2.0
         linear_a = np.broadcast_to(np.eye(2), (len(origins), 2, 2)).copy()
-        offsets_b, linear_b = self.predicted_placements(offsets_a, linear_a, prior_rotation)
+        offsets_b, linear_b = self.predicted_placements(offsets_a, linear_a, rotation)
         curvature_b = None
         if self._curved:
-            curvature_b = self.predicted_curvature(offsets_a, linear_a, None, prior_rotation)
+            curvature_b = self.predicted_curvature(offsets_a, linear_a, None, rotation)
         offsets_b[:, 1] = np.mod(offsets_b[:, 1], self.mapping.width)
-        shift = np.array([0.0, self._pad])
-        placed = self.dense_engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + shift, linear_b,
-                                                   curvature_b=curvature_b)
-        offsets = placed.offsets - shift
-        offsets[:, 1] = np.mod(offsets[:, 1], self.mapping.width)
-        return offsets_a, linear_a, replace(placed, offsets=offsets)
+        placed = self.dense_engine.register_placed(spectra_a, state_b.padded_panorama, offsets_b + self._shift,
+                                                   linear_b, curvature_b=curvature_b)
+        return offsets_a, linear_a, replace(placed, offsets=self._unpadded(placed.offsets))
+
 
     def _tile_points(self, centroids: np.ndarray) -> np.ndarray:
         """Flow points of every tile ``(T, K, 2)`` on its energy centroid, or the shared ``(K, 2)``."""
-        if not self.config.flow_at_energy_centroid:
+        if not self.config.rays.at_energy_centroid:
             return self._points_b
         return points_on_centroids(self._points_b, centroids)
 
+
+    def unpredicted_correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState) -> Correspondences:
+        """Ray pairs from the layout's tiles of both frames, registered without a prediction."""
+        started = time.perf_counter()
+        motion, origins_b = self.register(state_a, state_b)
+        diagnostics = PairDiagnostics.of_tiles(motion, self.layout.count, self.layout.count)
+        if motion.valid.sum() < self.config.rays.min_tiles:
+            return self._too_few_tiles(motion.valid, diagnostics.timed("register", time.perf_counter() - started))
+        pairs = flow_from_tile_motion(motion, self.layout, self.mapping, origins_b=origins_b,
+                                      points_b=self._tile_points(state_b.spectra.centroid))
+        return self._from_pairs(pairs, diagnostics.timed("register", time.perf_counter() - started))
+
     def correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *,
-                        prior_rotation: np.ndarray | None = None):
+                        prior_rotation: np.ndarray | None = None) -> Correspondences:
         """Ray pairs of frame a (reference) and frame b from the kept tiles.
 
-        With a predicted rotation (and ``config.use_prior``) the coarse stage
-        (``config.coarse_to_fine``) corrects the prediction, and the
-        reference's tiles (tracked or from the layout) are looked for in
-        frame b where the corrected prediction puts them, cut with its local
-        affine map (a small correction is checked by registering at the
-        prediction too, ``config.prediction_check_tiles``); frame b then
-        keeps the tiles it was registered with (``track_tiles``). If too few
-        tiles pass, the coarse stage searches again from the identity and
-        the tiles are registered once more.
+        With a predicted rotation (and ``tracking.use_prior``) the stages
+        *register*, *verify*, *recover* and *rays* of :mod:`ifmi.spectral.pair_pipeline`
+        run, and frame b keeps the tiles it was registered with; without
+        one, the layout's tiles of both frames are registered.
 
         Parameters
         ----------
         state_a, state_b : IfmiFrameState
         prior_rotation : (3, 3) ndarray, optional, keyword-only
-            Predicted ``R_ab``; used when ``config.use_prior``.
+            Predicted ``R_ab``; used with ``tracking.use_prior``.
 
         Returns
         -------
         Correspondences
         """
-        if not self.config.use_prior:
-            prior_rotation = None
-        if prior_rotation is None:
-            motion, origins_b = self.register(state_a, state_b)
-            diagnostics = self._diagnostics(motion.reason, motion.peak_ratio, motion.peak_to_noise,
-                                            self.layout.count)
-            if motion.valid.sum() < self.config.min_tiles:
-                return self._too_few_tiles(motion.valid, diagnostics)
-            pairs = flow_from_tile_motion(motion, self.layout, self.mapping, origins_b=origins_b,
-                                          points_b=self._tile_points(state_b.spectra.centroid))
-            return self._from_pairs(pairs, diagnostics)
-        match, diagnostics = self._match_predicted(state_a, state_b, (prior_rotation, None))
-        if match.placed.valid.sum() < self.config.min_tiles and self.global_stage is not None:
-            # Re-acquisition: the prediction may be far off after fast motion or a lost frame.
-            retry, retry_diagnostics = self._match_predicted(state_a, state_b, (None, prior_rotation))
-            if retry.placed.valid.sum() > match.placed.valid.sum():
-                match, diagnostics = retry, {**retry_diagnostics, "reacquired": True}
-            match.restore_tracking(state_b)
-        if self._needs_wide_search(match, diagnostics):
-            # The coarse match decides here, not the tile count: both registrations have few tiles
-            # passing, and under parallax (lawn with translation) the right rotation can keep as few
-            # as the wrong one (2 against 3) until the dense retry registers more.
-            searched = self._wide_search(state_a, state_b, diagnostics, prior_rotation)
-            if searched is not None and self.global_stage.clearly_better(
-                    searched, current_rotation=match.rotation, current_score=diagnostics["coarse_score"]):
-                match, diagnostics = self._searched_tiles(state_a, state_b, searched, prior_rotation,
-                                                           search="wide_search")
-        return self._correspondences_from_match(state_a, state_b, match, diagnostics)
+        if not self.config.tracking.use_prior or prior_rotation is None:
+            return self.unpredicted_correspondences(state_a, state_b)
+        result = pair_pipeline.matched(self, state_a, state_b, prior_rotation)
+        self.keep_tracking(state_b, result.kept)
+        return result.correspondences
 
-    def rescue_correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, failed: Correspondences, *,
-                               prior_rotation: np.ndarray | None = None) -> Correspondences | None:
-        """Correspondences of a pair that could not be solved, registered at the best rotation of a
-        wide search from every start, or None.
-
-        Called by the odometry when :meth:`correspondences` failed or the
-        back end could not solve what it returned (too few tiles kept
-        inliers). Any rotation whose panorama matches better than the
-        coarse stage's is tried, not only a clearly better one
-        (:meth:`_needs_wide_search`): under parallax every coarse rotation
-        leaves most of the panorama mismatch, and on the first pair of a
-        sequence the prediction is the identity, which the coarse stage
-        keeps when its own search from there matches worse.
-
-        Parameters
-        ----------
-        state_a, state_b : IfmiFrameState
-            The pair ``failed`` was matched from (reference a, frame b).
-        failed : Correspondences
-            What :meth:`correspondences` returned for the pair.
-        prior_rotation : (3, 3) ndarray, optional, keyword-only
-            The predicted ``R_ab`` it was given.
-
-        Returns
-        -------
-        Correspondences or None
-            With ``wide_search`` and ``wide_rescue`` in the diagnostics;
-            None when there is nothing to try (no prediction or coarse
-            stage, the wide search off or already taken for the pair, no
-            better-matching rotation) or the tiles fail there too. Frame b
-            then keeps its first registration.
-        """
-        if not self.config.use_prior or prior_rotation is None or not self._wide_search_on() \
-                or "coarse_score" not in failed.diagnostics or "wide_search" in failed.diagnostics:
-            return None
-        searched = self._wide_search(state_a, state_b, failed.diagnostics, prior_rotation, every_start=True)
-        if searched is None:
-            return None
-        first = state_b.registration_snapshot()
-        wide, diagnostics = self._searched_tiles(state_a, state_b, searched, prior_rotation, search="wide_search")
-        rescued = self._correspondences_from_match(state_a, state_b, wide, {**diagnostics, "wide_rescue": True})
-        if rescued.success:
-            return rescued
-        state_b.restore_registration(first)
-        return None
-
-    def half_turn_alternative(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *, rotation_ab: np.ndarray,
-                              n_inliers: int, prior_rotation: np.ndarray | None, solve) -> tuple | None:
-        """The pair solved again from ``rotation_ab`` turned half round, when that lies nearer the prediction.
-
-        A room of one texture seen from near its middle (brick on every
-        wall, a ring of alike objects) matches itself turned half round
-        about the vertical. On the first pair of a sequence the prediction
-        is the identity, and under parallax the half turn can match the
-        panoramas and keep tiles as well as the true rotation or better, so
-        the pair is solved, successfully, about pi away from the truth, and
-        every later pose keeps the error. When the back end's ``rotation_ab``
-        lies more than ``config.half_turn_check_rad`` from the prediction,
-        it is turned half round about the panorama axis (on either side:
-        the scene's turn is about the vertical, which is the axis of
-        whichever frame is upright), the coarse stage refines both with the
-        yaw kept within ``config.half_turn_yaw_window_rad``, and the tiles
-        are registered at the better match (dense retry included) and
-        solved. That solution replaces the first when it lies nearer the
-        prediction and keeps at least ``config.half_turn_inlier_fraction``
-        of the first's inliers: where the frames cannot tell the two apart,
-        the smaller motion is taken.
-
-        Parameters
-        ----------
-        state_a, state_b : IfmiFrameState
-            The pair that was solved (reference a, frame b).
-        rotation_ab : (3, 3) ndarray, keyword-only
-            ``R_ab`` the back end solved.
-        n_inliers : int, keyword-only
-            Its inlier count.
-        prior_rotation : (3, 3) ndarray or None, keyword-only
-            The predicted ``R_ab`` the pair was matched with.
-        solve : callable, keyword-only
-            ``solve(correspondences) -> (pose, info)``: the odometry's back end.
-
-        Returns
-        -------
-        tuple or None
-            ``(pose, info, correspondences)`` of the alternative, with
-            ``half_turn: True`` in the diagnostics; None when it is not
-            tried (no prediction or coarse stage, ``rotation_ab`` within the
-            bound) or not taken. Frame b then keeps its first registration.
-        """
-        if not self.config.use_prior or prior_rotation is None or self.global_stage is None:
-            return None
-        far = float(geodesic_angle(prior_rotation, rotation_ab))
-        if far <= self.config.half_turn_check_rad:
-            return None
-        first = state_b.registration_snapshot()
-        half_turn = self._half_turn
-        rotation_ab = np.asarray(rotation_ab, dtype=np.float64)
-        starts = np.stack([half_turn @ rotation_ab, rotation_ab @ half_turn])
-        coarse = self.global_stage.search_near(state_a.coarse_panorama, state_b.coarse_panorama, starts=starts,
-                                               max_yaw_rad=self.config.half_turn_yaw_window_rad)
-        match, diagnostics = self._searched_tiles(state_a, state_b, coarse, starts[0], search="half_turn")
-        corr = self._correspondences_from_match(state_a, state_b, match, diagnostics)
-        if corr.success:
-            pose, info = solve(corr)
-            if (info.success and float(geodesic_angle(prior_rotation, pose.rotation)) < far
-                    and info.n_inliers >= self.config.half_turn_inlier_fraction * n_inliers):
-                return pose, info, corr
-        state_b.restore_registration(first)
-        return None
+    def solve_pair(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *, prior_rotation: np.ndarray | None,
+                   solve) -> SolvedPair:
+        """The pair through every stage of :func:`ifmi.spectral.pair_pipeline.solve_pair`."""
+        return pair_pipeline.solve_pair(self, state_a, state_b, prior_rotation=prior_rotation, solve=solve)
 
     @property
-    def _half_turn(self) -> np.ndarray:
+    def half_turn(self) -> np.ndarray:
         """Half turn (3, 3) about the panorama axis, in the camera frame."""
         axis_frame = self.mapping.camera_from_panorama
         half_turn = np.diag([-1.0, -1.0, 1.0])
         return half_turn if axis_frame is None else axis_frame @ half_turn @ axis_frame.T
 
-    def _too_few_tiles(self, valid: np.ndarray, diagnostics: dict) -> Correspondences:
-        """A failed pair: fewer than ``config.min_tiles`` of the ``valid`` tiles passed."""
+    def _too_few_tiles(self, valid: np.ndarray, diagnostics: PairDiagnostics) -> Correspondences:
+        """A failed pair: fewer than ``rays.min_tiles`` of the ``valid`` tiles passed."""
         return Correspondences.failed(
             f"only {int(valid.sum())} of {self.layout.count} tiles passed the noise filters "
-            f"(need {self.config.min_tiles})", diagnostics)
+            f"(need {self.config.rays.min_tiles})", diagnostics.to_dict())
 
-    def _from_pairs(self, pairs, diagnostics: dict) -> Correspondences:
+
+    def _from_pairs(self, pairs, diagnostics: PairDiagnostics) -> Correspondences:
         """Correspondences of the flow ``pairs`` (one measurement per tile)."""
         return Correspondences(pixels_a=pairs.pixels_a, pixels_b=pairs.pixels_b,
-                               rays_a=pairs.rays_a, rays_b=pairs.rays_b, diagnostics=diagnostics,
+                               rays_a=pairs.rays_a, rays_b=pairs.rays_b, diagnostics=diagnostics.to_dict(),
                                rays_per_measurement=len(self._points_b))
 
-    def _correspondences_from_match(self, state_a: IfmiFrameState, state_b: IfmiFrameState, match: _TileMatch,
-                                    diagnostics: dict) -> Correspondences:
-        """Rays of a predicted registration ``match``, or of the dense retry at its rotation when
-        at most ``config.dense_retry_fraction`` of its tiles passed and the retry keeps more."""
-        valid = match.placed.valid
-        state_b.registered_rotation = match.rotation
-        if self.dense_layout is not None and valid.sum() <= self.config.dense_retry_fraction * self.layout.count:
-            dense = self.register_dense(state_a, state_b, prior_rotation=match.rotation)
-            diagnostics = {**diagnostics, "n_tiles_kept_dense": int(dense[2].valid.sum())}
-            if dense[2].valid.sum() > valid.sum():
-                return self._placed_correspondences(state_a, *dense, diagnostics, dense=True)
-        return self._placed_correspondences(state_a, match.offsets_a, match.linear_a, match.placed, diagnostics,
-                                            dense=False)
 
-    def _placed_correspondences(self, state_a: IfmiFrameState, offsets_a: np.ndarray, linear_a: np.ndarray,
-                                placed: PlacedRegistration, diagnostics: dict, *, dense: bool) -> Correspondences:
+    def placed_correspondences(self, state_a: IfmiFrameState, offsets_a: np.ndarray, linear_a: np.ndarray,
+                               placed: PlacedRegistration, diagnostics: PairDiagnostics, *,
+                               dense: bool) -> tuple[Correspondences, PairDiagnostics]:
         """Rays of the kept tiles of a registration of frame a's tiles (reference tiles, or the
-        ``dense`` layout's cut anew: no curvature or landmarks of their own)."""
+        ``dense`` layout's cut anew: no curvature or landmarks of their own), and ``diagnostics`` with
+        the count of tiles turned to their landmarks."""
         valid = placed.valid
-        if valid.sum() < self.config.min_tiles:
-            return self._too_few_tiles(valid, diagnostics)
+        if valid.sum() < self.config.rays.min_tiles:
+            return self._too_few_tiles(valid, diagnostics), diagnostics
         curvature_a = None if dense else state_a.reference_curvature
         landmarks = None if dense else state_a.reference_landmarks
         pairs = flow_from_placements(offsets_a, linear_a, placed.offsets, placed.linear, valid, self.mapping,
@@ -1225,59 +1019,6 @@ class IfmiFrontEnd:
                                      tile_size=self.layout.tile_size,
                                      curvature_a=curvature_a, curvature_b=placed.last.curvature)
         if landmarks is not None:
-            pairs, diagnostics["n_tiles_landmark"] = self._landmark_pairs(pairs, offsets_a[valid],
-                                                                          landmarks[valid], state_a.rotation)
-        return self._from_pairs(pairs, diagnostics)
-
-    def refine_correspondences(self, state_a: IfmiFrameState, state_b: IfmiFrameState, first: Correspondences, *,
-                               rotation_ab: np.ndarray) -> Correspondences | None:
-        """``first`` averaged with a second registration at the back end's solved rotation, or None.
-
-        Pairs whose registration kept at most ``config.reregister_fraction``
-        of the layout's tiles (as ``first``'s ``n_tiles_kept`` says) are
-        registered again where ``rotation_ab`` puts the tiles that gave
-        ``first``'s rays (the reference's tiles, or the dense retry's), if
-        that moves them at least ``config.reregister_min_px``; no coarse
-        stage and no dense retry. A second registration of the reference's
-        tiles gives frame b its tracked tiles (placed at the better
-        rotation).
-
-        Parameters
-        ----------
-        state_a, state_b : IfmiFrameState
-            The pair ``first`` was matched from (reference a, frame b).
-        first : Correspondences
-            What :meth:`correspondences` returned for the pair.
-        rotation_ab : (3, 3) ndarray, keyword-only
-            ``R_ab`` the back end solved from ``first``.
-
-        Returns
-        -------
-        Correspondences or None
-            Both registrations' matches merged by
-            :func:`averaged_correspondences`, with ``first``'s diagnostics
-            and ``n_tiles_kept_reregistered``; None
-            when the pair is not registered again (enough tiles passed, no
-            prediction in use, ``reregister_fraction`` 0, a move under
-            ``reregister_min_px``) or the second registration failed.
-        """
-        kept = first.diagnostics.get("n_tiles_kept")
-        fraction = self.config.reregister_fraction
-        if (fraction == 0 or not first.success or state_b.registered_rotation is None or kept is None
-                or kept > fraction * self.layout.count):
-            return None
-        rotation_ab = np.asarray(rotation_ab, dtype=np.float64)
-        moved = geodesic_angle(state_b.registered_rotation, rotation_ab)
-        if moved * self.mapping.width / (2 * np.pi) < self.config.reregister_min_px:
-            return None
-        if first.diagnostics.get("n_tiles_kept_dense", -1) > kept:  # the first rays are the dense retry's
-            offsets_a, linear_a, placed = self.register_dense(state_a, state_b, prior_rotation=rotation_ab)
-            second = self._placed_correspondences(state_a, offsets_a, linear_a, placed, {}, dense=True)
-        else:
-            match = self._tiles_at(state_a, state_b, rotation_ab)
-            placed = match.placed
-            second = self._placed_correspondences(state_a, match.offsets_a, match.linear_a, placed, {}, dense=False)
-        if not second.success:
-            return None
-        diagnostics = {**first.diagnostics, "n_tiles_kept_reregistered": int(placed.valid.sum())}
-        return replace(averaged_correspondences(first, second), diagnostics=diagnostics)
+            pairs, turned = self._landmark_pairs(pairs, offsets_a[valid], landmarks[valid], state_a.rotation)
+            diagnostics = replace(diagnostics, n_tiles_landmark=turned)
+        return self._from_pairs(pairs, diagnostics), diagnostics

@@ -34,8 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ifmi.errors import InputError, one_line
-from ifmi.front_end import Correspondences
-from ifmi.tracking.odometry import FRAME_COLUMNS, RECOVERED_AFTER_RESET, REFINE_FAILURE
+from ifmi.front_end import DEFAULT_STAGE_COLUMNS, Correspondences, FrontEndBase
+from ifmi.tracking.odometry import FRAME_COLUMNS, PREPARE_MS, RECOVERED_AFTER_RESET, REFINE_FAILURE
 
 __all__ = ["RAY_NORM_TOLERANCE", "CheckedFrontEnd", "checked_correspondences"]
 
@@ -51,7 +51,7 @@ _REAL_KINDS = "iuf"
 # is no measurement, and Python refuses to print one of over 4300 digits).
 _DIAGNOSTIC_INT_BITS = 64
 # Column names of frames.csv that a diagnostics entry would lose to (the tracker's own columns).
-_TAKEN_COLUMNS = FRAME_COLUMNS + (RECOVERED_AFTER_RESET, REFINE_FAILURE)
+_TAKEN_COLUMNS = FRAME_COLUMNS + (RECOVERED_AFTER_RESET, REFINE_FAILURE, PREPARE_MS) + DEFAULT_STAGE_COLUMNS
 # Characters of a diagnostics key quoted in a message.
 _SHOWN_KEY_CHARS = 40
 
@@ -64,7 +64,7 @@ class _Prepared:
     failure: str = ""
 
 
-class CheckedFrontEnd:
+class CheckedFrontEnd(FrontEndBase):
     """``front_end`` of the plugin ``method`` behind the checks of the module docstring.
 
     Parameters

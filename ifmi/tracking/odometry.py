@@ -15,15 +15,14 @@ known, giving ``R_rk``; its pose is ``R_0k = R_0r @ R_rk``.
   keyframe at once. Error then grows with the number of keyframes, not of
   frames.
 
-Front ends that declare ``uses_prior_rotation`` receive a predicted
-``R_rk`` (constant angular velocity from the last two successfully
-estimated poses) and may use it to look for the motion near the prediction.
-Front ends with ``accept_pose`` are told each successful frame's ``R_0k``
-(:mod:`ifmi.front_end`). Two more hooks are the iFMI front end's own (a
-plugin's are not passed through :class:`~ifmi.tracking.checked_front_end.CheckedFrontEnd`):
-``rescue_correspondences`` gets a pair that failed to match or to solve,
-and ``half_turn_alternative`` every solved pair, for which it may return
-another solution (see their docstrings in :mod:`ifmi.spectral.ifmi_front_end`).
+Each pair goes through the front end's ``solve_pair`` (:mod:`ifmi.front_end`,
+with defaults for what a front end lacks): front ends that declare
+``uses_prior_rotation`` receive a predicted ``R_rk`` (constant angular
+velocity from the last two successfully estimated poses) and may use it to
+look for the motion near the prediction, and ``refine_correspondences``
+is given each solution. Front ends are told each successful frame's
+``R_0k`` (``accept_pose``). The iFMI front end runs its own per-pair
+pipeline (:mod:`ifmi.spectral.pair_pipeline`).
 
 A frame whose estimate fails keeps the last pose (flagged with a reason)
 and never becomes a reference: its held pose is not its true pose, and its
@@ -73,12 +72,14 @@ from scipy.spatial.transform import Rotation
 from ifmi.backend.bundle_adjustment import BundleAdjustmentOptions, poses_from_sliding_window, tracks_from_pair_rays
 from ifmi.errors import InputError
 from ifmi.frames import MissingFrame
+from ifmi.front_end import REFINE_FAILURE, with_contract_defaults
 from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays
 from ifmi.backend.rolling_shutter import (RollingShutterOptions, angular_velocity_from_rotation, relative_pose_rolling_shutter,
                               velocity_after_intervals, velocity_at_frame)
 from ifmi.geometry.trajectory import Trajectory
 
-__all__ = ["KeyframeOptions", "FrameRecord", "FRAME_COLUMNS", "RECOVERED_AFTER_RESET", "REFINE_FAILURE", "Tracker", "track_sequence"]
+__all__ = ["KeyframeOptions", "FrameRecord", "FRAME_COLUMNS", "RECOVERED_AFTER_RESET", "REFINE_FAILURE", "PREPARE_MS",
+           "Tracker", "track_sequence"]
 
 
 @dataclass(frozen=True)
@@ -180,7 +181,8 @@ class FrameRecord:
 # why a front end's refined correspondences failed): names a front end's diagnostics cannot have.
 FRAME_COLUMNS = tuple(f.name for f in fields(FrameRecord) if f.name != "diagnostics")
 RECOVERED_AFTER_RESET = "recovered_after_reset"
-REFINE_FAILURE = "refine_failure"
+# Diagnostics column of every prepared frame: the wall time of the front end's ``prepare`` (milliseconds).
+PREPARE_MS = "t_prepare_ms"
 
 
 @dataclass
@@ -279,6 +281,7 @@ class Tracker:
             raise ValueError("pose_options.ransac_threshold_rad is None; resolve it for the camera "
                              "first (RelativePoseOptions.resolved or ifmi.pipeline.resolved_config)")
         self.front_end = front_end
+        self._contract = with_contract_defaults(front_end)
         self.pose_options = pose_options
         self.keyframe = keyframe
         self.pose_solver = pose_solver
@@ -309,62 +312,12 @@ class Tracker:
     def _solve(self, reference: _Reference, state, predicted: np.ndarray, frame: int):
         """``(pose, info, corr)`` of ``frame`` against ``reference``; ``(None, None, corr)`` when matching failed.
 
-        A pair that failed to match or to solve is passed to a front end's
-        ``rescue_correspondences`` (``(state_a, state_b, failed, *,
-        prior_rotation) -> Correspondences or None``) when it has one;
-        correspondences it returns replace the failure when they solve.
-        A front end with ``refine_correspondences`` is passed the solved
-        ``R_ab``; correspondences it returns are solved again and replace the
-        first solution when that succeeds. Failed ones leave the first
-        solution, their reason in the diagnostics (``REFINE_FAILURE``).
+        The pair goes through the front end's ``solve_pair`` (:mod:`ifmi.front_end`) with the
+        predicted ``R_ab`` and this tracker's back end.
         """
-        prior = reference.rotation.T @ predicted
-        if getattr(self.front_end, "uses_prior_rotation", False):
-            corr = self.front_end.correspondences(reference.state, state, prior_rotation=prior)
-        else:
-            corr = self.front_end.correspondences(reference.state, state)
-        pose, info = self._solve_rays(reference, corr, frame) if corr.success else (None, None)
-        if info is None or not info.success:
-            rescued = self._rescued(reference, state, corr, prior, frame)
-            if rescued is None:
-                return pose, info, corr
-            pose, info, corr = rescued
-        pose, info, corr = self._nearer_alternative(reference, state, (pose, info, corr), prior, frame)
-        refine = getattr(self.front_end, "refine_correspondences", None)
-        if refine is not None and info.success:
-            refined = refine(reference.state, state, corr, rotation_ab=pose.rotation)
-            if refined is not None and not refined.success:
-                corr = replace(corr, diagnostics={**corr.diagnostics, REFINE_FAILURE: refined.reason})
-            elif refined is not None:
-                pose_refined, info_refined = self._solve_rays(reference, refined, frame)
-                if info_refined.success:
-                    return pose_refined, info_refined, refined
-        return pose, info, corr
-
-    def _rescued(self, reference: _Reference, state, failed, prior: np.ndarray, frame: int) -> tuple | None:
-        """``(pose, info, corr)`` from a front end with ``rescue_correspondences`` for a pair that
-        failed to match or to solve (``failed``), when they solve; else None."""
-        rescue = getattr(self.front_end, "rescue_correspondences", None)
-        if rescue is None:
-            return None
-        corr = rescue(reference.state, state, failed, prior_rotation=prior)
-        if corr is None:
-            return None
-        pose, info = self._solve_rays(reference, corr, frame)
-        return (pose, info, corr) if info.success else None
-
-    def _nearer_alternative(self, reference: _Reference, state, solved: tuple, prior: np.ndarray,
-                            frame: int) -> tuple:
-        """``solved`` (``(pose, info, corr)``), or what a front end's ``half_turn_alternative``
-        returns for it (``(state_a, state_b, *, rotation_ab, n_inliers, prior_rotation, solve) ->
-        (pose, info, corr) or None``; ``solve(corr) -> (pose, info)`` is this tracker's back end)."""
-        alternative = getattr(self.front_end, "half_turn_alternative", None)
-        if alternative is None:
-            return solved
-        pose, info, _ = solved
-        found = alternative(reference.state, state, rotation_ab=pose.rotation, n_inliers=info.n_inliers,
-                            prior_rotation=prior, solve=lambda corr: self._solve_rays(reference, corr, frame))
-        return solved if found is None else found
+        solved = self._contract.solve_pair(reference.state, state, prior_rotation=reference.rotation.T @ predicted,
+                                           solve=lambda corr: self._solve_rays(reference, corr, frame))
+        return solved.pose, solved.info, solved.correspondences
 
     def _solve_rays(self, reference: _Reference, corr, frame: int) -> tuple:
         """``(pose, info)`` of the back end on ``corr``'s rays (with the rolling-shutter model when set)."""
@@ -412,10 +365,8 @@ class Tracker:
         return _Reference(k, state, rotation, position, velocity_before=interval)
 
     def _accept(self, state, rotation: np.ndarray) -> None:
-        """Tell a front end with ``accept_pose`` a successfully estimated frame's ``R_0k``."""
-        accept = getattr(self.front_end, "accept_pose", None)
-        if accept is not None:
-            accept(state, rotation)
+        """Tell the front end (``accept_pose``) a successfully estimated frame's ``R_0k``."""
+        self._contract.accept_pose(state, rotation)
 
     def _recover(self, state, k: int):
         """``(reference, pose, info, corr)`` of frame ``k`` matched against the last good frame
@@ -468,17 +419,21 @@ class Tracker:
             record = FrameRecord(k, self._reference.frame, False, f"image: {image.reason}", 0, 0,
                                  time.perf_counter() - start)
             return self._append(record, self.rotations[-1], self.positions[-1])
+        prepared = time.perf_counter()
         state = self.front_end.prepare(image)
+        prepare_ms = 1e3 * (time.perf_counter() - prepared)
         if self._reference is None:
             if self.rolling_shutter.readout > 0.0:
                 self._height = int(np.shape(image)[0])
             self._accept(state, np.eye(3))
             self._reference = self._last_good = _Reference(0, state, np.eye(3), np.zeros(3))
             self._good = [(0, np.eye(3))]
-            return self._append(FrameRecord(0, 0, True, "", 0, 0, time.perf_counter() - start),
-                                np.eye(3), np.zeros(3))
+            return self._append(FrameRecord(0, 0, True, "", 0, 0, time.perf_counter() - start,
+                                            diagnostics={PREPARE_MS: prepare_ms}), np.eye(3), np.zeros(3))
         record, rotation, position = self._estimate(k, state)
-        return self._append(replace(record, seconds=time.perf_counter() - start), rotation, position)
+        record = replace(record, seconds=time.perf_counter() - start,
+                         diagnostics={**record.diagnostics, PREPARE_MS: prepare_ms})
+        return self._append(record, rotation, position)
 
     def _estimate(self, k: int, state) -> tuple[FrameRecord, np.ndarray, np.ndarray]:
         keyframe = self.keyframe
