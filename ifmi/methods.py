@@ -220,7 +220,7 @@ def create_front_end(method: str, model, config):
     an :class:`InputError` naming the method (built-in factories' errors
     pass unchanged). A third-party front end comes back wrapped in
     :class:`~ifmi.checked_front_end.CheckedFrontEnd`, which holds what it
-    returns to the contract.
+    returns to the contract (its rays checked against ``model``).
 
     Returns
     -------
@@ -250,7 +250,7 @@ def create_front_end(method: str, model, config):
         raise InputError(where, f"factory returned an object without "
                                 f"{'() and '.join(missing)}(); expected prepare() and "
                                 f"correspondences(), got {type(front_end).__name__}")
-    return CheckedFrontEnd(front_end, method)
+    return CheckedFrontEnd(front_end, method, model)
 
 
 def method_sort_key(method: str) -> tuple[int, str]:
