@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ifmi.errors import InputError, InputWarning, OutputError, json_excerpt
-from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
+from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text, remove_leftovers
 from ifmi.io.camera_file import write_camera
 from ifmi.io.provenance import package_versions
 from ifmi.io.tum import format_tum, write_tum
@@ -299,7 +299,9 @@ def open_output_folder(out_dir: Path, identity: dict) -> dict:
     """Check an output folder (:func:`check_output_folder`), create ``images/``, return its meta.
 
     The meta is the folder's ``meta.json`` when it holds the same identity,
-    else a fresh one with no images recorded.
+    else a fresh one with no images recorded. Temporary files a killed
+    earlier run left in the folder and its folders are removed
+    (:func:`ifmi.io.atomic.remove_leftovers`).
 
     Raises
     ------
@@ -314,6 +316,14 @@ def open_output_folder(out_dir: Path, identity: dict) -> dict:
         (out_dir / "images").mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError.from_os_error(out_dir, exc) from None
+    # The folder is this command's: temporaries a killed earlier run left in it or its folders
+    # (images/.000003.png.PID-XXXXXXXX.tmp) go before any frame is listed.
+    try:
+        folders = [out_dir] + sorted(p for p in out_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
+    except OSError as exc:
+        raise OutputError.from_os_error(out_dir, exc) from None
+    for folder in folders:
+        remove_leftovers(folder)
     return meta if meta is not None else {"identity": identity, "images": {}, "complete": False}
 
 
