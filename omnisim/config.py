@@ -27,7 +27,7 @@ from ifmi.io.text_file import refuse_special_file
 
 from . import meshes, procedural  # noqa: F401  (register the built-in generators)
 from .generators import object_from_table, registered_generators
-from .lights import ENVIRONMENT_LIGHT_TYPES, LIGHT_TYPES, EnvmapLight
+from .lights import ENVIRONMENT_LIGHT_TYPES, LIGHT_TYPES, EnvmapLight, envmap_file_problem
 from .materials import MaterialSettings
 from .settings import MAX_CAMERA_REACH_M, SettingError, check_fields, setting, settings_from_table
 from .textures import TEXTURE_SOURCES
@@ -415,8 +415,7 @@ def _kalibr_camera(path: Path, name: str, resolution, *, key: str) -> CameraSett
     """``[camera] kalibr = "camera.yaml"``: a Kalibr camchain scaled to the render ``resolution`` (named ``key``)."""
     from ifmi.io.kalibr import read_kalibr
 
-    # Not checked for existence here: read_kalibr names the YAML file in its own errors.
-    model = read_kalibr(Path(name) if Path(name).is_absolute() else (path.parent / name).absolute())
+    model = read_kalibr(_relative_file(path, name, "[camera] kalibr"))
     height, width = resolution
     # The width sets the scale; the height must be the calibration's, scaled and rounded.
     factor = width / model.width
@@ -476,6 +475,9 @@ def _lights(path: Path, data: dict) -> tuple:
                                     ignore=("type",))
         if isinstance(light, EnvmapLight):
             light = replace(light, file=_relative_file(path, light.file, f"{where} (envmap) file"))
+            problem = envmap_file_problem(light.file)
+            if problem:
+                raise InputError(light.file, f"{where} (envmap) of {path}: {problem}")
         out.append(light)
         if kind in ENVIRONMENT_LIGHT_TYPES:
             environments.append(f"#{index + 1} ({kind})")

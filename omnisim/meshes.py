@@ -569,10 +569,10 @@ def _image_bytes_problem(data: bytes, *, tga: bool) -> str:
     webp = data.startswith(_WEBP_RIFF) and data[8:12] == _WEBP_FORM
     if not tga and not webp and not data.startswith(_IMAGE_SIGNATURES):
         return "is no image file"
-    return _image_open_problem(data)
+    return image_open_problem(data)
 
 
-def _image_open_problem(data: bytes) -> str:
+def image_open_problem(data: bytes) -> str:
     """Why Pillow, which trimesh reads textures with, will not open the image ``data`` ("" when it
     will): a header it cannot parse, or a size beyond twice its ``MAX_IMAGE_PIXELS`` (a decompression
     bomb). trimesh then drops the texture; pixel data that fails later is refused by the reader."""
