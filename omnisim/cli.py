@@ -6,6 +6,7 @@ import argparse
 import re
 import sys
 
+from ifmi.cli.parser import OneLineValueErrors
 from ifmi.cli.warning_lines import input_warnings_as_lines
 from ifmi.errors import ClusterError, InputError, OutputError
 from ifmi.interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
@@ -35,7 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .config import EffectsSettings
     from .settings import field_docs
 
-    parser = argparse.ArgumentParser(prog="omnisim", description="Render catadioptric omni-image "
+    parser = OneLineValueErrors(prog="omnisim", description="Render catadioptric omni-image "
                                      "sequences with exact ground truth (Mitsuba 3).")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     render = sub.add_parser("render", help="render a scene file into a dataset folder")

@@ -111,4 +111,4 @@ def test_connect_timeout_must_be_positive_seconds(dataset, tmp_path, capsys, val
         main(["sweep", str(dataset), "--tile-size", "32", "--overlap", "0", "--connect-timeout", value,
               "--out", str(tmp_path / "out")])
     assert exit_info.value.code == 2
-    assert f"argument --connect-timeout: expected seconds > 0, got {value!r}" in capsys.readouterr().err
+    assert capsys.readouterr().err == f"ifmi sweep: error: argument --connect-timeout: expected seconds > 0, got {value!r}\n"

@@ -14,6 +14,7 @@ import sys
 
 from ..errors import ClusterError, InputError, OutputError
 from ..interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
+from .parser import OneLineValueErrors
 from .warning_lines import input_warnings_as_lines
 
 __all__ = ["main"]
@@ -23,7 +24,7 @@ _SUBCOMMANDS = ("estimate", "evaluate", "sweep", "report", "convert_calib", "met
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineValueErrors(
         prog="ifmi",
         description="Rotation estimation between omni images with the extended iFMI, "
                     "feature baselines, evaluation, sweeps and reports.",
