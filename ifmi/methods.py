@@ -18,11 +18,12 @@ Every method name, known or not, gets a place in report tables
 from __future__ import annotations
 
 import importlib
+import warnings
 from dataclasses import dataclass
 from importlib import metadata
 from typing import Any, Callable, Iterable
 
-from .errors import InputError, one_line
+from .errors import InputError, InputWarning, one_line
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -33,6 +34,7 @@ __all__ = [
     "plugin_methods",
     "available_methods",
     "method_names",
+    "warn_shadowing_plugins",
     "load_factory",
     "create_front_end",
     "method_sort_key",
@@ -126,14 +128,14 @@ def plugin_methods(*, with_summary: bool = False) -> tuple[MethodInfo, ...]:
     -------
     tuple of MethodInfo
         Sorted by name; names of built-in methods are left out (the
-        built-in method wins).
+        built-in method wins; see :func:`warn_shadowing_plugins`).
     """
     builtin = set(builtin_method_names())
     found = {}
     for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
         if ep.name in builtin or ep.name in found:
             continue
-        dist = getattr(getattr(ep, "dist", None), "name", None) or "unknown distribution"
+        dist = _distribution_name(ep)
         summary = ""
         if with_summary:
             try:
@@ -142,6 +144,33 @@ def plugin_methods(*, with_summary: bool = False) -> tuple[MethodInfo, ...]:
                 summary = f"(cannot be loaded: {exc.problem})"
         found[ep.name] = MethodInfo(ep.name, ep.value, summary, f"plugin {dist}")
     return tuple(found[name] for name in sorted(found))
+
+
+def _distribution_name(ep) -> str:
+    """The name of the installed distribution that registers the entry point ``ep``."""
+    return getattr(getattr(ep, "dist", None), "name", None) or "unknown distribution"
+
+
+def warn_shadowing_plugins(names: Iterable[str] | None = None) -> None:
+    """Warn, one line each, of installed plugin methods that a built-in method's name hides.
+
+    Parameters
+    ----------
+    names : iterable of str, optional
+        Only these method names (default: every built-in name).
+
+    Warns
+    -----
+    InputWarning
+        ``method orb: the plugin pkg.mod:factory of DIST has the name of a
+        built-in method and is not used ...``, naming how to run it.
+    """
+    wanted = set(builtin_method_names()) if names is None else set(names) & set(builtin_method_names())
+    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name in wanted:
+            warnings.warn(f"method {ep.name}: the plugin {ep.value} of {_distribution_name(ep)} has the name of a "
+                          f"built-in method and is not used (the built-in {ep.name} is); run it as --method "
+                          f"{ep.value}, or register it under another name", InputWarning, stacklevel=2)
 
 
 def available_methods(*, with_summary: bool = False) -> tuple[MethodInfo, ...]:
@@ -202,6 +231,7 @@ def load_factory(method: str) -> Callable:
     """
     for info in BUILTIN_METHODS:
         if info.name == method:
+            warn_shadowing_plugins((method,))
             return _load_target(info.target, method=method)
     if ":" not in method:
         for info in plugin_methods():
