@@ -427,3 +427,30 @@ def test_refusal_names_the_asset_file_that_changed(tmp_path):
     edited = {"format": 1, "settings": {"assets": [["a.obj", "1" * 64], ["wood.png", "3" * 64]]}}
     with pytest.raises(InputError, match=r"different settings.assets.wood.png \(folder: \"2222"):
         check_output_folder(tmp_path, edited)
+
+
+def test_resuming_a_finished_render_writes_nothing(tmp_path, capsys):
+    """A finished dataset on a read-only mount: the resume rewrote calib_results.txt (same bytes) and
+    failed with exit 1. Now no file is replaced (same inode, same mtime), so it needs no write access."""
+    scene, out = _scene(tmp_path, frames=2), tmp_path / "out"
+    assert _run_cli(["render", str(scene), "--out", str(out), "--no-progress"], capsys)[0] == 0
+
+    def files():
+        return {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.rglob("*") if p.is_file()}
+
+    before = files()
+    assert {"calib_results.txt", "groundtruth.txt", "meta.json"} <= {p.name for p in before}
+    assert _run_cli(["render", str(scene), "--out", str(out), "--no-progress"], capsys)[0] == 0
+    assert files() == before
+
+
+def test_an_atomic_write_of_the_same_bytes_leaves_the_file_untouched(tmp_path):
+    from ifmi.io.atomic import atomic_write_bytes, atomic_write_files
+
+    path = tmp_path / "calib_results.txt"
+    atomic_write_bytes(path, b"same")
+    inode = path.stat().st_ino
+    atomic_write_files({path: b"same", tmp_path / "other.txt": b"new"})
+    assert path.stat().st_ino == inode and (tmp_path / "other.txt").read_bytes() == b"new"
+    atomic_write_bytes(path, b"changed")
+    assert path.stat().st_ino != inode and path.read_bytes() == b"changed"

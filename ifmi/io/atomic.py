@@ -278,7 +278,9 @@ def atomic_write_json(path: str | os.PathLike, obj) -> None:
 def atomic_write_files(files: Mapping[str | os.PathLike, bytes]) -> None:
     """Write several files as one set: all of them, or none.
 
-    Every file is first written to a synced temporary beside its target;
+    A target that already holds the same bytes is left untouched (not
+    written again: a finished output on a read-only mount is no error).
+    Every other file is first written to a synced temporary beside its target;
     then each existing target is kept under a backup link and the
     temporaries are renamed over the targets. If a write or a rename fails,
     the targets already renamed get their old content back (or are removed
@@ -297,6 +299,9 @@ def atomic_write_files(files: Mapping[str | os.PathLike, bytes]) -> None:
     targets = {Path(p): writable_target(p) for p in files}
     if len(set(targets.values())) != len(targets):
         raise ValueError(f"two outputs of one set are the same file: {sorted(map(str, files))}")
+    files = {path: data for path, data in files.items() if not _holds(targets[Path(path)], data)}
+    if not files:
+        return
     new_folders = sorted({folder for target in targets.values() for folder in _missing_folders(target)},
                          key=lambda folder: len(folder.parts), reverse=True)
     temporaries: dict[Path, str] = {}
@@ -314,6 +319,14 @@ def atomic_write_files(files: Mapping[str | os.PathLike, bytes]) -> None:
             except OSError:
                 pass
         raise
+
+
+def _holds(target: Path, data: bytes) -> bool:
+    """True when the regular file ``target`` exists and holds exactly ``data``."""
+    try:
+        return target.stat().st_size == len(data) and target.read_bytes() == data
+    except OSError:
+        return False
 
 
 def _missing_folders(target: Path) -> list[Path]:
