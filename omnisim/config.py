@@ -104,12 +104,17 @@ class RenderSettings:
         check_fields(self)
 
 
+# The [trajectory] position of a TUM trajectory that does not write one: its positions as they are.
+_NO_OFFSET_M = (0.0, 0.0, 0.0)
+
+
 @dataclass(frozen=True)
 class TrajectorySettings:
     """``[trajectory]``: smooth random rotation (degrees) and optional translation (metres), or a TUM file."""
 
     frames: int = setting(200, "number of frames", minimum=1, maximum=MAX_FRAMES)
-    position: tuple[float, float, float] = setting((0.0, 0.0, 1.2), "camera centre in the world, metres (within 1e4 m of the origin)")
+    position: tuple[float, float, float] = setting((0.0, 0.0, 1.2), "camera centre in the world, metres (within 1e4 m of the origin); "
+                                                   "with tum, an offset added to the file's positions, none unless written")
     max_yaw_step_deg: float = setting(3.0, "peak yaw rate, degrees per frame", minimum=0.0, maximum=90.0)
     max_roll_deg: float = setting(15.0, "roll bound, degrees", minimum=0.0, maximum=90.0)
     max_pitch_deg: float = setting(15.0, "pitch bound, degrees", minimum=0.0, maximum=90.0)
@@ -581,6 +586,10 @@ def load_scene_config(path, *, spp: int | None = None, resolution=None, frames: 
                                      section="[trajectory]", frames=frames)
     if trajectory.tum:
         trajectory = replace(trajectory, tum=_relative_file(path, trajectory.tum, "[trajectory] tum"))
+        if "position" not in data.get("trajectory", {}):
+            # A TUM file's positions are used as written (a render's own poses_world.txt fed back in
+            # gives the same camera); position offsets them only when the table names it.
+            trajectory = replace(trajectory, position=_NO_OFFSET_M)
     textures = _textures(path, data)
     materials = _materials(path, data, textures)
     lights = _lights(path, data)
