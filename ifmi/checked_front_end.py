@@ -357,7 +357,7 @@ def _check_rays_of_pixels(rays: np.ndarray, pixels: np.ndarray, name: str, model
                                 f"{int(bad.sum())} of {int(checked.sum())} sampled matches off the camera "
                                 f"model's ray, by up to {off[worst]:.3g} pixels' angle (at pixel row {row:.6g}, "
                                 f"col {col:.6g}); expected model.rays_from_pixels(pixels) within "
-                                f"{RAY_PIXEL_TOLERANCE_PX:g}")
+                                f"{RAY_PIXEL_TOLERANCE_PX:g} pixel's angle")
 
 
 def _rays_per_measurement(value, n: int, where: str) -> int:
