@@ -113,8 +113,9 @@ class TrajectorySettings:
     """``[trajectory]``: smooth random rotation (degrees) and optional translation (metres), or a TUM file."""
 
     frames: int = setting(200, "number of frames", minimum=1, maximum=MAX_FRAMES)
-    position: tuple[float, float, float] = setting((0.0, 0.0, 1.2), "camera centre in the world, metres (within 1e4 m of the origin); "
-                                                   "with tum, an offset added to the file's positions, none unless written")
+    position: tuple[float, float, float] = setting(
+        (0.0, 0.0, 1.2), "camera centre in the world, metres (within 1e4 m of the origin); with tum, an offset "
+                         "added to the file's positions, none unless written")
     max_yaw_step_deg: float = setting(3.0, "peak yaw rate, degrees per frame", minimum=0.0, maximum=90.0)
     max_roll_deg: float = setting(15.0, "roll bound, degrees", minimum=0.0, maximum=90.0)
     max_pitch_deg: float = setting(15.0, "pitch bound, degrees", minimum=0.0, maximum=90.0)

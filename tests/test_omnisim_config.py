@@ -810,7 +810,8 @@ def test_a_tum_trajectory_keeps_its_positions_unless_position_is_written(tmp_pat
     from ifmi.io.tum import write_tum
     from omnisim.motion import poses_for_settings, world_trajectory
 
-    walked = load_scene_config(write_scene(tmp_path, BASE.replace("frames = 2", "frames = 3\ntranslation_step_m = 0.05")))
+    walking = BASE.replace("frames = 2", "frames = 3\ntranslation_step_m = 0.05")
+    walked = load_scene_config(write_scene(tmp_path, walking))
     original = poses_for_settings(walked.trajectory, seed=2)
     write_tum(tmp_path / "poses_world.txt", world_trajectory(original))
     with_tum = BASE.replace("frames = 2", 'frames = 3\ntum = "poses_world.txt"')
@@ -819,7 +820,7 @@ def test_a_tum_trajectory_keeps_its_positions_unless_position_is_written(tmp_pat
     poses = poses_for_settings(replayed.trajectory, seed=2)
     np.testing.assert_allclose(poses.positions, original.positions, atol=1e-9)  # TUM text keeps 9 decimals
     np.testing.assert_allclose(poses.rotations, original.rotations, atol=1e-8)
-    shifted = load_scene_config(write_scene(tmp_path, with_tum.replace("frames = 3", "frames = 3\nposition = [0, 0, 1.2]"),
-                                            "shifted.toml"))
+    with_offset = with_tum.replace("frames = 3", "frames = 3\nposition = [0, 0, 1.2]")
+    shifted = load_scene_config(write_scene(tmp_path, with_offset, "shifted.toml"))
     np.testing.assert_allclose(poses_for_settings(shifted.trajectory, seed=2).positions,
                                original.positions + [0.0, 0.0, 1.2], atol=1e-9)

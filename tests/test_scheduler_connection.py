@@ -51,8 +51,9 @@ def silent_address():
 
 def test_an_http_server_is_refused_in_one_line(http_address):
     start = time.monotonic()
-    with pytest.raises(InputError, match=r"^--scheduler: cannot connect to a Dask scheduler at 'tcp://127\.0\.0\.1:\d+': "
-                                         r"no Dask answer within 1 s .*--connect-timeout SECONDS"):
+    with pytest.raises(InputError, match=r"^--scheduler: cannot connect to a Dask scheduler at "
+                                         r"'tcp://127\.0\.0\.1:\d+': no Dask answer within 1 s .*"
+                                         r"--connect-timeout SECONDS"):
         scheduler_client(http_address, connect_timeout_s=TIMEOUT_S)
     assert time.monotonic() - start < TIMEOUT_S + STARTUP_ALLOWANCE_S
 
@@ -111,4 +112,5 @@ def test_connect_timeout_must_be_positive_seconds(dataset, tmp_path, capsys, val
         main(["sweep", str(dataset), "--tile-size", "32", "--overlap", "0", "--connect-timeout", value,
               "--out", str(tmp_path / "out")])
     assert exit_info.value.code == 2
-    assert capsys.readouterr().err == f"ifmi sweep: error: argument --connect-timeout: expected seconds > 0, got {value!r}\n"
+    assert capsys.readouterr().err == (f"ifmi sweep: error: argument --connect-timeout: expected seconds > 0, "
+                                       f"got {value!r}\n")
