@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import json
 
-__all__ = ["InputError", "InputWarning", "CalibrationFitError", "OutputError", "OptionError", "first_line", "one_line",
+__all__ = ["InputError", "InputWarning", "CalibrationFitError", "ClusterError", "OutputError", "OptionError",
+           "first_line", "one_line",
            "json_excerpt"]
 
 
@@ -59,6 +60,15 @@ class OutputError(OSError):
         if isinstance(exc, cls):
             return exc
         return cls(path, exc.strerror or str(exc))
+
+
+class ClusterError(RuntimeError):
+    """A Dask cluster lost during a run (its scheduler gone, or a task that kept killing workers).
+
+    The message is one line saying what was lost and how much of the run
+    was kept for a rerun of the same command; command-line entry points
+    print it and exit with status 1.
+    """
 
 
 class InputWarning(UserWarning):

@@ -44,7 +44,8 @@ def load_scene(path, *, spp: int | None = None, resolution=None, frames: int | N
 
 def render(scene, out, *, frames: int | None = None, seed: int | None = None, spp: int | None = None,
            resolution=None, aovs=(), progress: bool = False, variant: str | None = None,
-           workers: int | None = None, scheduler: str | None = None):
+           workers: int | None = None, scheduler: str | None = None,
+           connect_timeout_s: float | None = None):
     """Render a scene file into a dataset folder with exact ground truth.
 
     The folder holds ``images/000000.png`` ..., the calibration
@@ -73,6 +74,9 @@ def render(scene, out, *, frames: int | None = None, seed: int | None = None, sp
         Render on a local Dask cluster of this many processes.
     scheduler : str, optional, keyword-only
         Render on the Dask cluster at this address.
+    connect_timeout_s : float, optional, keyword-only
+        Seconds ``scheduler`` has to accept the connection and answer (> 0);
+        default :data:`ifmi.runtime.local_workers.DEFAULT_CONNECT_TIMEOUT_S`.
 
     Returns
     -------
@@ -89,6 +93,7 @@ def render(scene, out, *, frames: int | None = None, seed: int | None = None, sp
     """
     from omnisim.renderer import render_dataset
 
+    timeout = {} if connect_timeout_s is None else {"connect_timeout_s": connect_timeout_s}
     return render_dataset(scene, out, frames=frames, seed=seed, spp=spp, resolution=resolution,
                           progress=progress, variant=variant, aovs=aovs, workers=workers,
-                          scheduler=scheduler)
+                          scheduler=scheduler, **timeout)

@@ -6,9 +6,11 @@ import argparse
 import re
 import sys
 
+from ifmi.runtime.parser import OneLineValueErrors
 from ifmi.runtime.warning_lines import input_warnings_as_lines
-from ifmi.errors import InputError, OutputError
+from ifmi.errors import ClusterError, InputError, OutputError
 from ifmi.runtime.interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
+from ifmi.runtime.local_workers import DEFAULT_CONNECT_TIMEOUT_S, connect_timeout_argument
 
 # Everything heavier (numpy, the scene settings, Mitsuba) is imported inside main(),
 # after its interrupt handler is in place.
@@ -56,7 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     from omnisim.config import EffectsSettings
     from omnisim.settings import field_docs
 
-    parser = argparse.ArgumentParser(prog="omnisim", description="Render catadioptric omni-image "
+    parser = OneLineValueErrors(prog="omnisim", description="Render catadioptric omni-image "
                                      "sequences with exact ground truth (Mitsuba 3).")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     render = sub.add_parser("render", help="render a scene file into a dataset folder")
@@ -76,6 +78,10 @@ def build_parser() -> argparse.ArgumentParser:
                           help="render on a local Dask cluster of N processes (at most the CPUs this "
                                "process may use)")
     parallel.add_argument("--scheduler", metavar="ADDRESS", help="render on the Dask cluster at ADDRESS")
+    render.add_argument("--connect-timeout", type=connect_timeout_argument, default=DEFAULT_CONNECT_TIMEOUT_S,
+                        metavar="SECONDS",
+                        help=f"how long a --scheduler has to accept the connection and answer "
+                             f"(default {DEFAULT_CONNECT_TIMEOUT_S:g})")
     degrade = sub.add_parser("degrade", help="copy a dataset folder with capture effects "
                              "(noise, JPEG, exposure drift) applied to its images")
     degrade.add_argument("dataset", help="source DATASET folder (rendered or real)")
@@ -128,10 +134,15 @@ def _degrade(args) -> int:
 def _render(args) -> int:
     from omnisim.api import render
 
+    if args.workers or args.scheduler:
+        from ifmi.runtime.local_workers import quiet_dask_logs
+
+        quiet_dask_logs()  # a lost cluster is the one line of ClusterError
+
     result = render(args.scene, args.out, frames=args.frames, seed=args.seed, spp=args.spp,
-                            resolution=args.resolution, progress=not args.no_progress,
-                            variant=args.variant, aovs=args.aov, workers=args.workers,
-                            scheduler=args.scheduler)
+                    resolution=args.resolution, progress=not args.no_progress, variant=args.variant,
+                    aovs=args.aov, workers=args.workers, scheduler=args.scheduler,
+                    connect_timeout_s=args.connect_timeout)
     spf = (f", {result.seconds_per_frame:.2f} s/frame" if result.rendered else "")
     print(f"{result.out_dir}: {result.frames} frames ({result.rendered} rendered now{spf})")
     return 0
@@ -189,7 +200,7 @@ def _exit_status(exc: BaseException, *, interrupted: bool, command: str) -> int 
     if isinstance(exc, InputError):
         print(f"{command}: error: {exc}", file=sys.stderr)
         return 2
-    if isinstance(exc, (OutputError, BackendError)):
+    if isinstance(exc, (OutputError, ClusterError, BackendError)):
         print(f"{command}: error: {exc}", file=sys.stderr)
         return 1
     if isinstance(exc, ModuleNotFoundError) and exc.name in ("mitsuba", "drjit", "trimesh", "skimage"):
@@ -202,7 +213,7 @@ def _exit_status(exc: BaseException, *, interrupted: bool, command: str) -> int 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status.
 
-    0 done; 1 cannot write, or Mitsuba cannot run here; 2 bad input; 130 interrupted.
+    0 done; 1 cannot write, a Dask cluster lost, or Mitsuba cannot run here; 2 bad input; 130 interrupted.
     """
     with interrupts_recorded() as flag:
         command = ""  # known once the arguments are parsed

@@ -18,6 +18,9 @@ from contextlib import contextmanager
 
 from distributed import WorkerPlugin
 
+from ifmi.errors import ClusterError
+from ifmi.runtime.local_workers import DEFAULT_CONNECT_TIMEOUT_S, cluster_loss, scheduler_client
+
 __all__ = ["OmnisimWorkerPlugin", "cluster_client", "map_on_client", "map_on_cluster"]
 
 PLUGIN_NAME = "omnisim"
@@ -42,8 +45,8 @@ class OmnisimWorkerPlugin(WorkerPlugin):
         self.states = {}
 
     def setup(self, worker) -> None:
-        from .llvm import import_mitsuba
-        from .sensor import register_omni_sensor
+        from omnisim.llvm import import_mitsuba
+        from omnisim.sensor import register_omni_sensor
 
         register_omni_sensor(import_mitsuba(self.variant))
         if self.threads:
@@ -66,26 +69,9 @@ def _run_on_worker(factory, run, plan, key: str, job):
     return run(plugin.state(key, factory, plan), job)
 
 
-def _connect(client_class, scheduler: str):
-    """A Dask client of the scheduler at ``scheduler``.
-
-    Raises
-    ------
-    InputError
-        Named ``--scheduler``: an address Dask cannot parse (``ValueError``, e.g. an unknown
-        scheme) or a scheduler it cannot reach in its connect timeout (``OSError``).
-    """
-    from ifmi.errors import InputError, first_line
-
-    try:
-        return client_class(scheduler)
-    except (ValueError, OSError) as exc:
-        raise InputError("--scheduler", f"cannot connect to a Dask scheduler at {scheduler!r}: "
-                                        f"{first_line(exc)}") from None
-
-
 @contextmanager
-def cluster_client(*, variant: str, workers: int | None = None, scheduler: str | None = None):
+def cluster_client(*, variant: str, workers: int | None = None, scheduler: str | None = None,
+                   connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S):
     """A Dask client whose workers have the omnisim plugin; closed (with its local cluster) on exit.
 
     Parameters
@@ -97,6 +83,8 @@ def cluster_client(*, variant: str, workers: int | None = None, scheduler: str |
         machine's cores (each renders with ``cores // workers`` threads, at least 1).
     scheduler : str, optional, keyword-only
         Address of an existing scheduler (used instead of ``workers``).
+    connect_timeout_s : float, keyword-only
+        Seconds ``scheduler`` has to accept the connection and answer, > 0.
 
     Yields
     ------
@@ -105,7 +93,7 @@ def cluster_client(*, variant: str, workers: int | None = None, scheduler: str |
     Raises
     ------
     InputError
-        Named ``--scheduler``: see :func:`_connect`.
+        Named ``--scheduler``: see :func:`ifmi.runtime.local_workers.scheduler_client`.
     """
     import os
 
@@ -113,7 +101,7 @@ def cluster_client(*, variant: str, workers: int | None = None, scheduler: str |
 
     threads = None
     if scheduler:
-        cluster, client = None, _connect(Client, scheduler)
+        cluster, client = None, scheduler_client(scheduler, connect_timeout_s=connect_timeout_s)
     else:
         threads = max(1, (os.cpu_count() or 1) // int(workers))
         cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
@@ -150,24 +138,43 @@ def map_on_client(client, factory, run, plan, jobs: list, *, key: str):
     ------
     object
         The results, in completion order.
+
+    Raises
+    ------
+    ClusterError
+        The scheduler was lost (its futures cancelled) or a job kept killing
+        its workers (Dask retries a job whose worker died, up to its
+        ``distributed.scheduler.allowed-failures``).
     """
     from distributed import as_completed
 
     [shared] = client.scatter([plan], broadcast=True)
     futures = [client.submit(_run_on_worker, factory, run, shared, key, job, pure=False) for job in jobs]
-    for future in as_completed(futures):
-        yield future.result()
+    done = 0
+    try:
+        for future in as_completed(futures):
+            result = future.result()
+            done += 1
+            yield result
+    except Exception as exc:
+        lost = cluster_loss(exc)
+        if lost is None:
+            raise
+        raise ClusterError(f"lost the Dask cluster at {client.scheduler.address} after {done} of {len(futures)} "
+                           f"jobs ({lost}); the frames written are kept: rerun the same command to render "
+                           f"the rest") from None
 
 
 def map_on_cluster(factory, run, plan, jobs: list, *, key: str, variant: str,
-                   workers: int | None = None, scheduler: str | None = None):
+                   workers: int | None = None, scheduler: str | None = None,
+                   connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S):
     """:func:`map_on_client` on a client of :func:`cluster_client`, opened for these jobs alone.
 
     Parameters
     ----------
     factory, run, plan, jobs, key
         See :func:`map_on_client`.
-    variant, workers, scheduler
+    variant, workers, scheduler, connect_timeout_s
         See :func:`cluster_client`.
 
     Yields
@@ -175,5 +182,6 @@ def map_on_cluster(factory, run, plan, jobs: list, *, key: str, variant: str,
     object
         The results, in completion order.
     """
-    with cluster_client(variant=variant, workers=workers, scheduler=scheduler) as client:
+    with cluster_client(variant=variant, workers=workers, scheduler=scheduler,
+                        connect_timeout_s=connect_timeout_s) as client:
         yield from map_on_client(client, factory, run, plan, jobs, key=key)

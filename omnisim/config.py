@@ -25,12 +25,12 @@ from ifmi.geometry.camera import (INVERSE_TOLERANCE_PX, OcamModel, check_affine,
 from ifmi.errors import InputError, first_line
 from ifmi.io.text_file import refuse_special_file
 
-from . import meshes, procedural  # noqa: F401  (register the built-in generators)
-from .generators import object_from_table, registered_generators
-from .lights import ENVIRONMENT_LIGHT_TYPES, LIGHT_TYPES, EnvmapLight
-from .materials import MaterialSettings
-from .settings import MAX_CAMERA_REACH_M, SettingError, check_fields, setting, settings_from_table
-from .textures import TEXTURE_SOURCES
+from omnisim import meshes, procedural  # noqa: F401  (register the built-in generators)
+from omnisim.generators import object_from_table, registered_generators
+from omnisim.lights import ENVIRONMENT_LIGHT_TYPES, LIGHT_TYPES, EnvmapLight, envmap_file_problem
+from omnisim.materials import MaterialSettings
+from omnisim.settings import MAX_CAMERA_REACH_M, SettingError, check_fields, setting, settings_from_table
+from omnisim.textures import TEXTURE_SOURCES
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -104,12 +104,18 @@ class RenderSettings:
         check_fields(self)
 
 
+# The [trajectory] position of a TUM trajectory that does not write one: its positions as they are.
+_NO_OFFSET_M = (0.0, 0.0, 0.0)
+
+
 @dataclass(frozen=True)
 class TrajectorySettings:
     """``[trajectory]``: smooth random rotation (degrees) and optional translation (metres), or a TUM file."""
 
     frames: int = setting(200, "number of frames", minimum=1, maximum=MAX_FRAMES)
-    position: tuple[float, float, float] = setting((0.0, 0.0, 1.2), "camera centre in the world, metres (within 1e4 m of the origin)")
+    position: tuple[float, float, float] = setting(
+        (0.0, 0.0, 1.2), "camera centre in the world, metres (within 1e4 m of the origin); with tum, an offset "
+                         "added to the file's positions, none unless written")
     max_yaw_step_deg: float = setting(3.0, "peak yaw rate, degrees per frame", minimum=0.0, maximum=90.0)
     max_roll_deg: float = setting(15.0, "roll bound, degrees", minimum=0.0, maximum=90.0)
     max_pitch_deg: float = setting(15.0, "pitch bound, degrees", minimum=0.0, maximum=90.0)
@@ -415,8 +421,7 @@ def _kalibr_camera(path: Path, name: str, resolution, *, key: str) -> CameraSett
     """``[camera] kalibr = "camera.yaml"``: a Kalibr camchain scaled to the render ``resolution`` (named ``key``)."""
     from ifmi.io.kalibr import read_kalibr
 
-    # Not checked for existence here: read_kalibr names the YAML file in its own errors.
-    model = read_kalibr(Path(name) if Path(name).is_absolute() else (path.parent / name).absolute())
+    model = read_kalibr(_relative_file(path, name, "[camera] kalibr"))
     height, width = resolution
     # The width sets the scale; the height must be the calibration's, scaled and rounded.
     factor = width / model.width
@@ -476,6 +481,9 @@ def _lights(path: Path, data: dict) -> tuple:
                                     ignore=("type",))
         if isinstance(light, EnvmapLight):
             light = replace(light, file=_relative_file(path, light.file, f"{where} (envmap) file"))
+            problem = envmap_file_problem(light.file)
+            if problem:
+                raise InputError(light.file, f"{where} (envmap) of {path}: {problem}")
         out.append(light)
         if kind in ENVIRONMENT_LIGHT_TYPES:
             environments.append(f"#{index + 1} ({kind})")
@@ -579,6 +587,10 @@ def load_scene_config(path, *, spp: int | None = None, resolution=None, frames: 
                                      section="[trajectory]", frames=frames)
     if trajectory.tum:
         trajectory = replace(trajectory, tum=_relative_file(path, trajectory.tum, "[trajectory] tum"))
+        if "position" not in data.get("trajectory", {}):
+            # A TUM file's positions are used as written (a render's own poses_world.txt fed back in
+            # gives the same camera); position offsets them only when the table names it.
+            trajectory = replace(trajectory, position=_NO_OFFSET_M)
     textures = _textures(path, data)
     materials = _materials(path, data, textures)
     lights = _lights(path, data)

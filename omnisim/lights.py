@@ -19,10 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 
 
-from .settings import MAX_RADIANCE, SettingError, check_fields, setting
+from omnisim.settings import MAX_RADIANCE, SettingError, check_fields, setting
 
 __all__ = ["SkyLight", "SunLight", "ConstantLight", "EnvmapLight", "LIGHT_TYPES", "ENVIRONMENT_LIGHT_TYPES", "sky_image",
-           "emitter_dict"]
+           "emitter_dict", "envmap_file_problem"]
 
 # Mitsuba's lat-long maps have their pole on +y; this turn about x puts it on the world's +z.
 LATLONG_POLE_TURN_DEG = 90.0
@@ -92,6 +92,88 @@ class EnvmapLight:
 LIGHT_TYPES = {"sky": SkyLight, "sun": SunLight, "constant": ConstantLight, "envmap": EnvmapLight}
 # The light types that are Mitsuba environment emitters, of which a scene holds one at most.
 ENVIRONMENT_LIGHT_TYPES = ("sky", "constant", "envmap")
+
+
+# Leading bytes of the high-dynamic-range files Mitsuba reads that Pillow does not: OpenEXR,
+# Radiance RGBE (.hdr) and PFM. Other formats (PNG, JPEG, ...) are checked through Pillow.
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+_RGBE_MAGICS = (b"#?RADIANCE", b"#?RGBE")
+_PFM_MAGICS = (b"PF", b"Pf")
+# Leading bytes of PNG and JPEG files (checked through Pillow).
+_PILLOW_SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"\xff\xd8")
+# Bytes of a header read to find an image's size (an EXR header is a few hundred bytes; a long
+# RGBE comment block is refused as damaged rather than read on).
+_HEADER_BYTES = 65536
+
+
+def envmap_file_problem(path) -> str:
+    """Why the environment image at ``path`` cannot be loaded ("" when it can be tried).
+
+    Read from the header alone, before Mitsuba loads the pixels: a file that is
+    no image (Mitsuba then reports a failed seek), a damaged header, or a size
+    beyond the one the mesh texture reader accepts (twice Pillow's
+    ``MAX_IMAGE_PIXELS``), whose pixels would be allocated before the file is
+    found to be short.
+
+    Parameters
+    ----------
+    path : str or path
+        The envmap file.
+
+    Returns
+    -------
+    str
+        The problem, worded to follow the file's name; "" when the header is sound.
+    """
+    from PIL import Image
+
+    from omnisim.meshes import image_open_problem
+
+    with open(path, "rb") as fh:
+        head = fh.read(_HEADER_BYTES)
+    limit = 2 * Image.MAX_IMAGE_PIXELS
+    if head.startswith(_EXR_MAGIC) or head.startswith(_RGBE_MAGICS) or head[:2] in _PFM_MAGICS:
+        size = _hdr_header_size(head)
+        if size is None:
+            return "is a damaged image file (its header gives no size)"
+        if size[0] * size[1] > limit:
+            return (f"is too large to be read ({size[0]} x {size[1]} pixels, width x height, in its header; "
+                    f"at most {limit} pixels)")
+        return ""
+    with open(path, "rb") as fh:
+        problem = image_open_problem(fh.read())
+    if problem and not head.startswith(_PILLOW_SIGNATURES):
+        return "is no image file (expected EXR, HDR, PFM, PNG or JPEG)"
+    return problem
+
+
+def _hdr_header_size(head: bytes) -> tuple[int, int] | None:
+    """``(width, height)`` from the header of an OpenEXR, RGBE or PFM file, or None when it has none."""
+    import re
+    import struct
+
+    if head.startswith(_EXR_MAGIC):
+        at = 8  # magic number and version
+        while at < len(head) and head[at] != 0:
+            name_end = head.find(b"\0", at)
+            type_end = head.find(b"\0", name_end + 1)
+            if name_end < 0 or type_end < 0 or type_end + 4 > len(head):
+                return None
+            (length,) = struct.unpack_from("<i", head, type_end + 1)
+            value = type_end + 5
+            if head[at:name_end] == b"dataWindow" and length == 16 and value + 16 <= len(head):
+                x_min, y_min, x_max, y_max = struct.unpack_from("<4i", head, value)
+                return x_max - x_min + 1, y_max - y_min + 1
+            at = value + max(length, 0)
+        return None
+    if head.startswith(_RGBE_MAGICS):
+        match = re.search(rb"\n\n[-+]([XY]) (\d+) [-+]([XY]) (\d+)\s", head)
+        if match is None:
+            return None
+        first, second = int(match[2]), int(match[4])
+        return (second, first) if match[1] == b"Y" else (first, second)
+    match = re.match(rb"P[Ff]\s+(\d+)\s+(\d+)\s", head)
+    return None if match is None else (int(match[1]), int(match[2]))
 
 
 def sky_image(*, zenith, horizon, ground, width: int = SKY_WIDTH) -> np.ndarray:

@@ -37,10 +37,10 @@ import numpy as np
 
 from ifmi.errors import InputError, InputWarning, first_line
 
-from .generators import MAX_PLACED_REACH_M, GeneratorContext, Param, register_generator
-from .materials import Appearance, MaterialSettings
-from .settings import FLOAT32_MAX  # largest coordinate a mesh file may scale to: Mitsuba stores float32
-from .textures import linear_texture_from_image
+from omnisim.generators import MAX_PLACED_REACH_M, GeneratorContext, Param, register_generator
+from omnisim.materials import Appearance, MaterialSettings
+from omnisim.settings import FLOAT32_MAX  # largest coordinate a mesh file may scale to: Mitsuba stores float32
+from omnisim.textures import linear_texture_from_image
 
 __all__ = ["MeshPart", "mesh_parts_from_file", "mesh_side_files"]
 
@@ -569,10 +569,10 @@ def _image_bytes_problem(data: bytes, *, tga: bool) -> str:
     webp = data.startswith(_WEBP_RIFF) and data[8:12] == _WEBP_FORM
     if not tga and not webp and not data.startswith(_IMAGE_SIGNATURES):
         return "is no image file"
-    return _image_open_problem(data)
+    return image_open_problem(data)
 
 
-def _image_open_problem(data: bytes) -> str:
+def image_open_problem(data: bytes) -> str:
     """Why Pillow, which trimesh reads textures with, will not open the image ``data`` ("" when it
     will): a header it cannot parse, or a size beyond twice its ``MAX_IMAGE_PIXELS`` (a decompression
     bomb). trimesh then drops the texture; pixel data that fails later is refused by the reader."""

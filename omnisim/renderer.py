@@ -30,11 +30,11 @@ from pathlib import Path
 import numpy as np
 
 from ifmi.errors import InputError, InputWarning, OutputError, json_excerpt
-from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
+from ifmi.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text, remove_leftovers
 from ifmi.io.camera_file import write_camera
 from ifmi.io.provenance import package_versions
 from ifmi.io.tum import format_tum, write_tum
-from ifmi.runtime.local_workers import max_local_workers
+from ifmi.runtime.local_workers import DEFAULT_CONNECT_TIMEOUT_S, max_local_workers
 
 from omnisim.aov import AOV_NAMES, aov_integrator_dict, aov_names_from_text, aov_sensor_dict, depth_normal_from_aov, npy_bytes
 from omnisim.capture import ground_truth_time, row_mid_times, sensor_timing_props, vignetting_from_pixels
@@ -299,7 +299,9 @@ def open_output_folder(out_dir: Path, identity: dict) -> dict:
     """Check an output folder (:func:`check_output_folder`), create ``images/``, return its meta.
 
     The meta is the folder's ``meta.json`` when it holds the same identity,
-    else a fresh one with no images recorded.
+    else a fresh one with no images recorded. Temporary files a killed
+    earlier run left in the folder and its folders are removed
+    (:func:`ifmi.io.atomic.remove_leftovers`).
 
     Raises
     ------
@@ -314,6 +316,14 @@ def open_output_folder(out_dir: Path, identity: dict) -> dict:
         (out_dir / "images").mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError.from_os_error(out_dir, exc) from None
+    # The folder is this command's: temporaries a killed earlier run left in it or its folders
+    # (images/.000003.png.PID-XXXXXXXX.tmp) go before any frame is listed.
+    try:
+        folders = [out_dir] + sorted(p for p in out_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
+    except OSError as exc:
+        raise OutputError.from_os_error(out_dir, exc) from None
+    for folder in folders:
+        remove_leftovers(folder)
     return meta if meta is not None else {"identity": identity, "images": {}, "complete": False}
 
 
@@ -636,7 +646,8 @@ def _check_parallel_options(scene_path, workers: int | None, scheduler: str | No
                                         f"got {scheduler!r}")
 
 
-def _cluster_for(plan: FramePlan, out_dir: Path, *, workers: int | None, scheduler: str | None):
+def _cluster_for(plan: FramePlan, out_dir: Path, *, workers: int | None, scheduler: str | None,
+                 connect_timeout_s: float):
     """The context of a Dask client for the frames still to render into ``out_dir``, or a null context.
 
     Nothing is written: the folder is checked as :func:`check_output_folder` checks it.
@@ -656,13 +667,15 @@ def _cluster_for(plan: FramePlan, out_dir: Path, *, workers: int | None, schedul
         return nullcontext()
     from omnisim.cluster import cluster_client
 
-    return cluster_client(variant=plan.variant, workers=workers, scheduler=scheduler)
+    return cluster_client(variant=plan.variant, workers=workers, scheduler=scheduler,
+                          connect_timeout_s=connect_timeout_s)
 
 
 def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int | None = None,
                    spp: int | None = None, resolution=None, progress: bool = True,
                    variant: str | None = None, aovs=(), workers: int | None = None,
-                   scheduler: str | None = None) -> DatasetResult:
+                   scheduler: str | None = None,
+                   connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S) -> DatasetResult:
     """Render a scene file into a dataset folder (resuming a previous, identical render).
 
     Parameters
@@ -690,6 +703,8 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         :func:`ifmi.runtime.local_workers.max_local_workers`.
     scheduler : str, optional, keyword-only
         Render on the Dask cluster at this scheduler address (workers must see the scene's files).
+    connect_timeout_s : float, keyword-only
+        Seconds ``scheduler`` has to accept the connection and answer, > 0.
 
     Returns
     -------
@@ -703,6 +718,10 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
         anything is written.
     OutputError
         A file cannot be written (the message names it and the OS reason).
+    ClusterError
+        The Dask cluster was lost during the render (a worker that dies is
+        replaced and its frame rendered again); the frames written are kept
+        and a rerun renders the rest.
     """
     _check_parallel_options(scene_path, workers, scheduler)
     plan = frame_plan(scene_path, frames=frames, seed=seed, spp=spp, resolution=resolution,
@@ -719,7 +738,8 @@ def render_dataset(scene_path, out_dir, *, frames: int | None = None, seed: int 
     out_dir = Path(out_dir)
     kinds = ("images",) + aovs
     # A cluster is started (or a --scheduler connected) before the output folder is created.
-    with _cluster_for(plan, out_dir, workers=workers, scheduler=scheduler) as client:
+    with _cluster_for(plan, out_dir, workers=workers, scheduler=scheduler,
+                      connect_timeout_s=connect_timeout_s) as client:
         meta = _open_dataset(scene_path, out_dir, config, seed, plan.variant, plan.trajectory,
                              spp_rendered=local.renderer.spp)
         jobs = _pending_jobs(out_dir, meta, n, kinds)

@@ -6,12 +6,13 @@ Each plugin wraps the built-in ORB front end and spoils its result in one way, o
 
 from __future__ import annotations
 
+import dataclasses
 import csv
 
 import numpy as np
 import pytest
 
-from ifmi.tracking.checked_front_end import checked_correspondences
+from ifmi.tracking.checked_front_end import RAY_SAMPLE_SIZE, checked_correspondences
 from ifmi.cli import main
 from ifmi.errors import InputError
 from ifmi.front_end import Correspondences
@@ -71,6 +72,9 @@ tuple_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={("a", "b"): 1}
 seconds_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={"seconds": 5.0}))
 success_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={"success": False}))
 empty_key_diagnostic = _make(lambda c, k: replace(c, diagnostics={"": 1}))
+# Unit rays, but not those of their pixels: before, accepted (ATE 2.43 rad on a SIFT front end).
+negated_rays = _make(lambda c, k: replace(c, rays_a=-c.rays_a))
+col_row_pixels = _make(lambda c, k: replace(c, pixels_b=c.pixels_b[:, ::-1]))
 float16_rays = _make(lambda c, k: replace(c, rays_a=c.rays_a.astype(np.float16), rays_b=c.rays_b.astype(np.float16)))
 
 
@@ -138,6 +142,7 @@ def _refine_raise_on_3(c, k):
 
 refine_raises_on_3 = _refining(_refine_raise_on_3)
 refine_pixels_as_rays = _refining(lambda c, k: replace(c, rays_a=np.c_[c.pixels_a, np.ones(len(c.pixels_a))]))
+refine_negated_rays_b = _refining(lambda c, k: replace(c, rays_b=-c.rays_b))
 refine_half = _refining(lambda c, k: replace(c, diagnostics={**c.diagnostics, "refined": True}))
 
 
@@ -180,6 +185,11 @@ def _estimate(dataset, method, out, capsys):
     ("refine_not_callable", "refine_correspondences is not callable (got int); expected "
                             "refine_correspondences(state_a, state_b, first, *, rotation_ab) or none"),
     ("refine_pixels_as_rays", "returned rays_a that are not unit vectors (norms"),
+    ("negated_rays", "correspondences() returned rays_a that are not the rays of their pixels: 16 of 16 "
+                     "sampled matches off the camera model's ray, by up to"),
+    ("col_row_pixels", "correspondences() returned rays_b that are not the rays of their pixels:"),
+    ("refine_negated_rays_b", "correspondences() returned rays_b that are not the rays of their pixels: 16 of "
+                              "16 sampled matches"),
     ("prepare_fails_on_0", "prepare() of the first frame raised RuntimeError: no keypoints: ..."),
     # Before: the imaginary parts were dropped with a NumPy warning and the run went on.
     ("complex_rays", "correspondences() returned rays_a that is no numeric array (TypeError: values of type "
@@ -291,3 +301,54 @@ def test_repeated_matches_are_too_few_distinct_correspondences():
                                          options=RelativePoseOptions(ransac_threshold_rad=0.01))
     assert not info.success and info.reason == "too few distinct correspondences (2 of 100 differ; < 8)"
     np.testing.assert_array_equal(pose.rotation, np.eye(3))
+
+
+@pytest.mark.parametrize("method", ["ifmi", "orb", "akaze"])
+def test_rays_of_the_built_in_methods_pass_the_pixel_check_on_every_camera_model(method):
+    """The check holds on every model: iFMI's rays (lifted from its panorama, not from the pixels it
+    reports) differ from the model's rays of those pixels by at most 2.4e-6 pixels' angle (OCamCalib's
+    inverse polynomial), the keypoint methods' by 1e-13; the tolerance is RAY_PIXEL_TOLERANCE_PX."""
+    from camera_examples import EXAMPLES
+
+    from ifmi.geometry.camera import valid_mask
+    from ifmi.tracking.methods import load_factory
+    from ifmi.pipeline import EstimateConfig
+    from ifmi.synthetic import environment_texture, omni_from_environment, rotation_sequence
+
+    environment = environment_texture(height=512, seed=1)
+    for name, example in sorted(EXAMPLES.items()):
+        model = example.scaled(1.6) if name == "equirectangular" else example.scaled(0.5)
+        valid = valid_mask(model)
+        images = []
+        for rotation in rotation_sequence(2, max_step_rad=0.03, seed=2):
+            image = omni_from_environment(environment, model, rotation)
+            image[~valid] = 0
+            images.append(image)
+        front_end = load_factory(method)(model, EstimateConfig())
+        first, second = (front_end.prepare(image) for image in images)
+        result = front_end.correspondences(first, second)
+        assert result.success and len(result.rays_a) >= RAY_SAMPLE_SIZE, name
+        # The subject is the rays: iFMI's own diagnostics carry the timing columns a plugin may not set.
+        result = dataclasses.replace(result, diagnostics={})
+        checked = checked_correspondences(result, method=method, model=model)
+        np.testing.assert_array_equal(checked.rays_a, result.rays_a / np.linalg.norm(result.rays_a, axis=1)[:, None])
+
+
+def test_a_ray_just_beyond_the_pixel_tolerance_is_refused_and_one_within_accepted():
+    """The check measures in pixels' angle: rays lifted 0.7 px away pass, 1.5 px away fail."""
+    model = example_omni_model(160)
+    rng = np.random.default_rng(4)
+    inner, outer = example_band_px(model)
+    angle = rng.uniform(0, 2 * np.pi, 40)
+    radius = rng.uniform(inner + 3, outer - 3, 40)
+    pixels = np.asarray(model.center) + np.c_[radius * np.sin(angle), radius * np.cos(angle)]
+    rays = model.rays_from_pixels(pixels)
+    for shift, accepted in ((0.7, True), (1.5, False)):
+        moved = model.rays_from_pixels(pixels + [0.0, shift])
+        result = Correspondences(pixels, pixels, rays, moved)
+        if accepted:
+            checked_correspondences(result, method="m", model=model)
+        else:
+            with pytest.raises(InputError, match=r"^method m: correspondences\(\) returned rays_b that are not the "
+                                                 r"rays of their pixels: \d+ of 16 sampled matches"):
+                checked_correspondences(result, method="m", model=model)

@@ -637,3 +637,23 @@ def test_default_folder_that_cannot_be_written_keeps_the_verdict(tmp_path, capsy
     captured = capsys.readouterr()
     assert "geodesic" in captured.out and "results written" not in captured.out
     assert blocker.read_text() == "user notes\n"
+
+
+@pytest.mark.parametrize("argv, line", [
+    # Before: argparse's three-line usage block came first.
+    (["--max-rmse", "-0.01"], "ifmi evaluate: error: argument --max-rmse: expected a number >= 0, got -0.01"),
+    (["--max-rmse", "x"], "ifmi evaluate: error: argument --max-rmse: expected a number >= 0, got 'x'"),
+])
+def test_a_refused_option_value_is_one_line_without_the_usage_block(tmp_path, capsys, argv, line):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["evaluate", "--gt", str(tmp_path / "gt.txt"), "--est", str(tmp_path / "est.txt"), *argv])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err == line + "\n"
+
+
+def test_a_missing_required_option_keeps_the_usage_block(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["evaluate", "--gt", str(tmp_path / "gt.txt")])
+    err = capsys.readouterr().err.splitlines()
+    assert exit_info.value.code == 2 and err[0].startswith("usage: ifmi evaluate")
+    assert err[-1] == "ifmi evaluate: error: the following arguments are required: --est"

@@ -33,9 +33,15 @@ def test_kalibr_with_ocamcalib_keys_is_an_error(tmp_path):
         load_scene_config(_scene(tmp_path, 'kalibr = "camera.yaml"\npol = [1.0]'))
 
 
+def test_missing_kalibr_file_is_named_with_the_scene_file_section_and_key(tmp_path):
+    """Before: "camera.yaml: calibration file not found", without the scene that names it."""
+    scene = _scene(tmp_path, 'kalibr = "cams/camera.yaml"')
+    with pytest.raises(InputError) as error:
+        load_scene_config(scene)
+    assert str(error.value) == f"{scene}: [camera] kalibr: file not found: {tmp_path / 'cams' / 'camera.yaml'}"
+
+
 def test_kalibr_errors_name_the_yaml_file(tmp_path):
-    with pytest.raises(InputError, match="camera.yaml: calibration file not found"):
-        load_scene_config(_scene(tmp_path, 'kalibr = "camera.yaml"'))
     (tmp_path / "camera.yaml").write_text("cam0: {camera_model: kb}\n")
     with pytest.raises(InputError, match="camera.yaml: cam0.intrinsics: missing"):
         load_scene_config(_scene(tmp_path, 'kalibr = "camera.yaml"'))

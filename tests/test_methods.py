@@ -110,6 +110,23 @@ def test_entry_point_plugin_is_listed_and_loaded(plugin_dist, capsys):
     assert "ifmi    extended iFMI" in out
 
 
+SHADOWING_WARNING = ("warning: method orb: the plugin fakeplug_methods:factory of fakeplug has the name of a built-in "
+                     "method and is not used (the built-in orb is); run it as --method fakeplug_methods:factory, "
+                     "or register it under another name")
+
+
+def test_a_plugin_with_a_built_in_name_is_named_in_one_line_warning(plugin_dist, dataset, tmp_path, capsys):
+    """Before: the plugin registered as orb was dropped without a word and the built-in ORB ran."""
+    assert main(["methods"]) == 0
+    assert capsys.readouterr().err == f"ifmi methods: {SHADOWING_WARNING}\n"
+    code = main(["estimate", str(dataset), "--method", "orb", "--out", str(tmp_path / "e.txt"), "--no-progress"])
+    assert code == 0
+    assert capsys.readouterr().err == f"ifmi estimate: {SHADOWING_WARNING}\n"
+    assert json.loads((tmp_path / "e.config.json").read_text())["method"] == "orb"
+    code = main(["estimate", str(dataset), "--method", "akaze", "--out", str(tmp_path / "a.txt"), "--no-progress"])
+    assert code == 0 and capsys.readouterr().err == ""
+
+
 @pytest.mark.parametrize("method, problem", [
     ("nosuch", "unknown method; expected one of ifmi, orb, akaze"),
     ("nosuch_pkg.mod:factory", "module nosuch_pkg.mod not found"),

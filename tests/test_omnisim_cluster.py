@@ -92,3 +92,60 @@ def test_finished_render_needs_no_scheduler(tmp_path, capsys):
     assert main(["render", str(scene), "--out", str(out), "--no-progress", "--scheduler", "nonsense://x"]) == 0
     assert "0 rendered now" in capsys.readouterr().out
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != "meta.json"} == files
+
+
+def test_scheduler_that_never_answers_is_one_line_within_the_connect_timeout(tmp_path, capsys):
+    """A listener that accepts and stays silent hung the render with no output (past 400 s)."""
+    import socket
+
+    from omnisim.cli import main
+
+    scene = _scene(tmp_path, frames=1, size=16)
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen(4)
+        address = f"tcp://127.0.0.1:{listener.getsockname()[1]}"
+        assert main(["render", str(scene), "--out", str(tmp_path / "out"), "--scheduler", address,
+                     "--connect-timeout", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"omnisim render: error: --scheduler: cannot connect to a Dask scheduler at {address!r}: no Dask "
+                   f"answer within 1 s (nothing listening, a server of another protocol such as the dashboard's "
+                   f"HTTP, or a stuck scheduler; --connect-timeout SECONDS changes the wait)\n")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_worker_killed_mid_render_is_replaced_and_the_render_completes(tmp_path):
+    """SIGKILL to one of two workers once the first frame is stored: Dask reruns its frames on the
+    replacement worker and every file equals the single-process render."""
+    import signal
+    import threading
+    import time
+
+    import psutil
+
+    from omnisim.render import render_dataset
+
+    scene = _scene(tmp_path, frames=8, size=32)
+    render_dataset(scene, tmp_path / "single", progress=False)
+    out = tmp_path / "parallel"
+    killed = {}
+
+    def kill_one_worker():
+        for _ in range(2400):  # 120 s at most
+            stored = sorted((out / "images").glob("*.png")) if (out / "images").is_dir() else []
+            workers = [p for p in psutil.Process().children(recursive=True)
+                       if "spawn_main" in " ".join(p.cmdline())]
+            if stored and workers:
+                killed["frames_stored"] = len(stored)
+                workers[0].send_signal(signal.SIGKILL)
+                return
+            time.sleep(0.05)
+
+    killer = threading.Thread(target=kill_one_worker, daemon=True)
+    killer.start()
+    result = render_dataset(scene, out, progress=False, workers=2)
+    killer.join(timeout=130)
+    assert killed and killed["frames_stored"] < 8  # the kill came mid-run
+    assert result.rendered == 8
+    assert _files(out) == _files(tmp_path / "single")
+    assert json.loads((out / "meta.json").read_text())["complete"]

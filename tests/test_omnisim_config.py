@@ -799,3 +799,28 @@ def test_identity_of_a_plain_scene_is_unchanged_by_the_new_tables(tmp_path):
 def test_camera_table_lists_kalibr_among_its_keys(tmp_path):
     with pytest.raises(InputError, match=r"\[camera\] kalibrr: unknown key; accepted keys: kalibr, calib, pol"):
         load_scene_config(write_scene(tmp_path, BASE.replace("[camera]\n", '[camera]\nkalibrr = "c.yaml"\n')))
+
+
+def test_a_tum_trajectory_keeps_its_positions_unless_position_is_written(tmp_path):
+    """A render's own poses_world.txt fed back as [trajectory] tum gave a camera 1.2 m higher than the
+    file says (the default position was added); now the positions are the file's, and an explicit
+    position is still an offset."""
+    import numpy as np
+
+    from ifmi.io.tum import write_tum
+    from omnisim.motion import poses_for_settings, world_trajectory
+
+    walking = BASE.replace("frames = 2", "frames = 3\ntranslation_step_m = 0.05")
+    walked = load_scene_config(write_scene(tmp_path, walking))
+    original = poses_for_settings(walked.trajectory, seed=2)
+    write_tum(tmp_path / "poses_world.txt", world_trajectory(original))
+    with_tum = BASE.replace("frames = 2", 'frames = 3\ntum = "poses_world.txt"')
+    replayed = load_scene_config(write_scene(tmp_path, with_tum, "replay.toml"))
+    assert replayed.trajectory.position == (0.0, 0.0, 0.0)
+    poses = poses_for_settings(replayed.trajectory, seed=2)
+    np.testing.assert_allclose(poses.positions, original.positions, atol=1e-9)  # TUM text keeps 9 decimals
+    np.testing.assert_allclose(poses.rotations, original.rotations, atol=1e-8)
+    with_offset = with_tum.replace("frames = 3", "frames = 3\nposition = [0, 0, 1.2]")
+    shifted = load_scene_config(write_scene(tmp_path, with_offset, "shifted.toml"))
+    np.testing.assert_allclose(poses_for_settings(shifted.trajectory, seed=2).positions,
+                               original.positions + [0.0, 0.0, 1.2], atol=1e-9)

@@ -310,6 +310,49 @@ def test_broken_envmap_file_fails_before_the_output_folder_exists(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def _png_header_only(width: int, height: int) -> bytes:
+    """A PNG signature and IHDR chunk claiming ``width`` x ``height`` 8-bit RGB, then an empty IDAT and IEND."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"")) + chunk(b"IEND", b"")
+
+
+@pytest.mark.parametrize("content, problem", [
+    # Before: Mitsuba's "seek to offset 18446744073709551608".
+    (b"this is a note, not an image\n", "is no image file (expected EXR, HDR, PFM, PNG or JPEG)"),
+    # Before: read by Mitsuba, which allocated the pixels (std::bad_alloc under a memory limit).
+    (_png_header_only(50000, 50000), "is too large to be read (more than 178956970 pixels)"),
+])
+def test_envmap_that_is_no_image_or_too_large_is_one_line_from_its_header(tmp_path, capsys, content, problem):
+    (tmp_path / "sky.png").write_bytes(content)
+    scene = _scene(tmp_path)
+    scene.write_text(scene.read_text().replace('type = "constant"', 'type = "envmap"\nfile = "sky.png"'))
+    code, err = _run_cli(["render", str(scene), "--out", str(tmp_path / "out"), "--no-progress"], capsys)
+    assert code == 2
+    assert err == f"omnisim render: error: {tmp_path / 'sky.png'}: [[lights]] #1 (envmap) of {scene}: {problem}"
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("extension", ["exr", "hdr", "pfm"])
+def test_envmap_header_sizes_of_the_high_dynamic_range_formats(tmp_path, extension):
+    """The size is read from the header of each format Mitsuba writes; a header without one is damaged."""
+    import numpy as np
+
+    from omnisim.lights import envmap_file_problem
+    from omnisim.llvm import import_mitsuba
+
+    path = tmp_path / f"sky.{extension}"
+    import_mitsuba().Bitmap(np.full((8, 16, 3), 0.5, np.float32)).write(str(path))
+    assert envmap_file_problem(path) == ""
+    path.write_bytes(path.read_bytes()[:6])
+    assert envmap_file_problem(path) == "is a damaged image file (its header gives no size)"
+
+
 def test_envmap_with_a_nan_pixel_is_one_line_before_the_output_folder_exists(tmp_path, capsys):
     """An EXR whose top half is NaN rendered black frames with exit 0 (NaN spreads through the
     light sampling); inf, negative and too bright pixels likewise made black or dark pixels."""
@@ -384,3 +427,30 @@ def test_refusal_names_the_asset_file_that_changed(tmp_path):
     edited = {"format": 1, "settings": {"assets": [["a.obj", "1" * 64], ["wood.png", "3" * 64]]}}
     with pytest.raises(InputError, match=r"different settings.assets.wood.png \(folder: \"2222"):
         check_output_folder(tmp_path, edited)
+
+
+def test_resuming_a_finished_render_writes_nothing(tmp_path, capsys):
+    """A finished dataset on a read-only mount: the resume rewrote calib_results.txt (same bytes) and
+    failed with exit 1. Now no file is replaced (same inode, same mtime), so it needs no write access."""
+    scene, out = _scene(tmp_path, frames=2), tmp_path / "out"
+    assert _run_cli(["render", str(scene), "--out", str(out), "--no-progress"], capsys)[0] == 0
+
+    def files():
+        return {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.rglob("*") if p.is_file()}
+
+    before = files()
+    assert {"calib_results.txt", "groundtruth.txt", "meta.json"} <= {p.name for p in before}
+    assert _run_cli(["render", str(scene), "--out", str(out), "--no-progress"], capsys)[0] == 0
+    assert files() == before
+
+
+def test_an_atomic_write_of_the_same_bytes_leaves_the_file_untouched(tmp_path):
+    from ifmi.io.atomic import atomic_write_bytes, atomic_write_files
+
+    path = tmp_path / "calib_results.txt"
+    atomic_write_bytes(path, b"same")
+    inode = path.stat().st_ino
+    atomic_write_files({path: b"same", tmp_path / "other.txt": b"new"})
+    assert path.stat().st_ino == inode and (tmp_path / "other.txt").read_bytes() == b"new"
+    atomic_write_bytes(path, b"changed")
+    assert path.stat().st_ino != inode and path.read_bytes() == b"changed"

@@ -106,10 +106,22 @@ def test_rays_move_by_the_turn_since_the_middle_row():
     np.testing.assert_array_equal(rays_at_middle_row(rays, np.zeros(20), OMEGA), rays)
 
 
+# Bounds on the rotation error after one and two re-fits. The rotation-only fit is closed form (an SVD
+# of a 3 x 3 sum): 7.3e-6 and 2.0e-8 rad on every OpenBLAS kernel tried, so 1e-5 and 1e-7 leave a third
+# and five times that. The five-point fit also fits a translation direction, which a pure rotation
+# leaves undetermined: the fit takes it from the residual of the compensation and from rounding (it
+# flips between BLAS kernels), and the rotation absorbs a share of that residual that depends on it.
+# Over 200 perturbations of the rays by 1e-15 (rounding) the errors spread over 2.0e-6..1.1e-5 and
+# 8e-9..1.1e-7 rad (1.09e-5 measured on one AMD EPYC); the bounds are twice and more those maxima,
+# still 45 and 4000 times below the global-shutter error of 1.1e-3 rad.
+REFIT_BOUNDS_RAD = {True: (1e-5, 1e-7), False: (2.5e-5, 3e-7)}
+
+
 @pytest.mark.parametrize("rotation_only", [True, False])
 def test_compensation_recovers_the_exact_rotation(model, directions, rotation_only):
-    """A global-shutter fit is off by about 6e-4 rad; compensated, the fit is exact after two
-    re-fits (the floor is the pixel round trip of the calibration)."""
+    """A global-shutter fit is off by about 1e-3 rad; compensated, the error shrinks over a hundred
+    times with each re-fit down to the floor of the calibration's pixel round trip (see
+    REFIT_BOUNDS_RAD)."""
     pixels_a, rays_a = rolling_shutter_view(model, directions, 0.0)
     pixels_b, rays_b = rolling_shutter_view(model, directions, 1.0)
     truth = Rotation.from_rotvec(OMEGA).as_matrix()
@@ -123,8 +135,9 @@ def test_compensation_recovers_the_exact_rotation(model, directions, rotation_on
             velocities=constant_velocity(1.0), options=RollingShutterOptions(readout=READOUT, iterations=iterations))
         assert info.success
         errors.append(geodesic_angle(pose.rotation, truth))
-    assert errors[0] < 1e-5
-    assert errors[1] < 1e-7
+    first_bound, second_bound = REFIT_BOUNDS_RAD[rotation_only]
+    assert errors[0] < first_bound
+    assert errors[1] < second_bound
 
 
 def test_zero_readout_returns_the_first_fit(model, directions):

@@ -445,3 +445,68 @@ def test_cell_record_of_the_wrong_kind_is_named_recomputed_and_left_out_of_repor
     records = rerun()
     assert expected in capsys.readouterr().err
     assert records[0]["status"] == "ok" and json.loads(path.read_text())[key] != value
+
+
+# A scheduler with one in-process worker, in a process of its own that the test can kill.
+_SCHEDULER_PROCESS = """
+import time
+from distributed import LocalCluster
+cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None, protocol="tcp",
+                       host="127.0.0.1")
+print(cluster.scheduler_address, flush=True)
+while True:
+    time.sleep(1)
+"""
+
+
+def _comparable_records(folder):
+    """The cell records without their times, and the estimates' bytes, of a sweep folder."""
+    records = {}
+    for path in sorted((folder / "cells").glob("*.json")):
+        record = json.loads(path.read_text())
+        records[path.name] = {k: v for k, v in record.items() if k not in ("wall_s", "time_per_frame_s")}
+    estimates = {p.relative_to(folder): p.read_bytes() for p in (folder / "runs").rglob("estimate.txt")}
+    return json.dumps(records, sort_keys=True), estimates
+
+
+def test_sweep_losing_its_scheduler_ends_in_one_line_and_resumes_to_the_same_records(datasets, tmp_path, capsys):
+    """The external scheduler is killed once the first cell is recorded: one line, exit 1, the finished
+    cells kept; the rerun (here in this process) gives the records of an uninterrupted sweep."""
+    import subprocess
+    import sys
+    import time
+
+    good, _ = datasets
+    grid = ["--tile-size", "24", "32", "40", "--overlap", "0", "0.25"]
+    process = subprocess.Popen([sys.executable, "-c", _SCHEDULER_PROCESS], stdout=subprocess.PIPE, text=True)
+    try:
+        address = process.stdout.readline().strip()
+        assert address.startswith("tcp://127.0.0.1:")
+        out = tmp_path / "out"
+
+        def kill_after_the_first_cell():
+            for _ in range(1200):  # 120 s at most
+                if (out / "cells").is_dir() and any((out / "cells").glob("*.json")):
+                    break
+                time.sleep(0.1)
+            process.kill()
+
+        killer = threading.Thread(target=kill_after_the_first_cell, daemon=True)
+        killer.start()
+        code = main(["sweep", str(good), *grid, "--scheduler", address, "--no-progress", "--out", str(out)])
+        killer.join(timeout=130)
+    finally:
+        process.kill()
+        process.wait(timeout=30)
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line]
+    assert code == 1
+    assert len(lines) == 1 and lines[0].startswith(f"ifmi sweep: error: lost the Dask cluster at {address} after ")
+    assert lines[0].endswith(f"of 6 cells (the scheduler went away); the finished cells are kept in "
+                             f"{out.resolve() / 'cells'}: rerun the same command to run the rest")
+    kept = len(list((out / "cells").glob("*.json")))
+    assert 1 <= kept < 6
+    assert main(["sweep", str(good), *grid, "--scheduler", "synchronous", "--no-progress", "--out", str(out)]) == 0
+    whole = tmp_path / "whole"
+    assert main(["sweep", str(good), *grid, "--scheduler", "synchronous", "--no-progress", "--out", str(whole)]) == 0
+    assert _comparable_records(out) == _comparable_records(whole)

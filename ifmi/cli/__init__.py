@@ -12,8 +12,9 @@ import importlib
 import os
 import sys
 
-from ifmi.errors import InputError, OutputError
+from ifmi.errors import ClusterError, InputError, OutputError
 from ifmi.runtime.interrupts import caused_by_interrupt, interrupts_recorded, report_interrupt
+from ifmi.runtime.parser import OneLineValueErrors
 from ifmi.runtime.warning_lines import input_warnings_as_lines
 
 __all__ = ["main"]
@@ -23,7 +24,7 @@ _SUBCOMMANDS = ("estimate", "evaluate", "sweep", "report", "convert_calib", "con
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineValueErrors(
         prog="ifmi",
         description="Rotation estimation between omni images with the extended iFMI, "
                     "feature baselines, evaluation, sweeps and reports.",
@@ -44,7 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     """Run ``ifmi`` with ``argv``; returns the exit status.
 
     Exit status: 0 done; 1 an output could not be written
-    (:class:`~ifmi.errors.OutputError`); 2 bad input
+    (:class:`~ifmi.errors.OutputError`) or a Dask cluster was lost
+    (:class:`~ifmi.errors.ClusterError`); 2 bad input
     (:class:`~ifmi.errors.InputError`, or a command-line usage error);
     130 interrupted; a subcommand may document more (``estimate``: 3 when
     more than half of the frames failed). Each error is one line on stderr;
@@ -73,7 +75,7 @@ def _run(args, command: str) -> int:
         except InputError as exc:
             print(f"{command}: error: {exc}", file=sys.stderr)
             return 2
-        except OutputError as exc:
+        except (OutputError, ClusterError) as exc:
             print(f"{command}: error: {exc}", file=sys.stderr)
             return 1
         except BrokenPipeError:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ifmi.tracking.methods import ENTRY_POINT_GROUP, available_methods
+from ifmi.tracking.methods import ENTRY_POINT_GROUP, available_methods, warn_shadowing_plugins
 
 __all__ = ["add_parser", "run"]
 
@@ -26,4 +26,5 @@ def run(args) -> int:
         origin = "" if m.source == "built-in" else f" [{m.source}]"
         print(f"{m.name:<{width}}  {m.summary}{origin}")
     print("(or any factory as package.module:factory)")
+    warn_shadowing_plugins()
     return 0

@@ -7,7 +7,8 @@ import sys
 from pathlib import Path
 
 from ifmi.errors import InputError
-from ifmi.runtime.local_workers import DEFAULT_LOCAL_WORKERS, max_local_workers
+from ifmi.runtime.local_workers import (DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_LOCAL_WORKERS, connect_timeout_argument,
+                             max_local_workers, quiet_dask_logs)
 from ifmi.tracking.methods import ignores_tiling
 from ifmi.experiments.sweep import CELL_NAME_DIGITS, SweepOptions, cell_value_name, run_sweep, sweep_cells
 from ifmi.spectral.tiling import TilingConfig
@@ -84,6 +85,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="address of a running Dask scheduler, or 'synchronous' to run in this "
                         "process (default: a local cluster)")
+    p.add_argument("--connect-timeout", type=connect_timeout_argument, default=DEFAULT_CONNECT_TIMEOUT_S,
+                   metavar="SECONDS",
+                   help=f"how long a --scheduler has to accept the connection and answer "
+                        f"(default {DEFAULT_CONNECT_TIMEOUT_S:g})")
     p.add_argument("--workers", type=_workers, default=DEFAULT_LOCAL_WORKERS,
                    help="worker processes of the local cluster (default 2, 1 thread each; at most "
                         "the CPUs this process may use)")
@@ -175,8 +180,10 @@ def run(args) -> int:
                          f"of your own that reads config.ifmi.tiling")
     cells = sweep_cells([str(Path(d).resolve()) for d in args.datasets], method=method,
                         tile_sizes=args.tile_size, overlaps=args.overlap, bag_input=bag_input)
+    if args.scheduler != "synchronous":
+        quiet_dask_logs()  # a lost cluster is the one line of ClusterError
     options = SweepOptions(scheduler=args.scheduler, n_workers=args.workers,
-                           progress=not args.no_progress)
+                           progress=not args.no_progress, connect_timeout_s=args.connect_timeout)
     records = run_sweep(cells, out_dir=args.out, base_config=base_config, options=options)
     failed = [r for r in records if r.get("status") != "ok"]
     print(f"sweep: {len(records) - len(failed)} cells ok, {len(failed)} failed; "

@@ -50,9 +50,10 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 from ifmi.evaluation.dataset_names import dataset_folder_id, dataset_labels, display_name, resolved_folder
-from ifmi.errors import InputError, OutputError, json_excerpt, one_line
+from ifmi.errors import ClusterError, InputError, OutputError, json_excerpt, one_line
 from ifmi.io.atomic import (atomic_write_bytes, atomic_write_json, atomic_write_text, check_output_folder,
                         folder_of_kind, probe_writable, write_folder)
+from ifmi.runtime.local_workers import DEFAULT_CONNECT_TIMEOUT_S, cluster_loss, scheduler_client
 
 __all__ = [
     "SweepCell",
@@ -179,14 +180,15 @@ class SweepOptions:
     progress : bool
         Show a progress bar on stderr.
     connect_timeout_s : float
-        Seconds to wait for a remote scheduler before giving up, > 0.
+        Seconds a remote scheduler has to accept the connection and answer, > 0
+        (:func:`ifmi.runtime.local_workers.scheduler_client`).
     """
 
     scheduler: str | None = None
     n_workers: int = 2
     threads_per_worker: int = 1
     progress: bool = True
-    connect_timeout_s: float = 10.0
+    connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S
 
     def __post_init__(self) -> None:
         if self.n_workers < 1 or self.threads_per_worker < 1:
@@ -515,7 +517,11 @@ def run_sweep(cells: Iterable[SweepCell], *, out_dir: str | os.PathLike, base_co
         whole: the earlier set stays as it was, and the cell records stay for
         a rerun.
     InputError
-        A Dask scheduler that cannot be reached.
+        A Dask scheduler that cannot be reached, or does not answer within
+        ``options.connect_timeout_s`` (nothing is printed before it).
+    ClusterError
+        The cluster was lost during the run; the finished cells keep their
+        records, and a rerun runs the rest.
     ValueError
         Two cells of one name (:attr:`SweepCell.cell_id`), which would share one record.
     """
@@ -550,47 +556,70 @@ def _execute(cells: list[SweepCell], *, out_dir: str, base_config: dict,
              options: SweepOptions) -> None:
     import dask
 
-    bar = _progress(len(cells), options.progress)
-    try:
-        if options.scheduler == "synchronous":
+    if options.scheduler == "synchronous":
+        with _progress(len(cells), options.progress) as bar:
             for cell in cells:
                 task = dask.delayed(run_cell)(cell, out_dir=out_dir, base_config=base_config)
                 task.compute(scheduler="synchronous")
                 bar.update(1)
-            return
-        from dask.distributed import Client, LocalCluster, as_completed
-
-        cluster = None
-        if options.scheduler is None:
-            # Dask's nanny sets MALLOC_TRIM_THRESHOLD_ in the workers it spawns, which turns
-            # off glibc's adaptive mmap threshold: every large temporary array is then mapped
-            # and zeroed afresh, and a cell's time per frame doubled (25 against 13 ms on a
-            # 512 x 512 sequence). A fixed large mmap threshold keeps such arrays on the heap.
-            with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_MMAP_THRESHOLD_":
-                                  _WORKER_MMAP_THRESHOLD_BYTES}):
-                cluster = LocalCluster(n_workers=options.n_workers,
-                                       threads_per_worker=options.threads_per_worker,
-                                       processes=True, dashboard_address=":0")
-            client = Client(cluster)
-        else:
-            try:
-                client = Client(options.scheduler, timeout=f"{options.connect_timeout_s}s")
-            except (OSError, TimeoutError, ValueError) as exc:
-                raise InputError(options.scheduler, f"cannot connect to a Dask scheduler "
-                                 f"({type(exc).__name__})") from None
-        try:
+        return
+    # Connected (or started) before the progress bar, so that a connection error is the only line.
+    client, cluster = _sweep_client(options)
+    try:
+        with _progress(len(cells), options.progress) as bar:
             futures = [client.submit(run_cell, cell, out_dir=out_dir, base_config=base_config,
                                      pure=False, key=f"sweep-{cell.cell_id}-{time.time_ns()}")
                        for cell in cells]
-            for future in as_completed(futures):
-                future.result()
-                bar.update(1)
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            _wait_for_cells(futures, bar, options=options, out_dir=out_dir)
     finally:
-        bar.close()
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _sweep_client(options: SweepOptions):
+    """``(client, cluster)``: a client of a new local cluster (returned too), or of ``options.scheduler``."""
+    import dask
+    from dask.distributed import Client, LocalCluster
+
+    if options.scheduler is not None:
+        return scheduler_client(options.scheduler, connect_timeout_s=options.connect_timeout_s), None
+    # Dask's nanny sets MALLOC_TRIM_THRESHOLD_ in the workers it spawns, which turns
+    # off glibc's adaptive mmap threshold: every large temporary array is then mapped
+    # and zeroed afresh, and a cell's time per frame doubled (25 against 13 ms on a
+    # 512 x 512 sequence). A fixed large mmap threshold keeps such arrays on the heap.
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_MMAP_THRESHOLD_":
+                          _WORKER_MMAP_THRESHOLD_BYTES}):
+        cluster = LocalCluster(n_workers=options.n_workers, threads_per_worker=options.threads_per_worker,
+                               processes=True, dashboard_address=":0")
+    return Client(cluster), cluster
+
+
+def _wait_for_cells(futures: list, bar, *, options: SweepOptions, out_dir: str) -> None:
+    """Wait for the cells' futures, counting each on ``bar``.
+
+    Raises
+    ------
+    ClusterError
+        The scheduler was lost (the futures are cancelled) or a cell kept
+        killing its workers; the cells finished so far keep their records.
+    """
+    from dask.distributed import as_completed
+
+    done = 0
+    try:
+        for future in as_completed(futures):
+            future.result()
+            done += 1
+            bar.update(1)
+    except Exception as exc:
+        lost = cluster_loss(exc)
+        if lost is None:
+            raise
+        where = options.scheduler or "the local cluster"
+        raise ClusterError(f"lost the Dask cluster at {where} after {done} of {len(futures)} cells ({lost}); "
+                           f"the finished cells are kept in {Path(out_dir) / 'cells'}: rerun the same command "
+                           f"to run the rest") from None
 
 
 def read_cells(out_dir: str | os.PathLike, cells: Sequence[SweepCell] | None = None) -> list[dict]:

@@ -11,6 +11,11 @@ to disk, then renamed over the target. Further rules:
   temporaries first, then the renames; if any step fails, the renamed ones
   are put back, so either the whole new set is in place or the old files
   are byte-identical.
+* Temporaries and backups are named ``.NAME.PID-XXXXXXXX.tmp`` and
+  ``.NAME.PID-XXXXXXXX.old`` beside the target ``NAME`` (``PID`` the
+  writer's process). A writer killed mid-write (SIGKILL, power loss) leaves
+  them; :func:`remove_leftovers`, which the next run calls on its own
+  outputs, removes those whose process is gone.
 * :func:`write_folder` writes a whole output folder as one set: it is built
   in a temporary sibling folder and swapped in when complete (an atomic
   exchange where the system has one). :func:`check_output_folder` refuses,
@@ -26,6 +31,7 @@ import ctypes
 import errno
 import json
 import os
+import re
 import shutil
 import stat
 import sys
@@ -38,7 +44,7 @@ from ifmi.errors import OutputError
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "atomic_write_files",
            "writable_target", "probe_writable", "json_text", "check_output_folder", "write_folder",
-           "folder_of_kind", "path_within", "utf8_bytes"]
+           "folder_of_kind", "path_within", "remove_leftovers", "utf8_bytes"]
 
 # Tries at a free backup name (names are random; a clash is already unlikely).
 _BACKUP_ATTEMPTS = 16
@@ -47,6 +53,9 @@ _LISTED_ENTRIES = 3
 # renameat2(2) arguments (<linux/fs.h>, <fcntl.h>): swap two paths atomically, relative to the cwd.
 _RENAME_EXCHANGE = 2
 _AT_FDCWD = -100
+# A temporary or backup of this module: ``.NAME.PID-XXXXXXXX.tmp`` or ``.old`` (``PID-`` missing in
+# the names of earlier versions; the 8 characters are tempfile's random ones).
+_LEFTOVER_NAME = re.compile(r"^\.(?P<name>.+)\.(?:(?P<pid>\d+)-)?[a-z0-9_]{8}\.(?:tmp|old)$")
 
 
 def path_within(path: str | os.PathLike, folder: str | os.PathLike) -> bool:
@@ -146,7 +155,7 @@ def _temporary_copy(path: Path, target: Path, data: bytes) -> str:
     """Write ``data`` to a synced temporary file beside ``target``; returns its name."""
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        fd, tmp = tempfile.mkstemp(prefix=_leftover_prefix(target), suffix=".tmp", dir=target.parent)
     except OSError as exc:
         raise OutputError.from_os_error(path, exc) from exc
     try:
@@ -161,6 +170,62 @@ def _temporary_copy(path: Path, target: Path, data: bytes) -> str:
             raise OutputError.from_os_error(path, exc) from exc
         raise
     return tmp
+
+
+def _leftover_prefix(target: Path) -> str:
+    """Start of the name of a temporary or backup of ``target`` (see :data:`_LEFTOVER_NAME`)."""
+    return f".{target.name}.{os.getpid()}-"
+
+
+def _process_alive(pid: int) -> bool:
+    """True when a process ``pid`` runs on this machine (this one included)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True  # another user's process, or a number the system will not check: keep its files
+    return True
+
+
+def remove_leftovers(folder: str | os.PathLike, *, names: Collection[str] | None = None) -> list[Path]:
+    """Remove the temporaries and backups that killed writers of this module left in ``folder``.
+
+    Parameters
+    ----------
+    folder : path
+        The folder of the outputs (not searched below it).
+    names : collection of str, optional, keyword-only
+        The outputs' file names whose leftovers are removed (default: every
+        name, for a folder the command owns, such as a dataset's
+        ``images/``).
+
+    Returns
+    -------
+    list of Path
+        The files removed. Those of a writer that still runs are kept (its
+        process id is in the name); names of earlier versions, without it,
+        are removed. A folder that cannot be listed, or a file that cannot
+        be removed, is left as it is.
+    """
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        match = _LEFTOVER_NAME.match(entry.name)
+        if match is None or (names is not None and match["name"] not in names):
+            continue
+        if match["pid"] is not None and _process_alive(int(match["pid"])):
+            continue
+        try:
+            if entry.is_file(follow_symlinks=False):
+                os.unlink(entry.path)
+                removed.append(Path(entry.path))
+        except OSError:
+            pass
+    return removed
 
 
 def _remove(name: str | os.PathLike) -> None:
@@ -213,7 +278,9 @@ def atomic_write_json(path: str | os.PathLike, obj) -> None:
 def atomic_write_files(files: Mapping[str | os.PathLike, bytes]) -> None:
     """Write several files as one set: all of them, or none.
 
-    Every file is first written to a synced temporary beside its target;
+    A target that already holds the same bytes is left untouched (not
+    written again: a finished output on a read-only mount is no error).
+    Every other file is first written to a synced temporary beside its target;
     then each existing target is kept under a backup link and the
     temporaries are renamed over the targets. If a write or a rename fails,
     the targets already renamed get their old content back (or are removed
@@ -232,6 +299,9 @@ def atomic_write_files(files: Mapping[str | os.PathLike, bytes]) -> None:
     targets = {Path(p): writable_target(p) for p in files}
     if len(set(targets.values())) != len(targets):
         raise ValueError(f"two outputs of one set are the same file: {sorted(map(str, files))}")
+    files = {path: data for path, data in files.items() if not _holds(targets[Path(path)], data)}
+    if not files:
+        return
     new_folders = sorted({folder for target in targets.values() for folder in _missing_folders(target)},
                          key=lambda folder: len(folder.parts), reverse=True)
     temporaries: dict[Path, str] = {}
@@ -249,6 +319,14 @@ def atomic_write_files(files: Mapping[str | os.PathLike, bytes]) -> None:
             except OSError:
                 pass
         raise
+
+
+def _holds(target: Path, data: bytes) -> bool:
+    """True when the regular file ``target`` exists and holds exactly ``data``."""
+    try:
+        return target.stat().st_size == len(data) and target.read_bytes() == data
+    except OSError:
+        return False
 
 
 def _missing_folders(target: Path) -> list[Path]:
@@ -295,7 +373,7 @@ def _backup(path: Path, target: Path) -> str | None:
     if not target.exists():
         return None
     for _ in range(_BACKUP_ATTEMPTS):
-        name = tempfile.mktemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent)
+        name = tempfile.mktemp(prefix=_leftover_prefix(target), suffix=".old", dir=target.parent)
         try:
             os.link(target, name)
             return name

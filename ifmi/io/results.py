@@ -35,7 +35,7 @@ import numpy as np
 
 from ifmi.errors import InputError, OutputError
 from ifmi.io.atomic import (atomic_write_bytes, atomic_write_files, atomic_write_json, atomic_write_text,
-                     check_output_folder, folder_of_kind, json_text, probe_writable, utf8_bytes,
+                     check_output_folder, folder_of_kind, json_text, probe_writable, remove_leftovers, utf8_bytes,
                      write_folder)
 from ifmi.io.camera_file import calibration_path
 from ifmi.io.config import read_json_object
@@ -662,6 +662,8 @@ def write_estimate_run(path: str | os.PathLike, estimate, *, dataset_dir: str | 
         frames_path: utf8_bytes(frames_csv_text([r.to_row() for r in estimate.frames])),
         path: utf8_bytes(tum),
     })
+    # Temporaries and backups of these files that a killed earlier run left beside them.
+    remove_leftovers(path.parent, names={path.name, frames_path.name, config_path.name})
     return path
 
 

@@ -12,7 +12,10 @@ applies two rules:
   finite, both frames' arrays of one length, ``rays_per_measurement`` an
   integer from 1 to N that divides N, ``diagnostics`` a mapping of one-line
   names (not empty, none of frames.csv's own columns) to JSON scalars (numbers, 64-bit integers, true/false, null or one
-  line of text: each is a column of the run's frames.csv). These are
+  line of text: each is a column of the run's frames.csv), and the rays
+  of a seeded sample of :data:`RAY_SAMPLE_SIZE` matches within
+  :data:`RAY_PIXEL_TOLERANCE_PX` pixels' angle of the camera model's rays
+  of their pixels (``model.rays_from_pixels(pixels)``). These are
   errors of the plugin's code, the same on every frame, and a wrong result
   (pixel coordinates passed as rays, say) would otherwise come out as a
   confident wrong trajectory.
@@ -37,11 +40,24 @@ from ifmi.errors import InputError, one_line
 from ifmi.front_end import DEFAULT_STAGE_COLUMNS, Correspondences, FrontEndBase
 from ifmi.tracking.odometry import FRAME_COLUMNS, PREPARE_MS, RECOVERED_AFTER_RESET, REFINE_FAILURE
 
-__all__ = ["RAY_NORM_TOLERANCE", "CheckedFrontEnd", "checked_correspondences"]
+__all__ = ["RAY_NORM_TOLERANCE", "RAY_PIXEL_TOLERANCE_PX", "RAY_SAMPLE_SIZE", "CheckedFrontEnd",
+           "checked_correspondences"]
 
 # Largest |norm - 1| of a ray accepted as a unit vector (float16 rays round to about 1e-3); the rays
 # are then normalised. Pixel coordinates or unnormalised directions given as rays are far outside it.
 RAY_NORM_TOLERANCE = 2e-3
+# Largest angle between a returned ray and the camera model's ray of its pixel, in pixels' angle
+# there (the larger of the angles one row and one column away subtend). Rays a front end computes
+# its own way agree with the model's to its round trip: iFMI's rays, lifted from its panorama while
+# its pixels come through pixels_from_rays, are within 2.4e-6 (OCamCalib's inverse polynomial) and
+# 1.6e-7 (radial-tangential, undistorted iteratively) of it on the example models; float16 rays
+# within a tenth of a 160-px image's pixel; a ray lifted at the sub-pixel position of a match whose
+# pixel was rounded is within 0.71. A ray of another pixel, negated, or lifted with (col, row) for
+# (row, col) is many pixels off.
+RAY_PIXEL_TOLERANCE_PX = 1.0
+# Matches per result whose rays are checked against the camera model, and the seed of their choice.
+RAY_SAMPLE_SIZE = 16
+RAY_SAMPLE_SEED = 0
 # Fields a front end's result must have (those of Correspondences).
 _FIELDS = ("pixels_a", "pixels_b", "rays_a", "rays_b", "diagnostics", "success", "reason",
            "rays_per_measurement")
@@ -74,6 +90,9 @@ class CheckedFrontEnd(FrontEndBase):
         ``correspondences``).
     method : str
         The method's name, for messages.
+    model : CameraModel, optional
+        The camera model the front end was made for: its rays are checked
+        against ``model.rays_from_pixels`` (none without it).
 
     Raises
     ------
@@ -81,8 +100,9 @@ class CheckedFrontEnd(FrontEndBase):
         ``accept_pose`` or ``refine_correspondences`` present but not callable.
     """
 
-    def __init__(self, front_end, method: str) -> None:
+    def __init__(self, front_end, method: str, model=None) -> None:
         self._inner, self._method, self._where = front_end, method, f"method {method}"
+        self._model = model
         self.uses_prior_rotation = bool(getattr(front_end, "uses_prior_rotation", False))
         accept = getattr(front_end, "accept_pose", None)
         if accept is not None and not callable(accept):
@@ -132,7 +152,7 @@ class CheckedFrontEnd(FrontEndBase):
             raise
         except Exception as exc:  # a plugin's failure on this pair
             return Correspondences.failed(f"{self._where}: correspondences() raised {one_line(exc)}")
-        return checked_correspondences(result, method=self._method)
+        return checked_correspondences(result, method=self._method, model=self._model)
 
     def _refine_correspondences(self, state_a: _Prepared, state_b: _Prepared, first: Correspondences, *,
                                 rotation_ab: np.ndarray) -> Correspondences | None:
@@ -145,7 +165,7 @@ class CheckedFrontEnd(FrontEndBase):
             raise
         except Exception as exc:  # a plugin's failure on this pair
             return Correspondences.failed(f"{self._where}: refine_correspondences() raised {one_line(exc)}")
-        return None if result is None else checked_correspondences(result, method=self._method)
+        return None if result is None else checked_correspondences(result, method=self._method, model=self._model)
 
     def _accept_pose(self, state: _Prepared, rotation: np.ndarray) -> None:
         try:
@@ -156,7 +176,7 @@ class CheckedFrontEnd(FrontEndBase):
             raise InputError(self._where, f"accept_pose() raised {one_line(exc)}") from None
 
 
-def checked_correspondences(result, *, method: str) -> Correspondences:
+def checked_correspondences(result, *, method: str, model=None) -> Correspondences:
     """``result`` of a front end as :class:`~ifmi.front_end.Correspondences`, held to the contract.
 
     Parameters
@@ -164,6 +184,9 @@ def checked_correspondences(result, *, method: str) -> Correspondences:
     result : Correspondences or an object with its fields
     method : str, keyword-only
         The method's name, for messages.
+    model : CameraModel, optional, keyword-only
+        The camera model: a seeded sample of the rays is checked against
+        its rays of their pixels (:data:`RAY_PIXEL_TOLERANCE_PX`).
 
     Returns
     -------
@@ -201,6 +224,9 @@ def checked_correspondences(result, *, method: str) -> Correspondences:
                                 f"{len(rays_a)}, {len(rays_b)}, {len(pixels_a)}, {len(pixels_b)} rows; "
                                 "expected one row per match in each")
     group = _rays_per_measurement(result.rays_per_measurement, len(rays_a), where)
+    if model is not None:
+        _check_rays_of_pixels(rays_a, pixels_a, "rays_a", model, where)
+        _check_rays_of_pixels(rays_b, pixels_b, "rays_b", model, where)
     return Correspondences(pixels_a, pixels_b, rays_a, rays_b, diagnostics, success=True, reason="",
                            rays_per_measurement=group)
 
@@ -284,6 +310,54 @@ def _unit_rays(value, name: str, where: str) -> np.ndarray:
                                 f"{norms.min():.4g} to {norms.max():.4g}); expected unit rays in the camera "
                                 "frame, lifted through the camera model (not pixel coordinates)")
     return rays / norms[:, None] if len(rays) else rays
+
+
+def _angles(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Angles (rad) between the unit rows of ``u`` and ``v``, (N, 3) each; accurate for small angles."""
+    return 2.0 * np.arcsin(np.clip(np.linalg.norm(u - v, axis=1) / 2.0, 0.0, 1.0))
+
+
+def _check_rays_of_pixels(rays: np.ndarray, pixels: np.ndarray, name: str, model, where: str) -> None:
+    """Refuse rays of a seeded sample of matches that are not the model's rays of their pixels.
+
+    Parameters
+    ----------
+    rays : (N, 3) ndarray
+        Unit rays returned by the front end.
+    pixels : (N, 2) ndarray
+        Their pixels, (row, col).
+    name : str
+        ``rays_a`` or ``rays_b``, for the message.
+    model : CameraModel
+    where : str
+        ``method NAME``, for the message.
+
+    Raises
+    ------
+    InputError
+        A sampled ray further than :data:`RAY_PIXEL_TOLERANCE_PX` pixels'
+        angle from the model's ray of its pixel. Pixels the model does not
+        lift (outside its valid region) are not checked.
+    """
+    if not len(rays):
+        return
+    rng = np.random.default_rng(RAY_SAMPLE_SEED)
+    rows = np.sort(rng.choice(len(rays), size=min(RAY_SAMPLE_SIZE, len(rays)), replace=False))
+    sample = pixels[rows]
+    expected = np.asarray(model.rays_from_pixels(sample), dtype=np.float64)
+    pixel_angle = np.maximum(*(_angles(expected, np.asarray(model.rays_from_pixels(sample + step), np.float64))
+                               for step in ((1.0, 0.0), (0.0, 1.0))))
+    off = _angles(rays[rows], expected) / pixel_angle
+    checked = np.isfinite(off)
+    bad = checked & (off > RAY_PIXEL_TOLERANCE_PX)
+    if bad.any():
+        worst = int(np.argmax(np.where(bad, off, -np.inf)))
+        row, col = sample[worst]
+        raise InputError(where, f"correspondences() returned {name} that are not the rays of their pixels: "
+                                f"{int(bad.sum())} of {int(checked.sum())} sampled matches off the camera "
+                                f"model's ray, by up to {off[worst]:.3g} pixels' angle (at pixel row {row:.6g}, "
+                                f"col {col:.6g}); expected model.rays_from_pixels(pixels) within "
+                                f"{RAY_PIXEL_TOLERANCE_PX:g} pixel's angle")
 
 
 def _rays_per_measurement(value, n: int, where: str) -> int:

@@ -7,7 +7,7 @@ sweep``) names one of
 * a built-in method: :data:`BUILTIN_METHODS` is the one list of them (name,
   factory, one-line summary, colour in figures);
 * a method an installed package registers under the entry-point group
-  ``ifmi.methods`` (``[project.entry-points."ifmi.methods"] sift =
+  ``ifmi.tracking.methods`` (``[project.entry-points."ifmi.tracking.methods"] sift =
   "my_package.sift:front_end"`` in its ``pyproject.toml``);
 * any importable factory, written ``package.module:factory``.
 
@@ -18,11 +18,12 @@ Every method name, known or not, gets a place in report tables
 from __future__ import annotations
 
 import importlib
+import warnings
 from dataclasses import dataclass
 from importlib import metadata
 from typing import Any, Callable, Iterable
 
-from ifmi.errors import InputError, one_line
+from ifmi.errors import InputError, InputWarning, one_line
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -33,6 +34,7 @@ __all__ = [
     "plugin_methods",
     "available_methods",
     "method_names",
+    "warn_shadowing_plugins",
     "load_factory",
     "create_front_end",
     "method_sort_key",
@@ -41,7 +43,7 @@ __all__ = [
 ]
 
 # Entry-point group under which installed packages register methods.
-ENTRY_POINT_GROUP = "ifmi.methods"
+ENTRY_POINT_GROUP = "ifmi.tracking.methods"
 
 
 @dataclass(frozen=True)
@@ -126,14 +128,14 @@ def plugin_methods(*, with_summary: bool = False) -> tuple[MethodInfo, ...]:
     -------
     tuple of MethodInfo
         Sorted by name; names of built-in methods are left out (the
-        built-in method wins).
+        built-in method wins; see :func:`warn_shadowing_plugins`).
     """
     builtin = set(builtin_method_names())
     found = {}
     for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
         if ep.name in builtin or ep.name in found:
             continue
-        dist = getattr(getattr(ep, "dist", None), "name", None) or "unknown distribution"
+        dist = _distribution_name(ep)
         summary = ""
         if with_summary:
             try:
@@ -142,6 +144,33 @@ def plugin_methods(*, with_summary: bool = False) -> tuple[MethodInfo, ...]:
                 summary = f"(cannot be loaded: {exc.problem})"
         found[ep.name] = MethodInfo(ep.name, ep.value, summary, f"plugin {dist}")
     return tuple(found[name] for name in sorted(found))
+
+
+def _distribution_name(ep) -> str:
+    """The name of the installed distribution that registers the entry point ``ep``."""
+    return getattr(getattr(ep, "dist", None), "name", None) or "unknown distribution"
+
+
+def warn_shadowing_plugins(names: Iterable[str] | None = None) -> None:
+    """Warn, one line each, of installed plugin methods that a built-in method's name hides.
+
+    Parameters
+    ----------
+    names : iterable of str, optional
+        Only these method names (default: every built-in name).
+
+    Warns
+    -----
+    InputWarning
+        ``method orb: the plugin pkg.mod:factory of DIST has the name of a
+        built-in method and is not used ...``, naming how to run it.
+    """
+    wanted = set(builtin_method_names()) if names is None else set(names) & set(builtin_method_names())
+    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name in wanted:
+            warnings.warn(f"method {ep.name}: the plugin {ep.value} of {_distribution_name(ep)} has the name of a "
+                          f"built-in method and is not used (the built-in {ep.name} is); run it as --method "
+                          f"{ep.value}, or register it under another name", InputWarning, stacklevel=2)
 
 
 def available_methods(*, with_summary: bool = False) -> tuple[MethodInfo, ...]:
@@ -202,6 +231,7 @@ def load_factory(method: str) -> Callable:
     """
     for info in BUILTIN_METHODS:
         if info.name == method:
+            warn_shadowing_plugins((method,))
             return _load_target(info.target, method=method)
     if ":" not in method:
         for info in plugin_methods():
@@ -220,7 +250,7 @@ def create_front_end(method: str, model, config):
     an :class:`InputError` naming the method (built-in factories' errors
     pass unchanged). A third-party front end comes back wrapped in
     :class:`~ifmi.tracking.checked_front_end.CheckedFrontEnd`, which holds what it
-    returns to the contract.
+    returns to the contract (its rays checked against ``model``).
 
     Returns
     -------
@@ -250,7 +280,7 @@ def create_front_end(method: str, model, config):
         raise InputError(where, f"factory returned an object without "
                                 f"{'() and '.join(missing)}(); expected prepare() and "
                                 f"correspondences(), got {type(front_end).__name__}")
-    return CheckedFrontEnd(front_end, method)
+    return CheckedFrontEnd(front_end, method, model)
 
 
 def method_sort_key(method: str) -> tuple[int, str]:
