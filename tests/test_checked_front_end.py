@@ -6,8 +6,8 @@ Each plugin wraps the built-in ORB front end and spoils its result in one way, o
 
 from __future__ import annotations
 
-import dataclasses
 import csv
+import dataclasses
 
 import numpy as np
 import pytest
