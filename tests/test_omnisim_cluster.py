@@ -123,7 +123,7 @@ def test_a_worker_killed_mid_render_is_replaced_and_the_render_completes(tmp_pat
 
     import psutil
 
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = _scene(tmp_path, frames=8, size=32)
     render_dataset(scene, tmp_path / "single", progress=False)
