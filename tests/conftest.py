@@ -13,6 +13,13 @@ from ifmi import testing
 RNG_SEED = 20190922
 
 
+def pytest_collection_modifyitems(config, items):
+    """Every render test is slow too: Mitsuba compiles its kernels on the first render of a process."""
+    for item in items:
+        if item.get_closest_marker("render") is not None:
+            item.add_marker(pytest.mark.slow)
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     """A NumPy generator seeded with :data:`RNG_SEED` (a fresh one per test)."""

@@ -303,6 +303,7 @@ def test_estimate_cli_bad_bag_input_is_one_line(dataset, tmp_path, capsys):
     assert "lies in the bag folder" in capsys.readouterr().err and not (single / "e.txt").exists()
 
 
+@pytest.mark.slow
 def test_a_sweep_takes_a_bag_as_it_takes_the_folder(dataset, tmp_path, capsys):
     import pandas as pd
 

@@ -39,6 +39,7 @@ def _write_dataset(folder, *, seed, max_step_rad):
     return write_synthetic_dataset(folder, sequence)
 
 
+@pytest.mark.slow
 def test_two_datasets_of_one_name_get_their_own_rows_and_folders(tmp_path, capsys):
     a = _write_dataset(tmp_path / "site_a" / "office", seed=5, max_step_rad=0.03)
     b = _write_dataset(tmp_path / "site_b" / "office", seed=6, max_step_rad=0.06)
@@ -63,6 +64,7 @@ def test_two_datasets_of_one_name_get_their_own_rows_and_folders(tmp_path, capsy
     assert "site_a/office" in printed and "site_b/office" in printed
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("short", ["images", "groundtruth"])
 def test_a_set_too_short_to_evaluate_is_refused_before_any_set_is_measured(tmp_path, capsys, short):
     # One frame or one ground-truth pose measures nothing: refused before the other sets' (possibly
@@ -96,6 +98,7 @@ def test_a_file_instead_of_a_dataset_folder_is_a_one_line_error(tmp_path, capsys
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_kalibr_camera_dataset_is_benchmarked(tmp_path):
     """A camera.yaml dataset (a fisheye sequence from omnisim warp) runs through the benchmark."""
     import cv2
@@ -123,6 +126,7 @@ def test_a_kalibr_camera_dataset_is_benchmarked(tmp_path):
     assert row["failures"] == 0 and row["geodesic_rmse"] < 2e-3, row
 
 
+@pytest.mark.slow
 def test_options_benchmark_names_same_named_sets_apart_and_compares_a_variant(tmp_path, monkeypatch):
     options = _benchmark_module("bench_ifmi_options", monkeypatch)
     a = _write_dataset(tmp_path / "site_a" / "office", seed=5, max_step_rad=0.03)
@@ -137,6 +141,7 @@ def test_options_benchmark_names_same_named_sets_apart_and_compares_a_variant(tm
     assert rows[0]["ate_default"] != rows[1]["ate_default"]
 
 
+@pytest.mark.slow
 def test_versions_benchmark_finds_one_tree_bit_identical_to_itself(tmp_path, capsys):
     versions = _benchmark_module("bench_versions")
     data = _write_dataset(tmp_path / "office", seed=7, max_step_rad=0.03)
@@ -152,6 +157,7 @@ def test_versions_benchmark_finds_one_tree_bit_identical_to_itself(tmp_path, cap
     assert versions._largest_difference([np.eye(3)], [np.eye(3) * 0.5]) == 0.5
 
 
+@pytest.mark.slow
 def test_versions_benchmark_missing_set_is_a_one_line_error(tmp_path, capsys):
     missing = tmp_path / "no_such_set"
     versions = _benchmark_module("bench_versions")

@@ -129,6 +129,7 @@ class PointFrontEnd:
         return Correspondences(rays_a[:, :2] * 0, rays_b[:, :2] * 0, rays_a, rays_b, {"n_tiles": 1})
 
 
+@pytest.mark.slow
 def test_tracker_refines_translated_sequences_with_short_steps():
     # 1 cm steps 1-4 m from the points with 2 mrad ray noise: one pair's parallax is a few
     # milliradians, so the pairs' rotations take up some of it; an 8-frame window (7 cm of baseline)

@@ -43,6 +43,7 @@ def test_published_file_round_trips_well_within_the_tolerance():
     assert error < 0.005 < INVERSE_TOLERANCE_PX
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size", [(64, 64), (256, 256), (480, 640), (321, 257)])
 def test_project_calibrations_round_trip(size):
     model = paracatadioptric_model(size, horizon_radius_px=0.3 * min(size))

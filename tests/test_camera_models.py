@@ -28,6 +28,7 @@ def _grid(model):
     return np.stack([rows, cols], axis=-1).astype(np.float64)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(EXAMPLES))
 def test_pixel_ray_pixel_round_trip_over_valid_region(name):
     model = EXAMPLES[name]
@@ -164,6 +165,7 @@ def test_invalid_parameters_are_rejected():
         KannalaBrandtModel((1.0, 1.0), (0.0, 0.0), (10, 10), (0.1,))
 
 
+@pytest.mark.slow
 def test_radtan_fold_bounds_the_valid_region():
     """Past the radius where radial distortion turns back, pixels are outside the valid region.
 

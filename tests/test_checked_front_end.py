@@ -214,6 +214,7 @@ def _estimate(dataset, method, out, capsys):
     ("success_key_diagnostic", "diagnostics key 'success': a column frames.csv has already"),
     ("empty_key_diagnostic", "diagnostics key '': an empty column name, so its values would be lost"),
 ])
+@pytest.mark.slow
 def test_breach_of_the_contract_is_one_line_naming_the_method(dataset, plugin, tmp_path, capsys, factory,
                                                               problem):
     method = f"{plugin}:{factory}"
@@ -303,6 +304,7 @@ def test_repeated_matches_are_too_few_distinct_correspondences():
     np.testing.assert_array_equal(pose.rotation, np.eye(3))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["ifmi", "orb", "akaze"])
 def test_rays_of_the_built_in_methods_pass_the_pixel_check_on_every_camera_model(method):
     """The check holds on every model: iFMI's rays (lifted from its panorama, not from the pixels it

@@ -5,6 +5,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 MAX_CODE_LINES = 60
 
@@ -41,6 +43,7 @@ def test_line_count_leaves_out_docstring_comments_and_blank_lines():
     assert code_lines(text.splitlines(), node) == 3
 
 
+@pytest.mark.slow
 def test_no_function_of_ifmi_or_omnisim_is_over_60_lines():
     found = long_functions(ROOT / "ifmi") + long_functions(ROOT / "omnisim")
     assert not found, "functions over 60 lines of code: " + ", ".join(found)

@@ -20,6 +20,7 @@ EXACT_FIT_PX = 1e-3
 UNIFIED = UnifiedModel(0.8, (330.0, 328.0), (321.0, 242.0), (480, 640))
 
 
+@pytest.mark.slow
 def test_unified_converts_to_its_exact_eucm_and_double_sphere():
     """UCM(xi, f) = EUCM(xi / (1 + xi), 1, f / (1 + xi)); the double sphere holds it exactly too
     (as DS(0, xi / (1 + xi), f / (1 + xi)) or DS(xi, 0, f))."""
@@ -33,6 +34,7 @@ def test_unified_converts_to_its_exact_eucm_and_double_sphere():
     assert fit_camera_model(UNIFIED, "eucm").model.beta == pytest.approx(1.0, abs=1e-5)
 
 
+@pytest.mark.slow
 def test_paracatadioptric_ocamcalib_is_the_unified_model_with_xi_one():
     """A parabolic mirror is the unified model with xi = 1 and f = h, across the two toolboxes' frames."""
     ocam = paracatadioptric_model((240, 320), horizon_radius_px=100.0, center=(121.3, 158.2))
@@ -90,6 +92,7 @@ def test_reported_error_is_the_reprojection_error():
     assert fit.max_error_px < 0.1
 
 
+@pytest.mark.slow
 def test_convert_calib_command(tmp_path, capsys):
     source = tmp_path / "calib_results.txt"
     write_calib(source, paracatadioptric_model((240, 320), horizon_radius_px=100.0))
@@ -207,6 +210,7 @@ def test_printed_error_names_the_region_it_is_measured_over():
     assert fit_summary(part).endswith("over the 62.5 % of the valid region that the model sees")
 
 
+@pytest.mark.slow
 def test_unified_fit_reaches_xi_zero():
     """xi is fitted as q^2: a radtan pinhole (xi = 0) is reached exactly, not clipped to it."""
     fit = fit_camera_model(EXAMPLES["pinhole-radtan"], "omni")

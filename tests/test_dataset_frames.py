@@ -326,6 +326,7 @@ def sequence_dataset(tmp_path_factory):
     return write_synthetic_dataset(tmp_path_factory.mktemp("gap") / "syn", seq), seq
 
 
+@pytest.mark.slow
 def test_missing_frame_leaves_a_gap_and_evaluates_right(sequence_dataset, tmp_path, capsys):
     """Deleting 000005.png: the estimate has no line 5, and lines 6, 7 keep their timestamps."""
     root, seq = sequence_dataset

@@ -223,6 +223,7 @@ def test_panorama_smaller_than_a_tile_is_one_line(tmp_path, capsys, calib_name):
     assert "--tile-size" in err
 
 
+@pytest.mark.slow
 def test_panorama_smaller_than_a_tile_from_the_library(tmp_path):
     from ifmi.errors import CalibrationFitError
     from ifmi.pipeline import estimate_dataset, estimate_sequence
@@ -238,6 +239,7 @@ def test_panorama_smaller_than_a_tile_from_the_library(tmp_path):
     assert len(estimate_sequence(images, model, method="orb").frames) == 3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("calib_name", ["camera.yaml", "calib_results.txt"])
 def test_run_file_names_the_calibration_the_dataset_holds(tmp_path, calib_name):
     """The run file records the dataset and the calibration file it was estimated with."""

@@ -444,6 +444,7 @@ def test_estimate_to_a_path_without_a_file_name_is_refused(dataset, tmp_path, ca
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("first", "second"), [("e.txt", "e"), ("e", "e.txt"), ("e.txt", "e.tum")])
 def test_estimate_refuses_the_side_files_of_another_estimate_of_the_same_name(dataset, tmp_path, capsys,
                                                                               first, second):

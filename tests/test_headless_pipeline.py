@@ -47,6 +47,7 @@ IFMI_MAX_RMSE = 0.02
 BASELINE_MAX_RMSE = {"orb": 0.02, "akaze": 0.01}
 
 
+@pytest.mark.slow
 @pytest.mark.render
 def test_render_estimate_evaluate_report(tmp_path):
     from omnisim.renderer import render_dataset

@@ -107,6 +107,7 @@ def test_numbers_without_a_dot_are_read():
     ("cam0:\n  ? [1, 2]\n  : x\n", "not valid YAML at line 2, column 5: found unhashable key"),
     ("cam0: " + "[" * 50_000 + "]" * 50_000 + "\n", "not valid YAML: nested too deeply"),
 ])
+@pytest.mark.slow
 def test_malformed_yaml_gives_one_line_error(tmp_path, text, message):
     path = tmp_path / "camera.yaml"
     path.write_text(text)

@@ -39,6 +39,7 @@ def _angle(a, b):
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.einsum("...i,...i->...", a, b))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("off_px, weight", [(0.05, 1.0), (0.05, 0.5), (2.0, 1.0)])
 def test_tracked_tile_rays_follow_the_accepted_pose_within_the_gate(frame, off_px, weight):
     # Frames 0 and 1 accepted; frame 1's accepted pose is off the truth by off_px panorama
@@ -77,6 +78,7 @@ def test_tracked_tile_rays_follow_the_accepted_pose_within_the_gate(frame, off_p
     assert np.allclose(rays_from_pixels(MODEL, corr.pixels_a), corr.rays_a, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_a_reference_without_an_accepted_pose_keeps_measured_rays_and_drops_the_landmarks(frame):
     # As after a reference reset: frame 1 serves as reference with no accepted pose. Its pair
     # and the tiles carried on from it use measured placements; frame 2, accepted, gives
@@ -102,6 +104,7 @@ def test_landmark_options_are_checked():
         TrackingOptions(landmark_weight=0.0)
 
 
+@pytest.mark.slow
 def test_landmark_rays_lower_the_frame_to_frame_drift(frame):
     # Exact renders of a band-limited texture (tests/test_panorama_interpolation.py) along three
     # 3-degree random walks whose tilt makes tiles leave the panorama and be cut anew. Geodesic
@@ -123,6 +126,7 @@ def test_landmark_rays_lower_the_frame_to_frame_drift(frame):
     assert max(ate[True]) < 2e-6 and sum(ate[True]) < 0.8 * sum(ate[False]), ate
 
 
+@pytest.mark.slow
 def test_narrow_panoramas_keep_measured_rays(frame):
     # Below min_width_curved (here the 1024 px images' own 2048 px panorama) nothing is turned.
     truth = _walk(3, 1.0, seed=5)

@@ -69,6 +69,7 @@ def test_a_lit_region_that_is_no_circle_gives_no_rim():
     assert rim_circle_from_frames(MODEL, [frame], dark_level=DARK) is None
 
 
+@pytest.mark.slow
 def test_estimate_warns_once_about_a_calibration_centre_off_the_rim(tmp_path, capsys):
     pytest.importorskip("skimage")
     from ifmi.cli import main

@@ -36,6 +36,7 @@ def environment():
     return environment_texture(height=512, seed=1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(EXAMPLES))
 def test_panorama_maps_back_exactly(name):
     mapping = panorama_mapping(_small(name))
@@ -62,6 +63,7 @@ def test_band_follows_the_field_of_view(name, fov_deg, bottom_deg):
     assert (np.degrees(mapping.model.field_of_view_rad) > 180) == (fov_deg == "above 180")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["ifmi", "orb", "akaze"])
 @pytest.mark.parametrize("name", sorted(EXAMPLES))
 def test_rotation_sequence_on_every_model(environment, name, method):

@@ -58,6 +58,7 @@ def _export(dataset, out, bag_format, storage, compressed, *extra):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bag_format, storage, compressed, name", EXPORTS)
 def test_export_reads_back_as_the_dataset(dataset, tmp_path, bag_format, storage, compressed, name):
     bag = _export(dataset, tmp_path / name, bag_format, storage, compressed)

@@ -111,12 +111,14 @@ def test_impossible_generator_parameters_are_one_line_errors(tmp_path, table, me
             size_max=[0.5, 0.5, 0.5], **PAINTED),
     _object("rocks", distance=[4.0, 4.0], **PAINTED),
 ])
+@pytest.mark.slow
 def test_objects_that_just_fit_are_built(tmp_path, table):
     """At the bounds (a rounding error from them) the generators still build their objects."""
     groups, _ = scene_meshes(load_scene_config(write_scene(tmp_path, BASE + table)))
     assert sum(len(group.arrays()[1]) for group in groups.values()) > 0
 
 
+@pytest.mark.slow
 def test_an_entry_whose_counts_multiply_past_the_triangle_budget_is_refused(tmp_path, monkeypatch):
     """Each count is bounded, but shelves x boards x books multiply: the entry's triangles are bounded
     too. Here the budget is lowered to 1000 (three default shelves make several thousand)."""

@@ -151,6 +151,7 @@ def _lens_image(model, environment, rotation):
     return image
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["kb", "ds", "equirectangular"])
 def test_kalibr_camera_warp_agrees_with_a_direct_render(tmp_path, name):
     """Frame k of a camera.yaml warp equals the scene rendered directly at the ground-truth orientation."""

@@ -192,6 +192,7 @@ def test_report_refuses_a_folder_of_the_users(tmp_path, capsys):
     assert (proj / "README.md").read_text() == "# my project\n"
 
 
+@pytest.mark.slow
 def test_report_rewrites_its_own_folder(tmp_path, capsys):
     evaluation = _evaluation(tmp_path, capsys)
     out = tmp_path / "report"

@@ -48,6 +48,7 @@ def _scene(seed):
     return frame
 
 
+@pytest.mark.slow
 def test_lanczos_panorama_lowers_the_pair_error_on_sharp_texture():
     # The prediction is exact, so what is left is the registration's own error, to which the
     # bilinear panorama adds a sub-pixel shift fixed in the omni image. Measured over six

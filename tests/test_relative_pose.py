@@ -539,6 +539,7 @@ def test_distinct_best_orders_by_inliers_then_cost_and_drops_the_same_model():
 
 @pytest.mark.parametrize("translation, size", [((0.3, 0.1, 0.0), 1), ((0.3, 0.1, 0.0), 5),
                                                (None, 1), (None, 5)])
+@pytest.mark.slow
 def test_predicted_rotation_error_matches_the_error_over_noise_draws(translation, size):
     # 300 scenes with 1e-3 rad ray noise shared by groups of `size` rays: the RMS of the predicted
     # errors matches the RMS of the true ones to first order (measured ratios 0.98, 1.12, 0.98,

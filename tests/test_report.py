@@ -104,6 +104,7 @@ def test_tables_and_ratios(tmp_path):
     assert ratios["office"]["time_ratio_akaze"] == pytest.approx(0.05)
 
 
+@pytest.mark.slow
 def test_report_cli_writes_markdown_html_figures(tmp_path, capsys):
     root = _make_results(tmp_path)
     out = tmp_path / "report"
@@ -153,6 +154,7 @@ def test_report_of_folder_without_results_is_one_line_error(tmp_path, capsys):
     assert code == 2 and "no evaluation.json or sweep.json" in err
 
 
+@pytest.mark.slow
 def test_failed_report_leaves_the_old_one_intact(tmp_path, capsys, monkeypatch):
     import ifmi.experiments.report
 
@@ -174,6 +176,7 @@ def test_failed_report_leaves_the_old_one_intact(tmp_path, capsys, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "eval", "report", "runs", "sweep"]
 
 
+@pytest.mark.slow
 def test_rebuilt_report_keeps_files_it_does_not_write(tmp_path):
     root = _make_results(tmp_path, scenes=("office",))
     out = tmp_path / "report"
@@ -266,6 +269,7 @@ def test_report_refuses_a_sweep_json_without_its_grid(tmp_path, capsys):
                                                'expected a list of cells, got "all"')
 
 
+@pytest.mark.slow
 def test_report_computes_the_motion_flow_sample_once_on_request(tmp_path):
     from ifmi.io.results import read_motion_flow, write_estimate_run
     from ifmi.pipeline import EstimateConfig, SequenceEstimate
@@ -302,6 +306,7 @@ def test_report_out_that_is_a_file_is_one_line_error(tmp_path, capsys):
     assert (tmp_path / "r").read_text() == "not a folder"
 
 
+@pytest.mark.slow
 def test_report_into_a_symlinked_folder_writes_through_the_link(tmp_path):
     root = _make_results(tmp_path, scenes=("office",))
     real = tmp_path / "real_report"
@@ -328,6 +333,7 @@ def test_unreadable_dataset_gives_a_motion_flow_warning_not_an_error(tmp_path, c
     assert not list((tmp_path / "r" / "figures").glob("motion_flow_*"))
 
 
+@pytest.mark.slow
 def test_one_scene_from_two_dataset_folders_gets_two_rows_figures_and_folders(tmp_path):
     site_a = _make_results(tmp_path / "site_a", scenes=("office",))
     site_b = _make_results(tmp_path / "site_b", scenes=("lawn", "office"))  # office's errors doubled here
@@ -508,6 +514,7 @@ def test_evaluation_with_a_time_stored_as_null_reads_as_unknown(tmp_path):
     (lambda p: np.savez(p, **{**dict(np.load(p)), "points_b": np.zeros((4, 2))}),
      "points_a is (10, 2), points_b (4, 2); expected the same shape"),
 ])
+@pytest.mark.slow
 def test_bad_motion_flow_sample_is_one_line_error(tmp_path, capsys, damage, expected):
     root = _make_results(tmp_path, scenes=("office",))
     sample = root / "eval" / "office" / "ifmi" / "motion_flow.npz"
@@ -547,6 +554,7 @@ def test_report_inside_an_evaluation_it_reads_is_one_line_error(tmp_path, capsys
     assert sorted(p.name for p in evaluation.iterdir()) == before
 
 
+@pytest.mark.slow
 def test_report_inside_its_results_folder_leaves_out_its_own_copies_on_a_rerun(tmp_path):
     root = _make_results(tmp_path, scenes=("office",))
     out = root / "eval" / "report"
@@ -581,6 +589,7 @@ def test_markdown_keeps_its_structure_whatever_the_names_title_and_command():
     assert text.endswith("![office lawn](figures/a.png)\n\n*office lawn*\n")
 
 
+@pytest.mark.slow
 def test_average_table_names_scenes_a_method_lacks(tmp_path, capsys):
     # ORB without its lawn evaluation was averaged over office alone and set beside iFMI's office-and-lawn
     # mean under "over 2 scene(s)", exit 0 and no word.
@@ -597,6 +606,7 @@ def test_average_table_names_scenes_a_method_lacks(tmp_path, capsys):
     assert note in readme and "| scenes |  | 2 | 1 | 2 |" in readme.splitlines()
 
 
+@pytest.mark.slow
 def test_a_report_names_its_data_sets_not_the_machines_folders(tmp_path):
     """Evaluations and sweeps record absolute paths; the report's copies and report.json hold them
     relative to the folder above all of them, and the report still rebuilds from its copies."""

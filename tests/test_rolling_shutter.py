@@ -241,6 +241,7 @@ def warped_pair(tmp_path_factory):
     return folders
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("keyframes", [False, True])
 def test_a_rolling_shutter_warp_is_estimated_as_well_as_a_global_shutter_one(warped_pair, keyframes):
     """iFMI on the rolling-shutter warp: with the read-out as accurate as on the global-shutter warp

@@ -49,6 +49,7 @@ def silent_address():
     listener.close()
 
 
+@pytest.mark.slow
 def test_an_http_server_is_refused_in_one_line(http_address):
     start = time.monotonic()
     with pytest.raises(InputError, match=r"^--scheduler: cannot connect to a Dask scheduler at "
@@ -58,6 +59,7 @@ def test_an_http_server_is_refused_in_one_line(http_address):
     assert time.monotonic() - start < TIMEOUT_S + STARTUP_ALLOWANCE_S
 
 
+@pytest.mark.slow
 def test_a_listener_that_never_answers_is_refused_after_the_timeout(silent_address):
     start = time.monotonic()
     with pytest.raises(InputError, match="no Dask answer within 1 s"):
@@ -91,6 +93,7 @@ def dataset(tmp_path_factory):
     return write_synthetic_dataset(tmp_path_factory.mktemp("connect") / "set", sequence)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("address_fixture", ["http_address", "silent_address"])
 def test_sweep_prints_one_line_and_no_progress_bar(request, dataset, tmp_path, capsys, address_fixture):
     """The progress bar is shown (no --no-progress) and yet nothing but the error line is printed."""

@@ -44,6 +44,7 @@ def test_config_with_tiling_replaces_only_the_tiling():
     assert cfg.relative_pose == base.relative_pose and cfg.keyframe == base.keyframe
 
 
+@pytest.mark.slow
 def test_sweep_records_cells_keeps_failures_and_skips_on_rerun(datasets, tmp_path):
     good, bad = datasets
     cells = sweep_cells([str(good), str(bad)], method="ifmi", tile_sizes=[32, 48],
@@ -82,6 +83,7 @@ def test_sweep_records_cells_keeps_failures_and_skips_on_rerun(datasets, tmp_pat
             assert p.stat().st_mtime_ns != stamps[p.name], "failed cell was not retried"
 
 
+@pytest.mark.slow
 def test_sweep_through_local_cluster(datasets, tmp_path):
     pytest.importorskip("dask.distributed")
     good, _ = datasets
@@ -115,6 +117,7 @@ def test_sweep_cli_rejects_bad_overlap(tmp_path, capsys):
     assert "overlap must be in [0, 1)" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_changed_base_config_reruns_cells(datasets, tmp_path):
     from dataclasses import replace
 
@@ -133,6 +136,7 @@ def test_changed_base_config_reruns_cells(datasets, tmp_path):
     assert path.stat().st_mtime_ns != first
 
 
+@pytest.mark.slow
 def test_unreachable_scheduler_is_one_line_error(datasets, tmp_path):
     from ifmi.errors import InputError
 
@@ -145,6 +149,7 @@ def test_unreachable_scheduler_is_one_line_error(datasets, tmp_path):
                                        connect_timeout_s=1.0))
 
 
+@pytest.mark.slow
 def test_sweep_through_existing_scheduler_address(datasets, tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     good, _ = datasets
@@ -158,6 +163,7 @@ def test_sweep_through_existing_scheduler_address(datasets, tmp_path):
     assert [r["status"] for r in records] == ["ok"]
 
 
+@pytest.mark.slow
 def test_dataset_folder_named_with_a_byte_that_is_not_utf8_is_swept_and_reported(tmp_path, capsys):
     # Python holds the byte as a lone surrogate: pandas/Arrow, then Matplotlib, raised UnicodeEncodeError.
     folder = tmp_path / os.fsdecode(b"d\xff")
@@ -224,6 +230,7 @@ def test_config_that_is_a_fifo_is_one_line_error(datasets, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_two_datasets_of_one_name_are_distinct_cells(tmp_path):
     a = _write_dataset(tmp_path / "site_a" / "office", n=4, size=128, seed=5, max_step_rad=0.03)
     b = _write_dataset(tmp_path / "site_b" / "office", n=4, size=128, seed=6, max_step_rad=0.06)
@@ -242,6 +249,7 @@ def test_two_datasets_of_one_name_are_distinct_cells(tmp_path):
     assert (out / "heatmaps" / "site_b_office__ifmi__rmse_mean_rad.png").is_file()
 
 
+@pytest.mark.slow
 def test_changed_dataset_is_recomputed_never_reused(tmp_path):
     data = _write_dataset(tmp_path / "office", n=4, size=128, seed=5)
     cells = sweep_cells([str(data)], method="ifmi", tile_sizes=[32], overlaps=[0.0])
@@ -269,6 +277,7 @@ def _one_cell_sweep(datasets, tmp_path):
     return rerun, out, next((out / "cells").glob("*.json"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("content", ["[]", '{"status": "ok", "cell_'])
 def test_bad_cell_record_is_warned_and_recomputed(datasets, tmp_path, capsys, content):
     rerun, _, path = _one_cell_sweep(datasets, tmp_path)
@@ -433,6 +442,7 @@ def test_run_sweep_refuses_two_cells_of_one_name(datasets, tmp_path):
     ("rmse_mean_rad", -1.0, "rmse_mean_rad: expected a number >= 0 or null (errors, times and counts are never "
                             "negative), got -1.0"),
 ])
+@pytest.mark.slow
 def test_cell_record_of_the_wrong_kind_is_named_recomputed_and_left_out_of_reports(
         datasets, tmp_path, capsys, key, value, expected):
     rerun, out, path = _one_cell_sweep(datasets, tmp_path)
@@ -469,6 +479,7 @@ def _comparable_records(folder):
     return json.dumps(records, sort_keys=True), estimates
 
 
+@pytest.mark.slow
 def test_sweep_losing_its_scheduler_ends_in_one_line_and_resumes_to_the_same_records(datasets, tmp_path, capsys):
     """The external scheduler is killed once the first cell is recorded: one line, exit 1, the finished
     cells kept; the rerun (here in this process) gives the records of an uninterrupted sweep."""
