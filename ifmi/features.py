@@ -20,7 +20,7 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
-from .camera import OcamModel, radius_from_pixels, rays_from_pixels
+from .camera import OcamModel, radius_from_pixels, rays_from_pixels, valid_mask
 from .front_end import Correspondences
 from .options import check_finite_fields, options_from_dict
 
@@ -52,8 +52,8 @@ _MAX_FAST_THRESHOLD = 254
 class FeatureConfig:
     """Options of the ORB and AKAZE front ends.
 
-    Defaults are OpenCV's standard settings with 2000 ORB features and Lowe's
-    ratio 0.8.
+    Defaults are OpenCV's standard settings with 3000 features and Lowe's
+    ratio 0.8; AKAZE's detector threshold is ten times below OpenCV's.
 
     Attributes
     ----------
@@ -77,7 +77,12 @@ class FeatureConfig:
         factor above 1, at least one level, a border of at least 0 and a
         patch of at least 2 pixels, a threshold from 0 to 254.
     akaze_threshold : float
-        ``cv2.AKAZE_create`` detector response threshold.
+        ``cv2.AKAZE_create`` detector response threshold. The response
+        scales with the squared image gradient, so OpenCV's 1e-3 (set for
+        photographs of full contrast) finds no keypoint on low-contrast
+        texture such as a rendered road or floor at a third of the contrast;
+        the default 1e-4 only sets a floor, and ``n_features`` keeps the
+        strongest keypoints, as ORB's budget does.
     akaze_min_keypoints : int
         When the sequence's first image gives fewer keypoints than this at
         ``akaze_threshold`` (a dim or low-contrast scene: the response scales
@@ -106,7 +111,7 @@ class FeatureConfig:
         motion; the default is half of ORB's 31-pixel descriptor patch.
     """
 
-    n_features: int = 2000
+    n_features: int = 3000
     ratio: float = 0.8
     cross_check: bool = False
     on_panorama: bool = False
@@ -116,7 +121,7 @@ class FeatureConfig:
     orb_edge_threshold: int = 31
     orb_patch_size: int = 31
     orb_fast_threshold: int = 20
-    akaze_threshold: float = 1e-3
+    akaze_threshold: float = 1e-4
     akaze_min_keypoints: int = 0
     akaze_min_threshold: float = 1e-5
     akaze_octaves: int = 4
@@ -301,13 +306,16 @@ class FeatureFrontEnd:
         return self._band
 
     def mask(self, image: np.ndarray) -> np.ndarray:
-        """``(H, W)`` uint8 detection mask: 255 inside the mirror band, 0 elsewhere."""
-        if self._mask is None and not isinstance(self.model, OcamModel):
-            # Other models: the pixels whose rays lie in the panorama's band (valid region, FOV).
-            from .unwarp import band_mask
+        """``(H, W)`` uint8 detection mask (fixed on first use): 255 where keypoints are detected.
 
-            self._mask = np.where(band_mask(self._panorama_mapping(image),
-                                            margin_px=self.config.mask_margin_px), 255, 0).astype(np.uint8)
+        OCamCalib models: the mirror band. Other models: the model's whole
+        valid image, less the pixels that are black in ``image``; both
+        ``config.mask_margin_px`` inside their edges.
+        """
+        if self._mask is None and not isinstance(self.model, OcamModel):
+            # Other models: the whole valid image of the model less the pixels black in the first
+            # image (outside the lens's image circle), eroded so that no descriptor window reaches them.
+            self._mask = _eroded_mask(valid_mask(self.model) & (image > 0), self.config.mask_margin_px)
         if self._mask is None:
             inner, outer = self.band(image)
             h, w = self.model.size
@@ -422,6 +430,16 @@ class FeatureFrontEnd:
                 config = replace(config, radius_min_px=inner, radius_max_px=outer)
             self._mapping = panorama_mapping(self.model, gray, config=config)
         return self._mapping
+
+
+def _eroded_mask(mask: np.ndarray, margin_px: float) -> np.ndarray:
+    """``(H, W)`` bool mask eroded by a disc of ``margin_px`` pixels, as uint8 0 / 255."""
+    radius = int(np.ceil(margin_px))
+    keep = mask.astype(np.uint8)
+    if radius > 0:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        keep = cv2.erode(keep, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return keep * 255
 
 
 def _feature_config(config) -> FeatureConfig:
