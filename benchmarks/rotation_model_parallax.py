@@ -60,28 +60,20 @@ class PairNamingFrontEnd(IfmiFrontEnd):
 def model_fits(dataset: str) -> list:
     """One dict per back-end solve of a default iFMI run (the last solve of a pair wins)."""
     rotations_0k = read_tum(Path(dataset) / "groundtruth.txt").rotations
-    pair, five_point, fits = [], [], {}
-    lowest_cost_5pt, fit_5pt_if_better = back_end._lowest_cost_refined_5pt, back_end._fit_5pt_if_better
+    pair, fits = [], {}
+    model_selection = back_end._model_selection
 
-    def observed_5pt(*args, **kwargs):
-        result = lowest_cost_5pt(*args, **kwargs)
-        five_point.append(result[0])
-        return result
+    def observed_choice(rays_a, rays_b, rotation_fit, five_point, *args):
+        selection = model_selection(rays_a, rays_b, rotation_fit, five_point, *args)
+        truth = rotations_0k[pair[0]].T @ rotations_0k[pair[1]]
+        rotation, rotation_5pt, noise = rotation_fit[0], five_point[0], rotation_fit[3]
+        fits[tuple(pair)] = {"chosen": "5pt" if selection.gric_5pt < selection.gric_rotation else "rotation",
+                             "error_rotation": float(geodesic_angle(rotation, truth)),
+                             "error_5pt": float(geodesic_angle(rotation_5pt, truth)),
+                             "disagreement": float(geodesic_angle(rotation, rotation_5pt) / noise)}
+        return selection
 
-    def observed_choice(rays_a, rays_b, products, rays, rotation_fit, *args):
-        five_point.clear()
-        chosen = fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, *args)
-        if five_point:
-            truth = rotations_0k[pair[0]].T @ rotations_0k[pair[1]]
-            rotation, rotation_5pt, noise = rotation_fit[0], five_point[-1], rotation_fit[3]
-            fits[tuple(pair)] = {"chosen": "rotation" if chosen is None else "5pt",
-                                 "error_rotation": float(geodesic_angle(rotation, truth)),
-                                 "error_5pt": float(geodesic_angle(rotation_5pt, truth)),
-                                 "disagreement": float(geodesic_angle(rotation, rotation_5pt) / noise)}
-        return chosen
-
-    with mock.patch.object(back_end, "_lowest_cost_refined_5pt", observed_5pt), \
-         mock.patch.object(back_end, "_fit_5pt_if_better", observed_choice), \
+    with mock.patch.object(back_end, "_model_selection", observed_choice), \
          mock.patch("ifmi.pipeline.create_front_end",
                     lambda method, model, config: PairNamingFrontEnd(model, config.ifmi, pair)):
         estimate_dataset(dataset, method="ifmi", config=mode_config(EstimateConfig(), "frame"), prefetch=False)

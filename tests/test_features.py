@@ -77,7 +77,7 @@ def test_keypoints_are_row_col_inside_the_band(pair):
     r = radius_from_pixels(model, state.pixels)
     assert r.min() >= band[0] and r.max() <= band[1]
     # (row, col): the keypoint's own ray reprojects to the image where OpenCV saw it.
-    detector = cv2.ORB_create(nfeatures=2000)
+    detector = cv2.ORB_create(nfeatures=FeatureConfig().n_features)
     kps = detector.detect(image_a, front.mask(image_a))
     xy = np.array([kp.pt for kp in kps])
     np.testing.assert_allclose(np.sort(state.pixels[:, 0]), np.sort(xy[:, 1]))
@@ -104,15 +104,15 @@ def _dimmed(image, contrast):
 
 
 def test_akaze_threshold_settles_on_a_dim_first_image(pair):
-    # At a fifth of the contrast the default threshold finds almost nothing; the
+    # At a fifth of the contrast OpenCV's threshold (1e-3) finds almost nothing; the
     # threshold is lowered once, on the first image, to give the asked-for count,
     # and the dim pair then gives the rotation as the bright one does.
     model, image_a, image_b = pair
     band = example_band_px(model)
     dim_a, dim_b = _dimmed(image_a, 0.2), _dimmed(image_b, 0.2)
-    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band))  # the default: fixed
+    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_threshold=1e-3))  # the default: fixed
     assert len(fixed.prepare(dim_a)) < 10 and fixed.detector_threshold == 1e-3
-    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=300))
+    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_threshold=1e-3, akaze_min_keypoints=300))
     state_a = front.prepare(dim_a)
     threshold = front.detector_threshold
     assert 1e-5 < threshold < 1e-3 / 10
@@ -132,8 +132,8 @@ def test_akaze_threshold_settles_on_a_dim_first_image(pair):
 def test_akaze_threshold_kept_when_the_first_image_has_enough_keypoints(pair):
     model, image_a, _ = pair
     band = example_band_px(model)
-    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=0))
-    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=300))
+    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_threshold=1e-3, akaze_min_keypoints=0))
+    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_threshold=1e-3, akaze_min_keypoints=300))
     expected, got = fixed.prepare(image_a), front.prepare(image_a)
     assert len(expected) > 300 and front.detector_threshold == 1e-3
     np.testing.assert_array_equal(got.pixels, expected.pixels)
