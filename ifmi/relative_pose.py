@@ -98,6 +98,10 @@ _FRAME_MIN_LENGTH = 1e-6
 # one); at three thresholds the cut is far out for any threshold of a noise level or more, while
 # unrelated rays, whose epipolar angles spread over a quarter turn, are rarely that close.
 _NOISE_WINDOW = 3.0
+# Smallest ray noise GRIC weighs residuals with, radians: angles between float64 unit vectors are
+# resolved to about 1e-16 rad, differently by the two models' residual formulas, so exact rays would
+# otherwise be judged on rounding. It is a million times below the angle of a pixel of any camera.
+_NOISE_FLOOR_RAD = 1e-12
 # Chance pairings scored per correspondence when a consensus is checked against chance: the rays of
 # camera a with this many random permutations of those of camera b.
 _CHANCE_PERMUTATIONS = 8
@@ -1080,8 +1084,8 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
              or rot_sigma)
     either = rot_mask | inliers_5pt
     parallax = rotation_angles(rays_a[inliers_5pt], rays_b[inliers_5pt], rotation_5pt)
-    # Exact rays (no noise): any residual is evidence; the smallest positive float keeps GRIC finite.
-    weigh = noise if noise > 0.0 else np.finfo(np.float64).tiny
+    # Exact rays: residuals of rounding only, which the two models' angle formulas resolve differently.
+    weigh = max(noise, _NOISE_FLOOR_RAD)
     return ModelSelection(
         gric_rotation=_gric(rot_errors[either], weigh, dimension=2, parameters=3, group=group),
         gric_5pt=_gric(errors_5pt[either], weigh, dimension=3, parameters=5, group=group),
