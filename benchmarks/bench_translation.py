@@ -1,8 +1,8 @@
 """Translation sweep: every method's ATE and model choice over translation per frame, depth and camera.
 
 Sets: translation per frame (``--steps``, metres; 0 is pure rotation) x
-scene depth (``--depths``: ``floor``, the office with the camera 0.3 m above
-the floor; ``room``, the office at its 1.3 m; ``street``, the urban scene at
+scene depth (``--depths``: ``floor``, the urban scene with the camera 0.4 m above
+the road; ``room``, the office at its 1.3 m; ``street``, the urban scene at
 its 1.6 m) x camera (``--cameras``: ``ocamcalib``, the scenes' catadioptric
 camera; ``ds``, a Kalibr double-sphere fisheye; ``kb``, a Kalibr
 Kannala-Brandt equidistant fisheye; the Kalibr cameras look straight down, as
@@ -20,7 +20,7 @@ given on the command line (one ``result-METHOD-MODEL.json`` per run), so an
 interrupted sweep resumes where it stopped. The table is written as MyST
 Markdown to ``--report`` with the command, date and machine.
 
-Run: python benchmarks/bench_translation.py OUT [--width 256] [--frames 12] [--spp 4]
+Run: python benchmarks/bench_translation.py OUT [--width 384] [--frames 12] [--spp 8]
      [--steps 0 0.01 0.02 0.05 0.1 0.2] [--depths floor room street] [--cameras ocamcalib ds kb]
      [--report reports/translation_sweep/README.md]
 """
@@ -44,7 +44,7 @@ from camera_examples import EXAMPLES  # noqa: E402  (the example calibrations of
 
 STEPS_M = (0.0, 0.01, 0.02, 0.05, 0.1, 0.2)
 # Depth name -> (scene file, camera height above the floor in metres or None for the scene's own).
-DEPTHS = {"floor": ("office.toml", 0.3), "room": ("office.toml", None), "street": ("urban.toml", None)}
+DEPTHS = {"floor": ("urban.toml", 0.4), "room": ("office.toml", None), "street": ("urban.toml", None)}
 CAMERAS = ("ocamcalib", "ds", "kb")
 METHODS = ("ifmi", "orb", "akaze", "reference")
 # Model selection of each run: the default criterion and each model forced.
@@ -222,9 +222,9 @@ def _print_set(name: str, results: dict, methods) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", help="folder of the rendered sets and estimates (resumed when it holds some)")
-    parser.add_argument("--width", type=int, default=256, help="image width of every camera, px")
+    parser.add_argument("--width", type=int, default=384, help="image width of every camera, px")
     parser.add_argument("--frames", type=int, default=12)
-    parser.add_argument("--spp", type=int, default=4)
+    parser.add_argument("--spp", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1, help="sequence seed (motion, sampling)")
     parser.add_argument("--steps", type=float, nargs="+", default=list(STEPS_M),
                         help="translation per frame, metres")

@@ -57,6 +57,7 @@ import numpy as np
 import poselib
 from scipy.optimize import brentq
 from scipy.special import bdtrc
+from scipy.stats import chi2
 
 from .options import check_finite_fields
 from .rotations import cross_product_matrix, geodesic_angle
@@ -98,6 +99,13 @@ _FRAME_MIN_LENGTH = 1e-6
 # one); at three thresholds the cut is far out for any threshold of a noise level or more, while
 # unrelated rays, whose epipolar angles spread over a quarter turn, are rarely that close.
 _NOISE_WINDOW = 3.0
+# The noise GRIC weighs residuals with is the upper confidence bound, at this level (one standard
+# error of a normal estimate), of the 5-point model's estimate: a sum of squares over few measurements
+# can fall far below its expectation (at 10 degrees of freedom, a fifth of the time below 0.8 of it), and
+# a noise level set too low makes the rotation model's two-dimensional residuals look like parallax.
+# The bound is 1.32 times the estimate at 10 degrees of freedom, 1.08 at 100, 1.02 at 1000. At 0.95
+# (1.59 at 10) the parallax of a wall seen by 10 of 15 tiles was taken for outliers of a rotation.
+_NOISE_CONFIDENCE = 0.84
 # Smallest ray noise GRIC weighs residuals with, radians: angles between float64 unit vectors are
 # resolved to about 1e-16 rad, differently by the two models' residual formulas, so exact rays would
 # otherwise be judged on rounding. It is a million times below the angle of a pixel of any camera.
@@ -875,7 +883,8 @@ def noise_sigma_from_residuals(angles: np.ndarray, threshold: float) -> float:
     return math.exp(brentq(excess, math.log(lower), math.log(upper), xtol=1e-6))
 
 
-def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int) -> float | None:
+def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int, *,
+                          confidence: float | None = None) -> float | None:
     """Ray noise (radians, per axis) from the 5-point model's epipolar angles below ``window``.
 
     An epipolar angle is one-dimensional, so the mean square of the ``m``
@@ -886,6 +895,10 @@ def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int) -> floa
     window (several inlier thresholds) keeps the noise's whole distribution
     and leaves out the gross outliers.
 
+    With ``confidence``, the upper bound of the noise at that confidence
+    instead (the sum of squares over the noise variance is chi-square with
+    ``m - 5`` degrees of freedom).
+
     Returns
     -------
     float or None
@@ -895,7 +908,8 @@ def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int) -> floa
     dof = len(kept) / group - _SAMPLE_5PT
     if dof <= 0:
         return None
-    return float(np.sqrt(np.sum(kept ** 2) / (group * dof)))
+    scale = dof if confidence is None else chi2.ppf(1.0 - confidence, dof)
+    return float(np.sqrt(np.sum(kept ** 2) / group / scale))
 
 
 def _rotation_sigma_of_5pt(rays_a, rays_b, rotation, translation, noise: float | None, group: int) -> float:
@@ -1080,7 +1094,8 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     _, rot_errors, rot_mask, rot_sigma = rotation_fit
     rotation_5pt, _, errors_5pt = five_point
     inliers_5pt = errors_5pt < threshold
-    noise = (options.noise_sigma_rad or _epipolar_noise_sigma(errors_5pt, _NOISE_WINDOW * threshold, group)
+    noise = (options.noise_sigma_rad
+             or _epipolar_noise_sigma(errors_5pt, _NOISE_WINDOW * threshold, group, confidence=_NOISE_CONFIDENCE)
              or rot_sigma)
     either = rot_mask | inliers_5pt
     parallax = rotation_angles(rays_a[inliers_5pt], rays_b[inliers_5pt], rotation_5pt)
@@ -1165,17 +1180,10 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
                                                            rays_per_measurement)
     n = len(rays_a)
     rng = np.random.default_rng(options.seed)
-    model = "rotation" if options.rotation_only else "5pt"
-    needed = max(options.min_inliers, _SAMPLE_ROTATION if options.rotation_only else _SAMPLE_5PT)
-    if n < needed:
-        info = RelativePoseInfo(False, f"too few correspondences ({n} < {needed})", n, 0,
-                                np.zeros(n, dtype=bool), model)
-        return RelativePose(), info
-    distinct = _distinct_count(rays_a, rays_b)
-    if distinct < needed:  # repeated matches count as many inliers but constrain nothing
-        info = RelativePoseInfo(False, f"too few distinct correspondences ({distinct} of {n} differ; "
-                                       f"< {needed})", n, 0, np.zeros(n, dtype=bool), model)
-        return RelativePose(), info
+    too_few = _too_few_reason(rays_a, rays_b, options)
+    if too_few:
+        return RelativePose(), RelativePoseInfo(False, too_few, n, 0, np.zeros(n, dtype=bool),
+                                                "rotation" if options.rotation_only else "5pt")
     products = _ray_products(rays_a, rays_b)
     rays = np.stack([rays_a, rays_b])
     rotation_fit = _fit_rotation(rays_a, rays_b, products, rays, options, rng)
@@ -1200,9 +1208,23 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     if model == "rotation":
         sigma = _rotation_sigma_of_rotation(rays_b[mask], pose.rotation, rotation_fit[3], rays_per_measurement)
     else:
+        noise = options.noise_sigma_rad or _epipolar_noise_sigma(errors_5pt, options.ransac_threshold_rad,
+                                                                 rays_per_measurement)
         sigma = _rotation_sigma_of_5pt(rays_a[mask], rays_b[mask], pose.rotation, pose.translation_direction,
-                                       selection.noise_sigma_rad, rays_per_measurement)
+                                       noise, rays_per_measurement)
     return pose, RelativePoseInfo(True, "", n, count, mask, model, sigma, selection)
+
+
+def _too_few_reason(rays_a, rays_b, options: RelativePoseOptions) -> str:
+    """Why the correspondences are too few for the model's sample and ``options.min_inliers``, or ``""``."""
+    n = len(rays_a)
+    needed = max(options.min_inliers, _SAMPLE_ROTATION if options.rotation_only else _SAMPLE_5PT)
+    if n < needed:
+        return f"too few correspondences ({n} < {needed})"
+    distinct = _distinct_count(rays_a, rays_b)
+    if distinct < needed:  # repeated matches count as many inliers but constrain nothing
+        return f"too few distinct correspondences ({distinct} of {n} differ; < {needed})"
+    return ""
 
 
 def _consensus_failure(rays_a, rays_b, mask, model: str, rotation, translation, options: RelativePoseOptions,

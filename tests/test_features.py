@@ -77,7 +77,8 @@ def test_keypoints_are_row_col_inside_the_band(pair):
     r = radius_from_pixels(model, state.pixels)
     assert r.min() >= band[0] and r.max() <= band[1]
     # (row, col): the keypoint's own ray reprojects to the image where OpenCV saw it.
-    detector = cv2.ORB_create(nfeatures=FeatureConfig().n_features)
+    config = FeatureConfig()
+    detector = cv2.ORB_create(nfeatures=config.n_features, fastThreshold=config.orb_fast_threshold)
     kps = detector.detect(image_a, front.mask(image_a))
     xy = np.array([kp.pt for kp in kps])
     np.testing.assert_allclose(np.sort(state.pixels[:, 0]), np.sort(xy[:, 1]))
