@@ -30,8 +30,10 @@ noise only and it wins. The noise is estimated robustly from the residuals
 of the richer model, the 5-point model, whose residuals hold only noise
 whether the camera moved or not (the rotation model's also hold the
 parallax): the mean square of its epipolar angles below a few inlier
-thresholds, corrected for its five parameters (:class:`ModelSelection` holds
-the evidence). A group of rays that share one error (``rays_per_measurement``)
+thresholds, corrected for its five parameters, taken at its upper bound of
+one standard error, so that the few measurements of a pair cannot make the
+noise look smaller than it may be (:class:`ModelSelection` holds the
+evidence). A group of rays that share one error (``rays_per_measurement``)
 counts as one observation.
 
 The inlier threshold is an angle. Its default is a number of pixels
@@ -206,7 +208,8 @@ class RelativePoseOptions:
         Standard deviation (per axis, radians) of the ray noise used to
         choose between the models by GRIC; ``None`` estimates it from the
         5-point model's epipolar angles below three inlier thresholds (their
-        mean square, corrected for its five parameters), or from the rotation
+        mean square, corrected for its five parameters, at its upper bound of
+        one standard error), or from the rotation
         model's inliers (see :func:`noise_sigma_from_residuals`) when those
         are five measurements or fewer.
     rotation_threshold_factor : float
