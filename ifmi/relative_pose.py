@@ -1088,10 +1088,12 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     camera moved or not, while the rotation model's also hold the parallax.
     With too few 5-point inliers to estimate it, the rotation model's
     estimate is used (:func:`noise_sigma_from_residuals`). GRIC is evaluated on
-    the correspondences that are inliers of either model: a gross outlier
-    costs the 5-point model less than the rotation model (its residual cap is
-    lower), so counting the outliers of both would hand heavily contaminated
-    pairs to the 5-point model.
+    the correspondences either model explains within the window of the noise
+    estimate (three inlier thresholds, the rotation model's scaled by
+    ``rotation_threshold_factor``): a gross outlier costs the 5-point model
+    less than the rotation model (its residual cap is lower), so counting the
+    outliers of both would hand heavily contaminated pairs to the 5-point
+    model, while matches of a noise near the threshold fall partly beyond it.
     """
     threshold = options.ransac_threshold_rad
     _, rot_errors, rot_mask, rot_sigma = rotation_fit
@@ -1100,7 +1102,8 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     noise = (options.noise_sigma_rad
              or _epipolar_noise_sigma(errors_5pt, _NOISE_WINDOW * threshold, group, confidence=_NOISE_CONFIDENCE)
              or rot_sigma)
-    either = rot_mask | inliers_5pt
+    window = _NOISE_WINDOW * threshold
+    either = (rot_errors < options.rotation_threshold_factor * window) | (errors_5pt < window)
     parallax = rotation_angles(rays_a[inliers_5pt], rays_b[inliers_5pt], rotation_5pt)
     # Exact rays: residuals of rounding only, which the two models' angle formulas resolve differently.
     weigh = max(noise, _NOISE_FLOOR_RAD)
