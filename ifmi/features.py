@@ -320,7 +320,10 @@ class FeatureFrontEnd:
         if self._mask is None and not isinstance(self.model, OcamModel):
             # Other models: the whole valid image of the model less the pixels black in the first
             # image (outside the lens's image circle), eroded so that no descriptor window reaches them.
-            self._mask = _eroded_mask(valid_mask(self.model) & (image > 0), self.config.mask_margin_px)
+            from .unwarp import gray_from_image
+
+            self._mask = _eroded_mask(valid_mask(self.model) & (gray_from_image(image) > 0),
+                                      self.config.mask_margin_px)
         if self._mask is None:
             inner, outer = self.band(image)
             h, w = self.model.size
