@@ -364,8 +364,9 @@ class ModelSelection:
     ----------
     gric_rotation, gric_5pt : float
         Torr's GRIC of each model over the correspondences that either
-        explains (lower is better); the 5-point model is chosen when its
-        score is lower. NaN when only one model was fitted.
+        explains within three inlier thresholds (lower is better); the
+        5-point model is chosen when its score is lower. NaN when only one
+        model was fitted.
     parallax_rad : float
         Median angle (radians) between the 5-point model's inlier rays of
         camera a and their partners turned by its rotation: the parallax its
@@ -1099,10 +1100,10 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     _, rot_errors, rot_mask, rot_sigma = rotation_fit
     rotation_5pt, _, errors_5pt = five_point
     inliers_5pt = errors_5pt < threshold
-    noise = (options.noise_sigma_rad
-             or _epipolar_noise_sigma(errors_5pt, _NOISE_WINDOW * threshold, group, confidence=_NOISE_CONFIDENCE)
-             or rot_sigma)
     window = _NOISE_WINDOW * threshold
+    noise = (options.noise_sigma_rad
+             or _epipolar_noise_sigma(errors_5pt, window, group, confidence=_NOISE_CONFIDENCE)
+             or rot_sigma)
     either = (rot_errors < options.rotation_threshold_factor * window) | (errors_5pt < window)
     parallax = rotation_angles(rays_a[inliers_5pt], rays_b[inliers_5pt], rotation_5pt)
     # Exact rays: residuals of rounding only, which the two models' angle formulas resolve differently.
