@@ -173,7 +173,8 @@ def table_rows(sweep: dict, methods) -> list[str]:
             auto, rot, five = (results[method, s] for s in SELECTIONS)
             best = min(rot["ate_rad"], five["ate_rad"])
             ratio = auto["ate_rad"] / best if best > 0 else float("nan")
-            cells.append(f"{auto['ate_rad']:.4f} ({ratio:.2f}x, {100 * _share(auto, '5pt'):.0f} %)")
+            share = f"{100 * _share(auto, '5pt'):.0f} %" if auto["pairs"] else "no pair solved"
+            cells.append(f"{auto['ate_rad']:.4f} ({ratio:.2f}x, {share})")
         rows.append("| " + " | ".join(cells) + " |")
     return rows
 

@@ -29,8 +29,8 @@ extra parameters; under pure rotation the rotation model's residuals are
 noise only and it wins. The noise is estimated robustly from the residuals
 of the richer model, the 5-point model, whose residuals hold only noise
 whether the camera moved or not (the rotation model's also hold the
-parallax): the mean square of its epipolar angles below a few inlier
-thresholds, corrected for its five parameters, taken at its upper bound of
+parallax): the mean square of its inliers' epipolar angles, corrected for
+its five parameters and for the cut at the inlier threshold, taken at its upper bound of
 one standard error, so that the few measurements of a pair cannot make the
 noise look smaller than it may be (:class:`ModelSelection` holds the
 evidence). A group of rays that share one error (``rays_per_measurement``)
@@ -95,12 +95,6 @@ _MAX_REFINE_ITERATIONS = 100
 # normal; a frame vector shorter than this (rays within 1e-6 rad of equal or opposite) is too
 # ill-conditioned and the rotation is solved by SVD instead.
 _FRAME_MIN_LENGTH = 1e-6
-# The noise of the model selection is estimated from the 5-point model's epipolar angles below this
-# many inlier thresholds. A threshold near the noise cuts its distribution where it is nearly flat, so
-# the median of the inliers hardly depends on the noise (at 1.3 noise levels it gave half the true
-# one); at three thresholds the cut is far out for any threshold of a noise level or more, while
-# unrelated rays, whose epipolar angles spread over a quarter turn, are rarely that close.
-_NOISE_WINDOW = 3.0
 # The noise GRIC weighs residuals with is the upper confidence bound, at this level (one standard
 # error of a normal estimate), of the 5-point model's estimate: a sum of squares over few measurements
 # can fall far below its expectation (at 10 degrees of freedom, a fifth of the time below 0.8 of it), and
@@ -207,9 +201,9 @@ class RelativePoseOptions:
     noise_sigma_rad : float or None
         Standard deviation (per axis, radians) of the ray noise used to
         choose between the models by GRIC; ``None`` estimates it from the
-        5-point model's epipolar angles below three inlier thresholds (their
-        mean square, corrected for its five parameters, at its upper bound of
-        one standard error), or from the rotation
+        5-point model's inlier epipolar angles (their mean square, corrected
+        for its five parameters and for the cut at the threshold, at its
+        upper bound of one standard error), or from the rotation
         model's inliers (see :func:`noise_sigma_from_residuals`) when those
         are five measurements or fewer.
     rotation_threshold_factor : float
@@ -363,8 +357,8 @@ class ModelSelection:
     Attributes
     ----------
     gric_rotation, gric_5pt : float
-        Torr's GRIC of each model over the correspondences that either
-        explains within three inlier thresholds (lower is better); the
+        Torr's GRIC of each model over the correspondences that are inliers
+        of either (lower is better); the
         5-point model is chosen when its score is lower. NaN when only one
         model was fitted.
     parallax_rad : float
@@ -895,9 +889,12 @@ def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int, *,
     measurements (``group`` rays each) below ``window``, corrected for the
     model's five parameters, estimates the variance:
     ``sum(e^2) / (group (m - 5))``. The model is refined by least squares
-    on its inliers, for which this correction is exact to first order; the
-    window (several inlier thresholds) keeps the noise's whole distribution
-    and leaves out the gross outliers.
+    on its inliers, for which this correction is exact to first order. The
+    cut at ``window`` is undone by taking the noise of the normal
+    distribution whose part within ``+-window`` has that mean square
+    (:func:`_untruncated_sigma`): a wider window takes in near misses of
+    repetitive texture, and without the correction the cut makes the noise
+    look smaller and hands pure rotations to the 5-point model.
 
     With ``confidence``, the upper bound of the noise at that confidence
     instead (the sum of squares over the noise variance is chi-square with
@@ -913,7 +910,33 @@ def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int, *,
     if dof <= 0:
         return None
     scale = dof if confidence is None else chi2.ppf(1.0 - confidence, dof)
-    return float(np.sqrt(np.sum(kept ** 2) / group / scale))
+    return _untruncated_sigma(math.sqrt(np.sum(kept ** 2) / group / scale), window)
+
+
+def _untruncated_sigma(rms: float, window: float) -> float:
+    """Standard deviation of a normal deviate whose values within ``+-window`` have the root mean
+    square ``rms``: ``E[x^2 | |x| < w] = sigma^2 (1 - 2 a phi(a) / (2 Phi(a) - 1))``, ``a = w / sigma``.
+
+    A mean square of a third of ``window^2`` or more (residuals spread evenly up to the window,
+    no peak of noise inside it) gives ten windows.
+    """
+    if rms <= 0.0:
+        return 0.0
+    if rms * rms >= window * window / 3.0:
+        return 10.0 * window
+
+    def excess(log_sigma: float) -> float:
+        a = window / math.exp(log_sigma)
+        inside = math.erf(a / math.sqrt(2.0))
+        shrink = 1.0 - 2.0 * a * math.exp(-0.5 * a * a) / math.sqrt(2.0 * math.pi) / inside
+        return math.exp(2.0 * log_sigma) * shrink - rms * rms
+
+    low, high = math.log(rms), math.log(10.0 * window)
+    if excess(low) >= 0.0:  # the window is so far out that truncating there changes nothing
+        return rms
+    if excess(high) <= 0.0:
+        return 10.0 * window
+    return math.exp(brentq(excess, low, high, xtol=1e-6))
 
 
 def _rotation_sigma_of_5pt(rays_a, rays_b, rotation, translation, noise: float | None, group: int) -> float:
@@ -1089,22 +1112,19 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     camera moved or not, while the rotation model's also hold the parallax.
     With too few 5-point inliers to estimate it, the rotation model's
     estimate is used (:func:`noise_sigma_from_residuals`). GRIC is evaluated on
-    the correspondences either model explains within the window of the noise
-    estimate (three inlier thresholds, the rotation model's scaled by
-    ``rotation_threshold_factor``): a gross outlier costs the 5-point model
-    less than the rotation model (its residual cap is lower), so counting the
-    outliers of both would hand heavily contaminated pairs to the 5-point
-    model, while matches of a noise near the threshold fall partly beyond it.
+    the correspondences that are inliers of either model: a gross outlier
+    costs the 5-point model less than the rotation model (its residual cap is
+    lower), so counting the outliers of both would hand heavily contaminated
+    pairs to the 5-point model.
     """
     threshold = options.ransac_threshold_rad
     _, rot_errors, rot_mask, rot_sigma = rotation_fit
     rotation_5pt, _, errors_5pt = five_point
     inliers_5pt = errors_5pt < threshold
-    window = _NOISE_WINDOW * threshold
     noise = (options.noise_sigma_rad
-             or _epipolar_noise_sigma(errors_5pt, window, group, confidence=_NOISE_CONFIDENCE)
+             or _epipolar_noise_sigma(errors_5pt, threshold, group, confidence=_NOISE_CONFIDENCE)
              or rot_sigma)
-    either = (rot_errors < options.rotation_threshold_factor * window) | (errors_5pt < window)
+    either = rot_mask | inliers_5pt
     parallax = rotation_angles(rays_a[inliers_5pt], rays_b[inliers_5pt], rotation_5pt)
     # Exact rays: residuals of rounding only, which the two models' angle formulas resolve differently.
     weigh = max(noise, _NOISE_FLOOR_RAD)

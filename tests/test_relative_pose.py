@@ -323,10 +323,13 @@ def test_grouped_errors_do_not_make_a_pure_rotation_look_like_translation():
         models = [relative_pose_from_rays(*_grouped_rays(seed), options=options,
                                           rays_per_measurement=group)[1].model for seed in range(30)]
         chosen[group] = models.count("5pt")
-    # Measured with the noise (3e-3 rad) near the threshold and 20 groups: 11 of 30 pure
+    # Measured with the noise (3e-3 rad) near the threshold and 20 groups: 19 of 30 pure
     # rotations taken for 5-point motion per ray, 2 per group.
     assert chosen[1] >= 8 and chosen[5] <= 3
-    translating = [relative_pose_from_rays(*_grouped_rays(seed, translation=np.array([0.3, 0.1, 0.0])),
+    # A translation is told from the noise once the noise is measurable inside the threshold
+    # (here 1.5e-3 rad against 4e-3; at 3e-3 the inliers spread evenly up to the threshold).
+    translating = [relative_pose_from_rays(*_grouped_rays(seed, noise_rad=1.5e-3,
+                                                          translation=np.array([0.3, 0.1, 0.0])),
                                            options=options, rays_per_measurement=5)[1].model
                    for seed in range(30)]
     assert translating.count("5pt") == 30
