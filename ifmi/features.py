@@ -53,7 +53,8 @@ class FeatureConfig:
     """Options of the ORB and AKAZE front ends.
 
     Defaults are OpenCV's standard settings with 3000 features and Lowe's
-    ratio 0.8; AKAZE's detector threshold is ten times below OpenCV's.
+    ratio 0.8, a FAST threshold for low-contrast images, and AKAZE's
+    threshold lowered on a sequence whose first image gives too few keypoints.
 
     Attributes
     ----------
@@ -82,22 +83,19 @@ class FeatureConfig:
         contrast, left a dim road seen by a downward fisheye with a tenth
         of the budget, so the default is 7.
     akaze_threshold : float
-        ``cv2.AKAZE_create`` detector response threshold. The response
-        scales with the squared image gradient, so OpenCV's 1e-3 (set for
-        photographs of full contrast) finds no keypoint on low-contrast
-        texture such as a rendered road or floor at a third of the contrast;
-        the default 1e-4 only sets a floor, and ``n_features`` keeps the
-        strongest keypoints, as ORB's budget does.
+        ``cv2.AKAZE_create`` detector response threshold (OpenCV's default,
+        set for photographs of full contrast).
     akaze_min_keypoints : int
         When the sequence's first image gives fewer keypoints than this at
         ``akaze_threshold`` (a dim or low-contrast scene: the response scales
-        with the squared image gradient), the threshold is lowered once, for
-        the whole sequence, to the response of the first image's
-        ``akaze_min_keypoints``-th strongest keypoint. The default 0 keeps
-        ``akaze_threshold`` whatever the images: the weak keypoints a lower
-        threshold adds keep AKAZE from failing on fast low-contrast
-        sequences but are located worse, and made it less accurate on slow
-        ones (README, "The feature baselines").
+        with the squared image gradient, so a road or floor at a third of
+        the contrast gives a ninth of it and often no keypoint at all), the
+        threshold is lowered once, for the whole sequence, to the response of
+        the first image's ``akaze_min_keypoints``-th strongest keypoint. The
+        default is OpenCV's default ORB keypoint count (500); 0 keeps
+        ``akaze_threshold`` whatever the images. Weak keypoints are located
+        worse, so the threshold is lowered only where the default finds too
+        few, not for every sequence.
     akaze_min_threshold : float
         The threshold is never lowered below this (> 0): below it the
         detector keeps the noise of a flat image. An ``akaze_threshold`` at
@@ -126,8 +124,8 @@ class FeatureConfig:
     orb_edge_threshold: int = 31
     orb_patch_size: int = 31
     orb_fast_threshold: int = 7
-    akaze_threshold: float = 1e-4
-    akaze_min_keypoints: int = 0
+    akaze_threshold: float = 1e-3
+    akaze_min_keypoints: int = ORB_DEFAULT_FEATURES
     akaze_min_threshold: float = 1e-5
     akaze_octaves: int = 4
     akaze_octave_layers: int = 4

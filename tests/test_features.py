@@ -111,9 +111,9 @@ def test_akaze_threshold_settles_on_a_dim_first_image(pair):
     model, image_a, image_b = pair
     band = example_band_px(model)
     dim_a, dim_b = _dimmed(image_a, 0.2), _dimmed(image_b, 0.2)
-    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_threshold=1e-3))  # the default: fixed
+    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=0))  # fixed
     assert len(fixed.prepare(dim_a)) < 10 and fixed.detector_threshold == 1e-3
-    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_threshold=1e-3, akaze_min_keypoints=300))
+    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=300))
     state_a = front.prepare(dim_a)
     threshold = front.detector_threshold
     assert 1e-5 < threshold < 1e-3 / 10
@@ -133,8 +133,8 @@ def test_akaze_threshold_settles_on_a_dim_first_image(pair):
 def test_akaze_threshold_kept_when_the_first_image_has_enough_keypoints(pair):
     model, image_a, _ = pair
     band = example_band_px(model)
-    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_threshold=1e-3, akaze_min_keypoints=0))
-    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_threshold=1e-3, akaze_min_keypoints=300))
+    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=0))
+    front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=300))
     expected, got = fixed.prepare(image_a), front.prepare(image_a)
     assert len(expected) > 300 and front.detector_threshold == 1e-3
     np.testing.assert_array_equal(got.pixels, expected.pixels)
