@@ -118,6 +118,7 @@ def render_set(folder: Path, depth: str, camera: str, step_m: float, args) -> Pa
 
 
 def _method_name(method: str) -> str:
+    """The ifmi method name of a benchmark method (the reference pipeline by its import path)."""
     return REFERENCE if method == "reference" else method
 
 
@@ -161,6 +162,7 @@ def run_set(folder: Path, dataset: Path, args) -> dict:
 
 
 def _share(run: dict, model: str) -> float:
+    """Share of a run's solved pairs solved with ``model`` (NaN without a solved pair)."""
     return run[model] / run["pairs"] if run["pairs"] else float("nan")
 
 
@@ -180,6 +182,7 @@ def table_rows(sweep: dict, methods) -> list[str]:
 
 
 def _machine() -> str:
+    """Platform and CPU model of this machine, for the report."""
     cpu = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -213,6 +216,7 @@ def report_text(sweep: dict, args, command: str) -> str:
 
 
 def _print_set(name: str, results: dict, methods) -> None:
+    """Print one set's runs: each method's ATE with each selection and its pairs by model."""
     for method in methods:
         auto, rot, five = (results[method, s] for s in SELECTIONS)
         print(f"  {name:22s} {method:10s} ATE {auto['ate_rad']:.4f} rad (rotation only {rot['ate_rad']:.4f}, "

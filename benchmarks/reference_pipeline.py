@@ -39,6 +39,7 @@ class ReferenceFrontEnd:
         return cv2.erode(keep, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) * 255
 
     def prepare(self, image):
+        """``(pixels (N, 2) (row, col), rays (N, 3), descriptors (N, 32) uint8)`` of one image."""
         gray = np.clip(gray_from_image(image), 0, 255).astype(np.uint8)
         if self.mask is None:
             self.mask = self._mask(gray)
@@ -48,6 +49,7 @@ class ReferenceFrontEnd:
         return pixels, rays, descriptors
 
     def correspondences(self, state_a, state_b):
+        """Ratio-test matches of frame a's keypoints against frame b's (:class:`ifmi.front_end.Correspondences`)."""
         (pixels_a, rays_a, desc_a), (pixels_b, rays_b, desc_b) = state_a, state_b
         if desc_a is None or desc_b is None or min(len(desc_a), len(desc_b)) < 2:
             return Correspondences.failed("too few keypoints")
