@@ -20,7 +20,7 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
-from ifmi.geometry.camera import OcamModel, radius_from_pixels, rays_from_pixels
+from ifmi.geometry.camera import OcamModel, radius_from_pixels, rays_from_pixels, valid_mask
 from ifmi.front_end import Correspondences
 from ifmi.options import check_finite_fields, options_from_dict
 
@@ -52,8 +52,9 @@ _MAX_FAST_THRESHOLD = 254
 class FeatureConfig:
     """Options of the ORB and AKAZE front ends.
 
-    Defaults are OpenCV's standard settings with 2000 ORB features and Lowe's
-    ratio 0.8.
+    Defaults are OpenCV's standard settings with 3000 features and Lowe's
+    ratio 0.8, a FAST threshold for low-contrast images, and AKAZE's
+    threshold lowered on a sequence whose first image gives too few keypoints.
 
     Attributes
     ----------
@@ -75,19 +76,26 @@ class FeatureConfig:
         ``cv2.ORB_create`` options (pyramid ratio, levels, border in pixels,
         descriptor patch in pixels, FAST threshold in gray levels): a scale
         factor above 1, at least one level, a border of at least 0 and a
-        patch of at least 2 pixels, a threshold from 0 to 254.
+        patch of at least 2 pixels, a threshold from 0 to 254. The FAST
+        threshold only has to reject 8-bit quantisation and image noise;
+        which corners are kept is the Harris ranking's choice within
+        ``n_features``. OpenCV's 20 levels, set for photographs of full
+        contrast, left a dim road seen by a downward fisheye with a tenth
+        of the budget, so the default is 7.
     akaze_threshold : float
-        ``cv2.AKAZE_create`` detector response threshold.
+        ``cv2.AKAZE_create`` detector response threshold (OpenCV's default,
+        set for photographs of full contrast).
     akaze_min_keypoints : int
         When the sequence's first image gives fewer keypoints than this at
         ``akaze_threshold`` (a dim or low-contrast scene: the response scales
-        with the squared image gradient), the threshold is lowered once, for
-        the whole sequence, to the response of the first image's
-        ``akaze_min_keypoints``-th strongest keypoint. The default 0 keeps
-        ``akaze_threshold`` whatever the images: the weak keypoints a lower
-        threshold adds keep AKAZE from failing on fast low-contrast
-        sequences but are located worse, and made it less accurate on slow
-        ones (README, "The feature baselines").
+        with the squared image gradient, so a road or floor at a third of
+        the contrast gives a ninth of it and often no keypoint at all), the
+        threshold is lowered once, for the whole sequence, to the response of
+        the first image's ``akaze_min_keypoints``-th strongest keypoint. The
+        default is OpenCV's default ORB keypoint count (500); 0 keeps
+        ``akaze_threshold`` whatever the images. Weak keypoints are located
+        worse, so the threshold is lowered only where the default finds too
+        few, not for every sequence.
     akaze_min_threshold : float
         The threshold is never lowered below this (> 0): below it the
         detector keeps the noise of a flat image. An ``akaze_threshold`` at
@@ -106,7 +114,7 @@ class FeatureConfig:
         motion; the default is half of ORB's 31-pixel descriptor patch.
     """
 
-    n_features: int = 2000
+    n_features: int = 3000
     ratio: float = 0.8
     cross_check: bool = False
     on_panorama: bool = False
@@ -115,9 +123,9 @@ class FeatureConfig:
     orb_levels: int = 8
     orb_edge_threshold: int = 31
     orb_patch_size: int = 31
-    orb_fast_threshold: int = 20
+    orb_fast_threshold: int = 7
     akaze_threshold: float = 1e-3
-    akaze_min_keypoints: int = 0
+    akaze_min_keypoints: int = ORB_DEFAULT_FEATURES
     akaze_min_threshold: float = 1e-5
     akaze_octaves: int = 4
     akaze_octave_layers: int = 4
@@ -301,13 +309,19 @@ class FeatureFrontEnd:
         return self._band
 
     def mask(self, image: np.ndarray) -> np.ndarray:
-        """``(H, W)`` uint8 detection mask: 255 inside the mirror band, 0 elsewhere."""
-        if self._mask is None and not isinstance(self.model, OcamModel):
-            # Other models: the pixels whose rays lie in the panorama's band (valid region, FOV).
-            from ifmi.spectral.panorama import band_mask
+        """``(H, W)`` uint8 detection mask (fixed on first use): 255 where keypoints are detected.
 
-            self._mask = np.where(band_mask(self._panorama_mapping(image),
-                                            margin_px=self.config.mask_margin_px), 255, 0).astype(np.uint8)
+        OCamCalib models: the mirror band. Other models: the model's whole
+        valid image, less the pixels that are black in ``image``; both
+        ``config.mask_margin_px`` inside their edges.
+        """
+        if self._mask is None and not isinstance(self.model, OcamModel):
+            # Other models: the whole valid image of the model less the pixels black in the first
+            # image (outside the lens's image circle), eroded so that no descriptor window reaches them.
+            from ifmi.spectral.panorama import gray_from_image
+
+            self._mask = _eroded_mask(valid_mask(self.model) & (gray_from_image(image) > 0),
+                                      self.config.mask_margin_px)
         if self._mask is None:
             inner, outer = self.band(image)
             h, w = self.model.size
@@ -422,6 +436,16 @@ class FeatureFrontEnd:
                 config = replace(config, radius_min_px=inner, radius_max_px=outer)
             self._mapping = panorama_mapping(self.model, gray, config=config)
         return self._mapping
+
+
+def _eroded_mask(mask: np.ndarray, margin_px: float) -> np.ndarray:
+    """``(H, W)`` bool mask eroded by a disc of ``margin_px`` pixels, as uint8 0 / 255."""
+    radius = int(np.ceil(margin_px))
+    keep = mask.astype(np.uint8)
+    if radius > 0:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        keep = cv2.erode(keep, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return keep * 255
 
 
 def _feature_config(config) -> FeatureConfig:

@@ -193,9 +193,9 @@ def test_options_benchmark_variant_sets_back_end_options_and_names_unknown_ones(
     options = _benchmark_module("bench_ifmi_options", monkeypatch)
     from ifmi.pipeline import EstimateConfig
     base = EstimateConfig()
-    changed = options.estimate_variant(base, {"relative_pose.rotation_min_inlier_share": 0.0,
+    changed = options.estimate_variant(base, {"relative_pose.robust_scale": 2.0,
                                               "recovery.dense_retry_fraction": 0.0})
-    assert changed.relative_pose.rotation_min_inlier_share == 0.0
+    assert changed.relative_pose.robust_scale == 2.0
     assert changed.ifmi.recovery.dense_retry_fraction == 0.0
     assert changed.relative_pose.seed == base.relative_pose.seed
     with pytest.raises(ValueError, match="relative_pose"):

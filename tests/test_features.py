@@ -77,7 +77,8 @@ def test_keypoints_are_row_col_inside_the_band(pair):
     r = radius_from_pixels(model, state.pixels)
     assert r.min() >= band[0] and r.max() <= band[1]
     # (row, col): the keypoint's own ray reprojects to the image where OpenCV saw it.
-    detector = cv2.ORB_create(nfeatures=2000)
+    config = FeatureConfig()
+    detector = cv2.ORB_create(nfeatures=config.n_features, fastThreshold=config.orb_fast_threshold)
     kps = detector.detect(image_a, front.mask(image_a))
     xy = np.array([kp.pt for kp in kps])
     np.testing.assert_allclose(np.sort(state.pixels[:, 0]), np.sort(xy[:, 1]))
@@ -104,13 +105,13 @@ def _dimmed(image, contrast):
 
 
 def test_akaze_threshold_settles_on_a_dim_first_image(pair):
-    # At a fifth of the contrast the default threshold finds almost nothing; the
+    # At a fifth of the contrast OpenCV's threshold (1e-3) finds almost nothing; the
     # threshold is lowered once, on the first image, to give the asked-for count,
     # and the dim pair then gives the rotation as the bright one does.
     model, image_a, image_b = pair
     band = example_band_px(model)
     dim_a, dim_b = _dimmed(image_a, 0.2), _dimmed(image_b, 0.2)
-    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band))  # the default: fixed
+    fixed = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=0))  # fixed
     assert len(fixed.prepare(dim_a)) < 10 and fixed.detector_threshold == 1e-3
     front = FeatureFrontEnd(model, "akaze", config=FeatureConfig(radius_band=band, akaze_min_keypoints=300))
     state_a = front.prepare(dim_a)

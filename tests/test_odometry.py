@@ -52,6 +52,16 @@ def test_frame_to_frame_chaining_is_exact():
     assert [r.reference_frame for r in records] == [0] + list(range(11))
 
 
+def test_frame_rows_carry_the_model_choice_and_its_evidence():
+    # Exact rays of a pure rotation: the rotation model, both scores and the noise in each row.
+    frames, _ = _frames(4)
+    _, records = track_sequence(frames, ExactFrontEnd(), pose_options=POSE)
+    for record in records[1:]:
+        row = record.to_row()
+        assert row["model"] == "rotation" and row["gric_rotation"] < row["gric_5pt"]
+        assert row["selection_sigma_rad"] >= 0 and row["parallax_rad"] < 1e-9
+
+
 def _exact_keyframe_run(n, step):
     """``(front end, records)`` of keyframe mode (0.2 rad bound) on ``n`` exact frames, checked exact."""
     frames, truth = _frames(n, step=step)

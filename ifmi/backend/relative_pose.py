@@ -18,21 +18,23 @@ Two models compete inside a seeded RANSAC with an angular threshold:
 
 Under (near) pure rotation every translation fits the epipolar constraint,
 which makes the 5-point solution ill-conditioned and lets it fit noise. The
-model is chosen by Torr's GRIC, which charges the 5-point model for its two
-extra degrees of freedom and its weaker (one-dimensional) constraint per ray.
-GRIC needs the ray noise; unless given, it is estimated from the residuals
-of the 5-point model's inliers, the more general model, whose residuals hold
-only noise whether the camera moved or not (the rotation model's also hold
-the parallax of a moving camera, which inflates the estimate and hands
-translated pairs to the rotation model); the 5-point model must then win by
-a margin per measurement, since its extra freedom also absorbs tile errors
-shared by neighbouring rays. With too few inlier measurements
-beyond the 5-point model's parameters, or a noise level near the threshold
-(where the truncated residuals do not measure it), the rotation model's
-inliers estimate it as a truncated Rayleigh distribution. A noise level below the truth makes every residual look like an
-outlier to both models and hands the choice to the 5-point model's lower cap
-per outlier; for the same reason GRIC is evaluated on the correspondences
-that are inliers of either model only.
+model is chosen by Torr's GRIC over the correspondences either model
+explains: a model's score is the sum of its squared residuals in units of
+the ray noise (capped, so an outlier costs a fixed amount), plus a charge for
+the dimension of its constraint per correspondence (a rotation fixes both
+coordinates of a ray, the epipolar constraint one) and for its parameters
+(3 and 5). The 5-point model wins when the parallax its translation explains
+is large enough against the noise to pay for its weaker constraint and two
+extra parameters; under pure rotation the rotation model's residuals are
+noise only and it wins. The noise is estimated robustly from the residuals
+of the richer model, the 5-point model, whose residuals hold only noise
+whether the camera moved or not (the rotation model's also hold the
+parallax): the mean square of its inliers' epipolar angles, corrected for
+its five parameters and for the cut at the inlier threshold, taken at its upper bound of
+one standard error, so that the few measurements of a pair cannot make the
+noise look smaller than it may be (:class:`ModelSelection` holds the
+evidence). A group of rays that share one error (``rays_per_measurement``)
+counts as one observation.
 
 The inlier threshold is an angle. Its default is a number of pixels
 (``ransac_threshold_px``) times the angle one pixel subtends, which only the
@@ -57,6 +59,7 @@ import numpy as np
 import poselib
 from scipy.optimize import brentq
 from scipy.special import bdtrc
+from scipy.stats import chi2
 
 from ifmi.options import check_finite_fields
 from ifmi.geometry.rotations import cross_product_matrix, geodesic_angle
@@ -65,6 +68,7 @@ __all__ = [
     "RelativePoseOptions",
     "RelativePose",
     "RelativePoseInfo",
+    "ModelSelection",
     "relative_pose_from_rays",
     "rotation_from_rays",
     "epipolar_angles",
@@ -91,18 +95,17 @@ _MAX_REFINE_ITERATIONS = 100
 # normal; a frame vector shorter than this (rays within 1e-6 rad of equal or opposite) is too
 # ill-conditioned and the rotation is solved by SVD instead.
 _FRAME_MIN_LENGTH = 1e-6
-# The noise level for the model selection is estimated from the 5-point model's inlier residuals
-# only when they span at least this many measurements beyond its five parameters.
-_NOISE_DOF = 6
-# ... and when that estimate is at most this fraction of the inlier threshold: with the threshold at
-# four noise levels or more, truncating the residuals there biases their mean square by under 0.2 %.
-_NOISE_MAX_FRACTION = 0.25
-# With that estimate, the 5-point model must lower GRIC by this much more per measurement: its two
-# extra degrees of freedom also absorb errors shared by neighbouring tiles, so its residuals make
-# the noise look lower than the rotation model sees it. 0.5 kept the rotation model on every frame
-# of the pure-rotation benchmark sequences (36 and 8 spp) where the plain criterion took 1 to 7
-# of 60 for translation.
-_NOISE_5PT_MARGIN = 0.5
+# The noise GRIC weighs residuals with is the upper confidence bound, at this level (one standard
+# error of a normal estimate), of the 5-point model's estimate: a sum of squares over few measurements
+# can fall far below its expectation (at 10 degrees of freedom, a fifth of the time below 0.8 of it), and
+# a noise level set too low makes the rotation model's two-dimensional residuals look like parallax.
+# The bound is 1.32 times the estimate at 10 degrees of freedom, 1.08 at 100, 1.02 at 1000. At 0.95
+# (1.59 at 10) the parallax of a wall seen by 10 of 15 tiles was taken for outliers of a rotation.
+_NOISE_CONFIDENCE = 0.84
+# Smallest ray noise GRIC weighs residuals with, radians: angles between float64 unit vectors are
+# resolved to about 1e-16 rad, differently by the two models' residual formulas, so exact rays would
+# otherwise be judged on rounding. It is a million times below the angle of a pixel of any camera.
+_NOISE_FLOOR_RAD = 1e-12
 # Chance pairings scored per correspondence when a consensus is checked against chance: the rays of
 # camera a with this many random permutations of those of camera b.
 _CHANCE_PERMUTATIONS = 8
@@ -192,10 +195,17 @@ class RelativePoseOptions:
         as with 1, and the back end costs 1.5-1.6 times as much.
     rotation_only : bool
         Force the rotation-only model.
+    five_point_only : bool
+        Force the 5-point model (the pair fails when no sample gives one);
+        for comparisons with the model selection.
     noise_sigma_rad : float or None
         Standard deviation (per axis, radians) of the ray noise used to
         choose between the models by GRIC; ``None`` estimates it from the
-        rotation model's inlier residuals (see :func:`noise_sigma_from_residuals`).
+        5-point model's inlier epipolar angles (their mean square, corrected
+        for its five parameters and for the cut at the threshold, at its
+        upper bound of one standard error), or from the rotation
+        model's inliers (see :func:`noise_sigma_from_residuals`) when those
+        are five measurements or fewer.
     rotation_threshold_factor : float
         The rotation model's inlier threshold is this multiple of
         ``ransac_threshold_rad``: its error is an angle in two dimensions,
@@ -206,18 +216,6 @@ class RelativePoseOptions:
         times with Cauchy weights of the residual angles (0: plain
         least squares on the inliers), so that loosely registered inliers
         near the threshold count less. At most 100.
-    rotation_min_inlier_share : float
-        Without ``noise_sigma_rad``, the rotation model is not chosen when
-        its inlier rays are fewer than this share of the 5-point model's
-        while the 5-point model's noise estimate is at most a third of the
-        threshold: a third of what one motion explains then misses every
-        rotation, e.g. tiles on one wall of a room whose parallax under a
-        sideways step looks like a yaw of step / distance. GRIC's capped
-        residuals over the 10-20 measurements of such a pair did not weigh
-        that: on the fast translated office renders it kept rotations 2 to
-        6 degrees off at shares 0.33-0.68, while every other rotation
-        choice over 300 fast pairs had 0.77 or more but one (0.65, as good
-        as the 5-point estimate). 0 disables the rule.
     min_draw_success : float
         A consensus of ``k`` inliers among ``n`` correspondences is taken
         for chance, and the pair fails, when both: the ``max_iterations``
@@ -263,11 +261,11 @@ class RelativePoseOptions:
     polish_rounds: int = 3
     refine_hypotheses: int = 1
     rotation_only: bool = False
+    five_point_only: bool = False
     noise_sigma_rad: float | None = None
     rotation_threshold_factor: float = 1.25
     robust_iterations: int = 5
     robust_scale: float = 1.0
-    rotation_min_inlier_share: float = 0.7
     min_draw_success: float = 0.5
     max_chance_false_alarms: float = 1e-6
 
@@ -303,9 +301,8 @@ class RelativePoseOptions:
         if self.robust_iterations < 0 or not self.robust_scale > 0:
             raise ValueError(f"expected robust_iterations >= 0 and robust_scale > 0, got "
                              f"{self.robust_iterations}, {self.robust_scale}")
-        if not 0 <= self.rotation_min_inlier_share <= 1:
-            raise ValueError(f"expected 0 <= rotation_min_inlier_share <= 1, "
-                             f"got {self.rotation_min_inlier_share}")
+        if self.rotation_only and self.five_point_only:
+            raise ValueError("rotation_only and five_point_only exclude each other; set at most one")
         if not 0 <= self.min_draw_success <= 1 or not self.max_chance_false_alarms >= 0:
             raise ValueError(f"expected 0 <= min_draw_success <= 1 and max_chance_false_alarms >= 0, "
                              f"got {self.min_draw_success}, {self.max_chance_false_alarms}")
@@ -354,6 +351,37 @@ class RelativePose:
 
 
 @dataclass(frozen=True)
+class ModelSelection:
+    """Evidence of the choice between the rotation-only and the 5-point model.
+
+    Attributes
+    ----------
+    gric_rotation, gric_5pt : float
+        Torr's GRIC of each model over the correspondences that are inliers
+        of either (lower is better); the
+        5-point model is chosen when its score is lower. NaN when only one
+        model was fitted.
+    parallax_rad : float
+        Median angle (radians) between the 5-point model's inlier rays of
+        camera a and their partners turned by its rotation: the parallax its
+        translation explains, noise included. NaN when only one model was fitted.
+    noise_sigma_rad : float
+        The ray noise (radians, per axis) GRIC weighed the residuals with.
+    """
+
+    gric_rotation: float = math.nan
+    gric_5pt: float = math.nan
+    parallax_rad: float = math.nan
+    noise_sigma_rad: float = math.nan
+
+    def columns(self) -> dict:
+        """The evidence as ``frames.csv`` columns: ``gric_rotation``, ``gric_5pt``,
+        ``parallax_rad``, ``selection_sigma_rad``."""
+        return {"gric_rotation": self.gric_rotation, "gric_5pt": self.gric_5pt,
+                "parallax_rad": self.parallax_rad, "selection_sigma_rad": self.noise_sigma_rad}
+
+
+@dataclass(frozen=True)
 class RelativePoseInfo:
     """Diagnostics of :func:`relative_pose_from_rays`.
 
@@ -382,6 +410,8 @@ class RelativePoseInfo:
         far more. NaN on failure, and when the inliers leave no degree of
         freedom to measure the noise with; infinite when they do not fix
         the rotation (degenerate geometry).
+    selection : ModelSelection
+        The evidence the model was chosen on.
     """
 
     success: bool
@@ -391,6 +421,7 @@ class RelativePoseInfo:
     inlier_mask: np.ndarray
     model: str
     rotation_sigma_rad: float = math.nan
+    selection: ModelSelection = field(default_factory=lambda: ModelSelection())
 
 
 def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -850,59 +881,62 @@ def noise_sigma_from_residuals(angles: np.ndarray, threshold: float) -> float:
     return math.exp(brentq(excess, math.log(lower), math.log(upper), xtol=1e-6))
 
 
-def _noise_sigma_of_5pt(errors: np.ndarray, threshold: float, group: int,
-                        min_dof: int = _NOISE_DOF) -> float | None:
-    """Ray noise (radians, per axis) from the 5-point model's epipolar angles below ``threshold``.
+def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int, *,
+                          confidence: float | None = None) -> float | None:
+    """Ray noise (radians, per axis) from the 5-point model's epipolar angles below ``window``.
 
-    An epipolar angle is one-dimensional, so the inliers' mean square over
-    their ``m`` measurements (``group`` rays each), corrected for the
+    An epipolar angle is one-dimensional, so the mean square of the ``m``
+    measurements (``group`` rays each) below ``window``, corrected for the
     model's five parameters, estimates the variance:
-    ``sum(e^2) / (group (m - 5))``. The truncation at ``threshold`` is
-    left out, which holds only while the noise is well below it.
+    ``sum(e^2) / (group (m - 5))``. The model is refined by least squares
+    on its inliers, for which this correction is exact to first order. The
+    cut at ``window`` is undone by taking the noise of the normal
+    distribution whose part within ``+-window`` has that mean square
+    (:func:`_untruncated_sigma`): a wider window takes in near misses of
+    repetitive texture, and without the correction the cut makes the noise
+    look smaller and hands pure rotations to the 5-point model.
+
+    With ``confidence``, the upper bound of the noise at that confidence
+    instead (the sum of squares over the noise variance is chi-square with
+    ``m - 5`` degrees of freedom).
 
     Returns
     -------
     float or None
-        None when ``m - 5 < min_dof``.
+        None with at most five measurements (no residual freedom).
     """
-    inliers = errors[errors < threshold]
-    dof = len(inliers) / group - _SAMPLE_5PT
-    if dof < min_dof or dof <= 0:
+    kept = errors[errors < window]
+    dof = len(kept) / group - _SAMPLE_5PT
+    if dof <= 0:
         return None
-    return float(np.sqrt(np.sum(inliers ** 2) / (group * dof)))
+    scale = dof if confidence is None else chi2.ppf(1.0 - confidence, dof)
+    return _untruncated_sigma(math.sqrt(np.sum(kept ** 2) / group / scale), window)
 
 
-def _selection_noise(sigma_5pt: float | None, sigma_rotation: float, threshold: float,
-                     rotation_threshold: float) -> tuple[float, bool]:
-    """Noise level GRIC compares the models with, and whether it came from the 5-point model.
+def _untruncated_sigma(rms: float, window: float) -> float:
+    """Standard deviation of a normal deviate whose values within ``+-window`` have the root mean
+    square ``rms``: ``E[x^2 | |x| < w] = sigma^2 (1 - 2 a phi(a) / (2 Phi(a) - 1))``, ``a = w / sigma``.
 
-    The 5-point model's estimate is used when it is well below
-    ``threshold`` (``_NOISE_MAX_FRACTION``; nearer, truncation makes it
-    unreliable), and up to a third of it when the rotation model's
-    estimate is at least ``rotation_threshold``, its own inlier threshold:
-    a truncated Rayleigh distribution whose scale reaches the truncation
-    has no peak inside it, so the rotation model's inliers spread out to
-    the threshold with no peak of noise (the rotation does not fit, or the
-    noise is near the threshold, where the 5-point estimate is far lower
-    than a third). Otherwise the rotation model's estimate is used, at
-    most ``threshold``. (With twice ``rotation_threshold`` as the bound, a
-    fast translated pair whose rotation model was 100 mrad off, with 53 of
-    70 rays as inliers and a noise estimate of 1.2 thresholds, won GRIC at
-    the threshold as noise; the 5-point model, 5 mrad off with all 70 rays,
-    lost.)
+    A mean square of a third of ``window^2`` or more (residuals spread evenly up to the window,
+    no peak of noise inside it) gives ten windows.
     """
-    if sigma_5pt is not None and (sigma_5pt <= _NOISE_MAX_FRACTION * threshold
-                                  or (sigma_5pt <= threshold / 3.0 and sigma_rotation >= rotation_threshold)):
-        return sigma_5pt, True
-    return min(sigma_rotation, threshold), False
+    if rms <= 0.0:
+        return 0.0
+    if rms * rms >= window * window / 3.0:
+        return 10.0 * window
 
+    def excess(log_sigma: float) -> float:
+        a = window / math.exp(log_sigma)
+        inside = math.erf(a / math.sqrt(2.0))
+        shrink = 1.0 - 2.0 * a * math.exp(-0.5 * a * a) / math.sqrt(2.0 * math.pi) / inside
+        return math.exp(2.0 * log_sigma) * shrink - rms * rms
 
-def _rotation_misses_motion(rotation_inliers: int, inliers_5pt: int, sigma_5pt: float | None,
-                            threshold: float, min_share: float) -> bool:
-    """Whether the 5-point model is taken without GRIC: it explains the rays with noise at most a
-    third of ``threshold`` and the rotation model's inliers are fewer than ``min_share`` of its
-    own (counts of rays; ``RelativePoseOptions.rotation_min_inlier_share``)."""
-    return sigma_5pt is not None and sigma_5pt <= threshold / 3.0 and rotation_inliers < min_share * inliers_5pt
+    low, high = math.log(rms), math.log(10.0 * window)
+    if excess(low) >= 0.0:  # the window is so far out that truncating there changes nothing
+        return rms
+    if excess(high) <= 0.0:
+        return 10.0 * window
+    return math.exp(brentq(excess, low, high, xtol=1e-6))
 
 
 def _rotation_sigma_of_5pt(rays_a, rays_b, rotation, translation, noise: float | None, group: int) -> float:
@@ -1058,40 +1092,47 @@ def _lowest_cost_refined_5pt(rays_a, rays_b, products, hypotheses, options: Rela
     return chosen
 
 
-def _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options: RelativePoseOptions,
-                       rng, group: int):
-    """The 5-point model ``(rotation, unit translation, inlier mask, epipolar angles)`` when GRIC
-    prefers it, else None.
-
-    GRIC compares the models on the correspondences that either explains: a
-    gross outlier costs the 5-point model less than the rotation model (its
-    residual cap is lower), so counting the outliers of both would hand
-    heavily contaminated pairs to the 5-point model. The noise level is
-    :func:`_selection_noise`'s (given options win); taken from the 5-point
-    model, that model must win by ``_NOISE_5PT_MARGIN`` per measurement.
-    Without given noise, a rotation model leaving many of the 5-point
-    model's inliers out loses without GRIC (``rotation_min_inlier_share``).
-    """
-    threshold = options.ransac_threshold_rad
-    _, rot_errors, rot_mask, sigma = rotation_fit
-    hypotheses = _ransac_5pt(rays, products, threshold, options, rng)
+def _fit_5pt(rays_a, rays_b, products, rays, options: RelativePoseOptions, rng):
+    """The refined 5-point model ``(R_ab, unit t_ab, epipolar angles of every correspondence)``,
+    or None when no sample gave a hypothesis."""
+    hypotheses = _ransac_5pt(rays, products, options.ransac_threshold_rad, options, rng)
     if not hypotheses:
         return None
-    rotation_5pt, translation, errors_5pt = _lowest_cost_refined_5pt(rays_a, rays_b, products, hypotheses,
-                                                                     options)
-    either = rot_mask | (errors_5pt < threshold)
-    noise, from_5pt = options.noise_sigma_rad, False
-    if noise is None:
-        sigma_5pt = _noise_sigma_of_5pt(errors_5pt, threshold, group)
-        if _rotation_misses_motion(rot_mask.sum(), (errors_5pt < threshold).sum(), sigma_5pt, threshold,
-                                   options.rotation_min_inlier_share):
-            return rotation_5pt, translation / np.linalg.norm(translation), errors_5pt < threshold, errors_5pt
-        noise, from_5pt = _selection_noise(sigma_5pt, sigma, threshold, options.rotation_threshold_factor * threshold)
-    margin = _NOISE_5PT_MARGIN * either.sum() / group if from_5pt else 0.0
-    if (_gric(errors_5pt[either], noise, dimension=3, parameters=5, group=group) + margin
-            >= _gric(rot_errors[either], noise, dimension=2, parameters=3, group=group)):
-        return None
-    return rotation_5pt, translation / np.linalg.norm(translation), errors_5pt < threshold, errors_5pt
+    rotation, translation, errors = _lowest_cost_refined_5pt(rays_a, rays_b, products, hypotheses, options)
+    return rotation, translation / np.linalg.norm(translation), errors
+
+
+def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: RelativePoseOptions,
+                     group: int) -> ModelSelection:
+    """Both models' GRIC over the correspondences either explains, the parallax and the noise level.
+
+    The noise level is ``options.noise_sigma_rad`` or the estimate of the
+    5-point model's residuals (:func:`_epipolar_noise_sigma`): that
+    model is the richer one, so its residuals hold only noise whether the
+    camera moved or not, while the rotation model's also hold the parallax.
+    With too few 5-point inliers to estimate it, the rotation model's
+    estimate is used (:func:`noise_sigma_from_residuals`). GRIC is evaluated on
+    the correspondences that are inliers of either model: a gross outlier
+    costs the 5-point model less than the rotation model (its residual cap is
+    lower), so counting the outliers of both would hand heavily contaminated
+    pairs to the 5-point model.
+    """
+    threshold = options.ransac_threshold_rad
+    _, rot_errors, rot_mask, rot_sigma = rotation_fit
+    rotation_5pt, _, errors_5pt = five_point
+    inliers_5pt = errors_5pt < threshold
+    noise = (options.noise_sigma_rad
+             or _epipolar_noise_sigma(errors_5pt, threshold, group, confidence=_NOISE_CONFIDENCE)
+             or rot_sigma)
+    either = rot_mask | inliers_5pt
+    parallax = rotation_angles(rays_a[inliers_5pt], rays_b[inliers_5pt], rotation_5pt)
+    # Exact rays: residuals of rounding only, which the two models' angle formulas resolve differently.
+    weigh = max(noise, _NOISE_FLOOR_RAD)
+    return ModelSelection(
+        gric_rotation=_gric(rot_errors[either], weigh, dimension=2, parameters=3, group=group),
+        gric_5pt=_gric(errors_5pt[either], weigh, dimension=3, parameters=5, group=group),
+        parallax_rad=float(np.median(parallax)) if len(parallax) else math.nan,
+        noise_sigma_rad=float(noise))
 
 
 def _chance_inlier_rate(rays_a, rays_b, rotation, translation, threshold, seed) -> float:
@@ -1166,47 +1207,61 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
                                                            rays_per_measurement)
     n = len(rays_a)
     rng = np.random.default_rng(options.seed)
-    model = "rotation" if options.rotation_only else "5pt"
-    needed = max(options.min_inliers, _SAMPLE_ROTATION if options.rotation_only else _SAMPLE_5PT)
-    if n < needed:
-        info = RelativePoseInfo(False, f"too few correspondences ({n} < {needed})", n, 0,
-                                np.zeros(n, dtype=bool), model)
-        return RelativePose(), info
-    distinct = _distinct_count(rays_a, rays_b)
-    if distinct < needed:  # repeated matches count as many inliers but constrain nothing
-        info = RelativePoseInfo(False, f"too few distinct correspondences ({distinct} of {n} differ; "
-                                       f"< {needed})", n, 0, np.zeros(n, dtype=bool), model)
-        return RelativePose(), info
+    too_few = _too_few_reason(rays_a, rays_b, options)
+    if too_few:
+        return RelativePose(), RelativePoseInfo(False, too_few, n, 0, np.zeros(n, dtype=bool),
+                                                "rotation" if options.rotation_only else "5pt")
     products = _ray_products(rays_a, rays_b)
     rays = np.stack([rays_a, rays_b])
     rotation_fit = _fit_rotation(rays_a, rays_b, products, rays, options, rng)
     model, rotation, translation, mask = "rotation", rotation_fit[0], np.zeros(3), rotation_fit[2]
+    selection = ModelSelection(noise_sigma_rad=rotation_fit[3])
     if not options.rotation_only:
-        five_point = _fit_5pt_if_better(rays_a, rays_b, products, rays, rotation_fit, options, rng,
-                                        rays_per_measurement)
+        five_point = _fit_5pt(rays_a, rays_b, products, rays, options, rng)
+        if five_point is None and options.five_point_only:
+            return RelativePose(), RelativePoseInfo(False, "no 5-point hypothesis", n, 0,
+                                                    np.zeros(n, dtype=bool), "5pt")
         if five_point is not None:
-            model, (rotation, translation, mask, errors_5pt) = "5pt", five_point
+            selection = _model_selection(rays_a, rays_b, rotation_fit, five_point, options, rays_per_measurement)
+            if options.five_point_only or selection.gric_5pt < selection.gric_rotation:
+                model, (rotation, translation, errors_5pt) = "5pt", five_point
+                mask = errors_5pt < options.ransac_threshold_rad
+    failure = _consensus_failure(rays_a, rays_b, mask, model, rotation, translation, options, rays_per_measurement)
     count = int(mask.sum())
-    if count < options.min_inliers:
-        info = RelativePoseInfo(False, f"too few inliers ({count} < {options.min_inliers})", n,
-                                count, mask, model)
-        return RelativePose(), info
-    measurements = int(np.unique(np.flatnonzero(mask) // rays_per_measurement).size)
-    if measurements < options.min_inlier_measurements:
-        info = RelativePoseInfo(False, f"too few measurements with inliers ({measurements} < "
-                                       f"{options.min_inlier_measurements}; {count} inlier rays in groups of "
-                                       f"{rays_per_measurement})", n, count, mask, model)
-        return RelativePose(), info
-    chance = _chance_consensus_reason(rays_a, rays_b, mask, model, rotation, translation, options)
-    if chance:
-        return RelativePose(), RelativePoseInfo(False, chance, n, count, mask, model)
+    if failure:
+        return RelativePose(), RelativePoseInfo(False, failure, n, count, mask, model, selection=selection)
     pose = RelativePose(rotation=np.asarray(rotation, dtype=np.float64),
                         translation_direction=np.asarray(translation, dtype=np.float64))
     if model == "rotation":
         sigma = _rotation_sigma_of_rotation(rays_b[mask], pose.rotation, rotation_fit[3], rays_per_measurement)
     else:
-        noise = options.noise_sigma_rad or _noise_sigma_of_5pt(errors_5pt, options.ransac_threshold_rad,
-                                                               rays_per_measurement, min_dof=1)
+        noise = options.noise_sigma_rad or _epipolar_noise_sigma(errors_5pt, options.ransac_threshold_rad,
+                                                                 rays_per_measurement)
         sigma = _rotation_sigma_of_5pt(rays_a[mask], rays_b[mask], pose.rotation, pose.translation_direction,
                                        noise, rays_per_measurement)
-    return pose, RelativePoseInfo(True, "", n, count, mask, model, sigma)
+    return pose, RelativePoseInfo(True, "", n, count, mask, model, sigma, selection)
+
+
+def _too_few_reason(rays_a, rays_b, options: RelativePoseOptions) -> str:
+    """Why the correspondences are too few for the model's sample and ``options.min_inliers``, or ``""``."""
+    n = len(rays_a)
+    needed = max(options.min_inliers, _SAMPLE_ROTATION if options.rotation_only else _SAMPLE_5PT)
+    if n < needed:
+        return f"too few correspondences ({n} < {needed})"
+    distinct = _distinct_count(rays_a, rays_b)
+    if distinct < needed:  # repeated matches count as many inliers but constrain nothing
+        return f"too few distinct correspondences ({distinct} of {n} differ; < {needed})"
+    return ""
+
+
+def _consensus_failure(rays_a, rays_b, mask, model: str, rotation, translation, options: RelativePoseOptions,
+                       group: int) -> str:
+    """Why the chosen model's inliers ``mask`` fail the pair (too few, too few measurements, chance), or ``""``."""
+    count = int(mask.sum())
+    if count < options.min_inliers:
+        return f"too few inliers ({count} < {options.min_inliers})"
+    measurements = int(np.unique(np.flatnonzero(mask) // group).size)
+    if measurements < options.min_inlier_measurements:
+        return (f"too few measurements with inliers ({measurements} < {options.min_inlier_measurements}; "
+                f"{count} inlier rays in groups of {group})")
+    return _chance_consensus_reason(rays_a, rays_b, mask, model, rotation, translation, options)

@@ -199,6 +199,13 @@ class _Reference:
     velocity_after: tuple | None = None
 
 
+def _selection_columns(info) -> dict:
+    """``frames.csv`` columns of the back end's model choice (both models' GRIC, parallax, noise),
+    empty without a solve or from a custom pose solver that gives none."""
+    selection = getattr(info, "selection", None)
+    return {} if selection is None else selection.columns()
+
+
 def _angle(rotation: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
 
@@ -469,7 +476,8 @@ class Tracker:
                 self._pair_rays.append((reference.frame, k, corr.rays_a[inliers], corr.rays_b[inliers]))
             sigma = getattr(info, "rotation_sigma_rad", math.nan)  # a custom pose_solver may not predict it
             record = FrameRecord(k, reference.frame, True, "", info.n_correspondences, info.n_inliers,
-                                 0.0, info.model, _angle(pose.rotation), sigma, dict(corr.diagnostics))
+                                 0.0, info.model, _angle(pose.rotation), sigma,
+                                 {**corr.diagnostics, **_selection_columns(info)})
             return record, rotation, position
         rotation, position = self.rotations[-1], self.positions[-1]
         reason = corr.reason if info is None else f"relative pose: {info.reason}"
@@ -485,7 +493,8 @@ class Tracker:
             reason += f"; reference reset after {keyframe.max_failures} failures"
         record = FrameRecord(k, reference.frame, False, reason, len(corr.rays_a),
                              0 if info is None else info.n_inliers, 0.0,
-                             "" if info is None else info.model, 0.0, diagnostics=dict(corr.diagnostics))
+                             "" if info is None else info.model, 0.0,
+                             diagnostics={**corr.diagnostics, **_selection_columns(info)})
         return record, rotation, position
 
     def trajectory(self, timestamps: Sequence[float] | None = None) -> Trajectory:
