@@ -40,7 +40,6 @@ import csv
 import json
 import os
 import platform
-import shutil
 import subprocess
 import sys
 import time
@@ -61,8 +60,10 @@ from ifmi.evaluation import evaluate_files
 from ifmi.io.atomic import atomic_write_json, atomic_write_text
 from ifmi.io.camera_file import write_camera
 from ifmi.io.dataset import read_dataset
+from ifmi.io.tum import read_tum, write_tum
 from ifmi.pipeline import EstimateConfig, estimate_sequence, resolved_config
 from ifmi.report import machine_info
+from ifmi.trajectory import Trajectory
 
 # ``ru_maxrss`` unit: bytes on macOS, kibibytes elsewhere.
 _RSS_BYTES = 1 if platform.system() == "Darwin" else 1024
@@ -194,7 +195,11 @@ def resized_dataset(source: Path, out: Path, *, size: int, frames: int) -> Path:
     for path in data.image_paths[:frames]:
         image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         cv2.imwrite(str(out / "images" / path.name), cv2.resize(image, (size, size), interpolation=cv2.INTER_CUBIC))
-    shutil.copyfile(source / "groundtruth.txt", out / "groundtruth.txt")
+    # The ground truth of the frames kept (a TUM file is in time order, one pose per frame).
+    truth = read_tum(source / "groundtruth.txt")
+    kept = slice(0, min(frames, len(truth)))
+    write_tum(out / "groundtruth.txt", Trajectory(timestamps=truth.timestamps[kept],
+                                                  positions=truth.positions[kept], rotations=truth.rotations[kept]))
     return out
 
 

@@ -13,6 +13,7 @@ import pytest
 
 pytest.importorskip("skimage")
 from ifmi.io.camera_file import calibration_path, read_camera  # noqa: E402
+from ifmi.io.tum import read_tum  # noqa: E402
 from ifmi.synthetic import (example_band_px, example_omni_model, synthetic_sequence,  # noqa: E402
                             write_synthetic_dataset)
 
@@ -84,6 +85,9 @@ def test_resized_dataset_scales_images_and_calibration(bench, tmp_path):
     expected = read_camera(calibration_path(source)).scaled(2.0)
     assert model.size == (256, 256)
     np.testing.assert_allclose(model.center, expected.center)
+    # The ground truth of the frames kept: the resized set can be evaluated.
+    truth = read_tum(out / "groundtruth.txt")
+    np.testing.assert_array_equal(truth.rotations, read_tum(source / "groundtruth.txt").rotations[:2])
 
 
 def test_one_set_gives_every_method_and_a_report(bench, tmp_path, capsys):
