@@ -77,12 +77,8 @@ __all__ = [
 
 # Rows (exclusive) OpenCV's remap accepts, and the range of its 16-bit fixed-point maps.
 _REMAP_MAX_ROWS = 2 ** 15
-# Pixels of the tiles whose remap maps are built and used at a time (256 kB per float32 map): at
-# most OpenCV's stripe of 2^16 output pixels, so that ``cv2.remap`` runs each chunk on the calling
-# thread. Handing a few tiles to OpenCV's thread pool cost more than it gained: with 2^17 on a
-# shared 2-core machine, iFMI's compute per frame took 5-20 % more wall and CPU time at 512 and
-# 1024 px. Each pixel is computed alone, so the tiles are the same bit for bit.
-_MAP_CHUNK_PIXELS = 2 ** 16
+# Pixels of the tiles whose remap maps are built and used at a time (512 kB per float32 map).
+_MAP_CHUNK_PIXELS = 2 ** 17
 # Peak memory of registering one frame pair, per tile: bytes per tile pixel (the tiles, their
 # spectra, correlation surfaces, resampled tiles) and per sample of the log-polar grid (the
 # descriptors and their spectra). Measured with tracemalloc over two ``prepare`` calls and one

@@ -73,10 +73,6 @@ _NOISE_MEDIAN_PX = 5
 _MAX_GRAY_LEVEL = 255
 # OpenCV kernels the panorama can be resampled with, by name.
 PANORAMA_INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos4": cv2.INTER_LANCZOS4}
-# Output pixels of one panorama remap call: OpenCV's stripe of 2^16 output pixels, so that each band
-# of rows is resampled on the calling thread (see ``_MAP_CHUNK_PIXELS`` in ifmi.fourier_mellin:
-# OpenCV's thread pool cost more than it gained on these images).
-_REMAP_BAND_PIXELS = 2 ** 16
 # Off-axis angles and azimuths probed to find the band a general camera model images fully.
 _BAND_ANGLES = 721
 _BAND_AZIMUTHS = 360
@@ -492,23 +488,8 @@ def panorama_image_from_omni_image(mapping: PanoramaMapping, image: np.ndarray, 
     map1, map2 = mapping.fixed_maps or (mapping.map_cols, mapping.map_rows)
     if getattr(mapping.model, "wraps_columns", False):
         gray, map1 = _wrapped_seam(gray, map1)
-    pano = _banded_remap(gray, map1, map2, PANORAMA_INTERPOLATIONS[interpolation])
+    pano = cv2.remap(gray, map1, map2, PANORAMA_INTERPOLATIONS[interpolation], borderMode=cv2.BORDER_REPLICATE)
     return pano.astype(np.float32, copy=False)
-
-
-def _banded_remap(image: np.ndarray, map1: np.ndarray, map2: np.ndarray, kind: int) -> np.ndarray:
-    """``cv2.remap`` (border replicated) in bands of rows of at most :data:`_REMAP_BAND_PIXELS` output pixels.
-
-    Every output pixel is computed from its own map entries alone, so the
-    result is the one call's, bit for bit.
-    """
-    height, width = map1.shape[:2]
-    out = np.empty((height, width), dtype=image.dtype)
-    rows = max(1, _REMAP_BAND_PIXELS // width)
-    for first in range(0, height, rows):
-        band = slice(first, first + rows)
-        cv2.remap(image, map1[band], map2[band], kind, dst=out[band], borderMode=cv2.BORDER_REPLICATE)
-    return out
 
 
 def _wrapped_seam(gray: np.ndarray, map1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
