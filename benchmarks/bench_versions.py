@@ -46,7 +46,7 @@ def _worker(sets: list, frames: int, repeats: int, mode: str) -> dict:
     from ifmi.pipeline import EstimateConfig, estimate_sequence, resolved_config
 
     sys.path.insert(0, str(_BENCHMARKS))
-    from bench_methods import mode_config
+    from benchlib import mode_config
 
     out = {}
     for name in sets:
