@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ifmi.spectral.fourier_mellin import FourierMellin, FourierMellinConfig, max_tile_count
-from ifmi.spectral.tiling import (TilingConfig, strongest_tiles_per_column, tile_corner_strengths, tile_grid_shape, tile_layout,
+from ifmi.spectral.tiling import (TilingConfig, tile_grid_shape, tile_layout,
                          tile_size_px, tiles_from_panorama)
 
 
@@ -71,82 +71,6 @@ def test_automatic_tile_size_follows_the_width():
     assert tile_size_px(None, 768) == 48
     assert tile_size_px(None, 256) == 32
     assert tile_layout((200, 1024), config=TilingConfig()).tile_size == 64
-
-
-def _corner_strengths_by_definition(panorama, layout):
-    """Smaller eigenvalue of each tile's mean gradient outer product; central differences with the
-    first and last rows mirrored and the columns continued around the circle, written out
-    independently of the module."""
-    mirrored = np.pad(np.pad(panorama.astype(np.float64), ((1, 1), (0, 0)), mode="reflect"),
-                      ((0, 0), (1, 1)), mode="wrap")
-    g_r = (mirrored[2:, 1:-1] - mirrored[:-2, 1:-1]) / 2.0
-    g_c = (mirrored[1:-1, 2:] - mirrored[1:-1, :-2]) / 2.0
-    n = layout.tile_size
-    out = []
-    for r, c in layout.origins:
-        cols = (c + np.arange(n)) % panorama.shape[1]
-        gr, gc = g_r[r:r + n][:, cols], g_c[r:r + n][:, cols]
-        tensor = np.array([[np.mean(gr * gr), np.mean(gr * gc)], [np.mean(gr * gc), np.mean(gc * gc)]])
-        out.append(np.linalg.eigvalsh(tensor)[0])
-    return np.array(out)
-
-
-def test_corner_strengths_match_their_definition_across_the_seam():
-    rng = np.random.default_rng(4)
-    # Smooth random texture (a sum of waves periodic in the width, so the seam has no edge).
-    rows, cols = np.mgrid[0:96, 0:320].astype(np.float64)
-    pano = np.zeros((96, 320))
-    for _ in range(12):
-        k_r, k_c = rng.uniform(0.02, 0.3), 2 * np.pi * rng.integers(1, 40) / 320
-        pano += rng.uniform(5, 20) * np.sin(k_r * rows + k_c * cols + rng.uniform(0, 2 * np.pi))
-    layout = tile_layout(pano.shape, config=TilingConfig(tile_size=32, overlap=0.5))
-    assert (layout.origins[:, 1] + 32 > 320).any() and (layout.origins[:, 0] == 0).any()
-    expected = _corner_strengths_by_definition(pano, layout)
-    # Gradients are float32: relative error ~1e-6 of the largest strength.
-    tolerance = 1e-5 * expected.max()
-    for pad in (40, 10):  # tiles read from the wrapped columns, or wrapped here (pad < N)
-        padded = np.concatenate([pano[:, -pad:], pano, pano[:, :pad]], axis=1).astype(np.float32)
-        got = tile_corner_strengths(padded, layout, wrapped_columns=pad)
-        assert np.abs(got - expected).max() < tolerance
-
-
-def test_corner_strength_is_zero_without_texture_in_two_directions():
-    layout = tile_layout((64, 256), config=TilingConfig(tile_size=32, overlap=0.5))
-    rows, cols = np.mgrid[0:64, 0:256].astype(np.float32)
-    flat = np.full((64, 256), 7.0, dtype=np.float32)
-    ramp = 2.0 * rows  # gradients along the rows only
-    stripes = 50 * np.sin(2 * np.pi * cols / 32.0)  # along the columns only: an edge-like tile
-    checker = 50 * np.sin(2 * np.pi * cols / 32.0) * np.sin(2 * np.pi * rows / 32.0)
-    assert np.abs(tile_corner_strengths(flat, layout)).max() == 0
-    # One-directional texture: the smaller eigenvalue vanishes up to float32 rounding.
-    assert np.abs(tile_corner_strengths(ramp, layout)).max() < 1e-9
-    assert np.abs(tile_corner_strengths(stripes, layout)).max() < 1e-6 * tile_corner_strengths(checker, layout).min()
-    assert tile_corner_strengths(checker, layout).min() > 10
-
-
-def test_strongest_tiles_per_column_keeps_the_textured_tiles_of_every_column():
-    layout = tile_layout((64, 256), config=TilingConfig(tile_size=32, overlap=0.5))
-    assert layout.grid_shape == (3, 16)
-    rng = np.random.default_rng(1)
-    strength = rng.uniform(0, 1, layout.count)
-    picked = strongest_tiles_per_column(strength, layout, 2)
-    grid = strength.reshape(3, 16)
-    expected = [r * 16 + c for c in range(16) for r in np.argsort(-grid[:, c])[:2]]
-    assert np.array_equal(picked, np.sort(expected))
-    assert np.array_equal(strongest_tiles_per_column(strength, layout, 3), np.arange(layout.count))
-    # On a panorama whose middle tile row alone is textured, that row is the one kept.
-    pano = np.zeros((64, 256), dtype=np.float32)
-    pano[16:48] = rng.normal(0, 20, (32, 256))
-    picked = strongest_tiles_per_column(tile_corner_strengths(pano, layout), layout, 1)
-    assert np.array_equal(layout.origins[picked, 0], np.full(16, 16))
-
-
-def test_strongest_tiles_rejects_bad_input():
-    layout = tile_layout((64, 256), config=TilingConfig(tile_size=32, overlap=0.5))
-    with pytest.raises(ValueError, match="expected 48 strengths and count >= 1"):
-        strongest_tiles_per_column(np.zeros(47), layout, 1)
-    with pytest.raises(ValueError, match="count >= 1"):
-        strongest_tiles_per_column(np.zeros(48), layout, 0)
 
 
 @pytest.mark.parametrize("shape, config", [((100, 640), TilingConfig(tile_size=64)),

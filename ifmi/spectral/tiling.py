@@ -17,7 +17,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 __all__ = ["TilingConfig", "TileLayout", "tile_layout", "tiles_from_panorama", "tile_size_px", "tile_step_px",
-           "tile_grid_shape", "tile_corner_strengths", "strongest_tiles_per_column", "MIN_TILE_SIZE_PX"]
+           "tile_grid_shape", "MIN_TILE_SIZE_PX"]
 
 # Smallest tile side in pixels: the Fourier-Mellin registration (ifmi.spectral.fourier_mellin.FourierMellin)
 # needs at least 8 samples along each axis of a tile and of its log-polar grid.
@@ -210,69 +210,3 @@ def _box_means(image: np.ndarray, origins: np.ndarray, size: int) -> np.ndarray:
     return total / size ** 2
 
 
-def tile_corner_strengths(panorama: np.ndarray, layout: TileLayout, *, wrapped_columns: int = 0) -> np.ndarray:
-    """How well each tile's content fixes a shift in both directions (Shi-Tomasi corner strength).
-
-    The smaller eigenvalue of the tile's gradient structure tensor (mean of
-    ``g g^T`` over the tile): near zero on flat tiles and on tiles with
-    texture along one direction only (an edge, stripes), whose phase
-    correlation peak is weak or smeared; large where texture varies in both
-    directions. Gradients are central differences, the panorama's first and
-    last rows mirrored and its columns continued across the seam.
-
-    Parameters
-    ----------
-    panorama : (H, W + 2 P) ndarray
-        The panorama, with ``P`` (``wrapped_columns``) columns wrapped onto each side.
-    layout : TileLayout
-    wrapped_columns : int, keyword-only
-        ``P``; below ``N`` the panorama is wrapped here.
-
-    Returns
-    -------
-    (T,) float64 ndarray
-        Squared gray levels per pixel, one per layout tile.
-    """
-    height, width = layout.panorama_shape
-    pad = int(wrapped_columns)
-    if panorama.shape != (height, width + 2 * pad):
-        raise ValueError(f"expected a panorama of shape {(height, width + 2 * pad)}, got {panorama.shape}")
-    n = layout.tile_size
-    if pad < n:
-        # Wrapped here, with one column more on each side for the tiles' outer gradients.
-        core = panorama[:, pad:pad + width]
-        panorama = np.concatenate([core[:, -1:], core, core[:, :n]], axis=1)
-        pad = 1
-    panorama = np.asarray(panorama, dtype=np.float32)
-    grad_rows = cv2.Sobel(panorama, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
-    grad_cols = cv2.Sobel(panorama, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
-    origins = layout.origins + np.array([0, pad])
-    s_rr = _box_means(grad_rows * grad_rows, origins, n)
-    s_cc = _box_means(grad_cols * grad_cols, origins, n)
-    s_rc = _box_means(grad_rows * grad_cols, origins, n)
-    return (s_rr + s_cc) / 2.0 - np.sqrt(((s_rr - s_cc) / 2.0) ** 2 + s_rc ** 2)
-
-
-def strongest_tiles_per_column(strength: np.ndarray, layout: TileLayout, count: int) -> np.ndarray:
-    """Indices (ascending) of the ``count`` tiles of largest ``strength`` in each grid column.
-
-    Every azimuth keeps tiles, so the kept rays still surround the camera.
-
-    Parameters
-    ----------
-    strength : (T,) ndarray
-        One score per layout tile (e.g. :func:`tile_corner_strengths`).
-    layout : TileLayout
-    count : int
-        Tiles per column, ``>= 1``; all of a column's tiles when it has no more.
-
-    Returns
-    -------
-    (K,) int ndarray
-    """
-    rows, cols = layout.grid_shape
-    strength = np.asarray(strength)
-    if strength.shape != (layout.count,) or count < 1:
-        raise ValueError(f"expected {layout.count} strengths and count >= 1, got {strength.shape} and {count}")
-    best_rows = np.argsort(-strength.reshape(rows, cols), axis=0, kind="stable")[:count]
-    return np.sort((best_rows * cols + np.arange(cols)).ravel())
