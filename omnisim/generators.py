@@ -198,9 +198,6 @@ class Generator:
     params: tuple
     relations: tuple = ()
 
-    def param(self, name: str) -> Param:
-        return next(p for p in self.params if p.name == name)
-
 
 # The registry filled by register_generator (module state by design: generators
 # register themselves when their module is imported).

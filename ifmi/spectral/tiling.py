@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
@@ -200,13 +199,5 @@ def tiles_from_panorama(panorama: np.ndarray, layout: TileLayout, *, index: np.n
     # every pixel by index for 128 tiles of 32 px).
     windows = sliding_window_view(panorama, (n, n))
     return windows[origins[:, 0], origins[:, 1] + pad]
-
-
-def _box_means(image: np.ndarray, origins: np.ndarray, size: int) -> np.ndarray:
-    """Mean of ``image`` over the ``size x size`` box at each ``(row, col)`` origin (summed-area table)."""
-    table = cv2.integral(image, sdepth=cv2.CV_64F)
-    r, c = origins[:, 0], origins[:, 1]
-    total = table[r + size, c + size] - table[r, c + size] - table[r + size, c] + table[r, c]
-    return total / size ** 2
 
 
