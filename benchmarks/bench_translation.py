@@ -107,7 +107,7 @@ def _camera_size(camera: str, width: int) -> tuple[int, int]:
 
 def render_set(folder: Path, depth: str, camera: str, step_m: float, args) -> Path:
     """Render (or resume) one set; returns its dataset folder."""
-    from omnisim.render import render_dataset
+    from omnisim.renderer import render_dataset
 
     scene = write_set_scene(folder, depth, camera, step_m)
     dataset = folder / "dataset"
