@@ -125,7 +125,10 @@ def test_a_worker_killed_mid_render_is_replaced_and_the_render_completes(tmp_pat
 
     from omnisim.renderer import render_dataset
 
-    scene = _scene(tmp_path, frames=8, size=32)
+    # Enough frames that the kill at the first stored frame lands mid-run on any machine: eight 32 px
+    # frames could all be stored between two looks of the killer (frames are stored in bursts).
+    frames = 40
+    scene = _scene(tmp_path, frames=frames, size=32)
     render_dataset(scene, tmp_path / "single", progress=False)
     out = tmp_path / "parallel"
     killed = {}
@@ -145,7 +148,7 @@ def test_a_worker_killed_mid_render_is_replaced_and_the_render_completes(tmp_pat
     killer.start()
     result = render_dataset(scene, out, progress=False, workers=2)
     killer.join(timeout=130)
-    assert killed and killed["frames_stored"] < 8  # the kill came mid-run
-    assert result.rendered == 8
+    assert killed and killed["frames_stored"] < frames  # the kill came mid-run
+    assert result.rendered == frames
     assert _files(out) == _files(tmp_path / "single")
     assert json.loads((out / "meta.json").read_text())["complete"]
