@@ -35,6 +35,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CATALOGUE = Path(__file__).resolve().parent / "sets.toml"
 # Scene keys whose value is a file name relative to the scene file.
 PATH_KEYS = ("file", "kalibr", "tum", "mitsuba_xml")
+# A table header of a scene file: [table] or [[array of tables]].
+_HEADER = re.compile(r"^\s*\[+([^\]]+)\]+")
 
 
 @dataclass(frozen=True)
@@ -83,16 +85,17 @@ def scene_with_overrides(scene_file: Path, overrides: dict, out_file: Path) -> P
     A key already in its table has its value replaced; a missing one is added at the table's top.
     """
     lines = scene_file.read_text(encoding="utf-8-sig").splitlines()
+    present = _keys_by_table(lines)
     pending = dict(overrides)
     table, out = None, []
     for line in lines:
-        header = re.match(r"^\s*\[+([^\]]+)\]+", line)
+        header = _HEADER.match(line)
         if header:
             table = header.group(1).strip()
             out.append(line)
             out += [f"{key.rpartition('.')[2]} = {_toml_value(pending.pop(key))}"
                     for key in list(pending) if key.rpartition(".")[0] == table
-                    and not _table_has_key(lines, table, key.rpartition(".")[2])]
+                    and key.rpartition(".")[2] not in present.get(table, set())]
             continue
         assignment = re.match(r"^(\s*)([A-Za-z_]+)(\s*=\s*)(\"[^\"]*\"|[^#]+?)(\s*#.*)?$", line)
         if assignment and f"{table}.{assignment.group(2)}" in pending:
@@ -110,15 +113,19 @@ def scene_with_overrides(scene_file: Path, overrides: dict, out_file: Path) -> P
     return out_file
 
 
-def _table_has_key(lines: list[str], table: str, key: str) -> bool:
-    current = None
+def _keys_by_table(lines: list[str]) -> dict[str, set[str]]:
+    """The keys each table of a scene file's lines assigns."""
+    keys: dict[str, set[str]] = {}
+    table = None
     for line in lines:
-        header = re.match(r"^\s*\[+([^\]]+)\]+", line)
+        header = _HEADER.match(line)
         if header:
-            current = header.group(1).strip()
-        elif current == table and re.match(rf"^\s*{re.escape(key)}\s*=", line):
-            return True
-    return False
+            table = header.group(1).strip()
+            continue
+        assignment = re.match(r"^\s*([A-Za-z_]+)\s*=", line)
+        if assignment:
+            keys.setdefault(table, set()).add(assignment.group(1))
+    return keys
 
 
 def _toml_value(value) -> str:
