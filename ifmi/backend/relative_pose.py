@@ -460,6 +460,27 @@ def _epipolar_angles_of_essentials(products: np.ndarray, rays_b: np.ndarray,
     return np.arcsin(np.minimum(dot, 1.0))
 
 
+def _cheiral_epipolar_angles(products: np.ndarray, rays: np.ndarray, rotations: np.ndarray,
+                             translations: np.ndarray) -> np.ndarray:
+    """Residual angles of poses ``(R_ab, t_ab)`` that also count a point seen behind the cameras, (K, N).
+
+    ``rays`` holds ``rays_a`` and ``rays_b``, (2, N, 3); ``products`` their :func:`_ray_products`;
+    ``rotations`` (K, 3, 3), ``translations`` (K, 3). A correspondence whose ray ``a`` lies on the
+    side of ``R_ab b`` away from the epipole ``t_ab`` triangulates behind the cameras (a point
+    at positive depth is seen from camera a between ``R_ab b`` and ``t_ab``); its nearest
+    configuration in front is the point at infinity, so its residual is the angle between ``a``
+    and ``R_ab b`` instead of the angle to the epipolar plane. For a plane seen over part of the
+    sphere both essential matrices of its two-fold ambiguity fit every epipolar constraint; only
+    this sign tells them apart, by the correspondences the wrong one puts behind the cameras.
+    """
+    rays_a, rays_b = rays
+    epipolar = _epipolar_angles_of_essentials(products, rays_b, cross_product_matrix(translations) @ rotations)
+    cosines = rotations.reshape(-1, 9) @ products.T  # a . R b
+    # Sign of (a x R b) . (t x R b) = a . t - (a . R b) (t . R b): positive when a lies towards t.
+    toward = translations @ rays_a.T - cosines * (np.einsum("kji,kj->ki", rotations, translations) @ rays_b.T)
+    return np.where(toward < 0.0, np.maximum(epipolar, _angles_from_cosines(cosines)), epipolar)
+
+
 def epipolar_angles(rays_a: np.ndarray, rays_b: np.ndarray, rotations: np.ndarray,
                     translations: np.ndarray) -> np.ndarray:
     """Angle between ``rays_a`` and the epipolar plane of ``rays_b`` (radians).
@@ -636,8 +657,7 @@ def _ransac_5pt(rays, products, threshold, options, rng):
                 owners.append(j)
         if rotations:
             rotations, translations = np.stack(rotations), np.stack(translations)
-            count, cost = _score(_epipolar_angles_of_essentials(
-                products, rays[1], cross_product_matrix(translations) @ rotations), threshold)
+            count, cost = _score(_cheiral_epipolar_angles(products, rays, rotations, translations), threshold)
             sample_of = np.asarray(owners)
             order = np.lexsort((cost, -count, sample_of))
             first = np.ones(len(order), dtype=bool)
@@ -1047,16 +1067,15 @@ def _refined_5pt(rays_a, rays_b, products, rotation, translation, options: Relat
     """The 5-point model refined on its inliers, then on the refined model's inliers
     (``options.polish_rounds``), and the epipolar angles of every correspondence under it."""
     threshold = options.ransac_threshold_rad
-    errors = _epipolar_angles_of_essentials(products, rays_b,
-                                            (cross_product_matrix(translation) @ rotation)[None])[0]
+    rays = np.stack([rays_a, rays_b])
+    errors = _cheiral_epipolar_angles(products, rays, rotation[None], translation[None])[0]
     mask = errors < threshold
     for _ in range(1 + options.polish_rounds if options.refine else 0):
         if mask.sum() < _SAMPLE_5PT:
             break
         rotation, translation = _refine_5pt(rays_a[mask], rays_b[mask], rotation, translation,
                                             options.refine_iterations)
-        errors = _epipolar_angles_of_essentials(products, rays_b,
-                                                (cross_product_matrix(translation) @ rotation)[None])[0]
+        errors = _cheiral_epipolar_angles(products, rays, rotation[None], translation[None])[0]
         refined_mask = errors < threshold
         if np.array_equal(refined_mask, mask):
             break
@@ -1102,6 +1121,14 @@ def _fit_5pt(rays_a, rays_b, products, rays, options: RelativePoseOptions, rng):
     return rotation, translation / np.linalg.norm(translation), errors
 
 
+def _inlier_epipolar_angles(rays_a, rays_b, five_point, threshold: float) -> np.ndarray:
+    """Epipolar angles (radians) of the 5-point model's inliers, the noise it measures: the angle
+    to the epipolar plane, whichever side of the cameras a correspondence triangulates on."""
+    rotation, translation, errors = five_point
+    inliers = errors < threshold
+    return epipolar_angles(rays_a[inliers], rays_b[inliers], rotation[None], translation[None])[0]
+
+
 def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: RelativePoseOptions,
                      group: int) -> ModelSelection:
     """Both models' GRIC over the correspondences either explains, the parallax and the noise level.
@@ -1122,7 +1149,8 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     rotation_5pt, _, errors_5pt = five_point
     inliers_5pt = errors_5pt < threshold
     noise = (options.noise_sigma_rad
-             or _epipolar_noise_sigma(errors_5pt, threshold, group, confidence=_NOISE_CONFIDENCE)
+             or _epipolar_noise_sigma(_inlier_epipolar_angles(rays_a, rays_b, five_point, threshold), threshold,
+                                      group, confidence=_NOISE_CONFIDENCE)
              or rot_sigma)
     either = rot_mask | inliers_5pt
     parallax = rotation_angles(rays_a[inliers_5pt], rays_b[inliers_5pt], rotation_5pt)
@@ -1235,8 +1263,9 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     if model == "rotation":
         sigma = _rotation_sigma_of_rotation(rays_b[mask], pose.rotation, rotation_fit[3], rays_per_measurement)
     else:
-        noise = options.noise_sigma_rad or _epipolar_noise_sigma(errors_5pt, options.ransac_threshold_rad,
-                                                                 rays_per_measurement)
+        threshold = options.ransac_threshold_rad
+        noise = options.noise_sigma_rad or _epipolar_noise_sigma(
+            _inlier_epipolar_angles(rays_a, rays_b, five_point, threshold), threshold, rays_per_measurement)
         sigma = _rotation_sigma_of_5pt(rays_a[mask], rays_b[mask], pose.rotation, pose.translation_direction,
                                        noise, rays_per_measurement)
     return pose, RelativePoseInfo(True, "", n, count, mask, model, sigma, selection)
