@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays, rotation_from_rays
+from ifmi.backend.relative_pose import (RelativePoseOptions, epipolar_angles, relative_pose_from_rays,
+                                        rotation_from_rays)
 from ifmi.geometry.rotations import geodesic_angle
 
 
@@ -673,3 +674,73 @@ def test_forced_five_point_model_and_its_evidence():
     assert info.success and info.model == "5pt"
     assert info.selection.gric_5pt > info.selection.gric_rotation  # forced against the evidence
     assert set(info.selection.columns()) == {"gric_rotation", "gric_5pt", "parallax_rad", "selection_sigma_rad"}
+
+
+def _floor_view(seed: int, *, step_m: float = 0.02, height_m: float = 0.4, n: int = 150,
+                noise_rad: float = 0.0):
+    """Rays of ``n`` points of a floor ``height_m`` below camera a, seen 20 to 70 degrees off the
+    nadir over three quarters of the azimuths (a wide view with a sector hidden), and from camera
+    b one ``step_m`` along the floor and turned by a known rotation; seeded ray noise
+    ``noise_rad`` per axis on camera a. Returns rays a, rays b, ``R_ab`` and ``t_ab``."""
+    rng = np.random.default_rng(seed)
+    off_nadir = np.arccos(rng.uniform(np.cos(np.radians(70.0)), np.cos(np.radians(20.0)), n))
+    azimuth = rng.uniform(0.0, 1.5 * np.pi, n)
+    rays_a = np.stack([np.sin(off_nadir) * np.cos(azimuth), np.sin(off_nadir) * np.sin(azimuth),
+                       -np.cos(off_nadir)], axis=1)
+    points_a = rays_a * (height_m / np.cos(off_nadir))[:, None]
+    rotation = Rotation.from_rotvec([0.02, -0.03, 0.2]).as_matrix()
+    translation = step_m * np.array([np.cos(seed), np.sin(seed), 0.0])
+    points_b = (points_a - translation) @ rotation  # X_a = R_ab X_b + t_ab
+    rays_b = points_b / np.linalg.norm(points_b, axis=1, keepdims=True)
+    if noise_rad:
+        rays_a = rays_a + rng.normal(0.0, noise_rad, rays_a.shape)
+        rays_a /= np.linalg.norm(rays_a, axis=1, keepdims=True)
+    return rays_a, rays_b, rotation, translation
+
+
+def _plane_twin(rotation, translation, normal_a, distance_a):
+    """The other motion of a plane's two-fold ambiguity (the plane ``n_a . X_a = d_a`` in camera a):
+    the decomposition of the homography ``R + t n_b^T / d_b`` of the plane in camera b whose
+    rotation is farthest from ``rotation``."""
+    import cv2
+
+    normal_b, distance_b = rotation.T @ normal_a, distance_a - normal_a @ translation
+    homography = rotation + np.outer(translation, normal_b) / distance_b
+    _, rotations, translations, _ = cv2.decomposeHomographyMat(homography, np.eye(3))
+    k = max(range(len(rotations)), key=lambda i: geodesic_angle(rotations[i], rotation))
+    return rotations[k], translations[k][:, 0]
+
+
+def test_floor_twin_fits_the_epipolar_constraints_but_puts_points_behind_the_cameras():
+    # The ambiguity itself: both motions explain every epipolar constraint of the floor exactly.
+    # Over the whole floor around the nadir the twin, which moves the camera towards the floor,
+    # must put a part of it behind the cameras (in camera a, a ray on the far side of its rotated
+    # partner from the epipole) whichever way its translation points.
+    rays_a, rays_b, rotation, translation = _floor_view(0)
+    twin_rotation, twin_translation = _plane_twin(rotation, translation, np.array([0.0, 0.0, -1.0]), 0.4)
+    assert geodesic_angle(twin_rotation, rotation) > 0.02  # the twin's rotation, tens of mrad off
+    assert epipolar_angles(rays_a, rays_b, twin_rotation[None], twin_translation[None]).max() < 1e-9
+    turned = rays_b @ twin_rotation.T
+    for sign in (1.0, -1.0):
+        t = sign * twin_translation
+        toward = rays_a @ t - np.sum(rays_a * turned, axis=1) * (turned @ t)
+        assert np.mean(toward < 0) > 0.2
+    # The true motion puts none behind.
+    turned = rays_b @ rotation.T
+    assert np.all(rays_a @ translation - np.sum(rays_a * turned, axis=1) * (turned @ translation) > 0)
+
+
+@pytest.mark.parametrize("noise_rad", [5e-4, 1e-3])
+def test_floor_seen_all_around_gives_the_true_rotation_not_its_twin(noise_rad):
+    # A 2 cm step 0.4 m above the floor: the twin's rotation is about 50 mrad off. The 5-point
+    # model counts the twin's points behind the cameras against it, so the true motion wins on
+    # every seed, with the model selection (a parallax of up to 50 mrad against 1 mrad of noise
+    # or less: the 5-point model) and forced. Measured with the plain epipolar angle as the
+    # residual: the twin on 3 of these 20 seeds at either noise.
+    options = RelativePoseOptions(ransac_threshold_rad=3e-3)
+    for seed in range(20):
+        rays_a, rays_b, rotation, _ = _floor_view(seed, noise_rad=noise_rad)
+        for forced in (False, True):
+            pose, info = relative_pose_from_rays(rays_a, rays_b, options=replace(options, five_point_only=forced))
+            assert info.success and info.model == "5pt"
+            assert geodesic_angle(pose.rotation, rotation) < 3 * noise_rad
