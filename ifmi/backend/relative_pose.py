@@ -8,7 +8,10 @@ Two models compete inside a seeded RANSAC with an angular threshold:
 
 * ``"5pt"``: the minimal essential-matrix solver on bearing vectors
   (``poselib.relpose_5pt``, which accepts rays of any sign of z), scored by
-  the angle between a ray and the epipolar plane of its partner, then refined
+  the angle between a ray and the epipolar plane of its partner, or, for a
+  correspondence the model triangulates behind the cameras, by the angle
+  between the ray and its rotated partner (the nearest point in front is at
+  infinity), then refined
   by Gauss-Newton (analytic Jacobian) on the inliers' symmetric epipolar
   angles, again on the refined model's inliers until they settle;
 * ``"rotation"``: a rotation-only model (Kabsch on rays, two rays per
@@ -16,8 +19,18 @@ Two models compete inside a seeded RANSAC with an angular threshold:
   then refined by Kabsch on the inliers and re-solved a few times with
   Cauchy weights of the residual angles.
 
+The cheirality in the 5-point residual resolves the two-fold ambiguity of a
+plane (a floor seen by a downward camera): both essential matrices of the
+plane fit every epipolar constraint, but the wrong one, whose translation
+points at the plane, puts the points on one side of it behind the cameras
+once the rays spread to both sides; over a narrow view of a plane the two
+stay indistinguishable from one pair. The noise level is still measured on
+the epipolar angles alone.
+
 Under (near) pure rotation every translation fits the epipolar constraint,
-which makes the 5-point solution ill-conditioned and lets it fit noise. The
+which makes the 5-point solution ill-conditioned and lets it fit noise (a
+spurious translation also puts about half the rays behind the cameras, whose
+residuals then count in full). The
 model is chosen by Torr's GRIC over the correspondences either model
 explains: a model's score is the sum of its squared residuals in units of
 the ray noise (capped, so an outlier costs a fixed amount), plus a charge for
@@ -478,7 +491,9 @@ def _cheiral_epipolar_angles(products: np.ndarray, rays: np.ndarray, rotations: 
     cosines = rotations.reshape(-1, 9) @ products.T  # a . R b
     # Sign of (a x R b) . (t x R b) = a . t - (a . R b) (t . R b): positive when a lies towards t.
     toward = translations @ rays_a.T - cosines * (np.einsum("kji,kj->ki", rotations, translations) @ rays_b.T)
-    return np.where(toward < 0.0, np.maximum(epipolar, _angles_from_cosines(cosines)), epipolar)
+    behind = toward < 0.0
+    epipolar[behind] = np.maximum(epipolar[behind], _angles_from_cosines(cosines[behind]))
+    return epipolar
 
 
 def epipolar_angles(rays_a: np.ndarray, rays_b: np.ndarray, rotations: np.ndarray,
