@@ -218,7 +218,9 @@ class RelativePoseOptions:
         for its five parameters and for the cut at the threshold, at its
         upper bound of one standard error), or from the rotation
         model's inliers (see :func:`noise_sigma_from_residuals`) when those
-        are five measurements or fewer.
+        are five measurements or fewer; an estimate above
+        ``ransac_threshold_rad`` (inliers spread evenly up to it) is taken
+        as the threshold.
     rotation_threshold_factor : float
         The rotation model's inlier threshold is this multiple of
         ``ransac_threshold_rad``: its error is an angle in two dimensions,
@@ -1149,7 +1151,7 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     """Both models' GRIC over the correspondences either explains, the parallax and the noise level.
 
     The noise level is ``options.noise_sigma_rad`` or the estimate of the
-    5-point model's residuals (:func:`_epipolar_noise_sigma`): that
+    5-point model's residuals (:func:`_epipolar_noise_sigma`), at most the inlier threshold: that
     model is the richer one, so its residuals hold only noise whether the
     camera moved or not, while the rotation model's also hold the parallax.
     With too few 5-point inliers to estimate it, the rotation model's
@@ -1163,10 +1165,12 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     _, rot_errors, rot_mask, rot_sigma = rotation_fit
     rotation_5pt, _, errors_5pt = five_point
     inliers_5pt = errors_5pt < threshold
+    # An estimate above the threshold (inliers spread evenly up to it, no peak of noise inside) is
+    # taken as the threshold: the inliers cannot show a larger noise, and a larger one would make a
+    # parallax of many thresholds look like noise.
     noise = (options.noise_sigma_rad
-             or _epipolar_noise_sigma(_inlier_epipolar_angles(rays_a, rays_b, five_point, threshold), threshold,
-                                      group, confidence=_NOISE_CONFIDENCE)
-             or rot_sigma)
+             or min(_epipolar_noise_sigma(_inlier_epipolar_angles(rays_a, rays_b, five_point, threshold),
+                                          threshold, group, confidence=_NOISE_CONFIDENCE) or rot_sigma, threshold))
     either = rot_mask | inliers_5pt
     parallax = rotation_angles(rays_a[inliers_5pt], rays_b[inliers_5pt], rotation_5pt)
     # Exact rays: residuals of rounding only, which the two models' angle formulas resolve differently.
