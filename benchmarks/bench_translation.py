@@ -12,7 +12,11 @@ ifmi, orb, akaze and the plain reference pipeline of
 ``benchmarks/reference_pipeline.py``) with the default model selection and
 with each model forced (``rotation``, ``5pt``). Printed per set and method:
 the geodesic ATE (RMS over the frames of the angle of ``R_gt^T R_est``,
-radians) of each run and the share of pairs solved with each model.
+radians) of each run and the share of pairs solved with each model; at the
+end, how many runs meet each criterion of the sweep (the chosen model at most
+1.5x the better forced run; ORB and AKAZE at most 1.25x the reference
+pipeline; iFMI on the downward fisheyes at most a third of the best other
+method and below 5 mrad).
 
 Everything is seeded (scene seed, ``--seed`` for the motion and sampling,
 the back end's RANSAC seed). Renders and estimates are kept in the folder
@@ -51,6 +55,13 @@ METHODS = ("ifmi", "orb", "akaze", "reference")
 SELECTIONS = ("auto", "rotation", "5pt")
 # Method name of the reference pipeline (a plugin by import path; benchmarks/ is on sys.path).
 REFERENCE = "reference_pipeline:reference_front_end"
+# Criteria the summary counts: a run with the model chosen is at most this multiple of the better
+# forced run's ATE; ORB and AKAZE at most this multiple of the reference pipeline's; on the
+# downward fisheyes iFMI at most this share of the best other method's ATE and below this ATE (rad).
+FIXED_MODEL_RATIO = 1.5
+REFERENCE_RATIO = 1.25
+FISHEYE_SHARE = 1.0 / 3.0
+FISHEYE_ATE_RAD = 0.005
 # The walk of a translated set stays within this distance of the start, metres: large enough for
 # every step of the sweep, small enough to keep the floor camera off the furniture.
 TRANSLATION_RADIUS_M = 1.0
@@ -181,6 +192,33 @@ def table_rows(sweep: dict, methods) -> list[str]:
     return rows
 
 
+def summary_lines(sweep: dict, methods) -> list[str]:
+    """Markdown bullets counting the runs that meet each criterion (see ``FIXED_MODEL_RATIO`` and below)."""
+    def ate(name, method, selection="auto"):
+        return sweep[name][method, selection]["ate_rad"]
+
+    def behind_fixed(name, method):
+        return ate(name, method) > FIXED_MODEL_RATIO * min(ate(name, method, "rotation"), ate(name, method, "5pt"))
+
+    lines = [f"* Runs with the chosen model more than {FIXED_MODEL_RATIO}x the better forced run: "
+             + ", ".join(f"{m} {sum(behind_fixed(n, m) for n in sweep)}" for m in methods)
+             + f" of {len(sweep)} sets each."]
+    features = [m for m in ("orb", "akaze") if m in methods]
+    if "reference" in methods and features:
+        lines.append(f"* ORB and AKAZE more than {REFERENCE_RATIO}x the reference pipeline's ATE: " + ", ".join(
+            f"{m} {sum(ate(n, m) > REFERENCE_RATIO * ate(n, 'reference') for n in sweep)}" for m in features)
+            + f" of {len(sweep)} sets each.")
+    fisheyes = [n for n in sweep if "-ds-" in n or "-kb-" in n]
+    others = [m for m in methods if m != "ifmi"]
+    if "ifmi" in methods and others and fisheyes:
+        kept = [n for n in fisheyes if ate(n, "ifmi") < FISHEYE_ATE_RAD
+                and ate(n, "ifmi") <= FISHEYE_SHARE * min(ate(n, m) for m in others)]
+        lines.append(f"* iFMI on the downward fisheyes (ds, kb) at most {FISHEYE_SHARE:.2f} of the best other "
+                     f"method's ATE and below {FISHEYE_ATE_RAD} rad: {len(kept)} of {len(fisheyes)} sets"
+                     + (f" ({', '.join(kept)})." if kept else "."))
+    return lines
+
+
 def _machine() -> str:
     """Platform and CPU model of this machine, for the report."""
     cpu = platform.processor() or platform.machine()
@@ -207,6 +245,7 @@ def report_text(sweep: dict, args, command: str) -> str:
              "default model selection, its ratio to the better of the two fixed-model runs (rotation only, "
              "5-point only), and the share of solved pairs on which the 5-point model was chosen.", "",
              header, "|" + "---|" * (len(methods) + 1), *table_rows(sweep, methods), "",
+             *summary_lines(sweep, methods), "",
              "Fixed-model ATEs (rad), rotation only / 5-point only:", "",
              header, "|" + "---|" * (len(methods) + 1)]
     for name, results in sweep.items():
@@ -254,6 +293,8 @@ def main() -> None:
                     continue
                 sweep[name] = run_set(folder, dataset, args)
                 _print_set(name, sweep[name], args.methods)
+    if not args.render_only:
+        print("\n".join(summary_lines(sweep, args.methods)))
     if args.report:
         from ifmi.io.atomic import atomic_write_text
 
