@@ -1082,7 +1082,8 @@ def _fit_rotation(rays_a, rays_b, products, rays, options: RelativePoseOptions, 
 
 def _refined_5pt(rays_a, rays_b, products, rotation, translation, options: RelativePoseOptions):
     """The 5-point model refined on its inliers, then on the refined model's inliers
-    (``options.polish_rounds``), and the epipolar angles of every correspondence under it."""
+    (``options.polish_rounds``), and the residual angles of every correspondence under it
+    (:func:`_cheiral_epipolar_angles`)."""
     threshold = options.ransac_threshold_rad
     rays = np.stack([rays_a, rays_b])
     errors = _cheiral_epipolar_angles(products, rays, rotation[None], translation[None])[0]
@@ -1129,8 +1130,8 @@ def _lowest_cost_refined_5pt(rays_a, rays_b, products, hypotheses, options: Rela
 
 
 def _fit_5pt(rays_a, rays_b, products, rays, options: RelativePoseOptions, rng):
-    """The refined 5-point model ``(R_ab, unit t_ab, epipolar angles of every correspondence)``,
-    or None when no sample gave a hypothesis."""
+    """The refined 5-point model ``(R_ab, unit t_ab, residual angles of every correspondence)``
+    (:func:`_cheiral_epipolar_angles`), or None when no sample gave a hypothesis."""
     hypotheses = _ransac_5pt(rays, products, options.ransac_threshold_rad, options, rng)
     if not hypotheses:
         return None
