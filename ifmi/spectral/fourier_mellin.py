@@ -187,11 +187,11 @@ class FourierMellinConfig:
         off. Without a fixed ``correlation_lowpass`` only. At 0.5, on six 512 px
         renders (pure rotation and translation) passed through noise of 5 grey
         levels, JPEG quality 50, exposure flicker and a vignette, the ATE fell
-        in 10 of 12 runs (frame and keyframe mode; 0.03-0.96x, 13-14x on the
+        in 10 of 12 runs (frame and keyframe mode; 0.96x down to 0.03x on the
         low-contrast warehouse) and rose in two (1.05x; 2.95x on atelier in
-        keyframe mode). The clean office, lawn, urban and atelier renders keep
-        at least half their tiles on every pair: their estimates are the same
-        bit for bit. On the clean warehouse, where three quarters of the
+        keyframe mode). The clean office, lawn, urban and pure-rotation atelier
+        renders keep at least half their tiles on every pair: their estimates
+        are the same bit for bit. On the clean warehouse, where three quarters of the
         tiles fail anyway, it is 0.55-1.16x except in keyframe mode on pure
         rotation (3.9x: more keyframes were taken).
     noisy_lowpass : float
