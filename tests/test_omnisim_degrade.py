@@ -250,3 +250,17 @@ def test_cli_refuses_a_vignetting_past_what_8_bits_show(source, tmp_path, capsys
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and err.startswith("omnisim degrade: error: --vignetting: expected")
     assert not (tmp_path / "q").exists()
+
+
+def test_vignetting_on_a_kalibr_calibration_is_one_line_naming_it(source, tmp_path):
+    from camera_examples import EXAMPLES
+
+    from ifmi.io.kalibr import write_kalibr
+
+    kalibr = tmp_path / "kalibr"
+    shutil.copytree(source, kalibr)
+    (kalibr / "calib_results.txt").unlink()
+    write_kalibr(kalibr / "camera.yaml", EXAMPLES["kb"].scaled(0.5))
+    with pytest.raises(InputError, match="needs an OCamCalib calibration") as info:
+        degrade_dataset(kalibr, tmp_path / "out", effects=EffectsSettings(), vignetting=0.5, progress=False)
+    assert str(kalibr / "camera.yaml") in str(info.value) and not (tmp_path / "out").exists()
