@@ -149,8 +149,9 @@ def build(recipe: SetRecipe, data: Path) -> str:
         from omnisim.config import EffectsSettings
         from omnisim.degrade import degrade_dataset
         options = dict(recipe.options)
-        seed = options.pop("seed", 0)
-        degrade_dataset(source, out, effects=EffectsSettings(**options), seed=seed, progress=False)
+        seed, vignetting = options.pop("seed", 0), options.pop("vignetting", 0.0)
+        degrade_dataset(source, out, effects=EffectsSettings(**options), seed=seed, vignetting=vignetting,
+                        progress=False)
         return f"{recipe.name}: degraded"
     return _warp(recipe, source, out)
 

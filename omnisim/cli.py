@@ -90,6 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
     for name, kind, default, doc in field_docs(EffectsSettings):
         degrade.add_argument(f"--{name.replace('_', '-')}", dest=name, type=int if kind == "int" else float,
                              help=f"{doc} (default {default})")
+    degrade.add_argument("--vignetting", type=float, default=0.0, metavar="V",
+                         help="radial fall-off (1 + (V rho / rho_max)^2)^-2 about the mirror centre, rho_max the "
+                              "image's largest circle (0 = none, the default; at most 7.9)")
     degrade.add_argument("--seed", type=int, help="seed of noise and exposure walk (default 0)")
     degrade.add_argument("--no-progress", action="store_true", help="no progress bar")
     warp = sub.add_parser("warp", help="turn one omni image into a pure-rotation sequence with exact "
@@ -126,7 +129,8 @@ def _degrade(args) -> int:
     except SettingError as exc:
         raise InputError(f"--{exc.key.replace('_', '-')}", f"{exc.key}: {exc.problem}") from None
     seed = {} if args.seed is None else {"seed": args.seed}
-    result = degrade_dataset(args.dataset, args.out, effects=effects, progress=not args.no_progress, **seed)
+    result = degrade_dataset(args.dataset, args.out, effects=effects, vignetting=args.vignetting,
+                             progress=not args.no_progress, **seed)
     print(f"{result.out_dir}: {result.frames} frames ({result.written} written now)")
     return 0
 

@@ -9,9 +9,16 @@ the images are written as PNG (the JPEG artefacts are kept, nothing further
 is lost). Like a render, an interrupted run resumes and a rerun with other
 settings into the same folder is refused.
 
-Exposure acts on linear intensities: each 8-bit sRGB value is decoded,
-multiplied by the frame's gain and encoded again, so highlights clip as
-they would in a camera (detail already clipped in the source stays lost).
+Exposure and vignetting act on linear intensities: each 8-bit sRGB value is
+decoded, multiplied by the frame's gain and the pixel's vignetting factor and
+encoded again, so highlights clip as they would in a camera (detail already
+clipped in the source stays lost). The vignetting is the renderer's radial
+fall-off (:func:`omnisim.capture.vignetting_from_pixels`, the cos^4 law
+``(1 + (v * rho / rho_max)**2)**-2`` of the sensor-plane radius ``rho`` about
+the mirror centre); here ``rho_max`` is the radius of the largest circle about
+the mirror centre that the image holds (the smallest radius of a border pixel),
+since a dataset folder does not record the mirror band. It is the same for
+every frame (a fixed pattern, as in a camera) and involves no randomness.
 """
 
 from __future__ import annotations
@@ -30,11 +37,12 @@ from ifmi.io.dataset import read_dataset, read_image
 from ifmi.io.provenance import package_versions
 from ifmi.io.text_file import read_failure
 
-from .config import EffectsSettings
+from .capture import vignetting_from_pixels
+from .config import MAX_VIGNETTING, EffectsSettings
 from .effects import apply_effects, exposure_gains, linear_from_srgb_uint8, srgb_uint8_from_linear
 from .renderer import META_FORMAT, encode_png, open_output_folder, pending_images, sha256_file
 
-__all__ = ["DegradeResult", "degrade_image", "degrade_dataset"]
+__all__ = ["DegradeResult", "degrade_image", "degrade_dataset", "vignetting_of_image"]
 
 # Version of the degrading procedure; part of an output folder's identity.
 DEGRADE_VERSION = 1
@@ -54,8 +62,8 @@ class DegradeResult:
 
 
 def degrade_image(image: np.ndarray, effects: EffectsSettings, *, gain: float, seed: int,
-                  frame: int) -> np.ndarray:
-    """One frame with exposure ``gain`` and the seeded noise and JPEG effects applied.
+                  frame: int, vignetting: np.ndarray | None = None) -> np.ndarray:
+    """One frame with exposure ``gain``, ``vignetting`` and the seeded noise and JPEG effects applied.
 
     Parameters
     ----------
@@ -66,6 +74,9 @@ def degrade_image(image: np.ndarray, effects: EffectsSettings, *, gain: float, s
         Exposure multiplier on linear intensity (1 leaves the frame as it is).
     seed, frame : int, keyword-only
         Noise seed of the sequence and the frame index.
+    vignetting : (H, W) ndarray or None, keyword-only
+        Factor on the linear intensity of each pixel, (row, col) indexing
+        (:func:`vignetting_of_image`); None for none.
 
     Returns
     -------
@@ -75,10 +86,42 @@ def degrade_image(image: np.ndarray, effects: EffectsSettings, *, gain: float, s
     out = np.asarray(image)
     gray = out.ndim == 2
     rgb = np.repeat(out[..., None], 3, axis=2) if gray else out
-    if gain != 1.0:
+    if vignetting is not None:
+        rgb = srgb_uint8_from_linear(linear_from_srgb_uint8(rgb) * vignetting[..., None], gain=gain)
+    elif gain != 1.0:
         rgb = srgb_uint8_from_linear(linear_from_srgb_uint8(rgb), gain=gain)
     rgb = apply_effects(rgb, effects, seed=seed, frame=frame)
     return np.ascontiguousarray(rgb[..., 0]) if gray else rgb
+
+
+def vignetting_of_image(model, *, strength: float) -> np.ndarray:
+    """Vignetting factor of every pixel of a calibration's image, normalised to the image's largest circle.
+
+    The fall-off of :func:`omnisim.capture.vignetting_from_pixels` with
+    ``radius_max`` the smallest sensor-plane radius of a border pixel: the
+    factor is ``(1 + strength**2)**-2`` on the largest circle about the mirror
+    centre that the image holds (1 at the centre, lower beyond in the corners).
+
+    Parameters
+    ----------
+    model : OcamModel
+        Calibration; the image is ``model.size`` (height rows, width columns).
+    strength : float, keyword-only
+        ``v >= 0``.
+
+    Returns
+    -------
+    (H, W) ndarray
+        float32 factors in (0, 1], indexed (row, col).
+    """
+    from ifmi.geometry.camera import radius_from_pixels
+
+    height, width = model.size
+    rows, cols = np.mgrid[0:height, 0:width]
+    on_border = (rows == 0) | (rows == height - 1) | (cols == 0) | (cols == width - 1)
+    border = np.stack([rows[on_border], cols[on_border]], axis=-1)
+    radius_max = float(radius_from_pixels(model, border).min())
+    return vignetting_from_pixels(model, strength=strength, radius_max=radius_max)
 
 
 def _frame_sha256(path: Path) -> str:
@@ -129,8 +172,24 @@ def _source_copies(dataset) -> dict:
     return copies
 
 
+def _checked_vignetting(dataset, strength: float) -> np.ndarray | None:
+    """The vignetting factors of ``dataset``'s images for ``strength`` (None at 0), or one-line bad input."""
+    from ifmi.geometry.camera import OcamModel
+
+    if not 0.0 <= strength <= MAX_VIGNETTING:
+        raise InputError("--vignetting", f"expected a strength from 0 to {MAX_VIGNETTING:.3g} "
+                                         f"(beyond, the image's rim falls below the darkest 8-bit level), "
+                                         f"got {strength!r}")
+    if strength == 0.0:
+        return None
+    if not isinstance(dataset.model, OcamModel):
+        raise InputError(dataset.calib_path, "--vignetting needs an OCamCalib calibration (the fall-off is "
+                                             "radial about its mirror centre)")
+    return vignetting_of_image(dataset.model, strength=strength)
+
+
 def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int = 0,
-                    progress: bool = True) -> DegradeResult:
+                    vignetting: float = 0.0, progress: bool = True) -> DegradeResult:
     """Write a copy of a dataset folder with capture effects applied to every image.
 
     Parameters
@@ -146,6 +205,9 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
     seed : int, keyword-only
         Seed of the noise and the exposure walk; the same seed gives the
         same bytes.
+    vignetting : float, keyword-only
+        Strength ``v`` of the radial fall-off (:func:`vignetting_of_image`),
+        0 (none) to ``sqrt(2**6 - 1)`` = 7.9; needs an OCamCalib calibration.
     progress : bool, keyword-only
         Show a progress bar on stderr.
 
@@ -156,7 +218,8 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
     Raises
     ------
     InputError
-        Unreadable source dataset or image, a negative seed, an output
+        Unreadable source dataset or image, a negative seed, a vignetting
+        strength out of range or on a calibration other than OCamCalib, an output
         folder that is the source dataset or lies inside it (through
         symbolic links too), or one holding something else.
     OutputError
@@ -165,6 +228,7 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
     dataset = read_dataset(dataset_dir)
     if seed < 0:
         raise InputError(dataset.root, f"--seed: expected a non-negative integer, got {seed}")
+    vignette = _checked_vignetting(dataset, vignetting)
     out_dir = Path(out_dir)
     source = dataset.root.resolve()
     if out_dir.resolve() == source:
@@ -180,11 +244,14 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
         "seed": int(seed),
         "format": META_FORMAT,
         "degrade": DEGRADE_VERSION,
+        # Only when on, so that the folders degraded without it keep their identity.
+        **({"vignetting": float(vignetting)} if vignette is not None else {}),
     }
     copies = _source_copies(dataset)  # read (or refused) before the output folder is touched
     meta = open_output_folder(out_dir, identity)
     images_dir = out_dir / "images"
     meta.update({"source": str(dataset.root.resolve()), "effects": asdict(effects), "seed": int(seed),
+                 "vignetting": float(vignetting),
                  "frames": len(names), "versions": package_versions(("numpy", "opencv-python-headless",
                                                                      "omnisim-ifmi"))})
     for name, data in copies.items():
@@ -200,7 +267,8 @@ def degrade_dataset(dataset_dir, out_dir, *, effects: EffectsSettings, seed: int
                unit="frame", desc="degrade")
     for k in todo:
         image = read_image(dataset.image_paths[k], size=dataset.model.size, gray=False)
-        data = encode_png(degrade_image(image, effects, gain=float(gains[k]), seed=seed, frame=k))
+        data = encode_png(degrade_image(image, effects, gain=float(gains[k]), seed=seed, frame=k,
+                                           vignetting=vignette))
         atomic_write_bytes(images_dir / out_names[k], data)
         meta["images"][out_names[k]] = hashlib.sha256(data).hexdigest()
         atomic_write_json(out_dir / "meta.json", meta)

@@ -200,3 +200,67 @@ def test_frame_that_is_a_broken_link_is_one_line_naming_it(source, tmp_path, cap
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(frame) in err and "cannot read the frame" in err
     assert not (tmp_path / "q").exists()
+
+
+def test_vignetting_is_the_renderers_fall_off_normalised_to_the_images_largest_circle():
+    from ifmi.geometry.camera import radius_from_pixels
+    from omnisim.capture import vignetting_from_pixels
+    from omnisim.degrade import vignetting_of_image
+
+    model = example_omni_model(96)
+    factor = vignetting_of_image(model, strength=0.8)
+    height, width = model.size
+    rows, cols = np.mgrid[0:height, 0:width]
+    rho = radius_from_pixels(model, np.stack([rows, cols], axis=-1))
+    border = (rows == 0) | (rows == height - 1) | (cols == 0) | (cols == width - 1)
+    rho_max = rho[border].min()
+    assert np.allclose(factor, (1.0 + (0.8 * rho / rho_max) ** 2) ** -2, rtol=1e-6)
+    assert np.array_equal(factor, vignetting_from_pixels(model, strength=0.8, radius_max=rho_max))
+    # 1 at the mirror centre, (1 + v^2)^-2 = 0.372 on the largest circle the image holds.
+    assert factor.max() > 0.999 and abs(factor[border].max() - 1.64 ** -2) < 1e-6
+
+
+def test_vignetting_multiplies_linear_intensity_before_the_exposure_gain():
+    from omnisim.degrade import vignetting_of_image
+
+    model = example_omni_model(96)
+    factor = vignetting_of_image(model, strength=1.5)
+    flat = np.full(model.size, 180, dtype=np.uint8)
+    out = degrade_image(flat, EffectsSettings(), gain=0.7, seed=0, frame=0, vignetting=factor)
+    expected = srgb_uint8_from_linear(linear_from_srgb_uint8(flat) * factor * 0.7)
+    assert np.array_equal(out, expected)
+    assert out.max() <= 180 and out.min() < 100  # darker toward the corners
+
+
+def test_vignetted_copy_is_reproducible_and_off_keeps_the_folders_identity(source, tmp_path):
+    effects = EffectsSettings(noise_sigma=2.0)
+    degrade_dataset(source, tmp_path / "v", effects=effects, seed=1, vignetting=1.0, progress=False)
+    degrade_dataset(source, tmp_path / "w", effects=effects, seed=1, vignetting=1.0, progress=False)
+    assert all(np.array_equal(x, y) for x, y in zip(_images(tmp_path / "v"), _images(tmp_path / "w")))
+    assert json.loads((tmp_path / "v" / "meta.json").read_text())["vignetting"] == 1.0
+    degrade_dataset(source, tmp_path / "n", effects=effects, seed=1, progress=False)
+    identity = json.loads((tmp_path / "n" / "meta.json").read_text())["identity"]
+    assert "vignetting" not in identity  # folders degraded before the option existed still resume
+    with pytest.raises(InputError, match="different"):
+        degrade_dataset(source, tmp_path / "n", effects=effects, seed=1, vignetting=1.0, progress=False)
+
+
+def test_cli_refuses_a_vignetting_past_what_8_bits_show(source, tmp_path, capsys):
+    assert omnisim_main(["degrade", str(source), "--out", str(tmp_path / "q"), "--vignetting", "9"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("omnisim degrade: error: --vignetting: expected")
+    assert not (tmp_path / "q").exists()
+
+
+def test_vignetting_on_a_kalibr_calibration_is_one_line_naming_it(source, tmp_path):
+    from camera_examples import EXAMPLES
+
+    from ifmi.io.kalibr import write_kalibr
+
+    kalibr = tmp_path / "kalibr"
+    shutil.copytree(source, kalibr)
+    (kalibr / "calib_results.txt").unlink()
+    write_kalibr(kalibr / "camera.yaml", EXAMPLES["kb"].scaled(0.5))
+    with pytest.raises(InputError, match="needs an OCamCalib calibration") as info:
+        degrade_dataset(kalibr, tmp_path / "out", effects=EffectsSettings(), vignetting=0.5, progress=False)
+    assert str(kalibr / "camera.yaml") in str(info.value) and not (tmp_path / "out").exists()
