@@ -22,6 +22,7 @@ import time
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, Mapping
 
+import cv2
 import numpy as np
 
 from ifmi.geometry.camera import OcamModel
@@ -489,7 +490,6 @@ class IfmiFrontEnd(FrontEndBase):
         self._dense_engine: FourierMellin | None = None  # built on the first dense retry
         self._registration = config.registration.engine_config()
         self._points_b: np.ndarray | None = None
-        self._wrapped_columns: np.ndarray | None = None
 
     @property
     def uses_prior_rotation(self) -> bool:
@@ -501,8 +501,6 @@ class IfmiFrontEnd(FrontEndBase):
         self._check_tiles_fit()
         self.layout = tile_layout((self.mapping.height, self.mapping.width), config=self.config.tiling)
         self.engine = FourierMellin(self.layout.tile_size, self.layout.count, config=self._registration)
-        # Columns of the padded panorama: the panorama's, wrapped by ``_pad`` on either side.
-        self._wrapped_columns = np.arange(-self._pad, self.mapping.width + self._pad) % self.mapping.width
         config = self.config
         if config.coarse.enabled and config.tracking.use_prior:
             self.global_stage = GlobalMotionEstimator(self.mapping, config=config.coarse.engine_config())
@@ -547,8 +545,9 @@ class IfmiFrontEnd(FrontEndBase):
         panorama = panorama_image_from_omni_image(
             self.mapping, gray, interpolation=self.config.refinement.wide_panorama_interpolation if self._wide else "linear")
         # The wrapped columns are copied, not resampled again: the same values, 2 x _pad fewer columns
-        # through the (Lanczos) remap.
-        padded = np.take(panorama, self._wrapped_columns, axis=1)
+        # through the (Lanczos) remap. A wrapping border copies them in one pass (a gather by column
+        # index took about three times as long).
+        padded = cv2.copyMakeBorder(panorama, 0, 0, self._pad, self._pad, cv2.BORDER_WRAP)
         coarse = None
         if self.global_stage is not None:
             coarse = self.global_stage.coarse_panorama(panorama)
