@@ -14,7 +14,8 @@ from ifmi.tracking.odometry import KeyframeOptions
 from ifmi.pipeline import (EstimateConfig, create_front_end, estimate_sequence, method_names,
                            resolved_config)
 from ifmi.geometry.rotations import geodesic_angle
-from ifmi.spectral.ifmi_front_end import CoarseOptions, IfmiConfig, RegistrationOptions
+from ifmi.spectral.ifmi_front_end import (CoarseOptions, IfmiConfig, IfmiFrontEnd, RefinementOptions,
+                                         RegistrationOptions)
 from ifmi.spectral.tiling import TilingConfig
 from ifmi.spectral.panorama import PanoramaConfig
 
@@ -217,6 +218,25 @@ def test_cubic_tile_resampling_removes_the_interpolation_bias(sequence):
     # Measured: rms 2.3e-4 rad (bilinear) against 3.7e-5 (bicubic) and 4.1e-5 rad (Lanczos).
     assert rms["cubic"] < rms["linear"] / 3
     assert rms["lanczos4"] < rms["linear"] / 3
+
+
+def test_auto_tile_kernel_is_bicubic_on_narrow_and_lanczos_on_wide_panoramas():
+    options = RegistrationOptions()
+    assert options.resample_interpolation == "auto"
+    assert options.engine_config().resample_interpolation == "cubic"
+    assert options.engine_config(wide=True).resample_interpolation == "lanczos4"
+    # A kernel named is used at every width.
+    assert RegistrationOptions(resample_interpolation="linear").engine_config(wide=True).resample_interpolation == "linear"
+    with pytest.raises(ValueError, match="resample_interpolation"):
+        RegistrationOptions(resample_interpolation="nearest")
+    image = synthetic_sequence(MODEL, 1, seed=0, band_px=(30.0, 125.0)).images[0]
+    kernels = {}
+    for min_width in (CONFIG.ifmi.panorama.width + 1, CONFIG.ifmi.panorama.width):
+        config = replace(CONFIG.ifmi, refinement=RefinementOptions(min_width_curved=min_width))
+        front_end = IfmiFrontEnd(MODEL, config)
+        front_end.prepare(image)
+        kernels[min_width] = front_end.engine.config.resample_interpolation
+    assert kernels == {CONFIG.ifmi.panorama.width + 1: "cubic", CONFIG.ifmi.panorama.width: "lanczos4"}
 
 
 def test_config_with_unknown_feature_option_names_it():

@@ -71,8 +71,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import poselib
 from scipy.optimize import brentq
-from scipy.special import bdtrc
-from scipy.stats import chi2
+from scipy.special import bdtrc, gammaincinv
 
 from ifmi.options import check_finite_fields
 from ifmi.geometry.rotations import cross_product_matrix, geodesic_angle
@@ -946,7 +945,9 @@ def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int, *,
     dof = len(kept) / group - _SAMPLE_5PT
     if dof <= 0:
         return None
-    scale = dof if confidence is None else chi2.ppf(1.0 - confidence, dof)
+    # The chi-square quantile 2 P^-1(dof / 2, 1 - confidence) (P the regularised lower incomplete gamma
+    # function), which is what ``scipy.stats.chi2.ppf`` computes, without its argument handling.
+    scale = dof if confidence is None else 2 * gammaincinv(dof / 2, 1.0 - confidence)
     return _untruncated_sigma(math.sqrt(np.sum(kept ** 2) / group / scale), window)
 
 

@@ -17,7 +17,7 @@ from ifmi.geometry.camera import OcamModel, max_image_radius
 from ifmi.errors import InputError
 from ifmi.spectral.fourier_mellin import TILE_MEMORY_BUDGET_BYTES, max_tile_count, registration_bytes_per_tile
 from ifmi.spectral.tiling import MIN_TILE_SIZE_PX, TilingConfig, tile_grid_shape, tile_size_px, tile_step_px
-from ifmi.spectral.panorama import angular_pixel_size_in_band, off_axis_band, panorama_mapping, radius_band
+from ifmi.spectral.panorama import angular_pixel_size_in_band, off_axis_band, panorama_shape, radius_band
 
 __all__ = ["check_config_for_model"]
 
@@ -95,7 +95,7 @@ def check_config_for_model(config, model, *, method: str = "ifmi", calib_path=No
                                                       f"({_MAX_OVERSAMPLING} x its image band's outer "
                                                       f"{kind}), got {value}")
     if method == "ifmi":
-        _check_tiles(config, panorama_mapping(model, config=pano))
+        _check_tiles(config, panorama_shape(model, config=pano))
     _check_pixel_threshold(config, model)
 
 
@@ -159,21 +159,23 @@ def _check_feature_sizes(features, model: OcamModel) -> None:
             raise InputError(f"features.{name}", f"expected at most {limit} ({what}), got {value}")
 
 
-def _check_tiles(config, mapping) -> None:
+def _check_tiles(config, shape: tuple[int, int]) -> None:
+    """The tile size and tile counts of ``config`` for a panorama of ``shape`` ``(height, width)`` px."""
+    height, width = shape
     size = config.ifmi.tiling.tile_size
-    if size is not None and size < 1 and size * mapping.width < MIN_TILE_SIZE_PX:
+    if size is not None and size < 1 and size * width < MIN_TILE_SIZE_PX:
         raise InputError("ifmi.tiling.tile_size", f"expected a tile of at least {MIN_TILE_SIZE_PX} px, got "
-                                                  f"{size:g} of the {mapping.width} px panorama width "
-                                                  f"({size * mapping.width:.3g} px)")
+                                                  f"{size:g} of the {width} px panorama width "
+                                                  f"({size * width:.3g} px)")
     # A tile larger than the panorama is the front end's to report (it names the calibration file).
-    tile = tile_size_px(size, mapping.width)
-    if tile > min(mapping.height, mapping.width):
+    tile = tile_size_px(size, width)
+    if tile > min(height, width):
         return
     layouts = {"ifmi.tiling": config.ifmi.tiling}
     if config.ifmi.recovery.dense_retry_fraction > 0 and config.ifmi.tracking.use_prior:
         layouts["ifmi.recovery.dense_overlap"] = replace(config.ifmi.tiling, overlap=config.ifmi.recovery.dense_overlap)
     for key, tiling in layouts.items():
-        problem = _tile_count_problem((mapping.height, mapping.width), tiling,
+        problem = _tile_count_problem(shape, tiling,
                                       config.ifmi.registration.engine_config())
         if problem:
             raise InputError(key, problem)

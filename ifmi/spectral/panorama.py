@@ -54,6 +54,7 @@ __all__ = [
     "band_mask",
     "angular_pixel_size_in_band",
     "panorama_mapping",
+    "panorama_shape",
     "panorama_image_from_omni_image",
     "rays_from_panorama_pixels",
     "omni_pixels_from_panorama_pixels",
@@ -398,6 +399,39 @@ def _band_from_lit_rings(lit: np.ndarray, radii: np.ndarray, margin: float) -> t
     return inner, outer
 
 
+def _ocam_panorama_grid(model: OcamModel, image: np.ndarray | None, config: PanoramaConfig) -> tuple:
+    """``((inner, outer), (theta_lo, theta_hi), (width, height))`` of an OCamCalib panorama: its radius
+    band (pixels), the elevations of the band's edges (radians) and its size (pixels)."""
+    inner, outer = radius_band(model, image, config=config)
+    pol = np.asarray(model.pol)
+    theta_lo, theta_hi = (float(v) for v in elevation_from_radius(pol, np.array([inner, outer])))
+    if theta_hi < theta_lo:
+        theta_lo, theta_hi = theta_hi, theta_lo
+    # Sensor radius ~ image pixels (the affine part is close to the identity).
+    width, height = _panorama_size(config, np.pi * (inner + outer), theta_lo, theta_hi)
+    return (inner, outer), (theta_lo, theta_hi), (width, height)
+
+
+def panorama_shape(model, *, config: PanoramaConfig = PanoramaConfig()) -> tuple[int, int]:
+    """``(height, width)`` of the panorama :func:`panorama_mapping` builds for ``model`` without an image,
+    in pixels; for an OCamCalib model without building its remap maps.
+
+    Parameters
+    ----------
+    model : OcamModel or another camera model (:mod:`ifmi.geometry.camera_models`)
+    config : PanoramaConfig, keyword-only
+
+    Returns
+    -------
+    (int, int)
+    """
+    if not isinstance(model, OcamModel):
+        mapping = _model_panorama_mapping(model, config)
+        return mapping.height, mapping.width
+    width, height = _ocam_panorama_grid(model, None, config)[2]
+    return height, width
+
+
 def panorama_mapping(model: OcamModel, image: np.ndarray | None = None, *,
                      config: PanoramaConfig = PanoramaConfig()) -> PanoramaMapping:
     """Build the panorama's sampling grid (remap maps) for ``model``.
@@ -415,24 +449,7 @@ def panorama_mapping(model: OcamModel, image: np.ndarray | None = None, *,
     """
     if not isinstance(model, OcamModel):
         return _model_panorama_mapping(model, config)
-    inner, outer = radius_band(model, image, config=config)
-    pol = np.asarray(model.pol)
-    theta_lo, theta_hi = (float(v) for v in elevation_from_radius(pol, np.array([inner, outer])))
-    if theta_hi < theta_lo:
-        theta_lo, theta_hi = theta_hi, theta_lo
-    if config.width is None:
-        # Sensor radius ~ image pixels (the affine part is close to the identity).
-        circumference = np.pi * (inner + outer)
-        width = int(min(config.max_auto_width, max(64, 64 * round(circumference / 64))))
-    else:
-        width = int(config.width)
-    if config.height is None:
-        closest = 0.0 if theta_lo <= 0 <= theta_hi else min(abs(theta_lo), abs(theta_hi))
-        span = theta_hi - theta_lo
-        height = int(round(width * span / (2 * np.pi * np.cos(closest))))
-        height = max(8, min(height, width))
-    else:
-        height = int(config.height)
+    (inner, outer), (theta_lo, theta_hi), (width, height) = _ocam_panorama_grid(model, image, config)
     # Row centres at integers: row 0 at theta_hi, row height-1 at theta_lo.
     step = (theta_hi - theta_lo) / max(height - 1, 1)
     rows = np.arange(height)
