@@ -24,7 +24,7 @@ from ifmi.synthetic import environment_texture, omni_from_environment  # noqa: E
 MODEL = paracatadioptric_model((256, 256), horizon_radius_px=80.0, center=(130.3, 126.1),
                                affine=(1.002, 0.003, -0.002))
 BAND = (30.0, 125.0)
-# Curved placements on this small panorama too (they apply from 1536 px by default).
+# Curved placements without refit passes on this small panorama.
 CURVED = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(min_width_curved=0, refit_passes=0),
                     coarse=CoarseOptions(enabled=False))
 AFFINE = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(curved_placement=False),
@@ -129,9 +129,10 @@ def test_curved_tiles_remove_the_bias_of_an_affine_cut(environment):
     assert errors["curved"] < 0.35 * errors["affine"]
 
 
-def test_curvature_and_refit_apply_from_the_configured_width(environment):
+def test_curvature_applies_at_any_width_unless_turned_off(environment):
     frames = [omni_from_environment(environment, MODEL, r, band_px=BAND) for r in (np.eye(3), TILTS[0])]
-    for config, expected in ((IfmiConfig(panorama=PanoramaConfig(width=512)), False), (CURVED, True)):
+    # Below min_width_curved (1536 px by default): that width gates the kernel and landmark rays only.
+    for config, expected in ((IfmiConfig(panorama=PanoramaConfig(width=512)), True), (AFFINE, False)):
         fe = IfmiFrontEnd(MODEL, config)
         a, b = fe.prepare(frames[0]), fe.prepare(frames[1])
         fe.keep_tracking(b, fe.tiles_at(a, b, TILTS[0]))

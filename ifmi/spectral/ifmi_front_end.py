@@ -235,13 +235,15 @@ class RefinementOptions:
     reregister_min_px : float
         ... only when the solved rotation moves the tiles at least this far (panorama pixels).
     curved_placement : bool
-        On wide panoramas, cut tile b along the predicted map's second-order term too.
+        Cut tile b along the predicted map's second-order term too, on panoramas of any width:
+        an affine cut leaves a bias that is a fixed fraction of the tilt's displacement at every
+        width (the tile spans the same angle), and it grows with the rotation between the frames.
     refit_passes : int
-        On wide panoramas with curved placements: passes that re-measure the kept tiles with the shape
-        of their own robust rotation (count, at most 10).
+        With curved placements: passes that re-measure the kept tiles with the shape of their own
+        robust rotation (count, at most 10).
     min_width_curved : int
-        Panorama width from which curved placements, refit passes, landmark rays and
-        ``wide_panorama_interpolation`` apply (pixels).
+        Panorama width from which landmark rays and ``wide_panorama_interpolation`` apply
+        (pixels); curved placements and refit passes do not depend on it.
     wide_panorama_interpolation : {"linear", "cubic", "lanczos4"}
         Kernel that resamples the omni image into panoramas at least ``min_width_curved`` wide
         (narrower ones are bilinear).
@@ -576,8 +578,8 @@ class IfmiFrontEnd(FrontEndBase):
 
     @property
     def _curved(self) -> bool:
-        """Curved placements (and refit passes) on this panorama (``refinement.min_width_curved``)."""
-        return self.config.refinement.curved_placement and self._wide
+        """Curved placements (and refit passes) on this panorama (``refinement.curved_placement``)."""
+        return self.config.refinement.curved_placement
 
     @property
     def _pad(self) -> int:
