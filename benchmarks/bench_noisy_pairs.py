@@ -44,7 +44,7 @@ def search(name: str):
     """Within it, the iFMI registration engine uses search ``name`` (one of :data:`SEARCHES`)."""
     original = RegistrationOptions.engine_config
     if name == "phase_only":
-        RegistrationOptions.engine_config = lambda self: replace(original(self), noisy_pair_fraction=0.0)
+        RegistrationOptions.engine_config = lambda self, **kw: replace(original(self, **kw), noisy_pair_fraction=0.0)
     try:
         yield
     finally:
