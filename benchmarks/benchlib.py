@@ -7,6 +7,7 @@ back end as ``ifmi estimate`` -- and writes what it measured as files that repor
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import replace
 from itertools import islice
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ifmi.errors import InputError
+from ifmi.errors import InputError, OutputError
 from ifmi.evaluation.dataset_names import dataset_folder_id, dataset_labels, resolved_folder
 from ifmi.evaluation.metrics import MIN_ASSOCIATED
 from ifmi.evaluation.trajectory_files import evaluate_files
@@ -24,6 +25,21 @@ from ifmi.io.results import write_estimate_run
 from ifmi.io.tum import read_tum
 from ifmi.pipeline import EstimateConfig, estimate_dataset, estimate_sequence
 from ifmi.tracking.methods import builtin_method_names
+
+
+def status_of(work) -> int:
+    """Run ``work()`` (returns the line to print on success) as a script's main: 0 and that line on
+    stdout; a bad input is one ``error:`` line and 2, an output that cannot be written one line and 1."""
+    try:
+        line = work()
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except (OutputError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(line)
+    return 0
 
 
 def machine_line() -> str:

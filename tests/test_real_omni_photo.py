@@ -23,6 +23,7 @@ EXTRA = "\n#ROI max min radius\n\n28 9\n\n#left right cropped pixel\n\n7 5\n"
 
 @pytest.fixture
 def script(monkeypatch):
+    monkeypatch.syspath_prepend(str(SCRIPT.parent))  # the script imports benchlib beside it
     spec = importlib.util.spec_from_file_location("real_omni_photo", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     monkeypatch.setitem(sys.modules, "real_omni_photo", module)  # dataclasses look their module up there
