@@ -264,5 +264,7 @@ def test_a_rolling_shutter_warp_is_estimated_as_well_as_a_global_shutter_one(war
         return np.sqrt(np.mean([geodesic_angle(e, t) ** 2 for e, t in zip(estimate.trajectory.rotations, truth)]))
 
     global_shutter = rms(warped_pair[0.0], 0.0)
-    assert rms(warped_pair[READOUT], READOUT) < 2.0 * global_shutter
+    with_readout = rms(warped_pair[READOUT], READOUT)
+    assert with_readout < 2.0 * global_shutter
+    assert with_readout < 3.0e-4  # twice the measured 1.5e-4 rad: the read-out's own accuracy, not only relative
     assert rms(warped_pair[READOUT], 0.0) > 3.0 * global_shutter
