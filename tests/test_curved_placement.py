@@ -25,7 +25,7 @@ MODEL = paracatadioptric_model((256, 256), horizon_radius_px=80.0, center=(130.3
                                affine=(1.002, 0.003, -0.002))
 BAND = (30.0, 125.0)
 # Curved placements without refit passes on this small panorama.
-CURVED = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(min_width_curved=0, refit_passes=0),
+CURVED = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(min_width_sharp=0, refit_passes=0),
                     coarse=CoarseOptions(enabled=False))
 AFFINE = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(curved_placement=False),
                     coarse=CoarseOptions(enabled=False))
@@ -131,7 +131,7 @@ def test_curved_tiles_remove_the_bias_of_an_affine_cut(environment):
 
 def test_curvature_applies_at_any_width_unless_turned_off(environment):
     frames = [omni_from_environment(environment, MODEL, r, band_px=BAND) for r in (np.eye(3), TILTS[0])]
-    # Below min_width_curved (1536 px by default): that width gates the kernel and landmark rays only.
+    # Below min_width_sharp (1536 px by default): that width gates the kernel and landmark rays only.
     for config, expected in ((IfmiConfig(panorama=PanoramaConfig(width=512)), True), (AFFINE, False)):
         fe = IfmiFrontEnd(MODEL, config)
         a, b = fe.prepare(frames[0]), fe.prepare(frames[1])
@@ -142,7 +142,7 @@ def test_curvature_applies_at_any_width_unless_turned_off(environment):
 def test_refit_pass_corrects_a_wrong_prediction(environment):
     frames = [omni_from_environment(environment, MODEL, r, band_px=BAND) for r in (np.eye(3), TILTS[0])]
     wrong = TILTS[0] @ Rotation.from_rotvec([0.02, -0.015, 0.0]).as_matrix()  # a tilt 1.3 px off
-    refit = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(min_width_curved=0),
+    refit = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(min_width_sharp=0),
                        coarse=CoarseOptions(enabled=False))
     fe = IfmiFrontEnd(MODEL, refit)
     a, b = fe.prepare(frames[0]), fe.prepare(frames[1])
@@ -155,7 +155,7 @@ def test_refit_pass_corrects_a_wrong_prediction(environment):
     assert np.abs(b.tracked.curvature - exact).max() < 0.5 * np.abs(b1.tracked.curvature - exact).max()
 
 
-@pytest.mark.parametrize("field, value", [("refit_passes", -1), ("min_width_curved", -5),
+@pytest.mark.parametrize("field, value", [("refit_passes", -1), ("min_width_sharp", -5),
                                           # 10**20 passes were accepted and the estimate never ended
                                           ("refit_passes", 10 ** 20)])
 def test_invalid_refit_options_are_rejected(field, value):
@@ -173,7 +173,7 @@ def _resample_count(fe, monkeypatch):
 def test_a_close_prediction_is_refined_once_on_the_refitted_shape(environment, monkeypatch):
     frames = [omni_from_environment(environment, MODEL, r, band_px=BAND) for r in (np.eye(3), TILTS[0])]
     wrong = TILTS[0] @ Rotation.from_rotvec([0.02, -0.015, 0.0]).as_matrix()  # tiles 1.3 px off
-    refit = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(min_width_curved=0),
+    refit = IfmiConfig(panorama=PanoramaConfig(width=512), refinement=RefinementOptions(min_width_sharp=0),
                        coarse=CoarseOptions(enabled=False))
     placements = {}
     for name, single_max_px in (("gated", 0.5), ("twice", 0.0)):  # 0: the passes always run twice

@@ -128,9 +128,9 @@ def test_landmark_rays_lower_the_frame_to_frame_drift(frame):
 
 @pytest.mark.slow
 def test_narrow_panoramas_keep_measured_rays(frame):
-    # Below min_width_curved (here the 1024 px images' own 2048 px panorama) nothing is turned.
+    # Below min_width_sharp (here the 1024 px images' own 2048 px panorama) nothing is turned.
     truth = _walk(3, 1.0, seed=5)
-    fe = IfmiFrontEnd(MODEL, IfmiConfig(refinement=RefinementOptions(min_width_curved=4096)))
+    fe = IfmiFrontEnd(MODEL, IfmiConfig(refinement=RefinementOptions(min_width_sharp=4096)))
     trajectory, records = track_sequence([frame(r) for r in truth], fe,
                                          pose_options=RelativePoseOptions(ransac_threshold_rad=2 * np.pi / 2048))
     assert all(r.success for r in records) and not any("n_tiles_landmark" in r.diagnostics for r in records)

@@ -272,6 +272,16 @@ def test_a_configuration_of_the_former_flat_layout_is_translated():
     assert EstimateConfig.from_dict(EstimateConfig().to_dict()) == EstimateConfig()
 
 
+def test_the_former_name_of_the_sharp_panorama_width_is_translated():
+    # refinement.min_width_curved (nested, as saved) and min_width_curved (flat layout) are now
+    # refinement.min_width_sharp; both names at once are refused, naming the old key.
+    nested = EstimateConfig.from_dict({"ifmi": {"refinement": {"min_width_curved": 1024, "refit_passes": 2}}})
+    assert nested.ifmi.refinement.min_width_sharp == 1024 and nested.ifmi.refinement.refit_passes == 2
+    assert EstimateConfig.from_dict({"ifmi": {"min_width_curved": 800}}).ifmi.refinement.min_width_sharp == 800
+    with pytest.raises(OptionError, match="min_width_curved: given twice"):
+        EstimateConfig.from_dict({"ifmi": {"min_width_curved": 800, "refinement": {"min_width_sharp": 900}}})
+
+
 def test_the_saved_configuration_has_at_most_40_ifmi_options():
     def leaves(value):
         return sum(leaves(v) for v in value.values()) if isinstance(value, dict) else 1

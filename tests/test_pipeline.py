@@ -232,7 +232,7 @@ def test_auto_tile_kernel_is_bicubic_on_narrow_and_lanczos_on_wide_panoramas():
     image = synthetic_sequence(MODEL, 1, seed=0, band_px=(30.0, 125.0)).images[0]
     kernels = {}
     for min_width in (CONFIG.ifmi.panorama.width + 1, CONFIG.ifmi.panorama.width):
-        config = replace(CONFIG.ifmi, refinement=RefinementOptions(min_width_curved=min_width))
+        config = replace(CONFIG.ifmi, refinement=RefinementOptions(min_width_sharp=min_width))
         front_end = IfmiFrontEnd(MODEL, config)
         front_end.prepare(image)
         kernels[min_width] = front_end.engine.config.resample_interpolation

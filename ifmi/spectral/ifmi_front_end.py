@@ -88,7 +88,7 @@ class RegistrationOptions:
         Measure each tile's residual rotation and scale (log-polar stage).
     resample_interpolation : {"auto", "cubic", "lanczos4", "linear"}
         Kernel that resamples tiles of frame b at their placements. ``"auto"``: bicubic on panoramas
-        narrower than ``refinement.min_width_curved``, the 8x8 Lanczos kernel on wider ones. On sharp
+        narrower than ``refinement.min_width_sharp``, the 8x8 Lanczos kernel on wider ones. On sharp
         1024 px sequences Lanczos keeps the interpolation bias smallest (pure-rotation warps of three
         1024 px frames: bicubic's ATE 1.2-2.3x Lanczos's); on the 512 px benchmark sets Lanczos took about
         a fifth of the compute per frame for no lower ATE (bicubic's 0.69-1.06x Lanczos's over four sets
@@ -110,7 +110,7 @@ class RegistrationOptions:
     def engine_config(self, *, wide: bool = False) -> FourierMellinConfig:
         """The registration engine's options: these, and the engine's defaults for the rest.
 
-        ``wide``: the panorama is at least ``refinement.min_width_curved`` wide (it chooses the
+        ``wide``: the panorama is at least ``refinement.min_width_sharp`` wide (it chooses the
         kernel of ``resample_interpolation="auto"``).
         """
         kernel = self.resample_interpolation
@@ -241,11 +241,13 @@ class RefinementOptions:
     refit_passes : int
         With curved placements: passes that re-measure the kept tiles with the shape of their own
         robust rotation (count, at most 10).
-    min_width_curved : int
-        Panorama width from which landmark rays and ``wide_panorama_interpolation`` apply
-        (pixels); curved placements and refit passes do not depend on it.
+    min_width_sharp : int
+        Panorama width from which the panorama counts as sharp (pixels): landmark rays,
+        ``wide_panorama_interpolation`` and the Lanczos tile kernel of
+        ``registration.resample_interpolation="auto"`` apply from it; curved placements and refit
+        passes do not depend on it. Called ``min_width_curved`` in older configuration files.
     wide_panorama_interpolation : {"linear", "cubic", "lanczos4"}
-        Kernel that resamples the omni image into panoramas at least ``min_width_curved`` wide
+        Kernel that resamples the omni image into panoramas at least ``min_width_sharp`` wide
         (narrower ones are bilinear).
     """
 
@@ -253,16 +255,16 @@ class RefinementOptions:
     reregister_min_px: float = 0.3
     curved_placement: bool = True
     refit_passes: int = 1
-    min_width_curved: int = 1536
+    min_width_sharp: int = 1536
     wide_panorama_interpolation: str = "lanczos4"
 
     def __post_init__(self) -> None:
         if not 0 <= self.reregister_fraction <= 1 or not self.reregister_min_px >= 0:
             raise ValueError(f"expected 0 <= reregister_fraction <= 1 and reregister_min_px >= 0, got "
                              f"{self.reregister_fraction}, {self.reregister_min_px}")
-        if not 0 <= self.refit_passes <= _MAX_REFIT_PASSES or self.min_width_curved < 0:
-            raise ValueError(f"expected 0 <= refit_passes <= {_MAX_REFIT_PASSES} and min_width_curved >= 0, got "
-                             f"{self.refit_passes}, {self.min_width_curved}")
+        if not 0 <= self.refit_passes <= _MAX_REFIT_PASSES or self.min_width_sharp < 0:
+            raise ValueError(f"expected 0 <= refit_passes <= {_MAX_REFIT_PASSES} and min_width_sharp >= 0, got "
+                             f"{self.refit_passes}, {self.min_width_sharp}")
         if self.wide_panorama_interpolation not in PANORAMA_INTERPOLATIONS:
             raise ValueError(f"wide_panorama_interpolation must be one of {sorted(PANORAMA_INTERPOLATIONS)}, "
                              f"got {self.wide_panorama_interpolation!r}")
@@ -346,7 +348,8 @@ _MOVED_KEYS = {
     "dense_overlap": "recovery.dense_overlap", "half_turn_check_rad": "recovery.half_turn_check_rad",
     "reregister_fraction": "refinement.reregister_fraction", "reregister_min_px": "refinement.reregister_min_px",
     "curved_placement": "refinement.curved_placement", "refit_passes": "refinement.refit_passes",
-    "min_width_curved": "refinement.min_width_curved",
+    "min_width_curved": "refinement.min_width_sharp",
+    "refinement.min_width_curved": "refinement.min_width_sharp",
     "wide_panorama_interpolation": "refinement.wide_panorama_interpolation",
     "points_per_tile": "rays.points_per_tile", "flow_at_energy_centroid": "rays.at_energy_centroid",
     "min_tiles": "rays.min_tiles",
@@ -392,7 +395,7 @@ def translated_ifmi_options(data: Mapping[str, Any]) -> Mapping[str, Any]:
         return data
     flat = {}
     for key, value in data.items():
-        if key in ("registration", "global_motion") and isinstance(value, Mapping):
+        if key in ("registration", "global_motion", "refinement") and isinstance(value, Mapping):
             flat.update({f"{key}.{name}": item for name, item in value.items()})
         else:
             flat[key] = value
@@ -573,8 +576,8 @@ class IfmiFrontEnd(FrontEndBase):
 
     @property
     def _wide(self) -> bool:
-        """A panorama of sharp high-resolution images (``refinement.min_width_curved``)."""
-        return self.mapping.width >= self.config.refinement.min_width_curved
+        """A panorama of sharp high-resolution images (``refinement.min_width_sharp``)."""
+        return self.mapping.width >= self.config.refinement.min_width_sharp
 
     @property
     def _curved(self) -> bool:
