@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from ifmi.geometry.camera import rays_from_pixels, valid_mask
+from ifmi.features import eroded_mask, match_descriptors
 from ifmi.front_end import Correspondences
 from ifmi.spectral.panorama import gray_from_image
 
@@ -30,13 +31,11 @@ class ReferenceFrontEnd:
 
     def __init__(self, model):
         self.model, self.mask = model, None
-        self.orb, self.matcher = cv2.ORB_create(nfeatures=FEATURES), cv2.BFMatcher(cv2.NORM_HAMMING)
+        self.orb = cv2.ORB_create(nfeatures=FEATURES)
 
     def _mask(self, gray):
         """Valid pixels of the camera model that are not black in the first image, eroded by the margin."""
-        keep = (valid_mask(self.model) & (gray > 0)).astype(np.uint8)
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * MARGIN_PX + 1, 2 * MARGIN_PX + 1))
-        return cv2.erode(keep, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0) * 255
+        return eroded_mask(valid_mask(self.model) & (gray > 0), MARGIN_PX)
 
     def prepare(self, image):
         """``(pixels (N, 2) (row, col), rays (N, 3), descriptors (N, 32) uint8)`` of one image."""
@@ -53,11 +52,10 @@ class ReferenceFrontEnd:
         (pixels_a, rays_a, desc_a), (pixels_b, rays_b, desc_b) = state_a, state_b
         if desc_a is None or desc_b is None or min(len(desc_a), len(desc_b)) < 2:
             return Correspondences.failed("too few keypoints")
-        pairs = [(m[0].queryIdx, m[0].trainIdx) for m in self.matcher.knnMatch(desc_a, desc_b, k=2)
-                 if len(m) == 2 and m[0].distance < RATIO * m[1].distance]
+        pairs = match_descriptors(desc_a, desc_b, ratio=RATIO, cross_check=False)
         if len(pairs) < MIN_MATCHES:
             return Correspondences.failed(f"too few matches ({len(pairs)} < {MIN_MATCHES})")
-        ia, ib = np.array(pairs).T
+        ia, ib = pairs.T
         return Correspondences(pixels_a[ia], pixels_b[ib], rays_a[ia], rays_b[ib], {"n_matches": len(pairs)})
 
 

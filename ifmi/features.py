@@ -30,6 +30,7 @@ __all__ = [
     "FeatureFrame",
     "FeatureFrontEnd",
     "create_detector",
+    "eroded_mask",
     "match_descriptors",
     "orb_front_end",
     "akaze_front_end",
@@ -320,7 +321,7 @@ class FeatureFrontEnd:
             # image (outside the lens's image circle), eroded so that no descriptor window reaches them.
             from ifmi.spectral.panorama import gray_from_image
 
-            self._mask = _eroded_mask(valid_mask(self.model) & (gray_from_image(image) > 0),
+            self._mask = eroded_mask(valid_mask(self.model) & (gray_from_image(image) > 0),
                                       self.config.mask_margin_px)
         if self._mask is None:
             inner, outer = self.band(image)
@@ -438,8 +439,22 @@ class FeatureFrontEnd:
         return self._mapping
 
 
-def _eroded_mask(mask: np.ndarray, margin_px: float) -> np.ndarray:
-    """``(H, W)`` bool mask eroded by a disc of ``margin_px`` pixels, as uint8 0 / 255."""
+def eroded_mask(mask: np.ndarray, margin_px: float) -> np.ndarray:
+    """A detection mask: ``mask`` eroded by a disc of ``margin_px`` pixels, so that no descriptor
+    window reaches its edge.
+
+    Parameters
+    ----------
+    mask : (H, W) bool ndarray
+        Pixels where keypoints may lie.
+    margin_px : float
+        Radius of the disc, pixels (rounded up; 0 keeps ``mask`` as it is).
+
+    Returns
+    -------
+    (H, W) uint8 ndarray
+        255 where a keypoint may lie, else 0 (the mask OpenCV's detectors take).
+    """
     radius = int(np.ceil(margin_px))
     keep = mask.astype(np.uint8)
     if radius > 0:
