@@ -312,7 +312,7 @@ def _depth_ratio_error(out, points_0, model):
 
 @pytest.mark.parametrize("name", ["ds", "kb", "omni-radtan"])
 def test_translated_kalibr_set_ground_truth_carries_depth_between_frames(tmp_path, name):
-    """A Kalibr camera moving 6 and 11 cm and 20 degrees from frame 0: ``T_0k`` of groundtruth.txt
+    """A Kalibr camera 6 and 11 cm and 7 and 23 degrees away from frame 0: ``T_0k`` of groundtruth.txt
     carries frame k's surface points (depth * rays of the set's camera.yaml) onto what frame 0 sees.
 
     Exact geometry of a translated set: the renderer's rays are central and start at the camera
