@@ -760,3 +760,47 @@ def test_model_choice_holds_when_the_noise_fills_the_threshold(translation_m, mo
         assert info.success and info.model == model
         assert info.selection.noise_sigma_rad <= 6e-3
         assert geodesic_angle(pose.rotation, rotation) < 0.02
+
+
+def _far_and_near(seed: int, *, far: int = 7, near: int = 3, noise_rad: float = 1e-4):
+    """Rays of ``far`` points 1 km away and ``near`` points 0.5 m away (random directions), seen
+    from two cameras 5 cm apart along x, camera a turned by a known rotation, seeded ray noise
+    ``noise_rad`` per axis on camera a. Only the near points show parallax (up to 0.1 rad)."""
+    rng = np.random.default_rng(seed)
+    directions = rng.normal(size=(far + near, 3))
+    rays_b = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    depths = np.r_[np.full(far, 1000.0), np.full(near, 0.5)]
+    rotation = Rotation.from_rotvec([0.03, -0.02, 0.25]).as_matrix()
+    points_a = (rays_b * depths[:, None]) @ rotation.T + np.array([0.05, 0.0, 0.0])
+    rays_a = points_a / np.linalg.norm(points_a, axis=1, keepdims=True) + rng.normal(0.0, noise_rad, points_a.shape)
+    return rays_a / np.linalg.norm(rays_a, axis=1, keepdims=True), rays_b, rotation
+
+
+def test_preferred_model_without_enough_inliers_gives_way_to_the_other():
+    # Seven far points and three near ones: GRIC prefers the rotation model (its seven inliers
+    # explain most of the pair at a lower cost), but seven inliers are fewer than min_inliers (8),
+    # while the 5-point model keeps all ten. The pair is solved with the 5-point model, as the forced
+    # 5-point run solves it, instead of failing. Measured before: every seed failed.
+    options = RelativePoseOptions(ransac_threshold_rad=2e-3)
+    for seed in range(10):
+        rays_a, rays_b, rotation = _far_and_near(seed)
+        pose, info = relative_pose_from_rays(rays_a, rays_b, options=options)
+        assert info.selection.gric_rotation < info.selection.gric_5pt
+        assert info.success and info.model == "5pt" and info.n_inliers >= options.min_inliers
+        forced_pose, _ = relative_pose_from_rays(rays_a, rays_b, options=replace(options, five_point_only=True))
+        np.testing.assert_array_equal(pose.rotation, forced_pose.rotation)
+        assert geodesic_angle(pose.rotation, rotation) < 1e-3
+
+
+def test_preferred_model_keeps_the_pair_when_its_own_consensus_holds():
+    # The other side: with twelve far points the rotation model keeps twelve inliers, enough, and
+    # stays the choice GRIC made; with the rotation model forced, it is never exchanged either.
+    options = RelativePoseOptions(ransac_threshold_rad=2e-3)
+    for seed in range(10):
+        rays_a, rays_b, _ = _far_and_near(seed, far=12)
+        _, info = relative_pose_from_rays(rays_a, rays_b, options=options)
+        assert info.selection.gric_rotation < info.selection.gric_5pt
+        assert info.success and info.model == "rotation"
+        rays_a, rays_b, _ = _far_and_near(seed)
+        _, forced = relative_pose_from_rays(rays_a, rays_b, options=replace(options, rotation_only=True))
+        assert not forced.success and forced.model == "rotation" and forced.reason.startswith("too few inliers")

@@ -373,7 +373,9 @@ class ModelSelection:
     gric_rotation, gric_5pt : float
         Torr's GRIC of each model over the correspondences that are inliers
         of either (lower is better); the
-        5-point model is chosen when its score is lower. NaN when only one
+        5-point model is chosen when its score is lower, unless its consensus
+        fails the back end's checks (too few inliers, chance) and the rotation
+        model's passes, and the other way round. NaN when only one
         model was fitted.
     parallax_rad : float
         Median angle (radians) between the 5-point model's inlier rays of
@@ -1264,7 +1266,7 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     rays = np.stack([rays_a, rays_b])
     rotation_fit = _fit_rotation(rays_a, rays_b, products, rays, options, rng)
     model, rotation, translation, mask = "rotation", rotation_fit[0], np.zeros(3), rotation_fit[2]
-    selection = ModelSelection(noise_sigma_rad=rotation_fit[3])
+    selection, failure = ModelSelection(noise_sigma_rad=rotation_fit[3]), None
     if not options.rotation_only:
         five_point = _fit_5pt(rays_a, rays_b, products, rays, options, rng)
         if five_point is None and options.five_point_only:
@@ -1272,10 +1274,13 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
                                                     np.zeros(n, dtype=bool), "5pt")
         if five_point is not None:
             selection = _model_selection(rays_a, rays_b, rotation_fit, five_point, options, rays_per_measurement)
-            if options.five_point_only or selection.gric_5pt < selection.gric_rotation:
-                model, (rotation, translation, errors_5pt) = "5pt", five_point
-                mask = errors_5pt < options.ransac_threshold_rad
-    failure = _consensus_failure(rays_a, rays_b, mask, model, rotation, translation, options, rays_per_measurement)
+            model, rotation, translation, mask, failure = _supported_model(
+                rays_a, rays_b, rotation_fit, five_point,
+                options.five_point_only or selection.gric_5pt < selection.gric_rotation, options,
+                rays_per_measurement)
+    if failure is None:  # the rotation model alone was fitted
+        failure = _consensus_failure(rays_a, rays_b, mask, model, rotation, translation, options,
+                                     rays_per_measurement)
     count = int(mask.sum())
     if failure:
         return RelativePose(), RelativePoseInfo(False, failure, n, count, mask, model, selection=selection)
@@ -1290,6 +1295,32 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
         sigma = _rotation_sigma_of_5pt(rays_a[mask], rays_b[mask], pose.rotation, pose.translation_direction,
                                        noise, rays_per_measurement)
     return pose, RelativePoseInfo(True, "", n, count, mask, model, sigma, selection)
+
+
+def _supported_model(rays_a, rays_b, rotation_fit, five_point, prefer_5pt: bool, options: RelativePoseOptions,
+                     group: int):
+    """``(model, R_ab, t_ab, inlier mask, failure reason)`` of the preferred model, or of the other one
+    when the preferred model's consensus fails (:func:`_consensus_failure`) and the other's passes.
+
+    GRIC weighs how well each model explains the correspondences, not whether its consensus can be
+    trusted: a pair whose rotation model keeps too few inliers, while the 5-point model keeps enough,
+    would otherwise fail although the 5-point model solves it (and the forced 5-point run does).
+    A forced model (``options.five_point_only``) is never exchanged.
+    """
+    threshold = options.ransac_threshold_rad
+    candidates = {"rotation": (rotation_fit[0], np.zeros(3), rotation_fit[2]),
+                  "5pt": (five_point[0], five_point[1], five_point[2] < threshold)}
+    order = ["5pt", "rotation"] if prefer_5pt else ["rotation", "5pt"]
+    if options.five_point_only:
+        order = ["5pt"]
+    first = None
+    for model in order:
+        rotation, translation, mask = candidates[model]
+        failure = _consensus_failure(rays_a, rays_b, mask, model, rotation, translation, options, group)
+        if not failure:
+            return model, rotation, translation, mask, ""
+        first = first or (model, rotation, translation, mask, failure)
+    return first
 
 
 def _too_few_reason(rays_a, rays_b, options: RelativePoseOptions) -> str:
