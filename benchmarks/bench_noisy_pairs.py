@@ -3,7 +3,8 @@
 The registration engine searches a pair again on a band-limited correlation
 surface when fewer than ``noisy_pair_fraction`` of its tiles pass the noise
 filters on the phase-only surface
-(:attr:`ifmi.spectral.fourier_mellin.FourierMellinConfig.noisy_pair_fraction`).
+(:attr:`ifmi.spectral.fourier_mellin.FourierMellinConfig.noisy_pair_fraction`),
+on block-compressed captures only (:mod:`ifmi.spectral.compression`).
 This benchmark runs every dataset and mode twice, with the default and with
 the phase-only search alone (the fraction 0), and prints both ATEs; then the
 compute per frame of both, frames decoded into memory, in ``--rounds``
@@ -12,8 +13,9 @@ machine)::
 
     python benchmarks/bench_noisy_pairs.py DATA/rough/office_all DATA/raw512/office --out out/bench_noisy_pairs
 
-A set whose pairs all keep at least that fraction of their tiles gives the
-same estimates bit for bit (``same`` in the table).
+A set whose pairs all keep at least that fraction of their tiles, or whose
+frames show no block grid, gives the same estimates bit for bit (``same`` in
+the table).
 """
 
 from __future__ import annotations

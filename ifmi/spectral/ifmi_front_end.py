@@ -33,6 +33,7 @@ from ifmi.spectral.pair_pipeline import PairDiagnostics, TileMatch, averaged_cor
 from ifmi.spectral.flow import (flow_from_placements, flow_from_tile_motion, flow_sample_points, pairs_with_rays_a,
                    points_on_centroids)
 from ifmi.spectral.global_motion import GlobalMotion, GlobalMotionConfig, GlobalMotionEstimator
+from ifmi.spectral.compression import is_block_compressed
 from ifmi.spectral.fourier_mellin import (FourierMellin, FourierMellinConfig, PlacedRegistration, PlacedTiles,
                             TileSpectra)
 from ifmi.errors import CalibrationFitError
@@ -522,6 +523,10 @@ class IfmiFrontEnd(FrontEndBase):
         self.layout = tile_layout((self.mapping.height, self.mapping.width), config=self.config.tiling)
         config = self.config
         self._registration = config.registration.engine_config(wide=self._wide)
+        if not is_block_compressed(gray_from_image(image)):
+            # The band-limited search of noise-dominated pairs is for compressed frames (see
+            # ifmi.spectral.compression); a capture is compressed or not as a whole.
+            self._registration = replace(self._registration, noisy_pair_fraction=0.0)
         self.engine = FourierMellin(self.layout.tile_size, self.layout.count, config=self._registration)
         if config.coarse.enabled and config.tracking.use_prior:
             self.global_stage = GlobalMotionEstimator(self.mapping, config=config.coarse.engine_config())
