@@ -804,3 +804,74 @@ def test_preferred_model_keeps_the_pair_when_its_own_consensus_holds():
         rays_a, rays_b, _ = _far_and_near(seed)
         _, forced = relative_pose_from_rays(rays_a, rays_b, options=replace(options, rotation_only=True))
         assert not forced.success and forced.model == "rotation" and forced.reason.startswith("too few inliers")
+
+
+def _ground_band_tiles(seed: int, *, step_m: float, tiles: int = 18, size: int = 5, noise_rad: float = 1e-3,
+                       loose: int = 0, loose_factor: float = 1.0):
+    """Tile-like ray groups of a catadioptric mirror band: ``tiles`` groups of ``size`` rays 0.2 to
+    0.9 rad below the horizon, all around, seeing a ground plane 1.6 m below; camera a is moved
+    ``step_m`` along x and turned by a known rotation. Each group's rays in camera a share one seeded
+    error of ``noise_rad`` per axis (a tile's registration error), the first ``loose`` groups one
+    ``loose_factor`` times larger (loosely registered tiles); camera b's rays are exact."""
+    rng = np.random.default_rng(seed)
+    azimuth = rng.uniform(-np.pi, np.pi, (tiles, 1)) + rng.normal(scale=0.02, size=(tiles, size))
+    elevation = rng.uniform(-0.9, -0.2, (tiles, 1)) + rng.normal(scale=0.02, size=(tiles, size))
+    rays_b = np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                       np.sin(elevation)], axis=-1)
+    points_b = rays_b * (1.6 / -rays_b[..., 2:])
+    rotation = Rotation.from_rotvec([0.01, -0.02, 0.2]).as_matrix()
+    points_a = points_b @ rotation.T + np.array([step_m, 0.0, 0.0])
+    scale = np.full((tiles, 1, 1), noise_rad)
+    scale[:loose] *= loose_factor
+    rays_a = points_a / np.linalg.norm(points_a, axis=-1, keepdims=True) + rng.normal(size=(tiles, 1, 3)) * scale
+    rays_a /= np.linalg.norm(rays_a, axis=-1, keepdims=True)
+    return rays_a.reshape(-1, 3), rays_b.reshape(-1, 3), rotation
+
+
+def test_ground_band_tiles_choose_the_model_on_both_sides_of_the_boundary():
+    # 18 tiles of five rays, 1 mrad of error per tile against an 8 mrad threshold (iFMI's regime).
+    # Without translation: the rotation model on every seed. A 2 cm step at 1.6 m moves the rays by
+    # 5 mrad (median; 2 to 9 mrad), of which a rotation cannot absorb the part that varies around the
+    # band: the 5-point model on every seed. Measured: 0 and 20 of 20 seeds 5-point.
+    options = RelativePoseOptions(ransac_threshold_rad=8e-3)
+    for step_m, model in ((0.0, "rotation"), (0.02, "5pt")):
+        for seed in range(20):
+            rays_a, rays_b, rotation = _ground_band_tiles(seed, step_m=step_m)
+            pose, info = relative_pose_from_rays(rays_a, rays_b, options=options, rays_per_measurement=5)
+            assert info.success and info.model == model
+            assert geodesic_angle(pose.rotation, rotation) < 5e-3
+
+
+def test_loosely_registered_tiles_without_translation_keep_the_rotation_model():
+    # Pure rotation, tiles registered to 0.3 mrad but four of the 18 six times worse (1.8 mrad), as
+    # iFMI's tiles are on the 0 cm sets. The 5-point model's free translation direction and depths
+    # absorb much of those four errors; GRIC counts a residual beyond two noise levels per dimension
+    # as an outlier of fixed cost, so they do not buy it the pair. Measured: rotation on all 30
+    # seeds; with the residuals capped at the inlier thresholds instead (their squares in units of
+    # the noise estimate, 38 and more), 18 of 30 were taken for 5-point motion.
+    options = RelativePoseOptions(ransac_threshold_rad=8e-3)
+    for seed in range(30):
+        rays_a, rays_b, _ = _ground_band_tiles(seed, step_m=0.0, noise_rad=3e-4, loose=4, loose_factor=6.0)
+        _, info = relative_pose_from_rays(rays_a, rays_b, options=options, rays_per_measurement=5)
+        assert info.success and info.model == "rotation"
+
+
+def test_parallax_a_rotation_absorbs_is_left_to_the_rotation_model():
+    # Where the boundary lies: a 1 cm step moves the rays of the band by 2.6 mrad (median), but a rotation
+    # about a horizontal axis absorbs most of it; what it leaves is near the tile noise (1 mrad), and
+    # GRIC keeps the rotation model on most seeds, although that rotation carries the absorbed
+    # parallax as a bias (2.7 mrad RMS against the 5-point model's 1.4; over a sequence the bias adds
+    # up, the noise does not). Weighed with the true noise instead of its estimate, GRIC still keeps
+    # the rotation on 7 of 20 seeds. Measured: rotation on 13 of 20 seeds.
+    options = RelativePoseOptions(ransac_threshold_rad=8e-3)
+    chosen, errors = [], {"rotation": [], "5pt": []}
+    for seed in range(20):
+        rays_a, rays_b, rotation = _ground_band_tiles(seed, step_m=0.01)
+        chosen.append(relative_pose_from_rays(rays_a, rays_b, options=options, rays_per_measurement=5)[1].model)
+        for model, forced in (("rotation", replace(options, rotation_only=True)),
+                              ("5pt", replace(options, five_point_only=True))):
+            pose, _ = relative_pose_from_rays(rays_a, rays_b, options=forced, rays_per_measurement=5)
+            errors[model].append(geodesic_angle(pose.rotation, rotation))
+    rms = {model: np.sqrt(np.mean(np.square(values))) for model, values in errors.items()}
+    assert chosen.count("rotation") >= 8
+    assert rms["rotation"] > 1.5 * rms["5pt"]
