@@ -58,6 +58,9 @@ _MAX_REFIT_PASSES = 10
 # A refit is skipped when the tiles' median residual against their own rotation exceeds a quarter
 # panorama pixel: a registration's error is a few hundredths of a pixel, so more is parallax or wrong tiles.
 _REFIT_MAX_RESIDUAL_PX = 0.25
+# With a refit to follow, the refinement passes run only on the refitted shape when the search pass
+# moved the kept tiles by at most half a pixel (median): one pass converges from there.
+_SINGLE_REFINEMENT_MAX_PX = 0.5
 # A tile's rays are turned to its landmark only when its measured centre lies within a quarter panorama
 # pixel of it (the registration's error is far below; parallax or a slipped tile moves it farther).
 _LANDMARK_GATE_PX = 0.25
@@ -358,7 +361,7 @@ def _fixed_values() -> dict:
     from ifmi.spectral.pair_pipeline import HALF_TURN_INLIER_FRACTION, HALF_TURN_YAW_WINDOW_RAD
 
     fixed = {"point_spread": _POINT_SPREAD, "dense_tiles_per_column": None,
-             "refit_max_residual_px": _REFIT_MAX_RESIDUAL_PX, "single_refinement_max_px": None,
+             "refit_max_residual_px": _REFIT_MAX_RESIDUAL_PX, "single_refinement_max_px": _SINGLE_REFINEMENT_MAX_PX,
              "landmark_gate_px": _LANDMARK_GATE_PX, "half_turn_inlier_fraction": HALF_TURN_INLIER_FRACTION,
              "half_turn_yaw_window_rad": HALF_TURN_YAW_WINDOW_RAD}
     for section, engine, kept in (("registration", FourierMellinConfig(), RegistrationOptions),
@@ -867,15 +870,20 @@ class IfmiFrontEnd(FrontEndBase):
                             linear_b: np.ndarray, curvature_b: np.ndarray | None):
         """``register_placed`` at the prediction, and whether its refinement passes ran.
 
-        With a refit to follow, the passes are left to it, however far the prediction was: the refit
-        takes the tiles' rotation from the search pass's centres (phase-plane fits) and the passes
-        run once, on the refitted shape. Otherwise they run on the predicted shape.
+        With a refit to follow and the kept tiles' median search move within
+        ``_SINGLE_REFINEMENT_MAX_PX`` (panorama pixels), the passes are
+        left to the refit; otherwise they run on the predicted shape.
         """
         engine, source = self.engine, state_b.padded_panorama
-        if not (self._curved and self.config.refinement.refit_passes):
+        if not (self._curved and self.config.refinement.refit_passes and _SINGLE_REFINEMENT_MAX_PX > 0):
             return engine.register_placed(spectra_a, source, offsets_b, linear_b, curvature_b=curvature_b), True
-        return engine.register_placed(spectra_a, source, offsets_b, linear_b, curvature_b=curvature_b,
-                                      refine=False), False
+        placed = engine.register_placed(spectra_a, source, offsets_b, linear_b, curvature_b=curvature_b,
+                                        refine=False)
+        moved = np.hypot(*(placed.offsets - offsets_b)[placed.valid].T)
+        if moved.size and np.median(moved) <= _SINGLE_REFINEMENT_MAX_PX:
+            return placed, False
+        return engine.refine_placed(spectra_a, source, placed, linear_b, curvature_b=curvature_b), True
+
 
     def _landmark_pairs(self, pairs, offsets_a: np.ndarray, landmarks: np.ndarray,
                         rotation_a: np.ndarray) -> tuple:
