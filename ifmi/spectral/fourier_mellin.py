@@ -613,36 +613,32 @@ def _replace_rows(placed: PlacedTiles, rows: np.ndarray, update: PlacedTiles, *,
                                                      descriptor=descriptor))
 
 
-def _placement_basis(n: int) -> np.ndarray:
-    """The monomials ``1, u_r, u_c, u_r^2, 2 u_r u_c, u_c^2`` of the tile grid ``u = p - c``, (6, N N) float32
-    (row-major over the tile's pixels)."""
-    g = np.arange(n, dtype=np.float64) - (n - 1) / 2.0
-    u_r, u_c = np.repeat(g, n), np.tile(g, n)
-    return np.stack([np.ones(n * n), u_r, u_c, u_r * u_r, 2.0 * u_r * u_c, u_c * u_c]).astype(np.float32)
-
-
-def _placement_maps(n: int, offsets: np.ndarray, linear: np.ndarray, curvature: np.ndarray | None, *,
-                    basis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _placement_maps(n: int, offsets: np.ndarray, linear: np.ndarray,
+                    curvature: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """Source ``(row, col)`` maps ``(K N, N)`` float32 of tiles placed at ``o + L u + q(u)``.
 
-    Each map is ``o_i + L_i0 u_r + L_i1 u_c + Q_i00 u_r^2 + 2 Q_i01 u_r u_c + Q_i11 u_c^2``: each
-    tile's six coefficients times the grid's monomials (``basis``, :func:`_placement_basis` of ``n``
-    when not given), one float32 product for both maps of all tiles instead of a dozen full-size
-    passes. Its rounding (about 1e-4 px at 500 px) stays far below the 1/32 px steps in which
-    ``cv2.remap`` resolves a map.
+    Each map is ``((L_i0 u_r + L_i1 u_c) + o_i) + ((Q_i00 u_r^2 + 2 Q_i01 u_r u_c) + Q_i11 u_c^2)``
+    in float32, summed in this order into preallocated arrays: two full-size passes per map
+    (six with curvature) and no full-size temporaries.
     """
-    if basis is None:
-        basis = _placement_basis(n)
-    k = len(offsets)
-    coefficients = np.zeros((2, k, 6), dtype=np.float32)
-    coefficients[:, :, 0] = np.asarray(offsets).T
-    coefficients[:, :, 1:3] = np.swapaxes(np.asarray(linear), 0, 1)
-    if curvature is not None:
-        q = np.asarray(curvature)
-        coefficients[:, :, 3:] = np.stack([q[:, :, 0, 0], q[:, :, 0, 1], q[:, :, 1, 1]], axis=-1).swapaxes(0, 1)
-    # einsum rather than matmul: a BLAS product of this size starts threads that contend with OpenCV's.
-    maps = np.einsum("kj,jp->kp", coefficients.reshape(2 * k, 6), basis, optimize=False).reshape(2, k * n, n)
-    return maps[0], maps[1]
+    f32 = np.float32
+    g = np.arange(n, dtype=f32) - f32((n - 1) / 2.0)
+    lin = np.asarray(linear, dtype=f32)
+    off = np.asarray(offsets, dtype=f32)
+    gr, gc = g[None, :, None], g[None, None, :]
+    maps = np.empty((2, len(off), n, n), dtype=f32)
+    q = None if curvature is None else np.asarray(curvature, dtype=f32)
+    term = None if q is None else np.empty((len(off), n, n), dtype=f32)
+    for i in (0, 1):
+        out = maps[i]
+        np.add(lin[:, i, 0, None, None] * gr, lin[:, i, 1, None, None] * gc, out=out)
+        out += off[:, i, None, None]
+        if q is not None:
+            np.multiply(2 * q[:, i, 0, 1, None, None] * gr, gc, out=term)
+            np.add(q[:, i, 0, 0, None, None] * gr * gr, term, out=term)
+            term += q[:, i, 1, 1, None, None] * gc * gc
+            out += term
+    return maps[0].reshape(-1, n), maps[1].reshape(-1, n)
 
 
 def registration_bytes_per_tile(tile_size: int, *, config: FourierMellinConfig = FourierMellinConfig()) -> int:
@@ -696,7 +692,6 @@ class FourierMellin:
         self.count = int(count)
         self.config = config
         self.window = hann_window((n, n))
-        self.placement_basis = _placement_basis(n)
         self.n_angles = int(config.log_polar_angles or n)
         self.n_radii = int(config.log_polar_radii or n // 2)
         r_max = n / 2.0 - 1.0
@@ -838,8 +833,7 @@ class FourierMellin:
         for first in range(0, len(offsets), step):
             part = slice(first, first + step)
             map_rows, map_cols = _placement_maps(n, offsets[part], linear[part],
-                                                 None if curvature is None else curvature[part],
-                                                 basis=self.placement_basis)
+                                                 None if curvature is None else curvature[part])
             cv2.remap(source, map_cols, map_rows, kind, dst=out[first * n:(first + step) * n],
                       borderMode=cv2.BORDER_REFLECT_101)
         return out.reshape(-1, n, n)
