@@ -17,6 +17,12 @@ has two methods:
     whose ``uses_prior_rotation`` attribute is true is called with the
     keyword ``prior_rotation`` (a predicted ``R_ab``, (3, 3)) as well.
 
+A front end whose ``prepares_in_background`` attribute is true has the next
+frame read and prepared in a background thread while the current pair is
+matched and solved (both cores at work where the preparation releases the
+GIL, as OpenCV's resampling does); its ``prepare`` must then neither read
+nor change anything that matching changes.
+
 A front end may also have ``accept_pose(state, rotation)``: the odometry
 then passes it the pose ``R_0k`` ((3, 3)) it settled on for every
 successfully estimated frame, before that frame can serve as a reference
@@ -186,6 +192,7 @@ class FrontEndBase:
     ``prepare`` and ``correspondences``."""
 
     uses_prior_rotation: bool = False
+    prepares_in_background: bool = False
 
     def accept_pose(self, state: Any, rotation: np.ndarray) -> None:
         """Told the settled pose ``R_0k`` of a successfully estimated frame; nothing by default."""
@@ -209,6 +216,7 @@ class _WithDefaults(FrontEndBase):
         self.prepare = front_end.prepare
         self.correspondences = front_end.correspondences
         self.uses_prior_rotation = bool(getattr(front_end, "uses_prior_rotation", False))
+        self.prepares_in_background = bool(getattr(front_end, "prepares_in_background", False))
         for name in ("accept_pose", "refine_correspondences"):
             if callable(getattr(front_end, name, None)):
                 setattr(self, name, getattr(front_end, name))

@@ -320,3 +320,40 @@ def test_correspondences_refined_at_the_solved_pose_are_solved_again(refined):
         assert np.allclose(relative, 0.01, atol=1e-6) and not any(r.diagnostics.get("refined") for r in records)
 
 
+
+
+class BackgroundFrontEnd(ExactFrontEnd):
+    """An exact front end whose frames are prepared in the background: it notes each ``prepare``
+    and whether it ran off the main thread."""
+
+    prepares_in_background = True
+
+    def __init__(self, fail=()):
+        super().__init__(fail)
+        import threading
+
+        self._main = threading.get_ident()
+        self._thread = threading.get_ident
+        self.prepared, self.in_background = [], []
+
+    def prepare(self, image):
+        self.prepared.append(image[0])
+        self.in_background.append(self._thread() != self._main)
+        return image
+
+
+def test_a_front_end_prepared_in_the_background_gives_the_same_estimate_in_order():
+    from ifmi.frames import MissingFrame
+
+    frames, truth = _frames(8)
+    frames[5] = MissingFrame("frame 5", "unreadable")
+    plain_traj, plain = track_sequence(frames, ExactFrontEnd(fail={3}), pose_options=POSE)
+    fe = BackgroundFrontEnd(fail={3})
+    traj, records = track_sequence(frames, fe, pose_options=POSE)
+    assert np.array_equal(traj.rotations, plain_traj.rotations)
+    assert [(r.frame, r.success, r.reference_frame) for r in records] == \
+        [(r.frame, r.success, r.reference_frame) for r in plain]
+    # Every frame but the missing one prepared once, in order, off the main thread.
+    assert fe.prepared == [0, 1, 2, 3, 4, 6, 7] and all(fe.in_background)
+    assert all(r.to_row()["t_prepare_ms"] >= 0 for r in records if r.frame != 5)
+    assert not records[5].success and "unreadable" in records[5].reason

@@ -649,6 +649,33 @@ def _score(errors: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray
     return inliers.sum(axis=-1), cost
 
 
+def _samples_without_replacement(rng: np.random.Generator, n: int, size: int, count: int) -> np.ndarray:
+    """``count`` samples of ``size`` distinct indices of ``range(n)``, (count, size) int64: the samples that
+    ``count`` calls of ``rng.choice(n, size, replace=False)`` return, drawn with one call of the generator.
+
+    NumPy's ``Generator.choice`` (``size`` < ``n``, no weights, shuffled, ``n`` <= 10000 or
+    ``size`` <= ``n`` / 50) takes Floyd's algorithm (for ``j`` = ``n - size .. n - 1``: a draw ``v`` from
+    ``[0, j]``, or ``j`` when ``v`` was taken already) and then shuffles the sample (for ``i`` =
+    ``size - 1 .. 1``: swap ``i`` with a draw from ``[0, i]``). None of these bounded draws depends on
+    an earlier one's value, so all of them, for every sample, come from one ``rng.integers`` call on
+    the bounds in that order, which consumes the generator as the ``count`` calls do; only the
+    bookkeeping is left to this loop. (Per call, ``choice`` costs as much as a 5-point solve.)
+    """
+    bounds = np.concatenate([np.arange(n - size, n), np.arange(size - 1, 0, -1)])
+    draws = rng.integers(0, np.tile(bounds + 1, count)).reshape(count, -1).tolist()
+    samples = []
+    for draw in draws:
+        taken, sample = set(), []
+        for value, last in zip(draw[:size], range(n - size, n)):
+            value = last if value in taken else value
+            taken.add(value)
+            sample.append(value)
+        for i, other in zip(range(size - 1, 0, -1), draw[size:]):
+            sample[i], sample[other] = sample[other], sample[i]
+        samples.append(sample)
+    return np.array(samples, dtype=np.int64).reshape(count, size)
+
+
 def _ransac_5pt(rays, products, threshold, options, rng):
     """The best essential-matrix hypotheses ``[(R_ab, t_ab), ...]``, best first (empty when no sample gave one).
 
@@ -667,8 +694,8 @@ def _ransac_5pt(rays, products, threshold, options, rng):
     while drawn < limit:
         chunk = min(limit - drawn, max(options.min_iterations - drawn, _CHUNK_5PT))
         rotations, translations, owners = [], [], []
-        for j in range(chunk):
-            sample = rays[:, rng.choice(n, _SAMPLE_5PT, replace=False)]
+        for j, drawn_rows in enumerate(_samples_without_replacement(rng, n, _SAMPLE_5PT, chunk)):
+            sample = rays[:, drawn_rows]
             for pose in poselib.relpose_5pt(sample[1], sample[0]):
                 rotations.append(pose.R)
                 translations.append(pose.t)

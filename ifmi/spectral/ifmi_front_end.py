@@ -493,12 +493,17 @@ class IfmiFrontEnd(FrontEndBase):
     ``correspondences`` accepts a predicted rotation ``R_ab``
     (``uses_prior_rotation`` tells the odometry so); ``solve_pair`` runs a
     pair through the stages of :mod:`ifmi.spectral.pair_pipeline`.
+    ``prepare`` only reads the camera mapping (made on the first call) and
+    builds a new frame state, so the odometry prepares the next frame in the
+    background (``prepares_in_background``).
 
     Parameters
     ----------
     model : OcamModel
     config : IfmiConfig
     """
+
+    prepares_in_background = True
 
     def __init__(self, model: OcamModel, config: IfmiConfig = IfmiConfig()):
         self.model = model

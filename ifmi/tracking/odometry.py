@@ -63,6 +63,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable, Iterable, Sequence
 
@@ -401,7 +402,7 @@ class Tracker:
         self.records.append(record)
         return record
 
-    def step(self, image, *, started: float | None = None) -> FrameRecord:
+    def step(self, image, *, started: float | None = None, prepared: tuple | None = None) -> FrameRecord:
         """Estimate the next frame's pose and return its record.
 
         Parameters
@@ -411,6 +412,9 @@ class Tracker:
         started : float, optional, keyword-only
             ``time.perf_counter()`` when work on this frame began (e.g.
             before reading it); default now.
+        prepared : tuple, optional, keyword-only
+            ``(state, milliseconds)``: the front end's ``prepare`` of ``image``, made
+            already (e.g. in the background), and its duration; default prepare it now.
 
         Raises
         ------
@@ -426,9 +430,7 @@ class Tracker:
             record = FrameRecord(k, self._reference.frame, False, f"image: {image.reason}", 0, 0,
                                  time.perf_counter() - start)
             return self._append(record, self.rotations[-1], self.positions[-1])
-        prepared = time.perf_counter()
-        state = self.front_end.prepare(image)
-        prepare_ms = 1e3 * (time.perf_counter() - prepared)
+        state, prepare_ms = _timed_prepare(self.front_end, image) if prepared is None else prepared
         if self._reference is None:
             if self.rolling_shutter.readout > 0.0:
                 self._height = int(np.shape(image)[0])
@@ -567,14 +569,52 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
     """
     tracker = Tracker(front_end, pose_options=pose_options, keyframe=keyframe, pose_solver=pose_solver,
                       rolling_shutter=rolling_shutter, bundle_adjustment=bundle_adjustment)
-    iterator = iter(images)
+    frames = _frames_prepared_ahead if tracker._contract.prepares_in_background else _frames
+    for image, started, prepared in frames(iter(images), front_end):
+        record = tracker.step(image, started=started, prepared=prepared)
+        if on_frame is not None:
+            on_frame(record)
+    return tracker.trajectory(timestamps), tracker.records
+
+
+def _timed_prepare(front_end, image) -> tuple:
+    """``(front_end.prepare(image), its wall milliseconds)``."""
+    started = time.perf_counter()
+    state = front_end.prepare(image)
+    return state, 1e3 * (time.perf_counter() - started)
+
+
+def _frames(iterator, front_end):
+    """``(image, started, None)`` of each frame: read when asked, prepared by the tracker's step."""
     while True:
         started = time.perf_counter()  # the frame's time includes producing it (e.g. reading)
         try:
             image = next(iterator)
         except StopIteration:
-            break
-        record = tracker.step(image, started=started)
-        if on_frame is not None:
-            on_frame(record)
-    return tracker.trajectory(timestamps), tracker.records
+            return
+        yield image, started, None
+
+
+def _read_and_prepare(iterator, front_end) -> tuple | None:
+    """The next frame and its ``(state, ms)`` (None for a :class:`MissingFrame`), or None at the end."""
+    try:
+        image = next(iterator)
+    except StopIteration:
+        return None
+    return image, None if isinstance(image, MissingFrame) else _timed_prepare(front_end, image)
+
+
+def _frames_prepared_ahead(iterator, front_end):
+    """``(image, started, (state, ms))`` of each frame, the next frame read and prepared in a background
+    thread while the caller works on this one. ``started`` is when the caller began to wait for the
+    frame, so the frames' times add up to the wall time; the frames are read and prepared in order,
+    one at a time."""
+    with ThreadPoolExecutor(max_workers=1) as worker:
+        ahead = worker.submit(_read_and_prepare, iterator, front_end)
+        while True:
+            started = time.perf_counter()
+            item = ahead.result()
+            if item is None:
+                return
+            ahead = worker.submit(_read_and_prepare, iterator, front_end)
+            yield item[0], started, item[1]
