@@ -24,7 +24,8 @@ candidates of the first planar pair as the plane's normal, walks the later
 planar pairs in order, takes in each the candidate nearest the normal carried
 so far (re-chaining the orientations as it goes), and keeps the hypothesis
 whose normals stay closer together. A pair is planar when a homography
-explains nearly all of its 5-point inliers (:func:`planar_pair`); other pairs are left alone, and so is a planar pair
+explains its 5-point inliers (Torr's GRIC, or nearly all of them as inliers:
+:func:`planar_pair`); other pairs are left alone, and so is a planar pair
 whose two candidate normals both lie within the tolerance of the carried one.
 On a planar pair the chosen decomposition replaces the 5-point estimate: the
 essential matrix of a plane is degenerate, its least-squares fit slides along
@@ -70,10 +71,12 @@ class PlaneTwinOptions:
         from a few milliradians of parallax.
     min_plane_share : float
         A pair is planar when the homography fitted to its 5-point inliers
-        counts at least this share of them as its own inliers (the rest may
-        lie off the plane). Torr's GRIC of the two models is reported too, but
-        with the 14 to 20 measurements of an iFMI pair (its tiles) it prefers
-        the essential matrix's five parameters even on an exact plane.
+        scores a GRIC no higher than the 5-point model's, or counts at least
+        this share of them as its own inliers (the rest may lie off the
+        plane). The second test serves pairs of few measurements: with the
+        14 to 20 tiles of an iFMI pair GRIC charges the homography's three
+        extra parameters more than its tighter constraint saves, even on an
+        exact plane.
     min_planar_pairs : int
         Planar pairs a sequence needs before any is changed: with one pair
         both hypotheses are equally consistent.
@@ -286,8 +289,9 @@ def planar_pair(rays_a: np.ndarray, rays_b: np.ndarray, rotation_ab: np.ndarray,
     Returns
     -------
     PlaneCandidates or None
-        None when the homography's inliers are less than ``options.min_plane_share``
-        of the rays, the rays are too few, or the homography holds no translation.
+        None when a homography explains the rays worse than the 5-point model
+        (Torr's GRIC) and counts fewer than ``options.min_plane_share`` of them
+        as inliers, the rays are too few, or the homography holds no translation.
     """
     if len(rays_a) < max(2 * _SAMPLE_HOMOGRAPHY, 2 * rays_per_measurement) or not noise_sigma_rad > 0:
         return None
@@ -297,7 +301,8 @@ def planar_pair(rays_a: np.ndarray, rays_b: np.ndarray, rotation_ab: np.ndarray,
     gric_h = _gric(transfer, noise_sigma_rad, dimension=2, parameters=8, group=rays_per_measurement)
     gric_e = _gric(epipolar, noise_sigma_rad, dimension=3, parameters=5, group=rays_per_measurement)
     on_plane = transfer < threshold_rad
-    if on_plane.mean() < options.min_plane_share or on_plane.sum() < _SAMPLE_HOMOGRAPHY:
+    explained = gric_h <= gric_e or on_plane.mean() >= options.min_plane_share
+    if not explained or on_plane.sum() < _SAMPLE_HOMOGRAPHY:
         return None
     decomposed = plane_decompositions(homography, rays_a[on_plane], rays_b[on_plane])
     if decomposed is None:
