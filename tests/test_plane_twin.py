@@ -167,3 +167,36 @@ def test_one_planar_pair_changes_nothing():
                                        frames=2)
     assert len(planar) == 1
     assert resolve_plane_twins(np.array([0, 0]), relative, planar, options=PlaneTwinOptions()) == {}
+
+
+def test_the_tracker_record_re_chains_planar_pairs_and_labels_them():
+    from types import SimpleNamespace
+
+    from ifmi.tracking.odometry import FrameRecord
+    from ifmi.tracking.plane_twins import PLANE_TWIN, PlaneTwinChain
+
+    rng = np.random.default_rng(11)
+    sigma, frames = 1e-3, 8
+    world, positions = _trajectory(frames, 0.05, np.radians(4.0))
+    chain, chained, records = PlaneTwinChain(), [np.eye(3)], [FrameRecord(0, 0, True, "", 0, 0, 0.0)]
+    for k in range(1, frames):
+        rotation_ab = world[k - 1].T @ world[k]
+        translation_ab = world[k - 1].T @ (positions[k] - positions[k - 1])
+        normal_b = -world[k].T @ np.array([0.0, 0.0, 1.0])
+        rays_b = _cone_rays(90, rng)
+        rays_a, _ = _pair_rays(rotation_ab, translation_ab, rays_b * (positions[k][2] / (rays_b @ normal_b))[:, None])
+        exact = plane_decompositions(rotation_ab + np.outer(translation_ab, normal_b) / positions[k][2], rays_a, rays_b)
+        twin = int(np.argmax(geodesic_angle(exact[0], np.broadcast_to(rotation_ab, (2, 3, 3)))))
+        pose = SimpleNamespace(rotation=exact[0][twin], translation_direction=_unit(exact[1][twin]))
+        info = SimpleNamespace(model="5pt", inlier_mask=np.ones(90, dtype=bool),
+                               selection=SimpleNamespace(noise_sigma_rad=np.sqrt(2.0) * sigma))
+        corr = SimpleNamespace(rays_a=_noisy(rays_a, sigma, rng), rays_b=_noisy(rays_b, sigma, rng),
+                               rays_per_measurement=1)
+        chain.observe(k, corr, pose, info, threshold_rad=5.0 * sigma)
+        chained.append(chained[-1] @ pose.rotation)
+        records.append(FrameRecord(k, k - 1, True, "", 90, 90, 0.0, "5pt"))
+    rotations, _, labelled = chain.apply(np.array(chained), np.zeros((frames, 3)), records)
+    truth = world[0].T @ world
+    assert np.max(geodesic_angle(np.array(chained), truth)) > 0.1  # every pair the twin: 30 mrad each
+    assert np.max(geodesic_angle(rotations, truth)) < 0.01
+    assert [r.diagnostics.get(PLANE_TWIN) for r in labelled] == [None] + ["swapped"] * (frames - 1)

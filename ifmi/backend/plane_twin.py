@@ -23,7 +23,7 @@ chain turns them further. :func:`resolve_plane_twins` therefore tries both
 candidates of the first planar pair as the plane's normal, walks the later
 planar pairs in order, takes in each the candidate nearest the normal carried
 so far (re-chaining the orientations as it goes), and keeps the hypothesis
-whose normals stay closer together. A pair is planar when a homography
+whose normals stay closer together, when they do by a clear margin. A pair is planar when a homography
 explains its 5-point inliers (Torr's GRIC, or nearly all of them as inliers:
 :func:`planar_pair`); other pairs are left alone, and so is a planar pair
 whose two candidate normals both lie within the tolerance of the carried one.
@@ -371,14 +371,19 @@ def resolve_plane_twins(references: np.ndarray, relative: np.ndarray, planar: di
         The chosen candidate of each planar pair; empty when the pairs are
         fewer than ``options.min_planar_pairs`` (nothing is changed then).
         Both hypotheses for the first planar pair are walked (:func:`_walk`);
-        the one of lower cost wins, the current one on a tie.
+        the one of lower cost wins when it is cheaper by at least
+        ``options.normal_tolerance_rad`` (one pair's whole disagreement), else
+        the sequence cannot tell them apart and nothing is changed either.
     """
     if len(planar) < options.min_planar_pairs:
         return {}
     first = planar[min(planar)]
     walks = [_walk(candidate, planar, references, relative, options.normal_tolerance_rad)
              for candidate in (first.current, 1 - first.current)]
-    return walks[1][1] if walks[1][0] < walks[0][0] else walks[0][1]
+    (cost_current, current), (cost_other, other) = walks
+    if abs(cost_current - cost_other) < options.normal_tolerance_rad:
+        return {}
+    return other if cost_other < cost_current else current
 
 
 def rechained(rotations: np.ndarray, positions: np.ndarray, references: np.ndarray,

@@ -70,7 +70,9 @@ class PlaneTwinChain:
         records : list of FrameRecord
             One per frame; a failed frame holds the pose before it.
         """
-        references = np.array([r.reference_frame if r.success else max(r.frame - 1, 0) for r in records])
+        if not self._planar:
+            return rotations, positions, records
+        references = np.array([r.reference_frame if r.success else max(r.frame - 1, 0) for r in records], dtype=int)
         relative = np.einsum("kji,kjl->kil", rotations[references], rotations)
         choices = resolve_plane_twins(references, relative, self._planar, options=self.options)
         replaced = {k: (self._planar[k].rotations[c], self._planar[k].translations[c]) for k, c in choices.items()}
