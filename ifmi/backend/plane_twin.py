@@ -47,7 +47,7 @@ from ifmi.backend.relative_pose import epipolar_angles
 from ifmi.geometry.rotations import cross_product_matrix, geodesic_angle
 
 __all__ = ["PlaneTwinOptions", "PlaneCandidates", "homography_from_rays", "homography_transfer_angles",
-           "robust_homography", "plane_decompositions", "planar_pair", "resolve_plane_twins", "rechained"]
+           "robust_homography", "plane_decompositions", "planar_pair", "replaces_estimate", "resolve_plane_twins", "rechained"]
 
 # Correspondences of a homography's minimal sample.
 _SAMPLE_HOMOGRAPHY = 4
@@ -77,6 +77,11 @@ class PlaneTwinOptions:
         14 to 20 tiles of an iFMI pair GRIC charges the homography's three
         extra parameters more than its tighter constraint saves, even on an
         exact plane.
+    agreement_fraction : float
+        A planar pair keeps its own 5-point pose when the chosen
+        decomposition is the one nearest it and it lies within this fraction
+        of the angle between the two decompositions from it
+        (:func:`replaces_estimate`).
     min_planar_pairs : int
         Planar pairs a sequence needs before any is changed: with one pair
         both hypotheses are equally consistent.
@@ -89,6 +94,7 @@ class PlaneTwinOptions:
     enabled: bool = True
     normal_tolerance_rad: float = 0.35
     min_plane_share: float = 0.95
+    agreement_fraction: float = 0.1
     min_planar_pairs: int = 2
     ransac_iterations: int = 200
     seed: int = 0
@@ -96,6 +102,8 @@ class PlaneTwinOptions:
     def __post_init__(self) -> None:
         if not 0.0 < self.normal_tolerance_rad < math.pi / 2:
             raise ValueError(f"normal_tolerance_rad must lie in (0, pi/2), got {self.normal_tolerance_rad}")
+        if not 0.0 <= self.agreement_fraction < 0.5:
+            raise ValueError(f"agreement_fraction must lie in [0, 0.5), got {self.agreement_fraction}")
         if not 0.0 < self.min_plane_share <= 1.0:
             raise ValueError(f"min_plane_share must lie in (0, 1], got {self.min_plane_share}")
         if self.min_planar_pairs < 2 or self.ransac_iterations < 1:
@@ -118,6 +126,8 @@ class PlaneCandidates:
         on the plane).
     current : int
         Index of the candidate nearest the pair's own pose (by rotation).
+    offsets_rad : (2,) ndarray
+        Angle (radians) between each candidate's rotation and the pair's own.
     gric_homography, gric_5pt : float
         Both models' GRIC over the pair's inliers (lower is better).
     """
@@ -126,6 +136,7 @@ class PlaneCandidates:
     translations: np.ndarray
     normals: np.ndarray
     current: int
+    offsets_rad: np.ndarray
     gric_homography: float
     gric_5pt: float
 
@@ -311,8 +322,22 @@ def planar_pair(rays_a: np.ndarray, rays_b: np.ndarray, rotation_ab: np.ndarray,
     lengths = np.linalg.norm(translations, axis=1, keepdims=True)
     if np.any(lengths == 0):
         return None
-    current = int(np.argmin(geodesic_angle(rotations, np.broadcast_to(rotation_ab, rotations.shape))))
-    return PlaneCandidates(rotations, translations / lengths, normals, current, gric_h, gric_e)
+    offsets = geodesic_angle(rotations, np.broadcast_to(rotation_ab, rotations.shape))
+    return PlaneCandidates(rotations, translations / lengths, normals, int(np.argmin(offsets)), offsets, gric_h, gric_e)
+
+
+def replaces_estimate(candidates: PlaneCandidates, choice: int, *,
+                      options: PlaneTwinOptions = PlaneTwinOptions()) -> bool:
+    """Whether the chosen decomposition replaces the pair's 5-point pose.
+
+    It does unless it is the decomposition nearest that pose and the pose lies
+    within ``options.agreement_fraction`` of the angle between the two
+    decompositions from it: the essential matrix, fitted to every inlier on
+    and off the plane, then is the better estimate of the same solution.
+    """
+    separation = float(geodesic_angle(candidates.rotations[:1], candidates.rotations[1:])[0])
+    agrees = choice == candidates.current and candidates.offsets_rad[choice] <= options.agreement_fraction * separation
+    return not agrees
 
 
 def _angle(u: np.ndarray, v: np.ndarray) -> float:
@@ -320,7 +345,7 @@ def _angle(u: np.ndarray, v: np.ndarray) -> float:
 
 
 def _walk(first: int, planar: dict, references: np.ndarray, relative: np.ndarray,
-          tolerance: float) -> tuple[float, dict]:
+          options: PlaneTwinOptions) -> tuple[float, dict]:
     """Cost and choices of the hypothesis that candidate ``first`` of the first planar pair is the true one.
 
     Frames are chained in order (``R_0k = R_0r @ R_rk``); at each planar pair the
@@ -329,6 +354,7 @@ def _walk(first: int, planar: dict, references: np.ndarray, relative: np.ndarray
     within ``tolerance`` of it), and its angle to that mean, capped at
     ``tolerance``, is the cost.
     """
+    tolerance = options.normal_tolerance_rad
     rotations = np.empty((len(references), 3, 3))
     rotations[0] = np.eye(3)
     normal_sum, cost, choices = None, 0.0, {}
@@ -346,7 +372,8 @@ def _walk(first: int, planar: dict, references: np.ndarray, relative: np.ndarray
                 cost += min(float(angles[choice]), tolerance)
             choices[k] = choice
             normal_sum = world[choice] if normal_sum is None else normal_sum + world[choice]
-            rotation_rk = pair.rotations[choice]
+            if replaces_estimate(pair, choice, options=options):
+                rotation_rk = pair.rotations[choice]
         rotations[k] = rotations[references[k]] @ rotation_rk
     return cost, choices
 
@@ -378,7 +405,7 @@ def resolve_plane_twins(references: np.ndarray, relative: np.ndarray, planar: di
     if len(planar) < options.min_planar_pairs:
         return {}
     first = planar[min(planar)]
-    walks = [_walk(candidate, planar, references, relative, options.normal_tolerance_rad)
+    walks = [_walk(candidate, planar, references, relative, options)
              for candidate in (first.current, 1 - first.current)]
     (cost_current, current), (cost_other, other) = walks
     if abs(cost_current - cost_other) < options.normal_tolerance_rad:

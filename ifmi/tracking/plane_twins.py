@@ -15,7 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ifmi.backend.plane_twin import PlaneTwinOptions, planar_pair, rechained, resolve_plane_twins
+from ifmi.backend.plane_twin import PlaneTwinOptions, planar_pair, rechained, replaces_estimate, resolve_plane_twins
 
 __all__ = ["PLANE_TWIN", "PlaneTwinChain"]
 
@@ -75,7 +75,8 @@ class PlaneTwinChain:
         references = np.array([r.reference_frame if r.success else max(r.frame - 1, 0) for r in records], dtype=int)
         relative = np.einsum("kji,kjl->kil", rotations[references], rotations)
         choices = resolve_plane_twins(references, relative, self._planar, options=self.options)
-        replaced = {k: (self._planar[k].rotations[c], self._planar[k].translations[c]) for k, c in choices.items()}
+        replaced = {k: (self._planar[k].rotations[c], self._planar[k].translations[c]) for k, c in choices.items()
+                    if replaces_estimate(self._planar[k], c, options=self.options)}
         if replaced:
             rotations, positions = rechained(rotations, positions, references, replaced)
         labelled = [replace(r, diagnostics={**r.diagnostics, PLANE_TWIN: _label(choices[r.frame], self._planar[r.frame])})
