@@ -200,3 +200,28 @@ def test_the_tracker_record_re_chains_planar_pairs_and_labels_them():
     assert np.max(geodesic_angle(np.array(chained), truth)) > 0.1  # every pair the twin: 30 mrad each
     assert np.max(geodesic_angle(rotations, truth)) < 0.01
     assert [r.diagnostics.get(PLANE_TWIN) for r in labelled] == [None] + ["swapped"] * (frames - 1)
+
+
+def test_a_pair_at_the_chosen_decomposition_keeps_its_pose_and_one_between_them_does_not():
+    from ifmi.backend.plane_twin import replaces_estimate
+
+    rng = np.random.default_rng(12)
+    sigma = 1e-3
+    rotation_ab, translation_ab, _, points_b = _plane_pair(rng)
+    rays_a, rays_b = (_noisy(rays, sigma, rng) for rays in _pair_rays(rotation_ab, translation_ab, points_b))
+    options = dict(noise_sigma_rad=np.sqrt(2.0) * sigma, threshold_rad=5.0 * sigma)
+    at_truth = planar_pair(rays_a, rays_b, rotation_ab, _unit(translation_ab), **options)
+    true = at_truth.current
+    assert not replaces_estimate(at_truth, true)
+    assert replaces_estimate(at_truth, 1 - true)
+    # A 5-point pose halfway between the two decompositions is replaced by either.
+    halfway = Rotation.from_matrix(at_truth.rotations).mean().as_matrix()
+    between = planar_pair(rays_a, rays_b, halfway, _unit(translation_ab), **options)
+    assert replaces_estimate(between, 0) and replaces_estimate(between, 1)
+
+
+@pytest.mark.parametrize("field, value", [("normal_tolerance_rad", 0.0), ("min_plane_share", 1.5),
+                                          ("agreement_fraction", 0.5), ("min_planar_pairs", 1)])
+def test_options_out_of_range_are_refused(field, value):
+    with pytest.raises(ValueError, match=field):
+        PlaneTwinOptions(**{field: value})
