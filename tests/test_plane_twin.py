@@ -225,3 +225,12 @@ def test_a_pair_at_the_chosen_decomposition_keeps_its_pose_and_one_between_them_
 def test_options_out_of_range_are_refused(field, value):
     with pytest.raises(ValueError, match=field):
         PlaneTwinOptions(**{field: value})
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_straight_track_of_twins_only_is_set_right_by_the_drift_they_add(seed):
+    # No turn of the heading: the twins' normals move only with the rotation error each twin adds.
+    rng = np.random.default_rng(seed)
+    relative, planar, true_index, _ = _sequence(rng, step=0.05, turn_rad=0.0, sigma=1e-3,
+                                                twins=np.ones(12, dtype=bool))
+    assert resolve_plane_twins(np.maximum(np.arange(12) - 1, 0), relative, planar) == true_index
