@@ -302,7 +302,10 @@ def planar_pair(rays_a: np.ndarray, rays_b: np.ndarray, rotation_ab: np.ndarray,
     PlaneCandidates or None
         None when a homography explains the rays worse than the 5-point model
         (Torr's GRIC) and counts fewer than ``options.min_plane_share`` of them
-        as inliers, the rays are too few, or the homography holds no translation.
+        as inliers, the rays are too few, or the two decompositions' rotations
+        differ by no more than ``noise_sigma_rad`` (a translation too small
+        against the noise: choosing between them cannot matter, and their
+        normals are noise).
     """
     if len(rays_a) < max(2 * _SAMPLE_HOMOGRAPHY, 2 * rays_per_measurement) or not noise_sigma_rad > 0:
         return None
@@ -322,6 +325,8 @@ def planar_pair(rays_a: np.ndarray, rays_b: np.ndarray, rotation_ab: np.ndarray,
     lengths = np.linalg.norm(translations, axis=1, keepdims=True)
     if np.any(lengths == 0):
         return None
+    if geodesic_angle(rotations[:1], rotations[1:])[0] <= noise_sigma_rad:
+        return None  # the twins differ by less than one ray's noise: nothing to choose, and their normals are noise
     offsets = geodesic_angle(rotations, np.broadcast_to(rotation_ab, rotations.shape))
     return PlaneCandidates(rotations, translations / lengths, normals, int(np.argmin(offsets)), offsets, gric_h, gric_e)
 
