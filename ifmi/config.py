@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Mapping
 
 from ifmi.backend.bundle_adjustment import BundleAdjustmentOptions
+from ifmi.backend.plane_twin import PlaneTwinOptions
 from ifmi.backend.relative_pose import RelativePoseOptions
 from ifmi.backend.rolling_shutter import RollingShutterOptions
 from ifmi.features import FeatureConfig
@@ -40,6 +41,9 @@ class EstimateConfig:
     bundle_adjustment : BundleAdjustmentOptions
         Refinement of the trajectory over the points frames share
         (:mod:`ifmi.backend.bundle_adjustment`); off by default.
+    plane_twin : PlaneTwinOptions
+        Settling a plane's two-fold ambiguity over the sequence
+        (:mod:`ifmi.backend.plane_twin`); on by default.
     """
 
     ifmi: IfmiConfig = field(default_factory=IfmiConfig)
@@ -48,6 +52,7 @@ class EstimateConfig:
     keyframe: KeyframeOptions = field(default_factory=KeyframeOptions)
     rolling_shutter: RollingShutterOptions = field(default_factory=RollingShutterOptions)
     bundle_adjustment: BundleAdjustmentOptions = field(default_factory=BundleAdjustmentOptions)
+    plane_twin: PlaneTwinOptions = field(default_factory=PlaneTwinOptions)
 
     def to_dict(self) -> dict:
         """JSON-serialisable nested dict (inverse of :meth:`from_dict`)."""
@@ -58,6 +63,7 @@ class EstimateConfig:
             "keyframe": asdict(self.keyframe),
             "rolling_shutter": asdict(self.rolling_shutter),
             "bundle_adjustment": asdict(self.bundle_adjustment),
+            "plane_twin": asdict(self.plane_twin),
         }
 
     @classmethod

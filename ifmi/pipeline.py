@@ -140,6 +140,7 @@ def estimate_sequence(images: Iterable[np.ndarray], model: OcamModel, *, method:
                                              keyframe=config.keyframe, timestamps=timestamps,
                                              rolling_shutter=config.rolling_shutter,
                                              bundle_adjustment=config.bundle_adjustment,
+                                             plane_twin=config.plane_twin,
                                              on_frame=lambda record: bar.update(1))
     return SequenceEstimate(trajectory=trajectory, frames=tuple(records), config=config,
                             method=method)

@@ -176,7 +176,7 @@ def test_pixel_threshold_is_resolved_for_the_calibration(sequence):
     ("data", "message"),
     [
         ({"bogus": {}}, r"^unknown key bogus; expected ifmi, features, relative_pose, keyframe, rolling_shutter, "
-         r"bundle_adjustment$"),
+         r"bundle_adjustment, plane_twin$"),
         ({"relative_pose": {"threshold": 1.0}}, r"^relative_pose: unknown key threshold; expected "),
         ({"keyframe": {"every": 3}}, r"^keyframe: unknown key every; expected enabled, "),
         ({"ifmi": {"tiling": {"size": 64}}}, r"^ifmi.tiling: unknown key size; expected tile_size, overlap$"),

@@ -74,10 +74,12 @@ from ifmi.backend.bundle_adjustment import BundleAdjustmentOptions, poses_from_s
 from ifmi.errors import InputError
 from ifmi.frames import MissingFrame
 from ifmi.front_end import REFINE_FAILURE, with_contract_defaults
+from ifmi.backend.plane_twin import PlaneTwinOptions
 from ifmi.backend.relative_pose import RelativePoseOptions, relative_pose_from_rays
 from ifmi.backend.rolling_shutter import (RollingShutterOptions, angular_velocity_from_rotation, relative_pose_rolling_shutter,
                               velocity_after_intervals, velocity_at_frame)
 from ifmi.geometry.trajectory import Trajectory
+from ifmi.tracking.plane_twins import PlaneTwinChain
 
 __all__ = ["KeyframeOptions", "FrameRecord", "FRAME_COLUMNS", "RECOVERED_AFTER_RESET", "REFINE_FAILURE", "PREPARE_MS",
            "Tracker", "track_sequence"]
@@ -271,6 +273,10 @@ class Tracker:
         With a ``window``, :meth:`trajectory` returns the poses refined
         over the points the frames share (see the module docstring); its
         ``robust_scale_rad`` defaults to the RANSAC threshold. Default off.
+    plane_twin : PlaneTwinOptions, keyword-only
+        Settling a plane's twin decomposition over the sequence
+        (:mod:`ifmi.tracking.plane_twins`); :meth:`trajectory` returns the
+        re-chained poses. Default on.
 
     Raises
     ------
@@ -284,7 +290,8 @@ class Tracker:
                  keyframe: KeyframeOptions = KeyframeOptions(),
                  pose_solver: PoseSolver = relative_pose_from_rays,
                  rolling_shutter: RollingShutterOptions = RollingShutterOptions(),
-                 bundle_adjustment: BundleAdjustmentOptions = BundleAdjustmentOptions()):
+                 bundle_adjustment: BundleAdjustmentOptions = BundleAdjustmentOptions(),
+                 plane_twin: PlaneTwinOptions = PlaneTwinOptions()):
         if pose_options.ransac_threshold_rad is None:
             raise ValueError("pose_options.ransac_threshold_rad is None; resolve it for the camera "
                              "first (RelativePoseOptions.resolved or ifmi.pipeline.resolved_config)")
@@ -300,6 +307,7 @@ class Tracker:
         if bundle_adjustment.robust_scale_rad is None:
             bundle_adjustment = replace(bundle_adjustment, robust_scale_rad=pose_options.ransac_threshold_rad)
         self.bundle_adjustment = bundle_adjustment
+        self._plane_twins = PlaneTwinChain(options=plane_twin)
         # Each accepted pair's (reference, frame, inlier rays_a, inlier rays_b), for the adjustment.
         self._pair_rays: list = []
         self._height = 0  # rows of the images (the first frame's), for the rolling-shutter row times
@@ -476,6 +484,7 @@ class Tracker:
             if self.bundle_adjustment.window:
                 inliers = np.asarray(info.inlier_mask, dtype=bool)
                 self._pair_rays.append((reference.frame, k, corr.rays_a[inliers], corr.rays_b[inliers]))
+            self._plane_twins.observe(k, corr, pose, info, threshold_rad=self.pose_options.ransac_threshold_rad)
             sigma = getattr(info, "rotation_sigma_rad", math.nan)  # a custom pose_solver may not predict it
             record = FrameRecord(k, reference.frame, True, "", info.n_correspondences, info.n_inliers,
                                  0.0, info.model, _angle(pose.rotation), sigma,
@@ -514,6 +523,7 @@ class Tracker:
                 raise ValueError(f"expected {n} timestamps, got {stamps.shape}")
         rotations = np.asarray(self.rotations).reshape(n, 3, 3)
         positions = np.asarray(self.positions).reshape(n, 3)
+        rotations, positions, self.records = self._plane_twins.apply(rotations, positions, self.records)
         if self.bundle_adjustment.window and self._pair_rays:
             # A failed frame holds the pose before it; a good one is chained from its reference.
             references = np.array([record.reference_frame if record.success else max(record.frame - 1, 0)
@@ -532,6 +542,7 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
                    pose_solver: PoseSolver = relative_pose_from_rays,
                    rolling_shutter: RollingShutterOptions = RollingShutterOptions(),
                    bundle_adjustment: BundleAdjustmentOptions = BundleAdjustmentOptions(),
+                   plane_twin: PlaneTwinOptions = PlaneTwinOptions(),
                    ) -> tuple[Trajectory, list[FrameRecord]]:
     """Estimate every frame's pose ``T_0k`` with ``front_end`` and the relative-pose back end.
 
@@ -554,6 +565,8 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
         See :class:`Tracker`.
     bundle_adjustment : BundleAdjustmentOptions, keyword-only
         See :class:`Tracker`.
+    plane_twin : PlaneTwinOptions, keyword-only
+        See :class:`Tracker`.
 
     Returns
     -------
@@ -568,7 +581,7 @@ def track_sequence(images: Iterable[np.ndarray], front_end, *, pose_options: Rel
         ``pose_options.ransac_threshold_rad`` is not set.
     """
     tracker = Tracker(front_end, pose_options=pose_options, keyframe=keyframe, pose_solver=pose_solver,
-                      rolling_shutter=rolling_shutter, bundle_adjustment=bundle_adjustment)
+                      rolling_shutter=rolling_shutter, bundle_adjustment=bundle_adjustment, plane_twin=plane_twin)
     frames = _frames_prepared_ahead if tracker._contract.prepares_in_background else _frames
     for image, started, prepared in frames(iter(images), front_end):
         record = tracker.step(image, started=started, prepared=prepared)
