@@ -659,20 +659,21 @@ def _samples_without_replacement(rng: np.random.Generator, n: int, size: int, co
     ``size - 1 .. 1``: swap ``i`` with a draw from ``[0, i]``). None of these bounded draws depends on
     an earlier one's value, so all of them, for every sample, come from one ``rng.integers`` call on
     the bounds in that order, which consumes the generator as the ``count`` calls do; only the
-    bookkeeping is left, done for all samples a column at a time. (Per call, ``choice`` costs as much
-    as a 5-point solve.)
+    bookkeeping is left to this loop. (Per call, ``choice`` costs as much as a 5-point solve.)
     """
     bounds = np.concatenate([np.arange(n - size, n), np.arange(size - 1, 0, -1)])
-    draws = rng.integers(0, np.tile(bounds + 1, count)).reshape(count, -1)
-    samples = draws[:, :size].copy()
-    # Floyd's step, a column at a time for all samples: a value taken already becomes j (never taken,
-    # as earlier values are at most j - 1).
-    for k, last in enumerate(range(n - size, n)):
-        samples[(samples[:, :k] == samples[:, k, None]).any(axis=1), k] = last
-    rows = np.arange(count)
-    for i, other in zip(range(size - 1, 0, -1), draws[:, size:].T):
-        samples[rows, i], samples[rows, other] = samples[rows, other], samples[rows, i]
-    return samples.astype(np.int64, copy=False)
+    draws = rng.integers(0, np.tile(bounds + 1, count)).reshape(count, -1).tolist()
+    samples = []
+    for draw in draws:
+        taken, sample = set(), []
+        for value, last in zip(draw[:size], range(n - size, n)):
+            value = last if value in taken else value
+            taken.add(value)
+            sample.append(value)
+        for i, other in zip(range(size - 1, 0, -1), draw[size:]):
+            sample[i], sample[other] = sample[other], sample[i]
+        samples.append(sample)
+    return np.array(samples, dtype=np.int64).reshape(count, size)
 
 
 def _ransac_5pt(rays, products, threshold, options, rng):
