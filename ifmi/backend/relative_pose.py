@@ -694,9 +694,9 @@ def _ransac_5pt(rays, products, threshold, options, rng):
     while drawn < limit:
         chunk = min(limit - drawn, max(options.min_iterations - drawn, _CHUNK_5PT))
         rotations, translations, owners = [], [], []
-        for j, drawn_rows in enumerate(_samples_without_replacement(rng, n, _SAMPLE_5PT, chunk)):
-            sample = rays[:, drawn_rows]
-            for pose in poselib.relpose_5pt(sample[1], sample[0]):
+        drawn_rows = _samples_without_replacement(rng, n, _SAMPLE_5PT, chunk)
+        for j, (sample_a, sample_b) in enumerate(zip(rays[0][drawn_rows], rays[1][drawn_rows])):
+            for pose in poselib.relpose_5pt(sample_b, sample_a):
                 rotations.append(pose.R)
                 translations.append(pose.t)
                 owners.append(j)

@@ -512,7 +512,10 @@ def compose_placement(offsets: np.ndarray, linear: np.ndarray, scale: np.ndarray
     """
     cos = np.cos(angle_rad) / scale
     sin = np.sin(angle_rad) / scale
-    step = np.stack([np.stack([cos, sin], axis=-1), np.stack([-sin, cos], axis=-1)], axis=-2)
+    step = np.empty(cos.shape + (2, 2))
+    step[..., 0, 0] = step[..., 1, 1] = cos
+    step[..., 0, 1] = sin
+    step[..., 1, 0] = -sin
     linear = np.asarray(linear, dtype=np.float64) @ step
     offsets = np.asarray(offsets, dtype=np.float64) - np.einsum("tij,tj->ti", linear, translation)
     return offsets, linear

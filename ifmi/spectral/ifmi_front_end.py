@@ -675,11 +675,13 @@ class IfmiFrontEnd(FrontEndBase):
         width = self.mapping.width
         centre_col = f[:, 1:2, 1:2, 1]
         f[..., 1] = centre_col + np.mod(f[..., 1] - centre_col + width / 2, width) - width / 2
-        jacobian = np.stack([(f[:, 2, 1] - f[:, 0, 1]) / (2 * h), (f[:, 1, 2] - f[:, 1, 0]) / (2 * h)], axis=-1)
-        h_rr = (f[:, 2, 1] - 2 * f[:, 1, 1] + f[:, 0, 1]) / h ** 2
-        h_cc = (f[:, 1, 2] - 2 * f[:, 1, 1] + f[:, 1, 0]) / h ** 2
-        h_rc = (f[:, 2, 2] - f[:, 2, 0] - f[:, 0, 2] + f[:, 0, 0]) / (4 * h ** 2)
-        hessian = np.stack([np.stack([h_rr, h_rc], axis=-1), np.stack([h_rc, h_cc], axis=-1)], axis=-1)  # (T, 2o, 2, 2)
+        jacobian = np.empty(f.shape[:1] + (2, 2))  # (T, out, step)
+        jacobian[..., 0] = (f[:, 2, 1] - f[:, 0, 1]) / (2 * h)
+        jacobian[..., 1] = (f[:, 1, 2] - f[:, 1, 0]) / (2 * h)
+        hessian = np.empty(f.shape[:1] + (2, 2, 2))  # (T, out, 2, 2)
+        hessian[..., 0, 0] = (f[:, 2, 1] - 2 * f[:, 1, 1] + f[:, 0, 1]) / h ** 2
+        hessian[..., 1, 1] = (f[:, 1, 2] - 2 * f[:, 1, 1] + f[:, 1, 0]) / h ** 2
+        hessian[..., 0, 1] = hessian[..., 1, 0] = (f[:, 2, 2] - f[:, 2, 0] - f[:, 0, 2] + f[:, 0, 0]) / (4 * h ** 2)
         linear_a = np.asarray(linear_a, dtype=np.float64)
         curvature = 0.5 * np.einsum("tki,tokl,tlj->toij", linear_a, hessian, linear_a)
         if curvature_a is not None:

@@ -542,7 +542,10 @@ def rays_from_panorama_pixels(mapping: PanoramaMapping, pano_pixels: np.ndarray)
     theta = mapping.elevation_top_rad - pano_pixels[..., 0] * mapping.elevation_step_rad
     phi = pano_pixels[..., 1] * (2 * np.pi / mapping.width)
     ct = np.cos(theta)
-    rays = np.stack([ct * np.cos(phi), ct * np.sin(phi), np.sin(theta)], axis=-1)
+    rays = np.empty(theta.shape + (3,))
+    np.multiply(ct, np.cos(phi), out=rays[..., 0])
+    np.multiply(ct, np.sin(phi), out=rays[..., 1])
+    rays[..., 2] = np.sin(theta)
     if mapping.camera_from_panorama is not None:
         rays = rays @ mapping.camera_from_panorama.T
     return rays
