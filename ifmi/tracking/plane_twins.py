@@ -3,10 +3,11 @@
 Each accepted 5-point pair is tested for a plane (:func:`ifmi.backend.plane_twin.planar_pair`);
 when the trajectory is asked for, the planar pairs' twins are settled over the
 whole sequence (:func:`ifmi.backend.plane_twin.resolve_plane_twins`), the
-swapped pairs' relative poses replaced and the frames re-chained. Each planar
-pair's record says ``kept`` or ``swapped`` in the ``plane_twin`` column of
-``frames.csv`` (empty for other pairs); the record's own estimate (its
-``rotation_rad``) stays the pair's 5-point estimate.
+swapped pairs' relative poses replaced by the 5-point model refined from the
+twin, and the frames re-chained. Each planar pair's record says ``kept`` (its
+pose unchanged) or ``swapped`` in the ``plane_twin`` column of ``frames.csv``
+(empty for other pairs); the record's own estimate (its ``rotation_rad``)
+stays the pair's 5-point estimate.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ifmi.backend.relative_pose import RelativePoseOptions
 from ifmi.backend.plane_twin import PlaneTwinOptions, planar_pair, rechained, replaces_estimate, resolve_plane_twins
 
 __all__ = ["PLANE_TWIN", "PlaneTwinChain"]
@@ -24,8 +26,8 @@ PLANE_TWIN = "plane_twin"
 
 
 def _label(choice: int, candidates) -> str:
-    """``plane_twin`` of a planar pair: ``kept`` when the chosen decomposition is the one nearest
-    the 5-point estimate, ``swapped`` when it is its twin."""
+    """``plane_twin`` of a planar pair: ``kept`` (pose unchanged) when the chosen decomposition is the
+    one nearest the 5-point estimate, ``swapped`` when it is its twin."""
     return "kept" if choice == candidates.current else "swapped"
 
 
@@ -41,12 +43,13 @@ class PlaneTwinChain:
         self.options = options
         self._planar: dict = {}
 
-    def observe(self, frame: int, corr, pose, info, *, threshold_rad: float) -> None:
+    def observe(self, frame: int, corr, pose, info, *, threshold_rad: float, refine_iterations: int = RelativePoseOptions.refine_iterations) -> None:
         """Test frame ``frame``'s accepted pair for a plane.
 
         ``corr`` holds the pair's rays (``rays_a``, ``rays_b``, ``rays_per_measurement``),
         ``pose`` and ``info`` the back end's estimate (:func:`ifmi.backend.relative_pose.relative_pose_from_rays`);
-        only 5-point estimates with a noise level are tested.
+        only 5-point estimates with a noise level are tested. ``threshold_rad`` and
+        ``refine_iterations`` are the back end's RANSAC threshold and refinement steps.
         """
         self._planar.pop(frame, None)
         noise = getattr(getattr(info, "selection", None), "noise_sigma_rad", np.nan)
@@ -55,7 +58,8 @@ class PlaneTwinChain:
         mask = np.asarray(info.inlier_mask, dtype=bool)
         candidates = planar_pair(corr.rays_a[mask], corr.rays_b[mask], pose.rotation, pose.translation_direction,
                                  noise_sigma_rad=noise, threshold_rad=threshold_rad,
-                                 rays_per_measurement=corr.rays_per_measurement, options=self.options)
+                                 rays_per_measurement=corr.rays_per_measurement, refine_iterations=refine_iterations,
+                                 options=self.options)
         if candidates is not None:
             self._planar[frame] = candidates
 
@@ -75,8 +79,8 @@ class PlaneTwinChain:
         references = np.array([r.reference_frame if r.success else max(r.frame - 1, 0) for r in records], dtype=int)
         relative = np.einsum("kji,kjl->kil", rotations[references], rotations)
         choices = resolve_plane_twins(references, relative, self._planar, options=self.options)
-        replaced = {k: (self._planar[k].rotations[c], self._planar[k].translations[c]) for k, c in choices.items()
-                    if replaces_estimate(self._planar[k], c, options=self.options)}
+        replaced = {k: (self._planar[k].refined_rotations[c], self._planar[k].refined_translations[c])
+                    for k, c in choices.items() if replaces_estimate(self._planar[k], c)}
         if replaced:
             rotations, positions = rechained(rotations, positions, references, replaced)
         labelled = [replace(r, diagnostics={**r.diagnostics, PLANE_TWIN: _label(choices[r.frame], self._planar[r.frame])})
