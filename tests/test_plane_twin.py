@@ -169,10 +169,10 @@ def test_one_planar_pair_changes_nothing():
     assert resolve_plane_twins(np.array([0, 0]), relative, planar, options=PlaneTwinOptions()) == {}
 
 
-def _tracked(rng, *, twin_poses, frames=8, sigma=1e-3):
-    """A turning track over a floor through PlaneTwinChain: each pair's 5-point pose is the twin
-    decomposition (``twin_poses``) or the truth turned by 6 mrad; returns the chained rotations,
-    the chain's result, its labels and the truth."""
+def _tracked(rng, *, pose_of, frames=8, sigma=1e-3):
+    """A turning track over a floor through PlaneTwinChain: each pair's 5-point pose is the exact
+    twin decomposition (``pose_of="twin"``), the exact true one (``"true"``) or the truth turned by
+    6 mrad (``"off"``); returns the chained rotations, the chain's result, its labels and the truth."""
     from types import SimpleNamespace
 
     from ifmi.tracking.odometry import FrameRecord
@@ -188,7 +188,8 @@ def _tracked(rng, *, twin_poses, frames=8, sigma=1e-3):
         rays_a, _ = _pair_rays(rotation_ab, translation_ab, rays_b * (positions[k][2] / (rays_b @ normal_b))[:, None])
         exact = plane_decompositions(rotation_ab + np.outer(translation_ab, normal_b) / positions[k][2], rays_a, rays_b)
         twin = int(np.argmax(geodesic_angle(exact[0], np.broadcast_to(rotation_ab, (2, 3, 3)))))
-        pose = (SimpleNamespace(rotation=exact[0][twin], translation_direction=_unit(exact[1][twin])) if twin_poses
+        pick = {"twin": twin, "true": 1 - twin}.get(pose_of)
+        pose = (SimpleNamespace(rotation=exact[0][pick], translation_direction=_unit(exact[1][pick])) if pick is not None
                 else SimpleNamespace(rotation=Rotation.from_rotvec([0.006, 0.0, 0.0]).as_matrix() @ rotation_ab,
                                      translation_direction=_unit(translation_ab)))
         info = SimpleNamespace(model="5pt", inlier_mask=np.ones(90, dtype=bool),
@@ -203,42 +204,44 @@ def _tracked(rng, *, twin_poses, frames=8, sigma=1e-3):
 
 
 def test_the_tracker_record_re_chains_planar_pairs_and_labels_them():
-    chained, rotations, labels, truth = _tracked(np.random.default_rng(11), twin_poses=True)
+    chained, rotations, labels, truth = _tracked(np.random.default_rng(11), pose_of="twin")
     assert np.max(geodesic_angle(chained, truth)) > 0.1  # every pair the twin: 30 mrad each
     assert np.max(geodesic_angle(rotations, truth)) < 0.01
     assert labels == [None] + ["swapped"] * (len(truth) - 1)
 
 
-def test_kept_pairs_keep_their_pose_exactly():
-    # 5-point poses 6 mrad off the truth (over a tenth of the way to the twin), nearer the true
-    # decomposition than its twin: all kept, none moved.
-    chained, rotations, labels, _ = _tracked(np.random.default_rng(11), twin_poses=False)
+def test_kept_pairs_keep_their_pose_exactly_and_replaced_ones_say_so():
+    # 5-point poses at the true decomposition: kept, the chain unchanged to the last bit.
+    chained, rotations, labels, _ = _tracked(np.random.default_rng(11), pose_of="true")
     assert labels == [None] + ["kept"] * (len(chained) - 1)
     np.testing.assert_array_equal(rotations, chained)
+    # 6 mrad off the truth, over a tenth of the way to the twin: the nearer decomposition replaces them.
+    chained, rotations, labels, truth = _tracked(np.random.default_rng(11), pose_of="off")
+    assert labels == [None] + ["homography"] * (len(chained) - 1)
+    assert np.all(geodesic_angle(rotations[1:], chained[1:]) > 1e-3)
+    assert np.max(geodesic_angle(rotations, truth)) < 0.01
 
 
-def test_only_the_twin_replaces_the_pose_and_its_replacement_is_refined_in_its_basin():
+def test_a_pair_at_the_chosen_decomposition_keeps_its_pose_and_one_between_them_does_not():
     from ifmi.backend.plane_twin import replaces_estimate
 
     rng = np.random.default_rng(12)
     sigma = 1e-3
     rotation_ab, translation_ab, _, points_b = _plane_pair(rng)
     rays_a, rays_b = (_noisy(rays, sigma, rng) for rays in _pair_rays(rotation_ab, translation_ab, points_b))
-    candidates = planar_pair(rays_a, rays_b, rotation_ab, _unit(translation_ab),
-                             noise_sigma_rad=np.sqrt(2.0) * sigma, threshold_rad=5.0 * sigma)
-    true = candidates.current
-    assert not replaces_estimate(candidates, true)
-    assert replaces_estimate(candidates, 1 - true)
-    # Each refinement stays by its own decomposition (both fit the plane's epipolar constraints) ...
-    separation = geodesic_angle(candidates.rotations[:1], candidates.rotations[1:])[0]
-    drift = geodesic_angle(candidates.refined_rotations, candidates.rotations)
-    assert np.all(drift < 0.2 * separation)
-    # ... and the true one's is at least as close to the truth as the homography's decomposition (+ noise margin).
-    assert geodesic_angle(candidates.refined_rotations[true:true + 1], rotation_ab[None])[0] < 3e-3
+    options = dict(noise_sigma_rad=np.sqrt(2.0) * sigma, threshold_rad=5.0 * sigma)
+    at_truth = planar_pair(rays_a, rays_b, rotation_ab, _unit(translation_ab), **options)
+    true = at_truth.current
+    assert not replaces_estimate(at_truth, true)
+    assert replaces_estimate(at_truth, 1 - true)
+    # A 5-point pose halfway between the two decompositions is replaced by either.
+    halfway = Rotation.from_matrix(at_truth.rotations).mean().as_matrix()
+    between = planar_pair(rays_a, rays_b, halfway, _unit(translation_ab), **options)
+    assert replaces_estimate(between, 0) and replaces_estimate(between, 1)
 
 
 @pytest.mark.parametrize("field, value", [("normal_tolerance_rad", 0.0), ("min_plane_share", 1.5),
-                                          ("min_planar_pairs", 1)])
+                                          ("agreement_fraction", 0.5), ("min_planar_pairs", 1)])
 def test_options_out_of_range_are_refused(field, value):
     with pytest.raises(ValueError, match=field):
         PlaneTwinOptions(**{field: value})

@@ -27,12 +27,10 @@ whose normals stay closer together, when they do by a clear margin. A pair is pl
 explains its 5-point inliers (Torr's GRIC, or nearly all of them as inliers:
 :func:`planar_pair`); other pairs are left alone, and so is a planar pair
 whose two candidate normals both lie within the tolerance of the carried one.
-The sequence decides only which twin a pair takes: a pair whose chosen
-decomposition is the one nearest its 5-point estimate keeps that estimate
-unchanged; a pair whose chosen decomposition is the twin takes the 5-point
-model refined from that decomposition over all its inliers (the local
-refinement of :func:`ifmi.backend.relative_pose.refined_5pt_pose`), which
-lands in the twin's basin and keeps the accuracy of the points off the plane.
+On a planar pair the chosen decomposition replaces the 5-point estimate: the
+essential matrix of a plane is degenerate, its least-squares fit slides along
+the valley between the two decompositions, while the homography is the
+plane's own model.
 
 All functions are pure; rotations are ``(3, 3)`` arrays, rays unit ``(N, 3)``.
 """
@@ -45,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ifmi.backend.relative_pose import RelativePoseOptions, epipolar_angles, refined_5pt_pose
+from ifmi.backend.relative_pose import epipolar_angles
 from ifmi.geometry.rotations import cross_product_matrix, geodesic_angle
 
 __all__ = ["PlaneTwinOptions", "PlaneCandidates", "homography_from_rays", "homography_transfer_angles",
@@ -79,6 +77,11 @@ class PlaneTwinOptions:
         14 to 20 tiles of an iFMI pair GRIC charges the homography's three
         extra parameters more than its tighter constraint saves, even on an
         exact plane.
+    agreement_fraction : float
+        A planar pair keeps its own 5-point pose when the chosen
+        decomposition is the one nearest it and it lies within this fraction
+        of the angle between the two decompositions from it
+        (:func:`replaces_estimate`).
     min_planar_pairs : int
         Planar pairs a sequence needs before any is changed: with one pair
         both hypotheses are equally consistent.
@@ -91,6 +94,7 @@ class PlaneTwinOptions:
     enabled: bool = True
     normal_tolerance_rad: float = 0.35
     min_plane_share: float = 0.95
+    agreement_fraction: float = 0.1
     min_planar_pairs: int = 2
     ransac_iterations: int = 200
     seed: int = 0
@@ -98,6 +102,8 @@ class PlaneTwinOptions:
     def __post_init__(self) -> None:
         if not 0.0 < self.normal_tolerance_rad < math.pi / 2:
             raise ValueError(f"normal_tolerance_rad must lie in (0, pi/2), got {self.normal_tolerance_rad}")
+        if not 0.0 <= self.agreement_fraction < 0.5:
+            raise ValueError(f"agreement_fraction must lie in [0, 0.5), got {self.agreement_fraction}")
         if not 0.0 < self.min_plane_share <= 1.0:
             raise ValueError(f"min_plane_share must lie in (0, 1], got {self.min_plane_share}")
         if self.min_planar_pairs < 2 or self.ransac_iterations < 1:
@@ -122,11 +128,6 @@ class PlaneCandidates:
         Index of the candidate nearest the pair's own pose (by rotation).
     offsets_rad : (2,) ndarray
         Angle (radians) between each candidate's rotation and the pair's own.
-    refined_rotations : (2, 3, 3) ndarray
-        ``R_ab`` of the 5-point model refined from each candidate over the
-        pair's inliers (:func:`ifmi.backend.relative_pose.refined_5pt_pose`).
-    refined_translations : (2, 3) ndarray
-        Its unit ``t_ab``.
     gric_homography, gric_5pt : float
         Both models' GRIC over the pair's inliers (lower is better).
     """
@@ -136,8 +137,6 @@ class PlaneCandidates:
     normals: np.ndarray
     current: int
     offsets_rad: np.ndarray
-    refined_rotations: np.ndarray
-    refined_translations: np.ndarray
     gric_homography: float
     gric_5pt: float
 
@@ -279,7 +278,7 @@ def _gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int, 
 
 def planar_pair(rays_a: np.ndarray, rays_b: np.ndarray, rotation_ab: np.ndarray, translation_ab: np.ndarray, *,
                 noise_sigma_rad: float, threshold_rad: float, rays_per_measurement: int = 1,
-                refine_iterations: int = RelativePoseOptions.refine_iterations, options: PlaneTwinOptions = PlaneTwinOptions()) -> PlaneCandidates | None:
+                options: PlaneTwinOptions = PlaneTwinOptions()) -> PlaneCandidates | None:
     """The two plane decompositions of a 5-point pair whose inliers a plane explains, else None.
 
     Parameters
@@ -296,9 +295,6 @@ def planar_pair(rays_a: np.ndarray, rays_b: np.ndarray, rotation_ab: np.ndarray,
         Inlier threshold of the homography fit (the back end's RANSAC threshold).
     rays_per_measurement : int, keyword-only
         Rays that share one error count as one observation.
-    refine_iterations : int, keyword-only
-        Gauss-Newton steps of the 5-point refinement from each candidate
-        (the back end's ``refine_iterations``).
     options : PlaneTwinOptions, keyword-only
 
     Returns
@@ -332,17 +328,21 @@ def planar_pair(rays_a: np.ndarray, rays_b: np.ndarray, rotation_ab: np.ndarray,
     if geodesic_angle(rotations[:1], rotations[1:])[0] <= noise_sigma_rad:
         return None  # the twins differ by less than one ray's noise: nothing to choose, and their normals are noise
     offsets = geodesic_angle(rotations, np.broadcast_to(rotation_ab, rotations.shape))
-    refined = [refined_5pt_pose(rays_a, rays_b, r, t, iterations=refine_iterations)
-               for r, t in zip(rotations, translations)]
-    return PlaneCandidates(rotations, translations / lengths, normals, int(np.argmin(offsets)), offsets,
-                           np.array([r for r, _ in refined]), np.array([t for _, t in refined]), gric_h, gric_e)
+    return PlaneCandidates(rotations, translations / lengths, normals, int(np.argmin(offsets)), offsets, gric_h, gric_e)
 
 
-def replaces_estimate(candidates: PlaneCandidates, choice: int) -> bool:
-    """Whether the chosen decomposition replaces the pair's 5-point pose: only when it is the twin
-    (not the one nearest that pose). The replacement is the 5-point model refined from it
-    (``candidates.refined_rotations[choice]``, ``refined_translations[choice]``)."""
-    return choice != candidates.current
+def replaces_estimate(candidates: PlaneCandidates, choice: int, *,
+                      options: PlaneTwinOptions = PlaneTwinOptions()) -> bool:
+    """Whether the chosen decomposition replaces the pair's 5-point pose.
+
+    It does unless it is the decomposition nearest that pose and the pose lies
+    within ``options.agreement_fraction`` of the angle between the two
+    decompositions from it: the essential matrix, fitted to every inlier on
+    and off the plane, then is the better estimate of the same solution.
+    """
+    separation = float(geodesic_angle(candidates.rotations[:1], candidates.rotations[1:])[0])
+    agrees = choice == candidates.current and candidates.offsets_rad[choice] <= options.agreement_fraction * separation
+    return not agrees
 
 
 def _angle(u: np.ndarray, v: np.ndarray) -> float:
@@ -377,8 +377,8 @@ def _walk(first: int, planar: dict, references: np.ndarray, relative: np.ndarray
                 cost += min(float(angles[choice]), tolerance)
             choices[k] = choice
             normal_sum = world[choice] if normal_sum is None else normal_sum + world[choice]
-            if replaces_estimate(pair, choice):
-                rotation_rk = pair.refined_rotations[choice]
+            if replaces_estimate(pair, choice, options=options):
+                rotation_rk = pair.rotations[choice]
         rotations[k] = rotations[references[k]] @ rotation_rk
     return cost, choices
 

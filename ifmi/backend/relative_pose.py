@@ -86,7 +86,6 @@ __all__ = [
     "epipolar_angles",
     "rotation_angles",
     "noise_sigma_from_residuals",
-    "refined_5pt_pose",
 ]
 
 # Smallest sample of each model.
@@ -898,30 +897,6 @@ def _refine_5pt(rays_a, rays_b, rotation, translation, iterations):
         if old_cost - new_cost <= 1e-6 * old_cost:
             break
     return rotation, t
-
-
-def refined_5pt_pose(rays_a: np.ndarray, rays_b: np.ndarray, rotation: np.ndarray, translation: np.ndarray, *,
-                     iterations: int) -> tuple[np.ndarray, np.ndarray]:
-    """The 5-point model's local refinement (the one :func:`relative_pose_from_rays` applies) from a given start.
-
-    Parameters
-    ----------
-    rays_a, rays_b : (N, 3) ndarray
-        Unit rays, N >= 5, all taken as inliers.
-    rotation : (3, 3) ndarray
-        Starting ``R_ab``.
-    translation : (3,) ndarray
-        Starting ``t_ab`` (any length).
-    iterations : int, keyword-only
-        Most Gauss-Newton steps on the symmetric epipolar residuals.
-
-    Returns
-    -------
-    rotation : (3, 3) ndarray
-    translation : (3,) ndarray
-        Unit ``t_ab`` at the minimum reached from the start (its basin, not the global one).
-    """
-    return _refine_5pt(rays_a, rays_b, rotation, translation, iterations)
 
 
 def noise_sigma_from_residuals(angles: np.ndarray, threshold: float) -> float:

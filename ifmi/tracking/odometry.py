@@ -484,8 +484,7 @@ class Tracker:
             if self.bundle_adjustment.window:
                 inliers = np.asarray(info.inlier_mask, dtype=bool)
                 self._pair_rays.append((reference.frame, k, corr.rays_a[inliers], corr.rays_b[inliers]))
-            self._plane_twins.observe(k, corr, pose, info, threshold_rad=self.pose_options.ransac_threshold_rad,
-                                     refine_iterations=self.pose_options.refine_iterations)
+            self._plane_twins.observe(k, corr, pose, info, threshold_rad=self.pose_options.ransac_threshold_rad)
             sigma = getattr(info, "rotation_sigma_rad", math.nan)  # a custom pose_solver may not predict it
             record = FrameRecord(k, reference.frame, True, "", info.n_correspondences, info.n_inliers,
                                  0.0, info.model, _angle(pose.rotation), sigma,
