@@ -169,14 +169,15 @@ def test_one_planar_pair_changes_nothing():
     assert resolve_plane_twins(np.array([0, 0]), relative, planar, options=PlaneTwinOptions()) == {}
 
 
-def test_the_tracker_record_re_chains_planar_pairs_and_labels_them():
+def _tracked(rng, *, pose_of, frames=8, sigma=1e-3):
+    """A turning track over a floor through PlaneTwinChain: each pair's 5-point pose is the exact
+    twin decomposition (``pose_of="twin"``), the exact true one (``"true"``) or the truth turned by
+    6 mrad (``"off"``); returns the chained rotations, the chain's result, its labels and the truth."""
     from types import SimpleNamespace
 
     from ifmi.tracking.odometry import FrameRecord
     from ifmi.tracking.plane_twins import PLANE_TWIN, PlaneTwinChain
 
-    rng = np.random.default_rng(11)
-    sigma, frames = 1e-3, 8
     world, positions = _trajectory(frames, 0.05, np.radians(4.0))
     chain, chained, records = PlaneTwinChain(), [np.eye(3)], [FrameRecord(0, 0, True, "", 0, 0, 0.0)]
     for k in range(1, frames):
@@ -187,7 +188,10 @@ def test_the_tracker_record_re_chains_planar_pairs_and_labels_them():
         rays_a, _ = _pair_rays(rotation_ab, translation_ab, rays_b * (positions[k][2] / (rays_b @ normal_b))[:, None])
         exact = plane_decompositions(rotation_ab + np.outer(translation_ab, normal_b) / positions[k][2], rays_a, rays_b)
         twin = int(np.argmax(geodesic_angle(exact[0], np.broadcast_to(rotation_ab, (2, 3, 3)))))
-        pose = SimpleNamespace(rotation=exact[0][twin], translation_direction=_unit(exact[1][twin]))
+        pick = {"twin": twin, "true": 1 - twin}.get(pose_of)
+        pose = (SimpleNamespace(rotation=exact[0][pick], translation_direction=_unit(exact[1][pick])) if pick is not None
+                else SimpleNamespace(rotation=Rotation.from_rotvec([0.006, 0.0, 0.0]).as_matrix() @ rotation_ab,
+                                     translation_direction=_unit(translation_ab)))
         info = SimpleNamespace(model="5pt", inlier_mask=np.ones(90, dtype=bool),
                                selection=SimpleNamespace(noise_sigma_rad=np.sqrt(2.0) * sigma))
         corr = SimpleNamespace(rays_a=_noisy(rays_a, sigma, rng), rays_b=_noisy(rays_b, sigma, rng),
@@ -196,10 +200,26 @@ def test_the_tracker_record_re_chains_planar_pairs_and_labels_them():
         chained.append(chained[-1] @ pose.rotation)
         records.append(FrameRecord(k, k - 1, True, "", 90, 90, 0.0, "5pt"))
     rotations, _, labelled = chain.apply(np.array(chained), np.zeros((frames, 3)), records)
-    truth = world[0].T @ world
-    assert np.max(geodesic_angle(np.array(chained), truth)) > 0.1  # every pair the twin: 30 mrad each
+    return np.array(chained), rotations, [r.diagnostics.get(PLANE_TWIN) for r in labelled], world[0].T @ world
+
+
+def test_the_tracker_record_re_chains_planar_pairs_and_labels_them():
+    chained, rotations, labels, truth = _tracked(np.random.default_rng(11), pose_of="twin")
+    assert np.max(geodesic_angle(chained, truth)) > 0.1  # every pair the twin: 30 mrad each
     assert np.max(geodesic_angle(rotations, truth)) < 0.01
-    assert [r.diagnostics.get(PLANE_TWIN) for r in labelled] == [None] + ["swapped"] * (frames - 1)
+    assert labels == [None] + ["swapped"] * (len(truth) - 1)
+
+
+def test_kept_pairs_keep_their_pose_exactly_and_replaced_ones_say_so():
+    # 5-point poses at the true decomposition: kept, the chain unchanged to the last bit.
+    chained, rotations, labels, _ = _tracked(np.random.default_rng(11), pose_of="true")
+    assert labels == [None] + ["kept"] * (len(chained) - 1)
+    np.testing.assert_array_equal(rotations, chained)
+    # 6 mrad off the truth, over a tenth of the way to the twin: the nearer decomposition replaces them.
+    chained, rotations, labels, truth = _tracked(np.random.default_rng(11), pose_of="off")
+    assert labels == [None] + ["homography"] * (len(chained) - 1)
+    assert np.all(geodesic_angle(rotations[1:], chained[1:]) > 1e-3)
+    assert np.max(geodesic_angle(rotations, truth)) < 0.01
 
 
 def test_a_pair_at_the_chosen_decomposition_keeps_its_pose_and_one_between_them_does_not():

@@ -4,9 +4,9 @@ Each accepted 5-point pair is tested for a plane (:func:`ifmi.backend.plane_twin
 when the trajectory is asked for, the planar pairs' twins are settled over the
 whole sequence (:func:`ifmi.backend.plane_twin.resolve_plane_twins`), the
 swapped pairs' relative poses replaced and the frames re-chained. Each planar
-pair's record says ``kept`` or ``swapped`` in the ``plane_twin`` column of
-``frames.csv`` (empty for other pairs); the record's own estimate (its
-``rotation_rad``) stays the pair's 5-point estimate.
+pair's record says ``kept``, ``homography`` or ``swapped`` in the ``plane_twin``
+column of ``frames.csv`` (:func:`_label`; empty for other pairs); the record's
+own estimate (its ``rotation_rad``) stays the pair's 5-point estimate.
 """
 
 from __future__ import annotations
@@ -19,14 +19,17 @@ from ifmi.backend.plane_twin import PlaneTwinOptions, planar_pair, rechained, re
 
 __all__ = ["PLANE_TWIN", "PlaneTwinChain"]
 
-# frames.csv column: "kept" or "swapped" on a planar pair, empty elsewhere.
+# frames.csv column: "kept", "homography" or "swapped" on a planar pair, empty elsewhere.
 PLANE_TWIN = "plane_twin"
 
 
-def _label(choice: int, candidates) -> str:
-    """``plane_twin`` of a planar pair: ``kept`` when the chosen decomposition is the one nearest
-    the 5-point estimate, ``swapped`` when it is its twin."""
-    return "kept" if choice == candidates.current else "swapped"
+def _label(choice: int, candidates, replaced: bool) -> str:
+    """``plane_twin`` of a planar pair: ``swapped`` when the chosen decomposition is the twin of the
+    one nearest the 5-point estimate; else ``homography`` when that nearest decomposition replaced
+    the 5-point pose, ``kept`` when the pose is the 5-point one, unchanged."""
+    if choice != candidates.current:
+        return "swapped"
+    return "homography" if replaced else "kept"
 
 
 class PlaneTwinChain:
@@ -79,6 +82,7 @@ class PlaneTwinChain:
                     if replaces_estimate(self._planar[k], c, options=self.options)}
         if replaced:
             rotations, positions = rechained(rotations, positions, references, replaced)
-        labelled = [replace(r, diagnostics={**r.diagnostics, PLANE_TWIN: _label(choices[r.frame], self._planar[r.frame])})
+        labelled = [replace(r, diagnostics={**r.diagnostics, PLANE_TWIN: _label(
+                        choices[r.frame], self._planar[r.frame], r.frame in replaced)})
                     if r.frame in choices else r for r in records]
         return rotations, positions, labelled
