@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ifmi.backend.relative_pose import epipolar_angles
+from ifmi.backend.relative_pose import epipolar_angles, gric
 from ifmi.geometry.rotations import cross_product_matrix, geodesic_angle
 
 __all__ = ["PlaneTwinOptions", "PlaneCandidates", "homography_from_rays", "homography_transfer_angles",
@@ -268,14 +268,6 @@ def plane_decompositions(homography: np.ndarray, rays_a: np.ndarray,
     return np.array(rotations), np.array(translations), np.array(normals)
 
 
-def _gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int, group: int) -> float:
-    """Torr's GRIC (as :mod:`ifmi.backend.relative_pose`): capped squared residuals in noise units plus
-    the charge of a ``dimension``-dimensional manifold with ``parameters`` degrees of freedom."""
-    n = len(errors) / group
-    capped = np.minimum((errors / sigma) ** 2, 2.0 * (4 - dimension)).sum() / group
-    return float(capped + np.log(4.0) * dimension * n + np.log(4.0 * n) * parameters)
-
-
 def planar_pair(rays_a: np.ndarray, rays_b: np.ndarray, rotation_ab: np.ndarray, translation_ab: np.ndarray, *,
                 noise_sigma_rad: float, threshold_rad: float, rays_per_measurement: int = 1,
                 options: PlaneTwinOptions = PlaneTwinOptions()) -> PlaneCandidates | None:
@@ -312,8 +304,8 @@ def planar_pair(rays_a: np.ndarray, rays_b: np.ndarray, rotation_ab: np.ndarray,
     homography, transfer = robust_homography(rays_a, rays_b, threshold_rad=threshold_rad,
                                              iterations=options.ransac_iterations, seed=options.seed)
     epipolar = epipolar_angles(rays_a, rays_b, rotation_ab[None], translation_ab[None])[0]
-    gric_h = _gric(transfer, noise_sigma_rad, dimension=2, parameters=8, group=rays_per_measurement)
-    gric_e = _gric(epipolar, noise_sigma_rad, dimension=3, parameters=5, group=rays_per_measurement)
+    gric_h = gric(transfer, noise_sigma_rad, dimension=2, parameters=8, group=rays_per_measurement)
+    gric_e = gric(epipolar, noise_sigma_rad, dimension=3, parameters=5, group=rays_per_measurement)
     on_plane = transfer < threshold_rad
     explained = gric_h <= gric_e or on_plane.mean() >= options.min_plane_share
     if not explained or on_plane.sum() < _SAMPLE_HOMOGRAPHY:

@@ -86,6 +86,7 @@ __all__ = [
     "epipolar_angles",
     "rotation_angles",
     "noise_sigma_from_residuals",
+    "gric",
 ]
 
 # Smallest sample of each model.
@@ -1044,16 +1045,31 @@ def _rotation_rms_from_information(information: np.ndarray) -> float:
     return math.sqrt(trace) if trace > 0 and np.all(np.linalg.eigvalsh(covariance) > 0) else math.inf
 
 
-def _gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int,
-          group: int = 1) -> float:
+def gric(errors: np.ndarray, sigma: float, *, dimension: int, parameters: int, group: int = 1) -> float:
     """Torr's geometric robust information criterion of a model (lower is better).
 
-    ``dimension`` is the dimension of the model's manifold in the 4-D space
-    of a correspondence (2 for a rotation, 3 for an essential matrix) and
-    ``parameters`` its degrees of freedom. Residuals are capped at
-    ``2 (4 - dimension)`` in units of the noise variance. Correspondences
-    in groups of ``group`` that share one error count as one observation
-    per group.
+    Parameters
+    ----------
+    errors : (N,) ndarray
+        Residual angles of the correspondences under the model, radians.
+    sigma : float
+        Ray noise (radians, per axis) the residuals are weighed with.
+    dimension : int, keyword-only
+        Dimension of the model's manifold in the 4-D space of a
+        correspondence (2 for a rotation or a homography, 3 for an essential
+        matrix). Residuals are capped at ``2 (4 - dimension)`` in units of
+        the noise variance, so an outlier costs a fixed amount.
+    parameters : int, keyword-only
+        The model's degrees of freedom.
+    group : int, keyword-only
+        Correspondences in groups of ``group`` that share one error count as
+        one observation per group.
+
+    Returns
+    -------
+    float
+        ``sum(min(e^2 / sigma^2, cap)) / group + log(4) dimension n + log(4 n) parameters``
+        with ``n = N / group``.
     """
     n = len(errors) / group
     capped = np.minimum((errors / sigma) ** 2, 2.0 * (4 - dimension)).sum() / group
@@ -1207,8 +1223,8 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     # Exact rays: residuals of rounding only, which the two models' angle formulas resolve differently.
     weigh = max(noise, _NOISE_FLOOR_RAD)
     return ModelSelection(
-        gric_rotation=_gric(rot_errors[either], weigh, dimension=2, parameters=3, group=group),
-        gric_5pt=_gric(errors_5pt[either], weigh, dimension=3, parameters=5, group=group),
+        gric_rotation=gric(rot_errors[either], weigh, dimension=2, parameters=3, group=group),
+        gric_5pt=gric(errors_5pt[either], weigh, dimension=3, parameters=5, group=group),
         parallax_rad=float(np.median(parallax)) if len(parallax) else math.nan,
         noise_sigma_rad=float(noise))
 
