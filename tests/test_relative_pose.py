@@ -880,7 +880,7 @@ def test_parallax_a_rotation_absorbs_is_left_to_the_rotation_model():
 def test_batched_5_point_samples_are_those_of_one_choice_call_each():
     # The batched sampler consumes the generator as Generator.choice does, call after call (from
     # any state of its 32-bit buffer), so RANSAC draws the same samples as with choice.
-    from ifmi.backend.relative_pose import _samples_without_replacement
+    from ifmi.backend.relative_pose import samples_without_replacement
 
     for seed in range(50):
         for n in (6, 9, 105, 10000, 10001, 30000):
@@ -888,7 +888,7 @@ def test_batched_5_point_samples_are_those_of_one_choice_call_each():
             one.integers(0, 9, size=seed % 3)
             batched.integers(0, 9, size=seed % 3)
             expected = np.array([one.choice(n, 5, replace=False) for _ in range(7)])
-            samples = _samples_without_replacement(batched, n, 5, 7)
+            samples = samples_without_replacement(batched, n, 5, 7)
             assert np.array_equal(samples, expected)
             assert one.integers(0, 1000) == batched.integers(0, 1000)
             assert all(len(set(row)) == 5 for row in samples.tolist()) and 0 <= samples.min() <= samples.max() < n

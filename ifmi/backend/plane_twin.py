@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ifmi.backend.relative_pose import epipolar_angles, gric
+from ifmi.backend.relative_pose import epipolar_angles, gric, samples_without_replacement
 from ifmi.geometry.rotations import cross_product_matrix, geodesic_angle
 
 __all__ = ["PlaneTwinOptions", "PlaneCandidates", "homography_from_rays", "homography_transfer_angles",
@@ -146,30 +146,47 @@ def homography_from_rays(rays_a: np.ndarray, rays_b: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    rays_a, rays_b : (N, 3) ndarray
-        Corresponding unit rays, N >= 4.
+    rays_a, rays_b : (..., N, 3) ndarray
+        Corresponding unit rays, N >= 4; leading axes are separate fits.
 
     Returns
     -------
-    (3, 3) ndarray
+    (..., 3, 3) ndarray
         Up to scale (unit Frobenius norm).
     """
     # [a]x H b, linear in H's rows: kron([a]x, b^T) @ vec(H) (row-major).
-    rows = np.einsum("nij,nk->nijk", cross_product_matrix(rays_a), rays_b).reshape(-1, 9)
-    return np.linalg.svd(rows, full_matrices=False)[2][-1].reshape(3, 3)
+    rows = np.einsum("...nij,...nk->...nijk", cross_product_matrix(rays_a), rays_b)
+    rows = rows.reshape(rows.shape[:-4] + (-1, 9))
+    return np.linalg.svd(rows, full_matrices=False)[2][..., -1, :].reshape(rows.shape[:-2] + (3, 3))
 
 
 def homography_transfer_angles(homography: np.ndarray, rays_a: np.ndarray, rays_b: np.ndarray) -> np.ndarray:
-    """Angle (radians) between ``rays_a`` and ``H_ab @ rays_b``, either sign of ``H``, (N,)."""
-    mapped = rays_b @ homography.T
-    cosines = np.sum(mapped * rays_a, axis=1) / np.maximum(np.linalg.norm(mapped, axis=1), 1e-300)
-    sines = np.linalg.norm(np.cross(mapped, rays_a), axis=1) / np.maximum(np.linalg.norm(mapped, axis=1), 1e-300)
+    """Angle (radians) between ``rays_a`` and ``H_ab @ rays_b``, either sign of ``H``.
+
+    Parameters
+    ----------
+    homography : (..., 3, 3) ndarray
+        ``H_ab``; leading axes are separate homographies.
+    rays_a, rays_b : (N, 3) ndarray
+
+    Returns
+    -------
+    (..., N) ndarray
+    """
+    mapped = rays_b @ np.swapaxes(homography, -1, -2)
+    lengths = np.maximum(np.linalg.norm(mapped, axis=-1), 1e-300)
+    cosines = np.sum(mapped * rays_a, axis=-1) / lengths
+    sines = np.linalg.norm(np.cross(mapped, rays_a), axis=-1) / lengths
     return np.arctan2(sines, np.abs(cosines))
 
 
 def robust_homography(rays_a: np.ndarray, rays_b: np.ndarray, *, threshold_rad: float, iterations: int,
                       seed: int) -> tuple[np.ndarray, np.ndarray]:
     """``H_ab`` of the plane most rays lie on: 4-ray samples, the largest consensus, refitted twice.
+
+    The samples are drawn as ``iterations`` calls of ``rng.choice`` would draw them
+    (:func:`ifmi.backend.relative_pose.samples_without_replacement`) and fitted and scored
+    together; the first sample of the largest consensus wins.
 
     Parameters
     ----------
@@ -186,15 +203,12 @@ def robust_homography(rays_a: np.ndarray, rays_b: np.ndarray, *, threshold_rad: 
     errors : (N,) ndarray
         Transfer angles (radians) of every ray under it.
     """
-    rng = np.random.default_rng(seed)
-    n = len(rays_a)
-    best, best_count = homography_from_rays(rays_a, rays_b), -1
-    for _ in range(iterations):
-        pick = rng.choice(n, _SAMPLE_HOMOGRAPHY, replace=False)
-        candidate = homography_from_rays(rays_a[pick], rays_b[pick])
-        count = int(np.count_nonzero(homography_transfer_angles(candidate, rays_a, rays_b) < threshold_rad))
-        if count > best_count:
-            best, best_count = candidate, count
+    best = homography_from_rays(rays_a, rays_b)
+    if iterations > 0:
+        picks = samples_without_replacement(np.random.default_rng(seed), len(rays_a), _SAMPLE_HOMOGRAPHY, iterations)
+        candidates = homography_from_rays(rays_a[picks], rays_b[picks])
+        counts = np.count_nonzero(homography_transfer_angles(candidates, rays_a, rays_b) < threshold_rad, axis=-1)
+        best = candidates[int(np.argmax(counts))]
     for _ in range(2):
         mask = homography_transfer_angles(best, rays_a, rays_b) < threshold_rad
         if mask.sum() < _SAMPLE_HOMOGRAPHY:

@@ -87,6 +87,7 @@ __all__ = [
     "rotation_angles",
     "noise_sigma_from_residuals",
     "gric",
+    "samples_without_replacement",
 ]
 
 # Smallest sample of each model.
@@ -650,7 +651,7 @@ def _score(errors: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray
     return inliers.sum(axis=-1), cost
 
 
-def _samples_without_replacement(rng: np.random.Generator, n: int, size: int, count: int) -> np.ndarray:
+def samples_without_replacement(rng: np.random.Generator, n: int, size: int, count: int) -> np.ndarray:
     """``count`` samples of ``size`` distinct indices of ``range(n)``, (count, size) int64: the samples that
     ``count`` calls of ``rng.choice(n, size, replace=False)`` return, drawn with one call of the generator.
 
@@ -695,7 +696,7 @@ def _ransac_5pt(rays, products, threshold, options, rng):
     while drawn < limit:
         chunk = min(limit - drawn, max(options.min_iterations - drawn, _CHUNK_5PT))
         rotations, translations, owners = [], [], []
-        drawn_rows = _samples_without_replacement(rng, n, _SAMPLE_5PT, chunk)
+        drawn_rows = samples_without_replacement(rng, n, _SAMPLE_5PT, chunk)
         for j, (sample_a, sample_b) in enumerate(zip(rays[0][drawn_rows], rays[1][drawn_rows])):
             for pose in poselib.relpose_5pt(sample_b, sample_a):
                 rotations.append(pose.R)
