@@ -199,7 +199,8 @@ def _tracked(rng, *, pose_of, frames=8, sigma=1e-3):
         chain.observe(k, corr, pose, info, threshold_rad=5.0 * sigma)
         chained.append(chained[-1] @ pose.rotation)
         records.append(FrameRecord(k, k - 1, True, "", 90, 90, 0.0, "5pt"))
-    rotations, _, labelled = chain.apply(np.array(chained), np.zeros((frames, 3)), records)
+    references = np.maximum(np.arange(frames) - 1, 0)  # every frame chained from the one before
+    rotations, _, labelled = chain.apply(np.array(chained), np.zeros((frames, 3)), records, references)
     return np.array(chained), rotations, [r.diagnostics.get(PLANE_TWIN) for r in labelled], world[0].T @ world
 
 

@@ -523,11 +523,11 @@ class Tracker:
                 raise ValueError(f"expected {n} timestamps, got {stamps.shape}")
         rotations = np.asarray(self.rotations).reshape(n, 3, 3)
         positions = np.asarray(self.positions).reshape(n, 3)
-        rotations, positions, self.records = self._plane_twins.apply(rotations, positions, self.records)
+        # A failed frame holds the pose before it; a good one is chained from its reference.
+        references = np.array([record.reference_frame if record.success else max(record.frame - 1, 0)
+                               for record in self.records], dtype=int)
+        rotations, positions, self.records = self._plane_twins.apply(rotations, positions, self.records, references)
         if self.bundle_adjustment.window and self._pair_rays:
-            # A failed frame holds the pose before it; a good one is chained from its reference.
-            references = np.array([record.reference_frame if record.success else max(record.frame - 1, 0)
-                                   for record in self.records])
             observations = tracks_from_pair_rays(self._pair_rays,
                                                  tolerance_rad=self.bundle_adjustment.match_tolerance_rad)
             rotations, positions, _ = poses_from_sliding_window(rotations, positions, references, observations,

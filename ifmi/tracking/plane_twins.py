@@ -62,7 +62,7 @@ class PlaneTwinChain:
         if candidates is not None:
             self._planar[frame] = candidates
 
-    def apply(self, rotations: np.ndarray, positions: np.ndarray, records: list) -> tuple:
+    def apply(self, rotations: np.ndarray, positions: np.ndarray, records: list, references: np.ndarray) -> tuple:
         """``(rotations, positions, records)`` with the sequence's twins (see the module docstring).
 
         Parameters
@@ -71,11 +71,12 @@ class PlaneTwinChain:
             Chained ``R_0k``.
         positions : (K, 3) ndarray
         records : list of FrameRecord
-            One per frame; a failed frame holds the pose before it.
+            One per frame.
+        references : (K,) int ndarray
+            The frame each frame is chained from (a failed frame holds the pose of the one before it).
         """
         if not self._planar:
             return rotations, positions, records
-        references = np.array([r.reference_frame if r.success else max(r.frame - 1, 0) for r in records], dtype=int)
         relative = np.einsum("kji,kjl->kil", rotations[references], rotations)
         choices = resolve_plane_twins(references, relative, self._planar, options=self.options)
         replaced = {k: (self._planar[k].rotations[c], self._planar[k].translations[c]) for k, c in choices.items()
