@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ifmi.evaluation.dataset_names import dataset_labels, resolved_folder
+
 MODES = {"frames": [], "keyframes": ["--keyframes"]}
 
 
@@ -81,12 +83,16 @@ def main(argv: list[str] | None = None) -> int:
                         help="configuration file given to both trees' ifmi estimate --config")
     args = parser.parse_args(argv)
     work = args.work or Path(tempfile.mkdtemp(prefix="check_identical_"))
+    # Distinct names for folders of one name (sweep sets are all ".../SET/dataset"): the kept base
+    # estimates are found by name.
+    labels = dataset_labels(args.datasets)
     all_same = True
     for dataset in args.datasets:
+        label = labels[resolved_folder(dataset)]
         for mode in args.modes:
             for method in args.methods:
                 tag = "" if args.config is None else f"_{args.config.stem}"
-                name = f"{dataset.name}_{mode}_{method}{tag}.txt"
+                name = f"{label.replace('/', '_')}_{mode}_{method}{tag}.txt"
                 base = work / "base" / name
                 if not base.exists():  # the base tree's estimates are kept for later runs
                     _estimate(args.base.resolve(), dataset.resolve(), base, method, mode, args.config)
@@ -94,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
                                  args.config)
                 verdict = compared(base, tree)
                 all_same &= verdict == "identical"
-                print(f"{dataset.name:24s} {mode:9s} {method:6s} {verdict}", flush=True)
+                print(f"{label:24s} {mode:9s} {method:6s} {verdict}", flush=True)
     return 0 if all_same else 1
 
 
