@@ -261,6 +261,47 @@ def test_tracker_steps_frame_by_frame_with_a_given_pose_solver():
     assert np.max(geodesic_angle(truth, tracker.trajectory().rotations)) < 1e-9
 
 
+class NoisyFrontEnd(ExactFrontEnd):
+    """Exact rays with seeded Gaussian noise of 1e-3 rad per axis on both frames of each pair."""
+
+    def correspondences(self, state_a, state_b):
+        corr = super().correspondences(state_a, state_b)
+        rng = np.random.default_rng(state_b[0])
+        noisy = [r + rng.normal(0.0, 1e-3, r.shape) for r in (corr.rays_a, corr.rays_b)]
+        noisy = [r / np.linalg.norm(r, axis=1, keepdims=True) for r in noisy]
+        return Correspondences(corr.pixels_a, corr.pixels_b, *noisy, corr.diagnostics)
+
+
+@pytest.mark.parametrize("pooled", [True, False])
+def test_each_pair_is_given_the_earlier_pairs_noise_as_its_prior(pooled):
+    from dataclasses import replace
+
+    from ifmi.tracking.odometry import Tracker
+    from ifmi.backend.relative_pose import relative_pose_from_rays
+
+    given = []
+
+    def recording_solver(rays_a, rays_b, *, options, **kwargs):
+        given.append((options.noise_prior_rms_rad, options.noise_prior_measurements))
+        return relative_pose_from_rays(rays_a, rays_b, options=options, **kwargs)
+
+    tracker = Tracker(NoisyFrontEnd(), pose_options=replace(POSE, ransac_threshold_rad=6e-3,
+                                                            sequence_noise_prior=pooled),
+                      pose_solver=recording_solver)
+    records = [tracker.step(frame) for frame in _frames(6)[0]]
+    assert all(r.success for r in records)
+    evidence = np.array([(r.diagnostics["noise_rms_rad"], r.diagnostics["noise_measurements"])
+                         for r in records[1:]])
+    # The epipolar angle's noise is that of both rays: sqrt(2) * 1e-3 rad, over 75 degrees of freedom.
+    assert np.all(np.abs(evidence[:, 0] / (np.sqrt(2.0) * 1e-3) - 1.0) < 0.3) and np.all(evidence[:, 1] == 75)
+    if not pooled:
+        assert given == [(None, 0.0)] * 5
+        return
+    assert given[0] == (None, 0.0)
+    for k in range(1, 5):
+        assert given[k] == pytest.approx(tuple(np.median(evidence[:k], axis=0)), rel=1e-12)
+
+
 def test_front_end_is_told_the_pose_of_every_successful_frame_only():
     class Accepting(CorruptFrontEnd):
         def accept_pose(self, state, rotation):

@@ -667,13 +667,47 @@ def test_model_choice_boundary_is_where_the_parallax_meets_the_noise():
     assert parallaxes[0] < 1.2 * noise_only < 1.5 * noise_only < parallaxes[1]
 
 
+def test_noise_prior_settles_pairs_of_few_measurements():
+    # Eight correspondences leave the 5-point model three degrees of freedom to measure the noise
+    # with; chance makes that estimate small on a few pairs, and their rotation residuals then look
+    # like parallax. Pooled with earlier evidence of the true noise (20 measurements' worth), every
+    # pure rotation takes the rotation model and every 5 cm step the 5-point model. Measured over
+    # the 100 seeds: without the prior 3 pure rotations took the 5-point model and 1 step did not.
+    options = RelativePoseOptions(ransac_threshold_rad=6e-3, noise_prior_rms_rad=np.sqrt(2.0) * 1e-3,
+                                  noise_prior_measurements=20.0)
+    for translation_m, model in ((0.0, "rotation"), (0.05, "5pt")):
+        models = [relative_pose_from_rays(*_two_view(seed, translation_m=translation_m, n=8)[:2],
+                                          options=options)[1].model for seed in range(100)]
+        assert models.count(model) == 100
+
+
+def test_noise_prior_counts_as_that_many_measurements_of_its_mean_square():
+    from ifmi.backend.relative_pose import _epipolar_noise_sigma
+
+    errors = np.random.default_rng(3).normal(0.0, 1e-3, 9)
+    pooled = _epipolar_noise_sigma(np.abs(errors), 6e-3, 1, confidence=0.84, prior=(2e-3, 4.0))
+    appended = _epipolar_noise_sigma(np.abs(np.r_[errors, np.full(4, 2e-3)]), 6e-3, 1, confidence=0.84)
+    assert pooled == pytest.approx(appended, rel=1e-12)
+    # Four measurements (fewer than the model's five parameters) are measured with the prior only.
+    assert _epipolar_noise_sigma(np.abs(errors[:4]), 6e-3, 1) is None
+    assert _epipolar_noise_sigma(np.abs(errors[:4]), 6e-3, 1, prior=(2e-3, 4.0)) is not None
+
+
+@pytest.mark.parametrize("field, value", [("noise_prior_rms_rad", 0.0), ("noise_prior_rms_rad", -1e-3),
+                                          ("noise_prior_measurements", -1.0)])
+def test_noise_prior_options_are_checked(field, value):
+    with pytest.raises(ValueError, match="noise_prior"):
+        RelativePoseOptions(ransac_threshold_rad=6e-3, **{field: value})
+
+
 def test_forced_five_point_model_and_its_evidence():
     rays_a, rays_b, rotation = _two_view(0, translation_m=0.0)
     pose, info = relative_pose_from_rays(rays_a, rays_b, options=RelativePoseOptions(
         ransac_threshold_rad=6e-3, five_point_only=True))
     assert info.success and info.model == "5pt"
     assert info.selection.gric_5pt > info.selection.gric_rotation  # forced against the evidence
-    assert set(info.selection.columns()) == {"gric_rotation", "gric_5pt", "parallax_rad", "selection_sigma_rad"}
+    assert set(info.selection.columns()) == {"gric_rotation", "gric_5pt", "parallax_rad", "selection_sigma_rad",
+                                             "noise_rms_rad", "noise_measurements"}
 
 
 def _floor_view(seed: int, *, step_m: float = 0.02, height_m: float = 0.4, n: int = 150,

@@ -222,6 +222,26 @@ class RelativePoseOptions:
         are five measurements or fewer; an estimate above
         ``ransac_threshold_rad`` (inliers spread evenly up to it) is taken
         as the threshold.
+    noise_prior_rms_rad : float or None
+        Earlier evidence of the ray noise, pooled with the pair's own when
+        ``noise_sigma_rad`` is None: the root mean square (radians) of
+        inlier epipolar angles below ``ransac_threshold_rad`` of other pairs
+        of the same camera and front end. A pair with few inlier
+        measurements measures its noise poorly (five of them fit the
+        5-point model exactly), and a low estimate makes the rotation
+        model's residuals look like parallax. None: the pair's own evidence
+        alone.
+    noise_prior_measurements : float
+        How many measurements (beyond the 5-point model's five parameters)
+        ``noise_prior_rms_rad`` is worth: its mean square enters the pooled
+        sum of squares that many times, and the degrees of freedom of the
+        upper bound grow by as much.
+    sequence_noise_prior : bool
+        Read by the trackers (:mod:`ifmi.tracking.odometry`): set
+        ``noise_prior_rms_rad`` of each pair to the median of the earlier
+        solved pairs' ``ModelSelection.noise_rms_rad`` and
+        ``noise_prior_measurements`` to the median of their
+        ``noise_measurements``, worth one typical pair of the sequence.
     rotation_threshold_factor : float
         The rotation model's inlier threshold is this multiple of
         ``ransac_threshold_rad``: its error is an angle in two dimensions,
@@ -279,6 +299,9 @@ class RelativePoseOptions:
     rotation_only: bool = False
     five_point_only: bool = False
     noise_sigma_rad: float | None = None
+    noise_prior_rms_rad: float | None = None
+    noise_prior_measurements: float = 0.0
+    sequence_noise_prior: bool = True
     rotation_threshold_factor: float = 1.25
     robust_iterations: int = 5
     robust_scale: float = 1.0
@@ -287,6 +310,7 @@ class RelativePoseOptions:
 
     def __post_init__(self) -> None:
         check_finite_fields(self, ("ransac_threshold_rad", "ransac_threshold_px", "noise_sigma_rad",
+                                   "noise_prior_rms_rad", "noise_prior_measurements",
                                    "rotation_threshold_factor", "robust_scale", "min_draw_success",
                                    "max_chance_false_alarms"))
         # Rays are at most pi apart: a threshold of pi or more makes every match an inlier.
@@ -322,6 +346,10 @@ class RelativePoseOptions:
         if not 0 <= self.min_draw_success <= 1 or not self.max_chance_false_alarms >= 0:
             raise ValueError(f"expected 0 <= min_draw_success <= 1 and max_chance_false_alarms >= 0, "
                              f"got {self.min_draw_success}, {self.max_chance_false_alarms}")
+        if (self.noise_prior_rms_rad is not None and not self.noise_prior_rms_rad > 0) \
+                or not self.noise_prior_measurements >= 0:
+            raise ValueError("expected noise_prior_rms_rad > 0 or None and noise_prior_measurements >= 0, got "
+                             f"{self.noise_prior_rms_rad}, {self.noise_prior_measurements}")
         if (self.noise_sigma_rad is not None and not self.noise_sigma_rad > 0) or not self.rotation_threshold_factor > 0:
             raise ValueError(
                 "expected noise_sigma_rad > 0 or None and rotation_threshold_factor > 0, got "
@@ -385,18 +413,29 @@ class ModelSelection:
         translation explains, noise included. NaN when only one model was fitted.
     noise_sigma_rad : float
         The ray noise (radians, per axis) GRIC weighed the residuals with.
+    noise_rms_rad : float
+        The pair's own evidence of it: root mean square (radians) of the
+        5-point model's inlier epipolar angles, corrected for its five
+        parameters (NaN without residual freedom); what
+        ``RelativePoseOptions.noise_prior_rms_rad`` pools.
+    noise_measurements : float
+        The measurements behind ``noise_rms_rad`` beyond the model's five
+        parameters.
     """
 
     gric_rotation: float = math.nan
     gric_5pt: float = math.nan
     parallax_rad: float = math.nan
     noise_sigma_rad: float = math.nan
+    noise_rms_rad: float = math.nan
+    noise_measurements: float = 0.0
 
     def columns(self) -> dict:
         """The evidence as ``frames.csv`` columns: ``gric_rotation``, ``gric_5pt``,
-        ``parallax_rad``, ``selection_sigma_rad``."""
+        ``parallax_rad``, ``selection_sigma_rad``, ``noise_rms_rad``, ``noise_measurements``."""
         return {"gric_rotation": self.gric_rotation, "gric_5pt": self.gric_5pt,
-                "parallax_rad": self.parallax_rad, "selection_sigma_rad": self.noise_sigma_rad}
+                "parallax_rad": self.parallax_rad, "selection_sigma_rad": self.noise_sigma_rad,
+                "noise_rms_rad": self.noise_rms_rad, "noise_measurements": self.noise_measurements}
 
 
 @dataclass(frozen=True)
@@ -948,8 +987,16 @@ def noise_sigma_from_residuals(angles: np.ndarray, threshold: float) -> float:
     return math.exp(brentq(excess, math.log(lower), math.log(upper), xtol=1e-6))
 
 
+def _epipolar_noise_evidence(errors: np.ndarray, window: float, group: int) -> tuple[float, float]:
+    """The 5-point model's inlier epipolar angles below ``window`` as evidence of the ray noise:
+    ``(sum of squares per measurement (rad^2), measurements minus the model's five parameters)``."""
+    kept = errors[errors < window]
+    return float(np.sum(kept ** 2)) / group, len(kept) / group - _SAMPLE_5PT
+
+
 def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int, *,
-                          confidence: float | None = None) -> float | None:
+                          confidence: float | None = None, prior: tuple[float, float] = (0.0, 0.0)
+                          ) -> float | None:
     """Ray noise (radians, per axis) from the 5-point model's epipolar angles below ``window``.
 
     An epipolar angle is one-dimensional, so the mean square of the ``m``
@@ -963,23 +1010,28 @@ def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int, *,
     repetitive texture, and without the correction the cut makes the noise
     look smaller and hands pure rotations to the 5-point model.
 
+    ``prior`` ``(rms, k)`` pools earlier evidence of the same window: ``k``
+    measurements' worth of mean square ``rms^2`` join the sum of squares and
+    the degrees of freedom.
+
     With ``confidence``, the upper bound of the noise at that confidence
     instead (the sum of squares over the noise variance is chi-square with
-    ``m - 5`` degrees of freedom).
+    ``m - 5 + k`` degrees of freedom).
 
     Returns
     -------
     float or None
-        None with at most five measurements (no residual freedom).
+        None without residual freedom (``m - 5 + k <= 0``).
     """
-    kept = errors[errors < window]
-    dof = len(kept) / group - _SAMPLE_5PT
+    squares, dof = _epipolar_noise_evidence(errors, window, group)
+    prior_rms, prior_dof = prior
+    squares, dof = squares + prior_dof * prior_rms ** 2, dof + prior_dof
     if dof <= 0:
         return None
     # The chi-square quantile 2 P^-1(dof / 2, 1 - confidence) (P the regularised lower incomplete gamma
     # function), which is what ``scipy.stats.chi2.ppf`` computes, without its argument handling.
     scale = dof if confidence is None else 2 * gammaincinv(dof / 2, 1.0 - confidence)
-    return _untruncated_sigma(math.sqrt(np.sum(kept ** 2) / group / scale), window)
+    return _untruncated_sigma(math.sqrt(squares / scale), window)
 
 
 def _untruncated_sigma(rms: float, window: float) -> float:
@@ -1216,9 +1268,12 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     # An estimate above the threshold (inliers spread evenly up to it, no peak of noise inside) is
     # taken as the threshold: the inliers cannot show a larger noise, and a larger one would make a
     # parallax of many thresholds look like noise.
+    epipolar = _inlier_epipolar_angles(rays_a, rays_b, five_point, threshold)
+    prior = (options.noise_prior_rms_rad or 0.0, options.noise_prior_measurements)
     noise = (options.noise_sigma_rad
-             or min(_epipolar_noise_sigma(_inlier_epipolar_angles(rays_a, rays_b, five_point, threshold),
-                                          threshold, group, confidence=_NOISE_CONFIDENCE) or rot_sigma, threshold))
+             or min(_epipolar_noise_sigma(epipolar, threshold, group, confidence=_NOISE_CONFIDENCE, prior=prior)
+                    or rot_sigma, threshold))
+    squares, dof = _epipolar_noise_evidence(epipolar, threshold, group)
     either = rot_mask | inliers_5pt
     parallax = rotation_angles(rays_a[inliers_5pt], rays_b[inliers_5pt], rotation_5pt)
     # Exact rays: residuals of rounding only, which the two models' angle formulas resolve differently.
@@ -1227,7 +1282,8 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
         gric_rotation=gric(rot_errors[either], weigh, dimension=2, parameters=3, group=group),
         gric_5pt=gric(errors_5pt[either], weigh, dimension=3, parameters=5, group=group),
         parallax_rad=float(np.median(parallax)) if len(parallax) else math.nan,
-        noise_sigma_rad=float(noise))
+        noise_sigma_rad=float(noise), noise_rms_rad=math.sqrt(squares / dof) if dof > 0 else math.nan,
+        noise_measurements=max(dof, 0.0))
 
 
 def _chance_inlier_rate(rays_a, rays_b, rotation, translation, threshold, seed) -> float:

@@ -310,6 +310,8 @@ class Tracker:
         self._plane_twins = PlaneTwinChain(options=plane_twin)
         # Each accepted pair's (reference, frame, inlier rays_a, inlier rays_b), for the adjustment.
         self._pair_rays: list = []
+        # Each solved pair's (noise_rms_rad, noise_measurements), the prior of the next pairs' noise.
+        self._noise_evidence: list = []
         self._height = 0  # rows of the images (the first frame's), for the rolling-shutter row times
         self.rotations: list = []
         self.positions: list = []
@@ -337,8 +339,10 @@ class Tracker:
 
     def _solve_rays(self, reference: _Reference, corr, frame: int) -> tuple:
         """``(pose, info)`` of the back end on ``corr``'s rays (with the rolling-shutter model when set)."""
+        options = self._pair_pose_options()
+
         def solve(rays_a, rays_b):
-            return self.pose_solver(rays_a, rays_b, options=self.pose_options,
+            return self.pose_solver(rays_a, rays_b, options=options,
                                     rays_per_measurement=corr.rays_per_measurement)
 
         if self.rolling_shutter.readout == 0.0:
@@ -347,6 +351,23 @@ class Tracker:
             solve, corr.rays_a, corr.rays_b, corr.pixels_a[:, 0], corr.pixels_b[:, 0], height=self._height,
             velocities=lambda rotation_ab: self._velocities(reference, rotation_ab, frame),
             options=self.rolling_shutter)
+
+    def _pair_pose_options(self) -> RelativePoseOptions:
+        """The back end's options for the next pair: with ``sequence_noise_prior``, the noise
+        evidence of the solved pairs so far as its prior (medians of their root mean squares and of
+        their measurements: one typical pair's worth)."""
+        options = self.pose_options
+        if not options.sequence_noise_prior or options.noise_sigma_rad is not None or not self._noise_evidence:
+            return options
+        rms, measurements = np.median(np.asarray(self._noise_evidence), axis=0)
+        return replace(options, noise_prior_rms_rad=float(rms), noise_prior_measurements=float(measurements))
+
+    def _keep_noise_evidence(self, info) -> None:
+        """Add a solved pair's own noise evidence (``ModelSelection.noise_rms_rad``) to the prior's."""
+        selection = getattr(info, "selection", None)
+        rms = getattr(selection, "noise_rms_rad", math.nan)
+        if rms > 0 and math.isfinite(rms):
+            self._noise_evidence.append((rms, selection.noise_measurements))
 
     def _velocities(self, reference: _Reference, rotation_ab: np.ndarray, frame: int) -> tuple:
         """Angular velocities at the read-outs of ``reference`` and ``frame`` given ``R_ab``.
@@ -485,6 +506,7 @@ class Tracker:
                 inliers = np.asarray(info.inlier_mask, dtype=bool)
                 self._pair_rays.append((reference.frame, k, corr.rays_a[inliers], corr.rays_b[inliers]))
             self._plane_twins.observe(k, corr, pose, info, threshold_rad=self.pose_options.ransac_threshold_rad)
+            self._keep_noise_evidence(info)
             sigma = getattr(info, "rotation_sigma_rad", math.nan)  # a custom pose_solver may not predict it
             record = FrameRecord(k, reference.frame, True, "", info.n_correspondences, info.n_inliers,
                                  0.0, info.model, _angle(pose.rotation), sigma,
