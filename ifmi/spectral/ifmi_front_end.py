@@ -1035,6 +1035,8 @@ class IfmiFrontEnd(FrontEndBase):
         solved = pair_pipeline.solve_pair(self, state_a, state_b, prior_rotation=prior_rotation, solve=solve)
         if _is_solved(solved) or not self._band_limited_retry_on:
             return solved
+        # The engines differ in the translation search only: a frame prepared meanwhile in the
+        # background gets the same tile spectra from either.
         engines = self.engine, self._dense_engine
         kept = state_b.tracked, state_b.tracked_valid, state_b.tracked_landmarks, state_b.reference
         self.engine, self._dense_engine = self._band_limited_engines()
