@@ -14,7 +14,10 @@ on compressed frames the high frequencies of a tile are quantisation
 residue and block steps that do not move with the scene, yet they have as
 much say on the phase-only surface as the texture; on uncompressed frames
 a tile that fails the phase-only search is weak at every frequency (render
-or sensor noise), and the band limit only lets less precise tiles through.
+or sensor noise), and the band limit only lets less precise tiles through
+where the phase-only tiles would solve the pair. There the front end runs it
+only for a pair no other stage solved
+(:meth:`~ifmi.spectral.ifmi_front_end.IfmiFrontEnd.solve_pair`).
 """
 
 from __future__ import annotations

@@ -57,7 +57,9 @@ they were. The iFMI front end runs this search on block-compressed captures
 only (:mod:`ifmi.spectral.compression`): there the high frequencies are
 quantisation residue and block steps fixed to the image; on uncompressed
 frames a tile that fails is weak at every frequency, and the band limit only
-lets less precise tiles through.
+lets less precise tiles through. On those the front end uses it for a pair
+that no other stage solved (``IfmiFrontEnd.solve_pair`` of
+:mod:`ifmi.spectral.ifmi_front_end`).
 """
 
 from __future__ import annotations
@@ -200,7 +202,8 @@ class FourierMellinConfig:
         rotation (3.9x: more keyframes were taken). On 54 uncompressed 384 px
         renders (8 spp) it was worse by more than 10 % on 23 and better on 15,
         so the iFMI front end sets it to 0 on frames without a block grid
-        (:func:`ifmi.spectral.compression.is_block_compressed`).
+        (:func:`ifmi.spectral.compression.is_block_compressed`) and uses it
+        there only to retry a pair no other stage solved.
     noisy_lowpass : float
         Standard deviation (cycles per pixel) of the band limit's Gaussian
         low-pass: the surface is smoothed over ``1 / (2 pi sigma)`` = 1.06 px,

@@ -170,6 +170,14 @@ class RecoveryOptions:
     half_turn_check_rad : float
         A solution farther than this from the prediction is solved again from its half turn about the
         panorama axis (radians); pi turns the check off.
+
+    Notes
+    -----
+    A pair of an uncompressed capture that no stage solved goes through every stage once more with
+    the band-limited search of noise-dominated pairs
+    (:attr:`~ifmi.spectral.fourier_mellin.FourierMellinConfig.noisy_pair_fraction`), which only
+    block-compressed captures use from the start; the retry is kept when it solves the pair
+    (:meth:`IfmiFrontEnd.solve_pair`). Pairs that are solved are left exactly as they were.
     """
 
     wide_search_fraction: float = 0.33
@@ -422,6 +430,11 @@ def translated_ifmi_options(data: Mapping[str, Any]) -> Mapping[str, Any]:
     return result
 
 
+def _is_solved(solved: SolvedPair) -> bool:
+    """Whether the back end solved the pair."""
+    return solved.info is not None and bool(solved.info.success)
+
+
 def _robust_rotation(rays_a: np.ndarray, rays_b: np.ndarray) -> tuple[np.ndarray, float]:
     """``R_ab`` with ``rays_a ~ R_ab rays_b`` (Kabsch re-solved with Cauchy weights whose scale is
     the median residual) and the median residual angle of the last weighting (radians)."""
@@ -514,6 +527,7 @@ class IfmiFrontEnd(FrontEndBase):
         self.global_stage: GlobalMotionEstimator | None = None
         self.dense_layout: TileLayout | None = None
         self._dense_engine: FourierMellin | None = None  # built on the first dense retry
+        self._band_limited: tuple | None = None  # engines of the band-limited retry, built on first use
         self._registration = config.registration.engine_config()
         self._points_b: np.ndarray | None = None
 
@@ -530,7 +544,8 @@ class IfmiFrontEnd(FrontEndBase):
         self._registration = config.registration.engine_config(wide=self._wide)
         if not is_block_compressed(gray_from_image(image)):
             # The band-limited search of noise-dominated pairs is for compressed frames (see
-            # ifmi.spectral.compression); a capture is compressed or not as a whole.
+            # ifmi.spectral.compression); a capture is compressed or not as a whole. Uncompressed
+            # ones use it only to retry an unsolved pair (solve_pair).
             self._registration = replace(self._registration, noisy_pair_fraction=0.0)
         self.engine = FourierMellin(self.layout.tile_size, self.layout.count, config=self._registration)
         if config.coarse.enabled and config.tracking.use_prior:
@@ -1011,8 +1026,46 @@ class IfmiFrontEnd(FrontEndBase):
 
     def solve_pair(self, state_a: IfmiFrameState, state_b: IfmiFrameState, *, prior_rotation: np.ndarray | None,
                    solve) -> SolvedPair:
-        """The pair through every stage of :func:`ifmi.spectral.pair_pipeline.solve_pair`."""
-        return pair_pipeline.solve_pair(self, state_a, state_b, prior_rotation=prior_rotation, solve=solve)
+        """The pair through every stage of :func:`ifmi.spectral.pair_pipeline.solve_pair`.
+
+        On an uncompressed capture, a pair no stage solved goes through them once more with the
+        band-limited search of noise-dominated pairs; the retry is kept when it solves the pair
+        (``band_limited_retry`` true in its diagnostics), else frame b keeps the first pass's tiles.
+        """
+        solved = pair_pipeline.solve_pair(self, state_a, state_b, prior_rotation=prior_rotation, solve=solve)
+        if _is_solved(solved) or not self._band_limited_retry_on:
+            return solved
+        # The engines differ in the translation search only: a frame prepared meanwhile in the
+        # background gets the same tile spectra from either.
+        engines = self.engine, self._dense_engine
+        kept = state_b.tracked, state_b.tracked_valid, state_b.tracked_landmarks, state_b.reference
+        self.engine, self._dense_engine = self._band_limited_engines()
+        try:
+            retry = pair_pipeline.solve_pair(self, state_a, state_b, prior_rotation=prior_rotation, solve=solve)
+        finally:
+            self.engine, self._dense_engine = engines
+        if not _is_solved(retry):
+            # Frame b keeps the tiles of the first pass, as without the retry.
+            state_b.tracked, state_b.tracked_valid, state_b.tracked_landmarks, state_b.reference = kept
+            return solved
+        diagnostics = {**retry.correspondences.diagnostics, "band_limited_retry": True}
+        return replace(retry, correspondences=replace(retry.correspondences, diagnostics=diagnostics))
+
+    @property
+    def _band_limited_retry_on(self) -> bool:
+        """Whether an unsolved pair is retried with the band-limited search: on a capture whose
+        registration does not run that search already (an uncompressed one)."""
+        return self._registration.noisy_pair_fraction == 0
+
+    def _band_limited_engines(self) -> tuple[FourierMellin, FourierMellin | None]:
+        """Registration engines of the layout and of the dense layout (None without dense retries)
+        with the band-limited search of noise-dominated pairs at its default fraction, built on first use."""
+        if self._band_limited is None:
+            config = replace(self._registration, noisy_pair_fraction=FourierMellinConfig.noisy_pair_fraction)
+            dense = None if self.dense_layout is None else FourierMellin(
+                self.dense_layout.tile_size, self.dense_layout.count, config=config)
+            self._band_limited = FourierMellin(self.layout.tile_size, self.layout.count, config=config), dense
+        return self._band_limited
 
     @property
     def half_turn(self) -> np.ndarray:

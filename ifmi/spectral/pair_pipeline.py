@@ -27,6 +27,10 @@ documentation draws them):
    on (tracked tiles, used when it becomes a reference). This is the only
    write to a frame's state.
 
+A pair of an uncompressed capture that no stage solved goes through them all
+once more with the band-limited search of noise-dominated pairs
+(the front end's ``solve_pair``), kept when it solves the pair.
+
 The diagnostics are a :class:`PairDiagnostics`; each stage's wall time is
 one of its ``t_<stage>_ms`` fields, and its fields are the iFMI columns of
 ``frames.csv``.
@@ -102,6 +106,9 @@ class PairDiagnostics:
         The tiles were registered at that search's rotation.
     wide_rescue : bool or None
         An unsolved pair was registered again at the wide search from every start.
+    band_limited_retry : bool or None
+        An unsolved pair of an uncompressed capture went through every stage again with the
+        band-limited search, which solved it (set by the front end's ``solve_pair``).
     n_tiles_kept_dense : int or None
         Kept tiles of the dense retry.
     n_tiles_landmark : int or None
@@ -130,6 +137,7 @@ class PairDiagnostics:
     wide_search: bool | None = None
     half_turn: bool | None = None
     wide_rescue: bool | None = None
+    band_limited_retry: bool | None = None
     n_tiles_kept_dense: int | None = None
     n_tiles_landmark: int | None = None
     n_tiles_kept_reregistered: int | None = None
