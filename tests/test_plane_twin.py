@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.backend.plane_twin import (PlaneTwinOptions, homography_from_rays, homography_transfer_angles,
-                                     planar_pair, plane_decompositions, rechained, resolve_plane_twins)
+from ifmi.backend.homography import homography_from_rays, homography_transfer_angles, inlier_homography
+from ifmi.backend.plane_twin import (PlaneTwinOptions, planar_pair, plane_decompositions, rechained,
+                                     resolve_plane_twins)
 from ifmi.geometry.rotations import geodesic_angle
 
 HEIGHT_M = 1.6
@@ -40,6 +41,21 @@ def _plane_pair(rng, *, step=0.05, n=100):
     normal_b = np.array([0.0, 0.0, 1.0])
     points_b = rays_b * (HEIGHT_M / (rays_b @ normal_b))[:, None]
     return rotation_ab, translation_ab, normal_b, points_b
+
+
+def test_inlier_homography_of_exact_plane_rays_among_gross_outliers():
+    # 200 exact rays of the plane and 20 paired with random rays: the fit to all is pulled off,
+    # the refits on the transferred rays recover the plane's homography to rounding.
+    rng = np.random.default_rng(5)
+    rotation_ab, translation_ab, normal_b, points_b = _plane_pair(rng, n=220)
+    rays_a, rays_b = _pair_rays(rotation_ab, translation_ab, points_b)
+    rays_a[:20] = _cone_rays(20, rng)
+    homography, errors = inlier_homography(rays_a, rays_b, threshold_rad=5e-3)
+    assert np.max(errors[20:]) < 1e-9 and np.min(errors[:20]) > 5e-3
+    expected = rotation_ab + np.outer(translation_ab, normal_b) / HEIGHT_M
+    np.testing.assert_allclose(homography / np.linalg.norm(homography),
+                               np.sign(np.sum(homography * expected)) * expected / np.linalg.norm(expected),
+                               atol=1e-9)
 
 
 def test_decompositions_of_an_exact_homography_hold_the_true_motion_and_its_twin():

@@ -706,8 +706,8 @@ def test_forced_five_point_model_and_its_evidence():
         ransac_threshold_rad=6e-3, five_point_only=True))
     assert info.success and info.model == "5pt"
     assert info.selection.gric_5pt > info.selection.gric_rotation  # forced against the evidence
-    assert set(info.selection.columns()) == {"gric_rotation", "gric_5pt", "parallax_rad", "selection_sigma_rad",
-                                             "noise_rms_rad", "noise_measurements"}
+    assert set(info.selection.columns()) == {"gric_rotation", "gric_5pt", "gric_homography", "parallax_rad",
+                                             "selection_sigma_rad", "noise_rms_rad", "noise_measurements"}
 
 
 def _floor_view(seed: int, *, step_m: float = 0.02, height_m: float = 0.4, n: int = 150,
@@ -730,6 +730,35 @@ def _floor_view(seed: int, *, step_m: float = 0.02, height_m: float = 0.4, n: in
         rays_a = rays_a + rng.normal(0.0, noise_rad, rays_a.shape)
         rays_a /= np.linalg.norm(rays_a, axis=1, keepdims=True)
     return rays_a, rays_b, rotation, translation
+
+
+def test_homography_shows_the_coherent_parallax_of_a_step_over_a_plane():
+    # A floor 1.3 m below a camera with ray noise 2e-3 rad: a 1 cm step moves the rays by at most
+    # 7.7e-3 rad, mostly below the noise of one correspondence, so the 5-point model's own score
+    # beats the rotation model's on 9 of these 20 seeds only (measured). The parallax is the same
+    # flow over all 300 rays, which the homography explains for five parameters more: it beats the
+    # rotation model on every seed, and the 5-point model is chosen. The rotation model's
+    # rotation, which absorbs the flow, is off by 4.1-5.6 mrad; the 5-point model's by a median of
+    # 0.7 mrad (measured).
+    options = RelativePoseOptions(ransac_threshold_rad=6e-3)
+    chosen, rotation_only = [], []
+    for seed in range(20):
+        rays_a, rays_b, rotation, _ = _floor_view(seed, step_m=0.01, height_m=1.3, n=300, noise_rad=2e-3)
+        pose, info = relative_pose_from_rays(rays_a, rays_b, options=options)
+        assert info.model == "5pt" and info.selection.gric_homography < info.selection.gric_rotation
+        chosen.append(geodesic_angle(rotation, pose.rotation))
+        forced = relative_pose_from_rays(rays_a, rays_b, options=replace(options, rotation_only=True))[0]
+        rotation_only.append(geodesic_angle(rotation, forced.rotation))
+    assert np.median(chosen) < 0.5 * np.median(rotation_only)
+
+
+def test_homography_does_not_take_a_pure_rotation_over_a_plane():
+    # Without a step the homography is the rotation with five idle parameters: it never wins.
+    options = RelativePoseOptions(ransac_threshold_rad=6e-3)
+    for seed in range(20):
+        rays_a, rays_b, _, _ = _floor_view(seed, step_m=0.0, height_m=1.3, n=300, noise_rad=2e-3)
+        info = relative_pose_from_rays(rays_a, rays_b, options=options)[1]
+        assert info.model == "rotation" and info.selection.gric_homography > info.selection.gric_rotation
 
 
 def _plane_twin(rotation, translation, normal_a, distance_a):

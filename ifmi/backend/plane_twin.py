@@ -43,8 +43,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from ifmi.backend.homography import homography_from_rays, homography_transfer_angles
 from ifmi.backend.relative_pose import epipolar_angles, gric, samples_without_replacement
-from ifmi.geometry.rotations import cross_product_matrix, geodesic_angle
+from ifmi.geometry.rotations import geodesic_angle
 
 __all__ = ["PlaneTwinOptions", "PlaneCandidates", "homography_from_rays", "homography_transfer_angles",
            "robust_homography", "plane_decompositions", "planar_pair", "replaces_estimate", "resolve_plane_twins", "rechained"]
@@ -139,45 +140,6 @@ class PlaneCandidates:
     offsets_rad: np.ndarray
     gric_homography: float
     gric_5pt: float
-
-
-def homography_from_rays(rays_a: np.ndarray, rays_b: np.ndarray) -> np.ndarray:
-    """Least-squares ``H_ab`` with ``rays_a x (H_ab @ rays_b) = 0`` (direct linear transform).
-
-    Parameters
-    ----------
-    rays_a, rays_b : (..., N, 3) ndarray
-        Corresponding unit rays, N >= 4; leading axes are separate fits.
-
-    Returns
-    -------
-    (..., 3, 3) ndarray
-        Up to scale (unit Frobenius norm).
-    """
-    # [a]x H b, linear in H's rows: kron([a]x, b^T) @ vec(H) (row-major).
-    rows = np.einsum("...nij,...nk->...nijk", cross_product_matrix(rays_a), rays_b)
-    rows = rows.reshape(rows.shape[:-4] + (-1, 9))
-    return np.linalg.svd(rows, full_matrices=False)[2][..., -1, :].reshape(rows.shape[:-2] + (3, 3))
-
-
-def homography_transfer_angles(homography: np.ndarray, rays_a: np.ndarray, rays_b: np.ndarray) -> np.ndarray:
-    """Angle (radians) between ``rays_a`` and ``H_ab @ rays_b``, either sign of ``H``.
-
-    Parameters
-    ----------
-    homography : (..., 3, 3) ndarray
-        ``H_ab``; leading axes are separate homographies.
-    rays_a, rays_b : (N, 3) ndarray
-
-    Returns
-    -------
-    (..., N) ndarray
-    """
-    mapped = rays_b @ np.swapaxes(homography, -1, -2)
-    lengths = np.maximum(np.linalg.norm(mapped, axis=-1), 1e-300)
-    cosines = np.sum(mapped * rays_a, axis=-1) / lengths
-    sines = np.linalg.norm(np.cross(mapped, rays_a), axis=-1) / lengths
-    return np.arctan2(sines, np.abs(cosines))
 
 
 def robust_homography(rays_a: np.ndarray, rays_b: np.ndarray, *, threshold_rad: float, iterations: int,

@@ -73,6 +73,7 @@ import poselib
 from scipy.optimize import brentq
 from scipy.special import bdtrc, gammaincinv
 
+from ifmi.backend.homography import inlier_homography
 from ifmi.options import check_finite_fields
 from ifmi.geometry.rotations import cross_product_matrix, geodesic_angle
 
@@ -120,6 +121,8 @@ _NOISE_CONFIDENCE = 0.84
 # resolved to about 1e-16 rad, differently by the two models' residual formulas, so exact rays would
 # otherwise be judged on rounding. It is a million times below the angle of a pixel of any camera.
 _NOISE_FLOOR_RAD = 1e-12
+# Fewest correspondences the model selection fits a homography to: as many rays as its eight parameters.
+_MIN_HOMOGRAPHY_RAYS = 8
 # Chance pairings scored per correspondence when a consensus is checked against chance: the rays of
 # camera a with this many random permutations of those of camera b.
 _CHANCE_PERMUTATIONS = 8
@@ -402,11 +405,20 @@ class ModelSelection:
     ----------
     gric_rotation, gric_5pt : float
         Torr's GRIC of each model over the correspondences that are inliers
-        of either (lower is better); the
-        5-point model is chosen when its score is lower, unless its consensus
-        fails the back end's checks (too few inliers, chance) and the rotation
-        model's passes, and the other way round. NaN when only one
-        model was fitted.
+        of either (lower is better). NaN when only one model was fitted.
+    gric_homography : float
+        GRIC of a homography fitted to the same correspondences
+        (:func:`ifmi.backend.homography.inlier_homography`): the model of a
+        translation over a plane, which holds the rotation as its special
+        case. Its residual is two-dimensional like the rotation model's, so
+        it pays only for its five extra parameters, not per correspondence:
+        a parallax too small to show in each correspondence against the
+        noise, but coherent over all of them (a downward camera's step over
+        the floor), still shows in it. The 5-point model is chosen when
+        either translated model scores lower than the rotation model
+        (:attr:`prefers_translation`), unless its consensus fails the back
+        end's checks (too few inliers, chance) and the rotation model's
+        passes, and the other way round. NaN when only one model was fitted.
     parallax_rad : float
         Median angle (radians) between the 5-point model's inlier rays of
         camera a and their partners turned by its rotation: the parallax its
@@ -425,15 +437,24 @@ class ModelSelection:
 
     gric_rotation: float = math.nan
     gric_5pt: float = math.nan
+    gric_homography: float = math.nan
     parallax_rad: float = math.nan
     noise_sigma_rad: float = math.nan
     noise_rms_rad: float = math.nan
     noise_measurements: float = 0.0
 
+    @property
+    def prefers_translation(self) -> bool:
+        """Whether the 5-point model or the homography scores lower than the rotation model."""
+        translated = self.gric_5pt if math.isnan(self.gric_homography) else min(self.gric_5pt, self.gric_homography)
+        return translated < self.gric_rotation
+
     def columns(self) -> dict:
         """The evidence as ``frames.csv`` columns: ``gric_rotation``, ``gric_5pt``,
-        ``parallax_rad``, ``selection_sigma_rad``, ``noise_rms_rad``, ``noise_measurements``."""
+        ``gric_homography``, ``parallax_rad``, ``selection_sigma_rad``, ``noise_rms_rad``,
+        ``noise_measurements``."""
         return {"gric_rotation": self.gric_rotation, "gric_5pt": self.gric_5pt,
+                "gric_homography": self.gric_homography,
                 "parallax_rad": self.parallax_rad, "selection_sigma_rad": self.noise_sigma_rad,
                 "noise_rms_rad": self.noise_rms_rad, "noise_measurements": self.noise_measurements}
 
@@ -1262,6 +1283,7 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     pairs to the 5-point model.
     """
     threshold = options.ransac_threshold_rad
+    rot_threshold = threshold * options.rotation_threshold_factor
     _, rot_errors, rot_mask, rot_sigma = rotation_fit
     rotation_5pt, _, errors_5pt = five_point
     inliers_5pt = errors_5pt < threshold
@@ -1278,9 +1300,14 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     parallax = rotation_angles(rays_a[inliers_5pt], rays_b[inliers_5pt], rotation_5pt)
     # Exact rays: residuals of rounding only, which the two models' angle formulas resolve differently.
     weigh = max(noise, _NOISE_FLOOR_RAD)
+    # The homography's residual is two-dimensional, as the rotation model's: the same threshold.
+    transfer = inlier_homography(rays_a[either], rays_b[either], threshold_rad=rot_threshold)[1] \
+        if either.sum() >= _MIN_HOMOGRAPHY_RAYS else None
     return ModelSelection(
         gric_rotation=gric(rot_errors[either], weigh, dimension=2, parameters=3, group=group),
         gric_5pt=gric(errors_5pt[either], weigh, dimension=3, parameters=5, group=group),
+        gric_homography=math.nan if transfer is None else gric(transfer, weigh, dimension=2, parameters=8,
+                                                               group=group),
         parallax_rad=float(np.median(parallax)) if len(parallax) else math.nan,
         noise_sigma_rad=float(noise), noise_rms_rad=math.sqrt(squares / dof) if dof > 0 else math.nan,
         noise_measurements=max(dof, 0.0))
@@ -1376,7 +1403,7 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
             selection = _model_selection(rays_a, rays_b, rotation_fit, five_point, options, rays_per_measurement)
             model, rotation, translation, mask, failure = _supported_model(
                 rays_a, rays_b, rotation_fit, five_point,
-                options.five_point_only or selection.gric_5pt < selection.gric_rotation, options,
+                options.five_point_only or selection.prefers_translation, options,
                 rays_per_measurement)
     if failure is None:  # the rotation model alone was fitted
         failure = _consensus_failure(rays_a, rays_b, mask, model, rotation, translation, options,
