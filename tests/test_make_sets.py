@@ -37,6 +37,16 @@ def test_catalogue_names_every_set_once_and_its_sources_first(make_sets):
             assert (ROOT / recipe.options["scene"]).is_file(), recipe.options["scene"]
 
 
+def test_every_catalogue_scene_loads_with_its_files(make_sets):
+    # Loading checks every file a scene names (meshes, textures) relative to the scene file.
+    pytest.importorskip("trimesh")
+    from omnisim.config import load_scene_config
+    recipes = make_sets.recipes_from_catalogue(make_sets.tomllib.loads(make_sets.CATALOGUE.read_text()))
+    scenes = sorted({r.options["scene"] for r in recipes if r.source is None})
+    for scene in scenes:
+        load_scene_config(ROOT / scene)
+
+
 def test_subsample_entry_expands_over_sources_steps_and_starts(make_sets):
     catalogue = {"render": [{"name": "raw/a", "scene": "scenes/office.toml"},
                             {"name": "raw/b", "scene": "scenes/lawn.toml"}],
