@@ -720,22 +720,22 @@ def samples_without_replacement(rng: np.random.Generator, n: int, size: int, cou
     ``[0, j]``, or ``j`` when ``v`` was taken already) and then shuffles the sample (for ``i`` =
     ``size - 1 .. 1``: swap ``i`` with a draw from ``[0, i]``). None of these bounded draws depends on
     an earlier one's value, so all of them, for every sample, come from one ``rng.integers`` call on
-    the bounds in that order, which consumes the generator as the ``count`` calls do; only the
-    bookkeeping is left to this loop. (Per call, ``choice`` costs as much as a 5-point solve.)
+    the bounds in that order, which consumes the generator as the ``count`` calls do. The
+    bookkeeping then takes each of Floyd's steps and each swap for all samples at once. (Per call,
+    ``choice`` costs as much as a 5-point solve; a Python loop over the samples cost about as much.)
     """
     bounds = np.concatenate([np.arange(n - size, n), np.arange(size - 1, 0, -1)])
-    draws = rng.integers(0, np.tile(bounds + 1, count)).reshape(count, -1).tolist()
-    samples = []
-    for draw in draws:
-        taken, sample = set(), []
-        for value, last in zip(draw[:size], range(n - size, n)):
-            value = last if value in taken else value
-            taken.add(value)
-            sample.append(value)
-        for i, other in zip(range(size - 1, 0, -1), draw[size:]):
-            sample[i], sample[other] = sample[other], sample[i]
-        samples.append(sample)
-    return np.array(samples, dtype=np.int64).reshape(count, size)
+    draws = rng.integers(0, np.tile(bounds + 1, count)).reshape(count, -1)
+    samples = draws[:, :size].copy()
+    for step, last in enumerate(range(n - size, n)):
+        taken = (samples[:, :step] == samples[:, step, None]).any(axis=1)
+        samples[taken, step] = last
+    rows = np.arange(count)
+    for i, other in zip(range(size - 1, 0, -1), draws[:, size:].T):
+        kept = samples[:, i].copy()
+        samples[:, i] = samples[rows, other]
+        samples[rows, other] = kept
+    return samples.astype(np.int64, copy=False)
 
 
 def _ransac_5pt(rays, products, threshold, options, rng):
