@@ -693,6 +693,18 @@ def test_noise_prior_counts_as_that_many_measurements_of_its_mean_square():
     assert _epipolar_noise_sigma(np.abs(errors[:4]), 6e-3, 1, prior=(2e-3, 4.0)) is not None
 
 
+def test_a_pair_whose_noise_clearly_differs_from_the_prior_keeps_its_own():
+    from ifmi.backend.relative_pose import _epipolar_noise_sigma
+
+    rng = np.random.default_rng(4)
+    # 100 measurements of noise 1e-3 against a prior of 4e-3 worth 20: the F test rejects pooling.
+    many = np.abs(rng.normal(0.0, 1e-3, 100))
+    assert _epipolar_noise_sigma(many, 6e-3, 1, prior=(4e-3, 20.0)) == _epipolar_noise_sigma(many, 6e-3, 1)
+    # Eight measurements (three degrees of freedom) cannot tell noise half the prior's from it: pooled.
+    few = np.abs(rng.normal(0.0, 1e-3, 8))
+    assert _epipolar_noise_sigma(few, 6e-3, 1, prior=(2e-3, 20.0)) > 1.3 * _epipolar_noise_sigma(few, 6e-3, 1)
+
+
 @pytest.mark.parametrize("field, value", [("noise_prior_rms_rad", 0.0), ("noise_prior_rms_rad", -1e-3),
                                           ("noise_prior_measurements", -1.0)])
 def test_noise_prior_options_are_checked(field, value):

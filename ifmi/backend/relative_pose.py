@@ -71,7 +71,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import poselib
 from scipy.optimize import brentq
-from scipy.special import bdtrc, gammaincinv
+from scipy.special import bdtrc, fdtr, gammaincinv
 
 from ifmi.backend.homography import inlier_homography
 from ifmi.options import check_finite_fields
@@ -121,6 +121,9 @@ _NOISE_CONFIDENCE = 0.84
 # resolved to about 1e-16 rad, differently by the two models' residual formulas, so exact rays would
 # otherwise be judged on rounding. It is a million times below the angle of a pixel of any camera.
 _NOISE_FLOOR_RAD = 1e-12
+# Two-sided level of the F test that keeps a pair's own noise estimate out of the sequence's prior
+# (see _pools_with): a pair's noise can differ from the earlier pairs' when the scene in view does.
+_NOISE_POOLING_LEVEL = 1e-3
 # Fewest correspondences the model selection fits a homography to: as many rays as its eight parameters.
 _MIN_HOMOGRAPHY_RAYS = 8
 # Chance pairings scored per correspondence when a consensus is checked against chance: the rays of
@@ -232,8 +235,11 @@ class RelativePoseOptions:
         of the same camera and front end. A pair with few inlier
         measurements measures its noise poorly (five of them fit the
         5-point model exactly), and a low estimate makes the rotation
-        model's residuals look like parallax. None: the pair's own evidence
-        alone.
+        model's residuals look like parallax. A pair whose own measurements
+        contradict the prior (an F test of the two mean squares at the
+        two-sided level 1e-3: the scene in view, and with it the noise, can
+        change along a sequence) keeps its own estimate. None: the pair's
+        own evidence alone.
     noise_prior_measurements : float
         How many measurements (beyond the 5-point model's five parameters)
         ``noise_prior_rms_rad`` is worth: its mean square enters the pooled
@@ -1046,13 +1052,27 @@ def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int, *,
     """
     squares, dof = _epipolar_noise_evidence(errors, window, group)
     prior_rms, prior_dof = prior
-    squares, dof = squares + prior_dof * prior_rms ** 2, dof + prior_dof
+    if _pools_with(squares, dof, prior_rms, prior_dof):
+        squares, dof = squares + prior_dof * prior_rms ** 2, dof + prior_dof
     if dof <= 0:
         return None
     # The chi-square quantile 2 P^-1(dof / 2, 1 - confidence) (P the regularised lower incomplete gamma
     # function), which is what ``scipy.stats.chi2.ppf`` computes, without its argument handling.
     scale = dof if confidence is None else 2 * gammaincinv(dof / 2, 1.0 - confidence)
     return _untruncated_sigma(math.sqrt(squares / scale), window)
+
+
+def _pools_with(squares: float, dof: float, prior_rms: float, prior_dof: float) -> bool:
+    """Whether a pair's noise evidence (sum of squares, degrees of freedom) is pooled with a prior:
+    unless the two mean squares differ at the two-sided level ``_NOISE_POOLING_LEVEL`` of an F
+    test. A pair without residual freedom always takes the prior; a pair whose own measurements
+    show a clearly different noise (other depths, other texture in view) keeps its own."""
+    if prior_dof <= 0 or prior_rms <= 0:
+        return False
+    if dof <= 0:
+        return True
+    below = fdtr(dof, prior_dof, squares / dof / prior_rms ** 2)
+    return _NOISE_POOLING_LEVEL / 2 <= below <= 1 - _NOISE_POOLING_LEVEL / 2
 
 
 def _untruncated_sigma(rms: float, window: float) -> float:
