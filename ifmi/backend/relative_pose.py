@@ -1287,9 +1287,10 @@ def _inlier_epipolar_angles(rays_a, rays_b, five_point, threshold: float) -> np.
     return epipolar_angles(rays_a[inliers], rays_b[inliers], rotation[None], translation[None])[0]
 
 
-def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: RelativePoseOptions,
+def _model_selection(rays_a, rays_b, rotation_fit, five_point, epipolar: np.ndarray, options: RelativePoseOptions,
                      group: int) -> ModelSelection:
-    """Both models' GRIC over the correspondences either explains, the parallax and the noise level.
+    """Both models' GRIC over the correspondences either explains, the parallax and the noise level;
+    ``epipolar`` holds the 5-point inliers' epipolar angles (:func:`_inlier_epipolar_angles`).
 
     The noise level is ``options.noise_sigma_rad`` or the estimate of the
     5-point model's residuals (:func:`_epipolar_noise_sigma`), at most the inlier threshold: that
@@ -1310,7 +1311,6 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, options: Relative
     # An estimate above the threshold (inliers spread evenly up to it, no peak of noise inside) is
     # taken as the threshold: the inliers cannot show a larger noise, and a larger one would make a
     # parallax of many thresholds look like noise.
-    epipolar = _inlier_epipolar_angles(rays_a, rays_b, five_point, threshold)
     prior = (options.noise_prior_rms_rad or 0.0, options.noise_prior_measurements)
     noise = (options.noise_sigma_rad
              or min(_epipolar_noise_sigma(epipolar, threshold, group, confidence=_NOISE_CONFIDENCE, prior=prior)
@@ -1420,7 +1420,9 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
             return RelativePose(), RelativePoseInfo(False, "no 5-point hypothesis", n, 0,
                                                     np.zeros(n, dtype=bool), "5pt")
         if five_point is not None:
-            selection = _model_selection(rays_a, rays_b, rotation_fit, five_point, options, rays_per_measurement)
+            epipolar = _inlier_epipolar_angles(rays_a, rays_b, five_point, options.ransac_threshold_rad)
+            selection = _model_selection(rays_a, rays_b, rotation_fit, five_point, epipolar, options,
+                                         rays_per_measurement)
             model, rotation, translation, mask, failure = _supported_model(
                 rays_a, rays_b, rotation_fit, five_point,
                 options.five_point_only or selection.prefers_translation, options,
@@ -1436,9 +1438,8 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     if model == "rotation":
         sigma = _rotation_sigma_of_rotation(rays_b[mask], pose.rotation, rotation_fit[3], rays_per_measurement)
     else:
-        threshold = options.ransac_threshold_rad
-        noise = options.noise_sigma_rad or _epipolar_noise_sigma(
-            _inlier_epipolar_angles(rays_a, rays_b, five_point, threshold), threshold, rays_per_measurement)
+        noise = options.noise_sigma_rad or _epipolar_noise_sigma(epipolar, options.ransac_threshold_rad,
+                                                                 rays_per_measurement)
         sigma = _rotation_sigma_of_5pt(rays_a[mask], rays_b[mask], pose.rotation, pose.translation_direction,
                                        noise, rays_per_measurement)
     return pose, RelativePoseInfo(True, "", n, count, mask, model, sigma, selection)
