@@ -63,6 +63,7 @@ from __future__ import annotations
 
 import math
 import time
+from bisect import insort
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable, Iterable, Sequence
@@ -209,6 +210,13 @@ def _selection_columns(info) -> dict:
     return {} if selection is None else selection.columns()
 
 
+def _median_of_ascending(values: list) -> float:
+    """Median of a list in ascending order (the mean of the middle two of an even count), as
+    ``np.median``: kept sorted as it grows, a long sequence's prior costs no sort per pair."""
+    middle = len(values) // 2
+    return values[middle] if len(values) % 2 else (values[middle - 1] + values[middle]) / 2.0
+
+
 def _angle(rotation: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
 
@@ -310,8 +318,10 @@ class Tracker:
         self._plane_twins = PlaneTwinChain(options=plane_twin)
         # Each accepted pair's (reference, frame, inlier rays_a, inlier rays_b), for the adjustment.
         self._pair_rays: list = []
-        # Each solved pair's (noise_rms_rad, noise_measurements), the prior of the next pairs' noise.
-        self._noise_evidence: list = []
+        # The solved pairs' noise_rms_rad and noise_measurements, each list kept in ascending order:
+        # their medians are the prior of the next pairs' noise.
+        self._noise_rms: list = []
+        self._noise_measurements: list = []
         self._height = 0  # rows of the images (the first frame's), for the rolling-shutter row times
         self.rotations: list = []
         self.positions: list = []
@@ -357,17 +367,18 @@ class Tracker:
         evidence of the solved pairs so far as its prior (medians of their root mean squares and of
         their measurements: one typical pair's worth)."""
         options = self.pose_options
-        if not options.sequence_noise_prior or options.noise_sigma_rad is not None or not self._noise_evidence:
+        if not options.sequence_noise_prior or options.noise_sigma_rad is not None or not self._noise_rms:
             return options
-        rms, measurements = np.median(np.asarray(self._noise_evidence), axis=0)
-        return replace(options, noise_prior_rms_rad=float(rms), noise_prior_measurements=float(measurements))
+        return replace(options, noise_prior_rms_rad=_median_of_ascending(self._noise_rms),
+                       noise_prior_measurements=_median_of_ascending(self._noise_measurements))
 
     def _keep_noise_evidence(self, info) -> None:
         """Add a solved pair's own noise evidence (``ModelSelection.noise_rms_rad``) to the prior's."""
         selection = getattr(info, "selection", None)
         rms = getattr(selection, "noise_rms_rad", math.nan)
         if rms > 0 and math.isfinite(rms):
-            self._noise_evidence.append((rms, selection.noise_measurements))
+            insort(self._noise_rms, float(rms))
+            insort(self._noise_measurements, float(selection.noise_measurements))
 
     def _velocities(self, reference: _Reference, rotation_ab: np.ndarray, frame: int) -> tuple:
         """Angular velocities at the read-outs of ``reference`` and ``frame`` given ``R_ab``.
