@@ -24,9 +24,9 @@ def single_blas_thread() -> Iterator[None]:
     """Context in which every BLAS library loaded in the process (NumPy's and SciPy's OpenBLAS,
     MKL, ...) uses one thread; the previous thread counts come back on exit, also on an error.
 
-    Measured with ``benchmarks/bench_speed.py`` (:doc:`/benchmarks/speed`): ORB's back end took
-    about a third less CPU time per frame, and iFMI at 1024 px about a fifth less wall time, with
-    estimates identical to those of the default thread count.
+    Measured with ``benchmarks/bench_speed.py`` on two cores: per frame, ORB took about a third less
+    CPU time, iFMI at 1024 px about a quarter less and AKAZE about an eighth less, with estimates
+    identical to those of the default thread count (one thread per core).
     """
     with threadpool_limits(limits=1, user_api="blas"):
         yield
