@@ -31,6 +31,7 @@ from ifmi.config import EstimateConfig
 from ifmi.tracking.methods import create_front_end, method_names
 from ifmi.geometry.trajectory import Trajectory
 from ifmi.tracking.odometry import FrameRecord, track_sequence
+from ifmi.runtime.blas_threads import single_blas_thread
 from ifmi.spectral.panorama import angular_pixel_size_in_band
 
 __all__ = [
@@ -129,13 +130,20 @@ def estimate_sequence(images: Iterable[np.ndarray], model: OcamModel, *, method:
     Returns
     -------
     SequenceEstimate
+
+    Notes
+    -----
+    BLAS runs on one thread while the sequence is tracked
+    (:func:`ifmi.runtime.blas_threads.single_blas_thread`): the matrices are
+    small, and a BLAS thread pool would only compete with OpenCV's threads.
     """
     check_config_for_model(config, model, method=method)
     config = resolved_config(config, model)
     front_end = create_front_end(method, model, config)
     if total is None and hasattr(images, "__len__"):
         total = len(images)
-    with tqdm(total=total, disable=not progress, file=sys.stderr, unit="frame", desc="estimate") as bar:
+    with tqdm(total=total, disable=not progress, file=sys.stderr, unit="frame", desc="estimate") as bar, \
+            single_blas_thread():
         trajectory, records = track_sequence(images, front_end, pose_options=config.relative_pose,
                                              keyframe=config.keyframe, timestamps=timestamps,
                                              rolling_shutter=config.rolling_shutter,
