@@ -19,14 +19,17 @@ pipeline; iFMI on the downward fisheyes at most a third of the best other
 method and below 5 mrad).
 
 Everything is seeded (scene seed, ``--seed`` for the motion and sampling,
-the back end's RANSAC seed). Renders and estimates are kept in the folder
-given on the command line (one ``result-METHOD-MODEL.json`` per run), so an
+the back end's RANSAC seeds). A 12-frame run's ATE depends on the RANSAC
+draw: ``--ransac-seeds`` repeats every run with each seed and every figure
+is then the median over them. Renders and estimates are kept in the folder
+given on the command line (one ``result-METHOD-MODEL.json`` per run of
+RANSAC seed 0, ``result-METHOD-MODEL-seedK.json`` for seed K), so an
 interrupted sweep resumes where it stopped. The table is written as MyST
 Markdown to ``--report`` with the command, date and machine.
 
 Run: python benchmarks/bench_translation.py OUT [--width 384] [--frames 12] [--spp 8]
      [--steps 0 0.01 0.02 0.05 0.1 0.2] [--depths floor room street] [--cameras ocamcalib ds kb]
-     [--report reports/translation_sweep/README.md]
+     [--ransac-seeds 0 1 2 3 4] [--report reports/translation_sweep/README.md]
 """
 
 from __future__ import annotations
@@ -133,7 +136,7 @@ def _method_name(method: str) -> str:
     return REFERENCE if method == "reference" else method
 
 
-def estimate_run(dataset: Path, method: str, selection: str) -> dict:
+def estimate_run(dataset: Path, method: str, selection: str, *, ransac_seed: int = 0) -> dict:
     """ATE (rad), per-model pair counts and failures of one estimate of ``dataset``."""
     from dataclasses import replace
 
@@ -144,7 +147,7 @@ def estimate_run(dataset: Path, method: str, selection: str) -> dict:
 
     base = EstimateConfig()
     pose = replace(base.relative_pose, rotation_only=selection == "rotation",
-                   five_point_only=selection == "5pt")
+                   five_point_only=selection == "5pt", seed=ransac_seed)
     start = time.perf_counter()
     est = estimate_dataset(dataset, method=_method_name(method), config=replace(base, relative_pose=pose))
     seconds = time.perf_counter() - start
@@ -156,20 +159,48 @@ def estimate_run(dataset: Path, method: str, selection: str) -> dict:
             "failed": sum(not r.success for r in est.frames), "seconds": seconds}
 
 
+def run_path(folder: Path, method: str, selection: str, ransac_seed: int) -> Path:
+    """The result file of one run (RANSAC seed 0 without a suffix, as sweeps of one seed name it)."""
+    suffix = f"-seed{ransac_seed}" if ransac_seed else ""
+    return folder / f"result-{method}-{selection}{suffix}.json"
+
+
+def combined_runs(runs: list[dict]) -> dict:
+    """One method and selection over several RANSAC seeds: the median ATE (rad), each seed's ATE
+    (``ate_runs``), and the pairs by model and failures summed over the runs."""
+    combined = {key: sum(run[key] for run in runs) for key in ("pairs", "rotation", "5pt", "failed")}
+    ates = [run["ate_rad"] for run in runs]
+    return {**combined, "ate_rad": float(np.median(ates)), "ate_runs": ates}
+
+
 def run_set(folder: Path, dataset: Path, args) -> dict:
-    """Every method and selection on one set, each run kept in ``folder`` (resumed when present)."""
+    """Every method and selection on one set with every RANSAC seed, each run kept in ``folder``
+    (resumed when present); the runs of each method and selection combined (:func:`combined_runs`)."""
     from ifmi.io.atomic import atomic_write_json
 
     results = {}
     for method in args.methods:
         for selection in SELECTIONS:
-            path = folder / f"result-{method}-{selection}.json"
-            if path.exists():
-                results[method, selection] = json.loads(path.read_text(encoding="utf-8"))
-                continue
-            results[method, selection] = estimate_run(dataset, method, selection)
-            atomic_write_json(path, results[method, selection])
+            runs = []
+            for seed in args.ransac_seeds:
+                path = run_path(folder, method, selection, seed)
+                if path.exists():
+                    runs.append(json.loads(path.read_text(encoding="utf-8")))
+                    continue
+                runs.append(estimate_run(dataset, method, selection, ransac_seed=seed))
+                atomic_write_json(path, runs[-1])
+            results[method, selection] = combined_runs(runs)
     return results
+
+
+def seed_spread_line(sweep: dict, methods) -> list[str]:
+    """A Markdown bullet on how far one run's ATE moves with the RANSAC seed (empty for one seed)."""
+    spreads = [max(run["ate_runs"]) / min(run["ate_runs"]) for results in sweep.values()
+               for (method, _), run in results.items() if method in methods and min(run["ate_runs"]) > 0]
+    if not spreads or len(next(iter(sweep.values()))[methods[0], "auto"]["ate_runs"]) < 2:
+        return []
+    return [f"* Largest over smallest ATE of a run across the RANSAC seeds: median {np.median(spreads):.2f}, "
+            f"90th percentile {np.percentile(spreads, 90):.2f} over {len(spreads)} runs."]
 
 
 def _share(run: dict, model: str) -> float:
@@ -240,12 +271,13 @@ def report_text(sweep: dict, args, command: str) -> str:
              f"Command: `{command}`", "",
              f"Date: {time.strftime('%Y-%m-%d', time.gmtime())}; machine: {_machine()}; "
              f"Python {platform.python_version()}.", "",
-             f"{args.frames} frames per set at {args.width} px, {args.spp} spp, seed {args.seed}. "
+             f"{args.frames} frames per set at {args.width} px, {args.spp} spp, seed {args.seed}; "
+             f"RANSAC seeds {', '.join(map(str, args.ransac_seeds))}, every ATE the median over them. "
              "Sets are named depth-camera-translation per frame. Each cell: geodesic ATE (rad) with the "
              "default model selection, its ratio to the better of the two fixed-model runs (rotation only, "
              "5-point only), and the share of solved pairs on which the 5-point model was chosen.", "",
              header, "|" + "---|" * (len(methods) + 1), *table_rows(sweep, methods), "",
-             *summary_lines(sweep, methods), "",
+             *summary_lines(sweep, methods), *seed_spread_line(sweep, methods), "",
              "Fixed-model ATEs (rad), rotation only / 5-point only:", "",
              header, "|" + "---|" * (len(methods) + 1)]
     for name, results in sweep.items():
@@ -275,10 +307,15 @@ def main() -> None:
     parser.add_argument("--depths", nargs="+", default=list(DEPTHS), choices=list(DEPTHS))
     parser.add_argument("--cameras", nargs="+", default=list(CAMERAS), choices=CAMERAS)
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    parser.add_argument("--ransac-seeds", nargs="+", type=int, default=[0], metavar="SEED",
+                        help="RANSAC seeds of the back end; every run is repeated with each and its ATE "
+                             "is the median over them")
     parser.add_argument("--render-only", action="store_true", help="render the sets, estimate nothing")
     parser.add_argument("--report", default=None, help="MyST Markdown file of the table (e.g. "
                         "reports/translation_sweep/README.md)")
     args = parser.parse_args()
+    if any(seed < 0 for seed in args.ransac_seeds) or len(set(args.ransac_seeds)) != len(args.ransac_seeds):
+        parser.error(f"--ransac-seeds: expected distinct seeds >= 0, got {args.ransac_seeds}")
     out = Path(args.out)
     command = "python benchmarks/bench_translation.py " + " ".join(
         ["OUT", *(a if not a.startswith(str(out)) else "OUT" for a in sys.argv[2:])])

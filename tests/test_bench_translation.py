@@ -47,3 +47,23 @@ def test_summary_counts_each_criterion():
     assert "ifmi 1, orb 0, akaze 0, reference 0 of 3 sets each" in lines[0]
     assert "orb 1, akaze 0 of 3 sets each" in lines[1]
     assert lines[2].endswith("1 of 2 sets (floor-kb-2cm).")
+
+
+def test_runs_over_ransac_seeds_combine_to_the_median():
+    bench = _bench()
+    runs = [{"ate_rad": ate, "pairs": 11, "rotation": rot, "5pt": 11 - rot, "failed": 0}
+            for ate, rot in ((0.004, 2), (0.001, 0), (0.009, 5))]
+    combined = bench.combined_runs(runs)
+    assert combined["ate_rad"] == 0.004 and combined["ate_runs"] == [0.004, 0.001, 0.009]
+    assert (combined["pairs"], combined["rotation"], combined["5pt"], combined["failed"]) == (33, 7, 26, 0)
+    sweep = {"room-kb-5cm": {("orb", s): combined for s in bench.SELECTIONS}}
+    line, = bench.seed_spread_line(sweep, ("orb",))
+    assert "median 9.00" in line and "over 3 runs" in line  # 0.009 / 0.001 for each of the 3 selections
+    one_seed = {"room-kb-5cm": {("orb", s): bench.combined_runs(runs[:1]) for s in bench.SELECTIONS}}
+    assert bench.seed_spread_line(one_seed, ("orb",)) == []
+
+
+def test_seed_zero_keeps_the_file_name_of_a_one_seed_sweep(tmp_path):
+    bench = _bench()
+    assert bench.run_path(tmp_path, "orb", "auto", 0).name == "result-orb-auto.json"
+    assert bench.run_path(tmp_path, "orb", "5pt", 3).name == "result-orb-5pt-seed3.json"
