@@ -1,8 +1,12 @@
-"""Shared fixtures: a seeded random generator, the rotation assertion of ifmi.testing, Python's SIGINT handler."""
+"""Shared fixtures: a seeded random generator, the rotation assertion of ifmi.testing, Python's SIGINT handler,
+the benchmark scripts as modules."""
 
 from __future__ import annotations
 
+import importlib.util
 import signal
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -39,3 +43,23 @@ def default_sigint():
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     yield
     signal.signal(signal.SIGINT, previous)
+
+
+# The benchmark scripts, run as ``python benchmarks/NAME.py`` (their folder then on the path).
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+@pytest.fixture
+def benchmark_module(monkeypatch):
+    """Load ``benchmarks/NAME.py`` as the module ``NAME``: its folder importable (for ``benchlib``)
+    and the module in ``sys.modules`` (dataclasses look their module up) for the test's duration."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        monkeypatch.setitem(sys.modules, name, module)
+        spec.loader.exec_module(module)
+        return module
+
+    return load

@@ -2,10 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 
 import ifmi.pipeline as pipeline
@@ -13,18 +9,10 @@ import ifmi.pipeline as pipeline
 pytest.importorskip("skimage")
 from ifmi.synthetic import example_omni_model, synthetic_sequence, write_synthetic_dataset  # noqa: E402
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-
-
 @pytest.fixture
-def bench(monkeypatch):
-    """``benchmarks/bench_blas_threads.py`` as a module (its folder importable for ``benchlib``)."""
-    monkeypatch.syspath_prepend(str(BENCHMARKS))
-    spec = importlib.util.spec_from_file_location("bench_blas_threads", BENCHMARKS / "bench_blas_threads.py")
-    module = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "bench_blas_threads", module)
-    spec.loader.exec_module(module)
-    return module
+def bench(benchmark_module):
+    """``benchmarks/bench_blas_threads.py`` as a module."""
+    return benchmark_module("bench_blas_threads")
 
 
 def test_every_method_is_timed_with_both_limits_and_the_limit_comes_back(bench, tmp_path, capsys):

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import cv2
@@ -17,18 +15,10 @@ from ifmi.io.tum import read_tum  # noqa: E402
 from ifmi.synthetic import (example_band_px, example_omni_model, synthetic_sequence,  # noqa: E402
                             write_synthetic_dataset)
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-
-
 @pytest.fixture
-def bench(monkeypatch):
-    """``benchmarks/bench_speed.py`` as a module (its folder importable for ``bench_methods``)."""
-    monkeypatch.syspath_prepend(str(BENCHMARKS))
-    spec = importlib.util.spec_from_file_location("bench_speed", BENCHMARKS / "bench_speed.py")
-    module = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "bench_speed", module)  # dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+def bench(benchmark_module):
+    """``benchmarks/bench_speed.py`` as a module."""
+    return benchmark_module("bench_speed")
 
 
 def _dataset(folder: Path, frames: int = 4) -> Path:
