@@ -2,20 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+import pytest
 
 
-def _bench():
+@pytest.fixture
+def bench(benchmark_module):
     """``benchmarks/bench_translation.py`` as a module."""
-    spec = importlib.util.spec_from_file_location("bench_translation", BENCHMARKS / "bench_translation.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("bench_translation", module)
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_module("bench_translation")
 
 
 def _runs(auto, rotation, five_point):
@@ -28,8 +21,7 @@ def _sweep(cells):
             for name, methods in cells.items()}
 
 
-def test_summary_counts_each_criterion():
-    bench = _bench()
+def test_summary_counts_each_criterion(bench):
     sweep = _sweep({
         # iFMI 1.6x its better forced run (counted), ORB exactly 1.5x (not: at most 1.5x passes; the
         # values are exact in binary); ORB 1.5x the reference (counted), AKAZE 1.2x (not); iFMI
@@ -49,8 +41,7 @@ def test_summary_counts_each_criterion():
     assert lines[2].endswith("1 of 2 sets (floor-kb-2cm).")
 
 
-def test_runs_over_ransac_seeds_combine_to_the_median():
-    bench = _bench()
+def test_runs_over_ransac_seeds_combine_to_the_median(bench):
     runs = [{"ate_rad": ate, "pairs": 11, "rotation": rot, "5pt": 11 - rot, "failed": 0}
             for ate, rot in ((0.004, 2), (0.001, 0), (0.009, 5))]
     combined = bench.combined_runs(runs)
@@ -63,7 +54,6 @@ def test_runs_over_ransac_seeds_combine_to_the_median():
     assert bench.seed_spread_line(one_seed, ("orb",)) == []
 
 
-def test_seed_zero_keeps_the_file_name_of_a_one_seed_sweep(tmp_path):
-    bench = _bench()
+def test_seed_zero_keeps_the_file_name_of_a_one_seed_sweep(bench, tmp_path):
     assert bench.run_path(tmp_path, "orb", "auto", 0).name == "result-orb-auto.json"
     assert bench.run_path(tmp_path, "orb", "5pt", 3).name == "result-orb-5pt-seed3.json"

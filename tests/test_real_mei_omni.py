@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import urllib.error
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,17 +10,11 @@ import pytest
 from ifmi.errors import InputError
 from ifmi.geometry.camera_models import UnifiedModel
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "real_mei_omni.py"
-
 
 @pytest.fixture
-def script(monkeypatch):
-    monkeypatch.syspath_prepend(str(SCRIPT.parent))  # the script imports benchlib beside it
-    spec = importlib.util.spec_from_file_location("real_mei_omni", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "real_mei_omni", module)
-    spec.loader.exec_module(module)
-    return module
+def script(benchmark_module):
+    """``benchmarks/real_mei_omni.py`` as a module."""
+    return benchmark_module("real_mei_omni")
 
 
 def test_a_missing_or_different_file_is_one_line_and_exit_2(script, tmp_path, capsys):

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import zipfile
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -15,20 +12,15 @@ from ifmi.geometry.camera import paracatadioptric_model, radius_from_pixels
 from ifmi.errors import InputError
 from ifmi.io.calib import format_calib, parse_calib
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "real_omni_photo.py"
 MODEL = paracatadioptric_model((60, 80), horizon_radius_px=20.0)
 # The package's calibration file appends two blocks: ROI radii (max, min) and cropped columns (left, right).
 EXTRA = "\n#ROI max min radius\n\n28 9\n\n#left right cropped pixel\n\n7 5\n"
 
 
 @pytest.fixture
-def script(monkeypatch):
-    monkeypatch.syspath_prepend(str(SCRIPT.parent))  # the script imports benchlib beside it
-    spec = importlib.util.spec_from_file_location("real_omni_photo", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, "real_omni_photo", module)  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+def script(benchmark_module):
+    """``benchmarks/real_omni_photo.py`` as a module."""
+    return benchmark_module("real_omni_photo")
 
 
 def test_standard_blocks_round_trip_and_the_photo_is_cropped_and_masked(script, rng):
