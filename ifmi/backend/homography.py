@@ -17,7 +17,7 @@ import numpy as np
 
 from ifmi.geometry.rotations import cross_product_matrix
 
-__all__ = ["homography_from_rays", "homography_transfer_angles", "inlier_homography"]
+__all__ = ["homography_from_rays", "homography_transfer_angles", "inlier_homography", "refitted_homography"]
 
 
 def homography_from_rays(rays_a: np.ndarray, rays_b: np.ndarray) -> np.ndarray:
@@ -79,12 +79,38 @@ def inlier_homography(rays_a: np.ndarray, rays_b: np.ndarray, *, threshold_rad: 
     errors : (N,) ndarray
         Transfer angles (radians) of every ray under it.
     """
-    homography = homography_from_rays(rays_a, rays_b)
+    return refitted_homography(homography_from_rays(rays_a, rays_b), rays_a, rays_b, threshold_rad=threshold_rad,
+                               refits=refits)
+
+
+def refitted_homography(homography: np.ndarray, rays_a: np.ndarray, rays_b: np.ndarray, *, threshold_rad: float,
+                        refits: int, fit=homography_from_rays) -> tuple[np.ndarray, np.ndarray]:
+    """``homography`` refitted ``refits`` times, each time by ``fit`` to the rays the current one
+    transfers within ``threshold_rad``; stops early when fewer than four rays remain.
+
+    Parameters
+    ----------
+    homography : (3, 3) ndarray
+        The start, ``H_ab``.
+    rays_a, rays_b : (N, 3) ndarray
+        Unit rays.
+    threshold_rad : float, keyword-only
+        Inlier threshold on :func:`homography_transfer_angles` (radians).
+    refits : int, keyword-only
+    fit : callable, keyword-only
+        ``fit(rays_a, rays_b) -> (3, 3)`` on the inliers; the direct linear transform by default.
+
+    Returns
+    -------
+    homography : (3, 3) ndarray
+    errors : (N,) ndarray
+        Transfer angles (radians) of every ray under it.
+    """
     errors = homography_transfer_angles(homography, rays_a, rays_b)
     for _ in range(refits):
         keep = errors < threshold_rad
         if keep.sum() < 4:
             break
-        homography = homography_from_rays(rays_a[keep], rays_b[keep])
+        homography = fit(rays_a[keep], rays_b[keep])
         errors = homography_transfer_angles(homography, rays_a, rays_b)
     return homography, errors

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ifmi.backend.homography import homography_from_rays, homography_transfer_angles
+from ifmi.backend.homography import homography_from_rays, homography_transfer_angles, refitted_homography
 from ifmi.backend.relative_pose import epipolar_angles, gric, samples_without_replacement
 from ifmi.geometry.rotations import geodesic_angle
 
@@ -171,12 +171,8 @@ def robust_homography(rays_a: np.ndarray, rays_b: np.ndarray, *, threshold_rad: 
         candidates = homography_from_rays(rays_a[picks], rays_b[picks])
         counts = np.count_nonzero(homography_transfer_angles(candidates, rays_a, rays_b) < threshold_rad, axis=-1)
         best = candidates[int(np.argmax(counts))]
-    for _ in range(2):
-        mask = homography_transfer_angles(best, rays_a, rays_b) < threshold_rad
-        if mask.sum() < _SAMPLE_HOMOGRAPHY:
-            break
-        best = _refined_homography(homography_from_rays(rays_a[mask], rays_b[mask]), rays_a[mask], rays_b[mask])
-    return best, homography_transfer_angles(best, rays_a, rays_b)
+    return refitted_homography(best, rays_a, rays_b, threshold_rad=threshold_rad, refits=2,
+                               fit=lambda a, b: _refined_homography(homography_from_rays(a, b), a, b))
 
 
 def _refined_homography(homography: np.ndarray, rays_a: np.ndarray, rays_b: np.ndarray) -> np.ndarray:
