@@ -682,27 +682,30 @@ def test_noise_prior_settles_pairs_of_few_measurements():
 
 
 def test_noise_prior_counts_as_that_many_measurements_of_its_mean_square():
-    from ifmi.backend.relative_pose import _epipolar_noise_sigma
+    from ifmi.backend.relative_pose import _epipolar_noise_evidence, _epipolar_noise_sigma
 
     errors = np.random.default_rng(3).normal(0.0, 1e-3, 9)
-    pooled = _epipolar_noise_sigma(np.abs(errors), 6e-3, 1, confidence=0.84, prior=(2e-3, 4.0))
-    appended = _epipolar_noise_sigma(np.abs(np.r_[errors, np.full(4, 2e-3)]), 6e-3, 1, confidence=0.84)
+    pooled = _epipolar_noise_sigma(_epipolar_noise_evidence(np.abs(errors), 6e-3, 1), 6e-3, confidence=0.84,
+                                   prior=(2e-3, 4.0))
+    appended = _epipolar_noise_sigma(_epipolar_noise_evidence(np.abs(np.r_[errors, np.full(4, 2e-3)]), 6e-3, 1),
+                                     6e-3, confidence=0.84)
     assert pooled == pytest.approx(appended, rel=1e-12)
     # Four measurements (fewer than the model's five parameters) are measured with the prior only.
-    assert _epipolar_noise_sigma(np.abs(errors[:4]), 6e-3, 1) is None
-    assert _epipolar_noise_sigma(np.abs(errors[:4]), 6e-3, 1, prior=(2e-3, 4.0)) is not None
+    four = _epipolar_noise_evidence(np.abs(errors[:4]), 6e-3, 1)
+    assert _epipolar_noise_sigma(four, 6e-3) is None
+    assert _epipolar_noise_sigma(four, 6e-3, prior=(2e-3, 4.0)) is not None
 
 
 def test_a_pair_whose_noise_clearly_differs_from_the_prior_keeps_its_own():
-    from ifmi.backend.relative_pose import _epipolar_noise_sigma
+    from ifmi.backend.relative_pose import _epipolar_noise_evidence, _epipolar_noise_sigma
 
     rng = np.random.default_rng(4)
     # 100 measurements of noise 1e-3 against a prior of 4e-3 worth 20: the F test rejects pooling.
-    many = np.abs(rng.normal(0.0, 1e-3, 100))
-    assert _epipolar_noise_sigma(many, 6e-3, 1, prior=(4e-3, 20.0)) == _epipolar_noise_sigma(many, 6e-3, 1)
+    many = _epipolar_noise_evidence(np.abs(rng.normal(0.0, 1e-3, 100)), 6e-3, 1)
+    assert _epipolar_noise_sigma(many, 6e-3, prior=(4e-3, 20.0)) == _epipolar_noise_sigma(many, 6e-3)
     # Eight measurements (three degrees of freedom) cannot tell noise half the prior's from it: pooled.
-    few = np.abs(rng.normal(0.0, 1e-3, 8))
-    assert _epipolar_noise_sigma(few, 6e-3, 1, prior=(2e-3, 20.0)) > 1.3 * _epipolar_noise_sigma(few, 6e-3, 1)
+    few = _epipolar_noise_evidence(np.abs(rng.normal(0.0, 1e-3, 8)), 6e-3, 1)
+    assert _epipolar_noise_sigma(few, 6e-3, prior=(2e-3, 20.0)) > 1.3 * _epipolar_noise_sigma(few, 6e-3)
 
 
 @pytest.mark.parametrize("field, value", [("noise_prior_rms_rad", 0.0), ("noise_prior_rms_rad", -1e-3),

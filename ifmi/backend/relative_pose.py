@@ -1021,10 +1021,11 @@ def _epipolar_noise_evidence(errors: np.ndarray, window: float, group: int) -> t
     return float(np.sum(kept ** 2)) / group, len(kept) / group - _SAMPLE_5PT
 
 
-def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int, *,
+def _epipolar_noise_sigma(evidence: tuple[float, float], window: float, *,
                           confidence: float | None = None, prior: tuple[float, float] = (0.0, 0.0)
                           ) -> float | None:
-    """Ray noise (radians, per axis) from the 5-point model's epipolar angles below ``window``.
+    """Ray noise (radians, per axis) from the 5-point model's epipolar angles below ``window``,
+    given as their ``evidence`` (:func:`_epipolar_noise_evidence`).
 
     An epipolar angle is one-dimensional, so the mean square of the ``m``
     measurements (``group`` rays each) below ``window``, corrected for the
@@ -1050,7 +1051,7 @@ def _epipolar_noise_sigma(errors: np.ndarray, window: float, group: int, *,
     float or None
         None without residual freedom (``m - 5 + k <= 0``).
     """
-    squares, dof = _epipolar_noise_evidence(errors, window, group)
+    squares, dof = evidence
     prior_rms, prior_dof = prior
     if _pools_with(squares, dof, prior_rms, prior_dof):
         squares, dof = squares + prior_dof * prior_rms ** 2, dof + prior_dof
@@ -1287,10 +1288,11 @@ def _inlier_epipolar_angles(rays_a, rays_b, five_point, threshold: float) -> np.
     return epipolar_angles(rays_a[inliers], rays_b[inliers], rotation[None], translation[None])[0]
 
 
-def _model_selection(rays_a, rays_b, rotation_fit, five_point, epipolar: np.ndarray, options: RelativePoseOptions,
-                     group: int) -> ModelSelection:
+def _model_selection(rays_a, rays_b, rotation_fit, five_point, evidence: tuple[float, float],
+                     options: RelativePoseOptions, group: int) -> ModelSelection:
     """Both models' GRIC over the correspondences either explains, the parallax and the noise level;
-    ``epipolar`` holds the 5-point inliers' epipolar angles (:func:`_inlier_epipolar_angles`).
+    ``evidence`` is the noise evidence of the 5-point inliers' epipolar angles
+    (:func:`_epipolar_noise_evidence` of :func:`_inlier_epipolar_angles`).
 
     The noise level is ``options.noise_sigma_rad`` or the estimate of the
     5-point model's residuals (:func:`_epipolar_noise_sigma`), at most the inlier threshold: that
@@ -1313,9 +1315,9 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, epipolar: np.ndar
     # parallax of many thresholds look like noise.
     prior = (options.noise_prior_rms_rad or 0.0, options.noise_prior_measurements)
     noise = (options.noise_sigma_rad
-             or min(_epipolar_noise_sigma(epipolar, threshold, group, confidence=_NOISE_CONFIDENCE, prior=prior)
+             or min(_epipolar_noise_sigma(evidence, threshold, confidence=_NOISE_CONFIDENCE, prior=prior)
                     or rot_sigma, threshold))
-    squares, dof = _epipolar_noise_evidence(epipolar, threshold, group)
+    squares, dof = evidence
     either = rot_mask | inliers_5pt
     parallax = rotation_angles(rays_a[inliers_5pt], rays_b[inliers_5pt], rotation_5pt)
     # Exact rays: residuals of rounding only, which the two models' angle formulas resolve differently.
@@ -1420,8 +1422,10 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
             return RelativePose(), RelativePoseInfo(False, "no 5-point hypothesis", n, 0,
                                                     np.zeros(n, dtype=bool), "5pt")
         if five_point is not None:
-            epipolar = _inlier_epipolar_angles(rays_a, rays_b, five_point, options.ransac_threshold_rad)
-            selection = _model_selection(rays_a, rays_b, rotation_fit, five_point, epipolar, options,
+            evidence = _epipolar_noise_evidence(
+                _inlier_epipolar_angles(rays_a, rays_b, five_point, options.ransac_threshold_rad),
+                options.ransac_threshold_rad, rays_per_measurement)
+            selection = _model_selection(rays_a, rays_b, rotation_fit, five_point, evidence, options,
                                          rays_per_measurement)
             model, rotation, translation, mask, failure = _supported_model(
                 rays_a, rays_b, rotation_fit, five_point,
@@ -1438,8 +1442,7 @@ def relative_pose_from_rays(rays_a: np.ndarray, rays_b: np.ndarray, *,
     if model == "rotation":
         sigma = _rotation_sigma_of_rotation(rays_b[mask], pose.rotation, rotation_fit[3], rays_per_measurement)
     else:
-        noise = options.noise_sigma_rad or _epipolar_noise_sigma(epipolar, options.ransac_threshold_rad,
-                                                                 rays_per_measurement)
+        noise = options.noise_sigma_rad or _epipolar_noise_sigma(evidence, options.ransac_threshold_rad)
         sigma = _rotation_sigma_of_5pt(rays_a[mask], rays_b[mask], pose.rotation, pose.translation_direction,
                                        noise, rays_per_measurement)
     return pose, RelativePoseInfo(True, "", n, count, mask, model, sigma, selection)
