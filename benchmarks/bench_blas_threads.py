@@ -17,13 +17,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import statistics
-import time
 from itertools import islice
 
 import ifmi.pipeline as pipeline
-from benchlib import METHODS, MODES, labelled_datasets, machine_line, mode_config, status_of
+from benchlib import METHODS, MODES, compute_seconds, labelled_datasets, machine_line, mode_config, status_of
 from ifmi.io.dataset import read_dataset
-from ifmi.pipeline import EstimateConfig, estimate_sequence, resolved_config
+from ifmi.pipeline import EstimateConfig, resolved_config
 
 # The two ways a run is made: the shipped limit, and the BLAS library's own default.
 LIMITS = {"one": pipeline.single_blas_thread, "default": contextlib.nullcontext}
@@ -33,9 +32,8 @@ def timed_run(images: list, model, method: str, config: EstimateConfig, limit) -
     """Wall and CPU milliseconds per frame of one in-memory run with ``limit`` around the tracking."""
     pipeline.single_blas_thread = limit
     try:
-        wall, cpu = time.perf_counter(), time.process_time()
-        estimate_sequence(images, model, method=method, config=config)
-        return 1e3 * (time.perf_counter() - wall) / len(images), 1e3 * (time.process_time() - cpu) / len(images)
+        wall, cpu = compute_seconds(images, model, method, config)
+        return 1e3 * wall / len(images), 1e3 * cpu / len(images)
     finally:
         pipeline.single_blas_thread = LIMITS["one"]
 

@@ -52,7 +52,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from benchlib import METHODS, MODES, labelled_datasets, mode_config
+from benchlib import METHODS, MODES, compute_seconds, labelled_datasets, mode_config
 from ifmi.cli.estimate import EXIT_MOSTLY_FAILED
 from ifmi.evaluation.dataset_names import dataset_folder_id
 from ifmi.errors import InputError
@@ -119,13 +119,6 @@ def resized_dataset(source: Path, out: Path, *, size: int, frames: int) -> Path:
     write_tum(out / "groundtruth.txt", Trajectory(timestamps=truth.timestamps[kept],
                                                   positions=truth.positions[kept], rotations=truth.rotations[kept]))
     return out
-
-
-def compute_seconds(images: list, model, method: str, config: EstimateConfig) -> tuple[float, float]:
-    """Wall and CPU seconds (this process, all its threads) of one in-memory run of ``method``."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    estimate_sequence(images, model, method=method, config=config)
-    return time.perf_counter() - wall, time.process_time() - cpu
 
 
 def warm_up(dataset: str, *, frames: int = 3) -> None:

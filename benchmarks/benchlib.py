@@ -59,6 +59,13 @@ def mode_config(base: EstimateConfig, mode: str) -> EstimateConfig:
     return replace(base, keyframe=replace(base.keyframe, enabled=(mode == "keyframe")))
 
 
+def compute_seconds(images: list, model, method: str, config: EstimateConfig) -> tuple[float, float]:
+    """Wall and CPU seconds (this process, all its threads) of one in-memory run of ``method``."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    estimate_sequence(images, model, method=method, config=config)
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
 def interleaved_timing(dataset: str, methods, configs, *, frames: int, rounds: int) -> dict:
     """Wall seconds per frame of each method's runs over the first ``frames`` frames, interleaved.
 
