@@ -196,8 +196,9 @@ def run_set(folder: Path, dataset: Path, args) -> dict:
 def seed_spread_line(sweep: dict, methods) -> list[str]:
     """A Markdown bullet on how far one run's ATE moves with the RANSAC seed (empty for one seed)."""
     spreads = [max(run["ate_runs"]) / min(run["ate_runs"]) for results in sweep.values()
-               for (method, _), run in results.items() if method in methods and min(run["ate_runs"]) > 0]
-    if not spreads or len(next(iter(sweep.values()))[methods[0], "auto"]["ate_runs"]) < 2:
+               for (method, _), run in results.items()
+               if method in methods and len(run["ate_runs"]) > 1 and min(run["ate_runs"]) > 0]
+    if not spreads:
         return []
     return [f"* Largest over smallest ATE of a run across the RANSAC seeds: median {np.median(spreads):.2f}, "
             f"90th percentile {np.percentile(spreads, 90):.2f} over {len(spreads)} runs."]
