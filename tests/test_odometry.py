@@ -302,6 +302,34 @@ def test_each_pair_is_given_the_earlier_pairs_noise_as_its_prior(pooled):
         assert given[k] == pytest.approx(tuple(np.median(evidence[:k], axis=0)), rel=1e-12)
 
 
+@pytest.mark.parametrize("pooled", [True, False])
+def test_each_pair_is_given_the_share_of_translated_pairs_as_its_prior(pooled):
+    from dataclasses import replace
+
+    from ifmi.tracking.odometry import Tracker
+    from ifmi.backend.relative_pose import ModelSelection, relative_pose_from_rays
+
+    given = []
+
+    def recording_solver(rays_a, rays_b, *, options, **kwargs):
+        given.append(options.translation_prior)
+        return relative_pose_from_rays(rays_a, rays_b, options=options, **kwargs)
+
+    tracker = Tracker(NoisyFrontEnd(), pose_options=replace(POSE, ransac_threshold_rad=6e-3,
+                                                            sequence_model_prior=pooled),
+                      pose_solver=recording_solver)
+    records = [tracker.step(frame) for frame in _frames(6)[0]]
+    assert all(r.success for r in records)
+    if not pooled:
+        assert given == [None] * 5
+        return
+    # Laplace's rule of succession over the earlier pairs' own evidence (their scores without a prior).
+    shown = [ModelSelection(**{key: r.diagnostics[key] for key in ("gric_rotation", "gric_5pt", "gric_homography")}
+                            ).evidence_prefers_translation for r in records[1:]]
+    assert given == [pytest.approx((sum(shown[:k]) + 1) / (k + 2), rel=1e-12) for k in range(5)]
+    assert [r.diagnostics["translation_prior"] for r in records[1:]] == pytest.approx(given, rel=1e-12)
+
+
 def test_front_end_is_told_the_pose_of_every_successful_frame_only():
     class Accepting(CorruptFrontEnd):
         def accept_pose(self, state, rotation):

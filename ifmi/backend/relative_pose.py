@@ -251,6 +251,22 @@ class RelativePoseOptions:
         solved pairs' ``ModelSelection.noise_rms_rad`` and
         ``noise_prior_measurements`` to the median of their
         ``noise_measurements``, worth one typical pair of the sequence.
+    translation_prior : float or None
+        Prior probability, in (0, 1), that the camera moved measurably
+        between the pair's frames. GRIC is minus twice a log-likelihood
+        plus its penalties, so the prior enters as minus twice its log
+        odds: a translated model is chosen when its GRIC less
+        ``2 log(p / (1 - p))`` is below the rotation model's. None: no
+        preference (0.5).
+    sequence_model_prior : bool
+        Read by the trackers (:mod:`ifmi.tracking.odometry`): set
+        ``translation_prior`` of each pair to ``(k + 1) / (n + 2)`` when
+        ``k`` of the ``n`` earlier solved pairs with both models fitted
+        showed translation on their own evidence (GRIC without a prior;
+        Laplace's rule of succession). A camera that keeps moving makes a
+        small step's faint parallax credible, a camera that only turns
+        makes a chance fit of the 5-point model to a few noisy
+        correspondences less so; the first pair has no preference.
     rotation_threshold_factor : float
         The rotation model's inlier threshold is this multiple of
         ``ransac_threshold_rad``: its error is an angle in two dimensions,
@@ -311,6 +327,8 @@ class RelativePoseOptions:
     noise_prior_rms_rad: float | None = None
     noise_prior_measurements: float = 0.0
     sequence_noise_prior: bool = True
+    translation_prior: float | None = None
+    sequence_model_prior: bool = True
     rotation_threshold_factor: float = 1.25
     robust_iterations: int = 5
     robust_scale: float = 1.0
@@ -363,6 +381,8 @@ class RelativePoseOptions:
             raise ValueError(
                 "expected noise_sigma_rad > 0 or None and rotation_threshold_factor > 0, got "
                 f"{self.noise_sigma_rad}, {self.rotation_threshold_factor}")
+        if self.translation_prior is not None and not 0 < self.translation_prior < 1:
+            raise ValueError(f"translation_prior must be in (0, 1) or None, got {self.translation_prior}")
 
     def resolved(self, pixel_angle_rad: float) -> "RelativePoseOptions":
         """These options with the angular threshold set.
@@ -439,6 +459,9 @@ class ModelSelection:
     noise_measurements : float
         The measurements behind ``noise_rms_rad`` beyond the model's five
         parameters.
+    translation_prior : float
+        Prior probability of a translation the choice weighed the scores
+        with (``RelativePoseOptions.translation_prior``; 0.5: none).
     """
 
     gric_rotation: float = math.nan
@@ -448,21 +471,33 @@ class ModelSelection:
     noise_sigma_rad: float = math.nan
     noise_rms_rad: float = math.nan
     noise_measurements: float = 0.0
+    translation_prior: float = 0.5
+
+    @property
+    def evidence_prefers_translation(self) -> bool:
+        """Whether the 5-point model or the homography scores lower than the rotation model."""
+        return self._translated_gric() < self.gric_rotation
 
     @property
     def prefers_translation(self) -> bool:
-        """Whether the 5-point model or the homography scores lower than the rotation model."""
-        translated = self.gric_5pt if math.isnan(self.gric_homography) else min(self.gric_5pt, self.gric_homography)
-        return translated < self.gric_rotation
+        """Whether a translated model scores lower than the rotation model once the prior
+        (``translation_prior``) is weighed in: by ``2 log(p / (1 - p))``."""
+        p = self.translation_prior
+        return self._translated_gric() - 2.0 * math.log(p / (1.0 - p)) < self.gric_rotation
+
+    def _translated_gric(self) -> float:
+        """The lower GRIC of the 5-point model and the homography (the 5-point model's without one)."""
+        return self.gric_5pt if math.isnan(self.gric_homography) else min(self.gric_5pt, self.gric_homography)
 
     def columns(self) -> dict:
         """The evidence as ``frames.csv`` columns: ``gric_rotation``, ``gric_5pt``,
         ``gric_homography``, ``parallax_rad``, ``selection_sigma_rad``, ``noise_rms_rad``,
-        ``noise_measurements``."""
+        ``noise_measurements``, ``translation_prior``."""
         return {"gric_rotation": self.gric_rotation, "gric_5pt": self.gric_5pt,
                 "gric_homography": self.gric_homography,
                 "parallax_rad": self.parallax_rad, "selection_sigma_rad": self.noise_sigma_rad,
-                "noise_rms_rad": self.noise_rms_rad, "noise_measurements": self.noise_measurements}
+                "noise_rms_rad": self.noise_rms_rad, "noise_measurements": self.noise_measurements,
+                "translation_prior": self.translation_prior}
 
 
 @dataclass(frozen=True)
@@ -1332,7 +1367,7 @@ def _model_selection(rays_a, rays_b, rotation_fit, five_point, evidence: tuple[f
                                                                group=group),
         parallax_rad=float(np.median(parallax)) if len(parallax) else math.nan,
         noise_sigma_rad=float(noise), noise_rms_rad=math.sqrt(squares / dof) if dof > 0 else math.nan,
-        noise_measurements=max(dof, 0.0))
+        noise_measurements=max(dof, 0.0), translation_prior=options.translation_prior or 0.5)
 
 
 def _chance_inlier_rate(rays_a, rays_b, rotation, translation, threshold, seed) -> float:

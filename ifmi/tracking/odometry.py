@@ -322,6 +322,9 @@ class Tracker:
         # their medians are the prior of the next pairs' noise.
         self._noise_rms: list = []
         self._noise_measurements: list = []
+        # Of the solved pairs with both models fitted: how many showed translation on their own
+        # evidence, and how many there were (the next pairs' translation prior).
+        self._translated_pairs, self._compared_pairs = 0, 0
         self._height = 0  # rows of the images (the first frame's), for the rolling-shutter row times
         self.rotations: list = []
         self.positions: list = []
@@ -363,22 +366,30 @@ class Tracker:
             options=self.rolling_shutter)
 
     def _pair_pose_options(self) -> RelativePoseOptions:
-        """The back end's options for the next pair: with ``sequence_noise_prior``, the noise
-        evidence of the solved pairs so far as its prior (medians of their root mean squares and of
-        their measurements: one typical pair's worth)."""
+        """The back end's options for the next pair: with ``sequence_model_prior``, the share of the
+        solved pairs so far that showed translation as its translation prior (Laplace's rule of
+        succession); with ``sequence_noise_prior``, their noise evidence as its noise prior (medians of
+        their root mean squares and of their measurements: one typical pair's worth)."""
         options = self.pose_options
+        if options.sequence_model_prior and options.translation_prior is None:
+            options = replace(options, translation_prior=(self._translated_pairs + 1) / (self._compared_pairs + 2))
         if not options.sequence_noise_prior or options.noise_sigma_rad is not None or not self._noise_rms:
             return options
         return replace(options, noise_prior_rms_rad=_median_of_ascending(self._noise_rms),
                        noise_prior_measurements=_median_of_ascending(self._noise_measurements))
 
     def _keep_noise_evidence(self, info) -> None:
-        """Add a solved pair's own noise evidence (``ModelSelection.noise_rms_rad``) to the prior's."""
+        """Add a solved pair's own evidence to the priors': its noise (``ModelSelection.noise_rms_rad``)
+        and, with both models fitted, whether it showed translation without a prior."""
         selection = getattr(info, "selection", None)
         rms = getattr(selection, "noise_rms_rad", math.nan)
         if rms > 0 and math.isfinite(rms):
             insort(self._noise_rms, float(rms))
             insort(self._noise_measurements, float(selection.noise_measurements))
+        scores = (getattr(selection, "gric_rotation", math.nan), getattr(selection, "gric_5pt", math.nan))
+        if all(math.isfinite(score) for score in scores):
+            self._compared_pairs += 1
+            self._translated_pairs += bool(selection.evidence_prefers_translation)
 
     def _velocities(self, reference: _Reference, rotation_ab: np.ndarray, frame: int) -> tuple:
         """Angular velocities at the read-outs of ``reference`` and ``frame`` given ``R_ab``.
