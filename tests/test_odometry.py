@@ -272,8 +272,9 @@ class NoisyFrontEnd(ExactFrontEnd):
         return Correspondences(corr.pixels_a, corr.pixels_b, *noisy, corr.diagnostics)
 
 
-@pytest.mark.parametrize("pooled", [True, False])
-def test_each_pair_is_given_the_earlier_pairs_noise_as_its_prior(pooled):
+def _options_given_to_each_pair(**changes) -> tuple[list, list]:
+    """Track six noisy frames with ``POSE`` changed by ``changes``: the back-end options each pair was
+    solved with, and the frame records."""
     from dataclasses import replace
 
     from ifmi.tracking.odometry import Tracker
@@ -282,14 +283,20 @@ def test_each_pair_is_given_the_earlier_pairs_noise_as_its_prior(pooled):
     given = []
 
     def recording_solver(rays_a, rays_b, *, options, **kwargs):
-        given.append((options.noise_prior_rms_rad, options.noise_prior_measurements))
+        given.append(options)
         return relative_pose_from_rays(rays_a, rays_b, options=options, **kwargs)
 
-    tracker = Tracker(NoisyFrontEnd(), pose_options=replace(POSE, ransac_threshold_rad=6e-3,
-                                                            sequence_noise_prior=pooled),
+    tracker = Tracker(NoisyFrontEnd(), pose_options=replace(POSE, ransac_threshold_rad=6e-3, **changes),
                       pose_solver=recording_solver)
     records = [tracker.step(frame) for frame in _frames(6)[0]]
     assert all(r.success for r in records)
+    return given, records
+
+
+@pytest.mark.parametrize("pooled", [True, False])
+def test_each_pair_is_given_the_earlier_pairs_noise_as_its_prior(pooled):
+    options, records = _options_given_to_each_pair(sequence_noise_prior=pooled)
+    given = [(o.noise_prior_rms_rad, o.noise_prior_measurements) for o in options]
     evidence = np.array([(r.diagnostics["noise_rms_rad"], r.diagnostics["noise_measurements"])
                          for r in records[1:]])
     # The epipolar angle's noise is that of both rays: sqrt(2) * 1e-3 rad, over 75 degrees of freedom.
@@ -304,22 +311,10 @@ def test_each_pair_is_given_the_earlier_pairs_noise_as_its_prior(pooled):
 
 @pytest.mark.parametrize("pooled", [True, False])
 def test_each_pair_is_given_the_share_of_translated_pairs_as_its_prior(pooled):
-    from dataclasses import replace
+    from ifmi.backend.relative_pose import ModelSelection
 
-    from ifmi.tracking.odometry import Tracker
-    from ifmi.backend.relative_pose import ModelSelection, relative_pose_from_rays
-
-    given = []
-
-    def recording_solver(rays_a, rays_b, *, options, **kwargs):
-        given.append(options.translation_prior)
-        return relative_pose_from_rays(rays_a, rays_b, options=options, **kwargs)
-
-    tracker = Tracker(NoisyFrontEnd(), pose_options=replace(POSE, ransac_threshold_rad=6e-3,
-                                                            sequence_model_prior=pooled),
-                      pose_solver=recording_solver)
-    records = [tracker.step(frame) for frame in _frames(6)[0]]
-    assert all(r.success for r in records)
+    options, records = _options_given_to_each_pair(sequence_model_prior=pooled)
+    given = [o.translation_prior for o in options]
     if not pooled:
         assert given == [None] * 5
         return
