@@ -185,7 +185,9 @@ class PairDiagnostics:
 @dataclass(frozen=True)
 class TileMatch:
     """One registration of a reference's tiles in frame b at ``rotation`` (``R_ab``), and the tiles it
-    would give frame b to track (:meth:`~ifmi.spectral.ifmi_front_end.IfmiFrontEnd.keep_tracking`)."""
+    would give frame b to track (:meth:`~ifmi.spectral.ifmi_front_end.IfmiFrontEnd.keep_tracking`);
+    ``predicted_offsets`` (T, 2) is the panorama ``(row, col)`` in frame b where ``rotation`` put each
+    tile's centre (columns in ``[0, width)``), the start of its registration."""
 
     offsets_a: np.ndarray
     linear_a: np.ndarray
@@ -195,6 +197,7 @@ class TileMatch:
     tracked: PlacedTiles
     tracked_valid: np.ndarray
     tracked_landmarks: np.ndarray | None
+    predicted_offsets: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -252,20 +255,19 @@ def _checks_prediction(front_end: "IfmiFrontEnd", prediction: np.ndarray | None,
     return correction_px <= check * front_end.layout.tile_size
 
 
-def _settled_at(front_end: "IfmiFrontEnd", match: TileMatch, prediction: np.ndarray) -> bool:
-    """Whether tiles registered at ``prediction`` show it lines the frames up as the coarse stage's own
-    settle test asks (a whole-panorama shift below ``settled_shift_px`` coarse pixels along both
-    axes): more than ``recovery.wide_search_fraction`` of the tiles kept (and at least
-    ``rays.min_tiles``), and every kept tile's move from its predicted place below that shift along
-    both axes. The whole-panorama shift averages such local moves, so the coarse stage would keep
-    the prediction; under parallax, where some tiles move farther, it runs."""
+def _settled_at(front_end: "IfmiFrontEnd", match: TileMatch) -> bool:
+    """Whether tiles registered at the prediction (``match.rotation``) show it lines the frames up as
+    the coarse stage's own settle test asks (a whole-panorama shift below ``settled_shift_px`` coarse
+    pixels along both axes): more than ``recovery.wide_search_fraction`` of the tiles kept (and at
+    least ``rays.min_tiles``), and every kept tile's move from its predicted place below that shift
+    along both axes. The whole-panorama shift averages such local moves, so the coarse stage would
+    keep the prediction; under parallax, where some tiles move farther, it runs."""
     valid = match.placed.valid
     kept = int(valid.sum())
     if kept < front_end.config.rays.min_tiles or \
             kept <= front_end.config.recovery.wide_search_fraction * front_end.layout.count:
         return False
-    predicted, _ = front_end.predicted_placements(match.offsets_a[valid], match.linear_a[valid], prediction)
-    move = match.placed.offsets[valid] - predicted
+    move = match.placed.offsets[valid] - match.predicted_offsets[valid]
     width = front_end.mapping.width
     move[:, 1] = np.mod(move[:, 1] + width / 2, width) - width / 2
     stage = front_end.global_stage
@@ -288,7 +290,7 @@ def registered(front_end: "IfmiFrontEnd", state_a: "IfmiFrameState", state_b: "I
     at_prediction = None
     if starts[0] is not None and front_end.global_stage is not None:
         at_prediction = front_end.tiles_at(state_a, state_b, starts[0])
-        if _settled_at(front_end, at_prediction, starts[0]):
+        if _settled_at(front_end, at_prediction):
             return at_prediction, PairDiagnostics.of_tiles(at_prediction.placed, front_end.layout.count,
                                                            at_prediction.n_new)
     rotation, coarse = front_end.coarse_rotation(state_a, state_b, starts)
