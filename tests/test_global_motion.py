@@ -209,6 +209,45 @@ def _coarse_result_off_by(monkeypatch, yaw_error_deg):
     monkeypatch.setattr(GlobalMotionEstimator, "estimate", off)
 
 
+def _coarse_stage_always_runs(monkeypatch):
+    """Make tiles registered at the prediction never settle there, so that the coarse stage runs."""
+    import ifmi.spectral.pair_pipeline as pair_pipeline
+
+    monkeypatch.setattr(pair_pipeline, "_settled_at", lambda *args: False)
+
+
+def _counted_coarse_stage(monkeypatch) -> list:
+    """Count the coarse stage's estimates (the returned list grows by one per call)."""
+    calls = []
+    original = GlobalMotionEstimator.estimate
+    monkeypatch.setattr(GlobalMotionEstimator, "estimate",
+                        lambda self, *args, **kwargs: calls.append(1) or original(self, *args, **kwargs))
+    return calls
+
+
+def test_tiles_that_settle_at_the_prediction_skip_the_coarse_stage(scene, monkeypatch):
+    from ifmi.spectral.ifmi_front_end import IfmiConfig
+
+    texture, _ = scene
+    truth = _rotation(12.0, 2.0, 60.0)
+    config = IfmiConfig(panorama=PanoramaConfig(radius_min_px=BAND[0], radius_max_px=BAND[1]))
+    calls = _counted_coarse_stage(monkeypatch)
+    # An exact prediction: the tiles registered there settle, the coarse stage is not asked.
+    front_end, (a, b) = _front_end_pair(texture, truth, config)
+    exact = front_end.correspondences(a, b, prior_rotation=truth)
+    assert exact.success and calls == [] and "coarse_score" not in exact.diagnostics
+    # A prediction off in yaw by three times the coarse stage's settle shift (settled_shift_px
+    # coarse pixels): the tiles measure that move, and the coarse stage runs.
+    stage = front_end.global_stage
+    off_deg = 3 * stage.config.settled_shift_px * 360.0 / stage.shape[1]
+    front_end, (a, b) = _front_end_pair(texture, truth, config)
+    prediction = truth @ Rotation.from_euler("z", off_deg, degrees=True).as_matrix()
+    off = front_end.correspondences(a, b, prior_rotation=prediction)
+    assert off.success and calls == [1] and "coarse_score" in off.diagnostics
+    rotation = rotation_from_ray_pairs(off.rays_a, off.rays_b)
+    assert np.degrees(geodesic_angle(truth, rotation)) < 0.05
+
+
 def test_a_coarse_correction_the_tiles_match_worse_than_the_prediction_is_overruled(scene, monkeypatch):
     from dataclasses import replace
 
@@ -222,9 +261,11 @@ def test_a_coarse_correction_the_tiles_match_worse_than_the_prediction_is_overru
                         recovery=RecoveryOptions(dense_retry_fraction=0.0, wide_search_fraction=0.0))
     front_end, (a, b) = _front_end_pair(texture, truth, config)
     # The coarse stage moves an exact prediction by 0.4 of a tile (away from the identity, which the
-    # re-acquisition starts from): the tiles barely overlap there.
+    # re-acquisition starts from): the tiles barely overlap there. It runs although the tiles settle
+    # at the prediction (they would skip it).
     tile_deg = 360.0 * front_end.layout.tile_size / front_end.mapping.width
     _coarse_result_off_by(monkeypatch, -0.4 * tile_deg)
+    _coarse_stage_always_runs(monkeypatch)
     checked = front_end.correspondences(a, b, prior_rotation=truth)
     d = checked.diagnostics
     assert d["prediction_kept"] and d["n_tiles_kept"] > d["n_tiles_kept_coarse"]
@@ -250,6 +291,7 @@ def test_the_prediction_is_checked_only_within_the_tiles_reach(scene, monkeypatc
     tile_deg = 360.0 * front_end.layout.tile_size / front_end.mapping.width
     # A correction beyond prediction_check_tiles (0.125 tile) is taken without registering at the prediction.
     _coarse_result_off_by(monkeypatch, 0.2 * tile_deg)
+    _coarse_stage_always_runs(monkeypatch)
     diagnostics = front_end.correspondences(a, b, prior_rotation=truth).diagnostics
     assert "prediction_kept" not in diagnostics
     assert diagnostics["coarse_correction_rad"] == pytest.approx(np.radians(0.2 * tile_deg))
@@ -270,6 +312,7 @@ def test_a_prediction_the_coarse_stage_confirmed_is_registered_once(scene, monke
     panorama = PanoramaConfig(radius_min_px=BAND[0], radius_max_px=BAND[1])
     front_end, (a, b) = _front_end_pair(texture, truth, IfmiConfig(panorama=panorama))
     _coarse_result_off_by(monkeypatch, 0.0)  # returned unchanged: its correction angle is float noise
+    _coarse_stage_always_runs(monkeypatch)
     calls = []
     original = IfmiFrontEnd.tiles_at
     monkeypatch.setattr(IfmiFrontEnd, "tiles_at",

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ifmi.backend.homography import homography_from_rays, homography_transfer_angles, inlier_homography
+from ifmi.backend.homography import (homography_from_rays, homography_transfer_angles, inlier_homography,
+                                     refitted_homography)
 from ifmi.backend.plane_twin import (PlaneTwinOptions, planar_pair, plane_decompositions, rechained,
                                      resolve_plane_twins)
 from ifmi.geometry.rotations import geodesic_angle
@@ -56,6 +57,28 @@ def test_inlier_homography_of_exact_plane_rays_among_gross_outliers():
     np.testing.assert_allclose(homography / np.linalg.norm(homography),
                                np.sign(np.sum(homography * expected)) * expected / np.linalg.norm(expected),
                                atol=1e-9)
+
+
+def test_refits_stop_when_the_inliers_are_those_of_the_last_fit():
+    # Exact plane rays: every ray is an inlier of the first fit, so a refit on them could only
+    # repeat it; with ``fitted`` the fit is not called again, and the result is the same.
+    rng = np.random.default_rng(6)
+    rotation_ab, translation_ab, _, points_b = _plane_pair(rng)
+    rays_a, rays_b = _pair_rays(rotation_ab, translation_ab, points_b)
+    first = homography_from_rays(rays_a, rays_b)
+    calls = []
+
+    def fit(a, b):
+        calls.append(len(a))
+        return homography_from_rays(a, b)
+
+    kept = refitted_homography(first, rays_a, rays_b, threshold_rad=5e-3, refits=2, fit=fit,
+                               fitted=np.ones(len(rays_a), dtype=bool))
+    assert calls == []
+    refitted = refitted_homography(first, rays_a, rays_b, threshold_rad=5e-3, refits=2, fit=fit)
+    assert calls == [len(rays_a)]  # one refit, then the same inliers: no second
+    assert np.array_equal(kept[0], first) and np.array_equal(refitted[0], first)
+    assert np.array_equal(kept[1], refitted[1])
 
 
 def test_decompositions_of_an_exact_homography_hold_the_true_motion_and_its_twin():

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 from ifmi.errors import InputError
 from ifmi.io.tum import Trajectory, read_tum, write_tum
 from ifmi.geometry.rotations import (
+    cross,
     geodesic_angle,
     matrix_aligning_rays,
     matrix_from_quat_xyzw,
@@ -91,6 +92,14 @@ def test_matrix_aligning_rays_is_the_smallest_turn_between_them():
     # A fraction turns about the same axis by that part of the angle.
     half = Rotation.from_matrix(matrix_aligning_rays(a, b, fraction=0.5)).as_rotvec()
     assert np.allclose(half, rotvec / 2, atol=1e-12)
+
+
+def test_cross_equals_numpy_cross_bit_for_bit_with_broadcasting():
+    rng = np.random.default_rng(5)
+    u = rng.normal(size=(4, 7, 3))
+    v = rng.normal(size=(7, 3))
+    assert np.array_equal(cross(u, v), np.cross(u, v))
+    assert np.array_equal(cross(u[0, 0], v[0]), np.cross(u[0, 0], v[0]))
 
 
 def test_tum_round_trip(tmp_path):

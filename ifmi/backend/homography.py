@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ifmi.geometry.rotations import cross_product_matrix
+from ifmi.geometry.rotations import cross, cross_product_matrix
 
 __all__ = ["homography_from_rays", "homography_transfer_angles", "inlier_homography", "refitted_homography"]
 
@@ -55,7 +55,7 @@ def homography_transfer_angles(homography: np.ndarray, rays_a: np.ndarray, rays_
     mapped = rays_b @ np.swapaxes(homography, -1, -2)
     lengths = np.maximum(np.linalg.norm(mapped, axis=-1), 1e-300)
     cosines = np.sum(mapped * rays_a, axis=-1) / lengths
-    sines = np.linalg.norm(np.cross(mapped, rays_a), axis=-1) / lengths
+    sines = np.linalg.norm(cross(mapped, rays_a), axis=-1) / lengths
     return np.arctan2(sines, np.abs(cosines))
 
 
@@ -80,11 +80,12 @@ def inlier_homography(rays_a: np.ndarray, rays_b: np.ndarray, *, threshold_rad: 
         Transfer angles (radians) of every ray under it.
     """
     return refitted_homography(homography_from_rays(rays_a, rays_b), rays_a, rays_b, threshold_rad=threshold_rad,
-                               refits=refits)
+                               refits=refits, fitted=np.ones(len(rays_a), dtype=bool))
 
 
 def refitted_homography(homography: np.ndarray, rays_a: np.ndarray, rays_b: np.ndarray, *, threshold_rad: float,
-                        refits: int, fit=homography_from_rays) -> tuple[np.ndarray, np.ndarray]:
+                        refits: int, fit=homography_from_rays,
+                        fitted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``homography`` refitted ``refits`` times, each time by ``fit`` to the rays the current one
     transfers within ``threshold_rad``; stops early when fewer than four rays remain.
 
@@ -99,6 +100,10 @@ def refitted_homography(homography: np.ndarray, rays_a: np.ndarray, rays_b: np.n
     refits : int, keyword-only
     fit : callable, keyword-only
         ``fit(rays_a, rays_b) -> (3, 3)`` on the inliers; the direct linear transform by default.
+    fitted : (N,) bool ndarray, optional, keyword-only
+        The rays ``homography`` was fitted to by ``fit``, when it was. A refit stops early, with
+        the same result, when the inliers are the rays of the last fit (the fit would return the
+        same homography).
 
     Returns
     -------
@@ -109,8 +114,10 @@ def refitted_homography(homography: np.ndarray, rays_a: np.ndarray, rays_b: np.n
     errors = homography_transfer_angles(homography, rays_a, rays_b)
     for _ in range(refits):
         keep = errors < threshold_rad
-        if keep.sum() < 4:
+        # The same inliers as the last refit's give the same homography again: done.
+        if keep.sum() < 4 or (fitted is not None and np.array_equal(keep, fitted)):
             break
         homography = fit(rays_a[keep], rays_b[keep])
         errors = homography_transfer_angles(homography, rays_a, rays_b)
+        fitted = keep
     return homography, errors

@@ -75,7 +75,7 @@ from scipy.special import bdtrc, fdtr, gammaincinv
 
 from ifmi.backend.homography import inlier_homography
 from ifmi.options import check_finite_fields
-from ifmi.geometry.rotations import cross_product_matrix, geodesic_angle
+from ifmi.geometry.rotations import cross, cross_product_matrix, geodesic_angle
 
 __all__ = [
     "RelativePoseOptions",
@@ -543,13 +543,6 @@ class RelativePoseInfo:
     selection: ModelSelection = field(default_factory=lambda: ModelSelection())
 
 
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Cross product along the last axis (broadcasting), cheaper than ``np.cross`` on small arrays."""
-    u0, u1, u2 = u[..., 0], u[..., 1], u[..., 2]
-    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], axis=-1)
-
-
 def _ray_products(rays_a: np.ndarray, rays_b: np.ndarray) -> np.ndarray:
     """Flattened outer products ``a_n b_n^T`` of the rays, (N, 9).
 
@@ -710,7 +703,7 @@ def _rotations_from_ray_pairs(rays: np.ndarray, first: np.ndarray, second: np.nd
     frame; their rotations come from the singular value decomposition.
     """
     u, v = rays[:, first], rays[:, second]
-    columns = np.stack([u + v, u - v, _cross(u, v)], axis=-1)
+    columns = np.stack([u + v, u - v, cross(u, v)], axis=-1)
     length = np.sqrt(np.einsum("...ij,...ij->...j", columns, columns))
     frames = columns / np.maximum(length, 1e-300)[..., None, :]
     rotations = frames[0] @ np.swapaxes(frames[1], -1, -2)

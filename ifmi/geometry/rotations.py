@@ -21,6 +21,7 @@ __all__ = [
     "project_to_rotation",
     "matrix_aligning_rays",
     "cross_product_matrix",
+    "cross",
 ]
 
 
@@ -127,3 +128,14 @@ def cross_product_matrix(v: np.ndarray) -> np.ndarray:
     out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
     out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
     return out
+
+
+def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Cross products ``u x v`` along the last axis of (..., 3) vectors (broadcasting), (..., 3).
+
+    The same products and differences as ``np.cross`` (equal to the last bit), at a fraction of
+    its cost on small arrays.
+    """
+    u0, u1, u2 = u[..., 0], u[..., 1], u[..., 2]
+    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], axis=-1)

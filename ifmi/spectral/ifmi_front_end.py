@@ -845,7 +845,7 @@ class IfmiFrontEnd(FrontEndBase):
         else:
             tracked = last
         return TileMatch(offsets_a, linear_a, placed, rotation, n_new, tracked, placed.valid,
-                         state_a.reference_landmarks)
+                         state_a.reference_landmarks, offsets_b)
 
     def _refitted(self, state_a: IfmiFrameState, state_b: IfmiFrameState, spectra_a: TileSpectra,
                   placement_a: tuple, placed: PlacedRegistration, curvature_b: np.ndarray | None, refined: bool):

@@ -5,10 +5,11 @@ pair to :func:`solve_pair`, which runs these stages, each returning an
 immutable result (the page *How it works: the per-pair pipeline* of the
 documentation draws them):
 
-1. **register** (:func:`registered`): the coarse stage corrects the
-   prediction from whole low-resolution panoramas, and the reference's
-   tiles are registered in frame b where the corrected rotation puts them;
-   a small correction is checked by registering at the prediction too.
+1. **register** (:func:`registered`): the reference's tiles are registered
+   in frame b where the prediction puts them; unless they settle there, the
+   coarse stage corrects the prediction from whole low-resolution panoramas
+   and the tiles are registered where the corrected rotation puts them (a
+   small correction is checked against the registration at the prediction).
 2. **verify**: the kept-tile count decides whether a recovery runs.
 3. **recover**: *re-acquire* (too few tiles: the coarse stage searches
    again from the identity), *wide search* (few tiles after a large coarse
@@ -184,7 +185,9 @@ class PairDiagnostics:
 @dataclass(frozen=True)
 class TileMatch:
     """One registration of a reference's tiles in frame b at ``rotation`` (``R_ab``), and the tiles it
-    would give frame b to track (:meth:`~ifmi.spectral.ifmi_front_end.IfmiFrontEnd.keep_tracking`)."""
+    would give frame b to track (:meth:`~ifmi.spectral.ifmi_front_end.IfmiFrontEnd.keep_tracking`);
+    ``predicted_offsets`` (T, 2) is the panorama ``(row, col)`` in frame b where ``rotation`` put each
+    tile's centre (columns in ``[0, width)``), the start of its registration."""
 
     offsets_a: np.ndarray
     linear_a: np.ndarray
@@ -194,6 +197,7 @@ class TileMatch:
     tracked: PlacedTiles
     tracked_valid: np.ndarray
     tracked_landmarks: np.ndarray | None
+    predicted_offsets: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -251,23 +255,56 @@ def _checks_prediction(front_end: "IfmiFrontEnd", prediction: np.ndarray | None,
     return correction_px <= check * front_end.layout.tile_size
 
 
+def _settled_at(front_end: "IfmiFrontEnd", match: TileMatch) -> bool:
+    """Whether tiles registered at the prediction (``match.rotation``) show it lines the frames up as
+    the coarse stage's own settle test asks (a whole-panorama shift below ``settled_shift_px`` coarse
+    pixels along both axes): more than ``recovery.wide_search_fraction`` of the tiles kept (and at
+    least ``rays.min_tiles``), and every kept tile's move from its predicted place below that shift
+    along both axes. The whole-panorama shift averages such local moves, so the coarse stage would
+    keep the prediction; under parallax, where some tiles move farther, it runs."""
+    valid = match.placed.valid
+    kept = int(valid.sum())
+    if kept < front_end.config.rays.min_tiles or \
+            kept <= front_end.config.recovery.wide_search_fraction * front_end.layout.count:
+        return False
+    move = match.placed.offsets[valid] - match.predicted_offsets[valid]
+    width = front_end.mapping.width
+    move[:, 1] = np.mod(move[:, 1] + width / 2, width) - width / 2
+    stage = front_end.global_stage
+    return bool(np.all(np.abs(move).max(axis=0) < stage.config.settled_shift_px * stage.scale))
+
+
 def registered(front_end: "IfmiFrontEnd", state_a: "IfmiFrameState", state_b: "IfmiFrameState",
                starts: tuple) -> tuple[TileMatch, PairDiagnostics]:
     """Stage *register*: the coarse stage from ``starts`` (prediction or None, then other starts), then
     the tiles where it puts them.
 
-    When the coarse stage moved the prediction by little and not every tile passed, the tiles are
-    registered at the prediction too and the registration keeping more tiles is returned.
+    With a prediction the tiles are registered there first, and the coarse stage is skipped when
+    they settle there (:func:`_settled_at`): it would return the prediction unchanged, and the
+    tiles measure the same (while tracking, nearly every pair). Otherwise the coarse stage runs;
+    where it keeps the prediction, the registration made there stands. When the coarse stage moved
+    the prediction by little and not every tile passed, the registration at the prediction is
+    checked too and the one keeping more tiles is returned.
     """
     start = np.eye(3) if starts[0] is None else starts[0]
+    at_prediction = None
+    if starts[0] is not None and front_end.global_stage is not None:
+        at_prediction = front_end.tiles_at(state_a, state_b, starts[0])
+        if _settled_at(front_end, at_prediction):
+            return at_prediction, PairDiagnostics.of_tiles(at_prediction.placed, front_end.layout.count,
+                                                           at_prediction.n_new)
     rotation, coarse = front_end.coarse_rotation(state_a, state_b, starts)
     correction = 0.0 if coarse is None else _angle_rad(start, coarse.rotation)
-    match = front_end.tiles_at(state_a, state_b, rotation)
+    if at_prediction is not None and np.array_equal(rotation, starts[0]):
+        match = at_prediction  # the same registration: tiles_at changes neither frame
+    else:
+        match = front_end.tiles_at(state_a, state_b, rotation)
     extra = {}
     # With every tile kept the prediction cannot keep more: no second registration.
     if _kept_count(match) < front_end.layout.count and _checks_prediction(front_end, starts[0], rotation,
                                                                           correction):
-        at_prediction = front_end.tiles_at(state_a, state_b, starts[0])
+        if at_prediction is None:
+            at_prediction = front_end.tiles_at(state_a, state_b, starts[0])
         extra = {"n_tiles_kept_coarse": _kept_count(match),
                  "prediction_kept": bool(_kept_count(at_prediction) > _kept_count(match))}
         if extra["prediction_kept"]:
@@ -368,9 +405,11 @@ def rescued(front_end: "IfmiFrontEnd", state_a: "IfmiFrameState", state_b: "Ifmi
     search from there matches worse. Returns correspondences that may still fail to solve.
     """
     diagnostics = failed.diagnostics
-    if prior is None or not front_end.wide_search_on() or diagnostics is None \
-            or diagnostics.coarse_score is None or diagnostics.wide_search:
+    if prior is None or not front_end.wide_search_on() or diagnostics is None or diagnostics.wide_search:
         return None
+    if diagnostics.coarse_score is None:  # the tiles settled at the prediction: the coarse stage was skipped
+        _, coarse = front_end.coarse_rotation(state_a, state_b, (prior, None))
+        diagnostics = diagnostics.with_coarse(prior, coarse)
     searched = front_end.wide_search(state_a, state_b, diagnostics.coarse_score, prior, every_start=True)
     if searched is None:
         return None
