@@ -94,29 +94,6 @@ def test_resampling_along_the_curvature_reads_the_quadratic_place():
     assert np.abs(tiles - expected).max() < 0.02  # OpenCV's 1/32 pixel sub-sample grid
 
 
-def test_placement_maps_are_the_float32_numpy_evaluation_bit_for_bit():
-    # The compiled maps keep NumPy's float32 operations in their order: the tiles, and so the
-    # estimates, are those of the broadcast array expression.
-    from ifmi.spectral.fourier_mellin import _placement_maps
-
-    rng = np.random.default_rng(4)
-    n, count = 16, 7
-    offsets, linear = rng.uniform(-20.0, 900.0, (count, 2)), rng.normal(0.0, 1.0, (count, 2, 2))
-    curvature = rng.normal(0.0, 0.1, (count, 2, 2, 2))
-    f32 = np.float32
-    g = np.arange(n, dtype=f32) - f32((n - 1) / 2.0)
-    gr, gc = g[None, :, None], g[None, None, :]
-    lin, off, q = linear.astype(f32), offsets.astype(f32), curvature.astype(f32)
-    for curved in (False, True):
-        maps = _placement_maps(n, offsets, linear, curvature if curved else None)
-        for i in (0, 1):
-            expected = (lin[:, i, 0, None, None] * gr + lin[:, i, 1, None, None] * gc) + off[:, i, None, None]
-            if curved:
-                expected = expected + ((q[:, i, 0, 0, None, None] * gr * gr + 2 * q[:, i, 0, 1, None, None] * gr * gc)
-                                       + q[:, i, 1, 1, None, None] * gc * gc)
-            assert maps[i].dtype == f32 and np.array_equal(maps[i], expected.reshape(-1, n))
-
-
 def test_flow_points_include_the_curvature(environment):
     fe = _front_end(CURVED, omni_from_environment(environment, MODEL, np.eye(3), band_px=BAND))
     offsets, linear = fe._layout_placement

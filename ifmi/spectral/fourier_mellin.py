@@ -68,7 +68,6 @@ from dataclasses import dataclass, replace
 from enum import IntEnum
 
 import cv2
-import numba
 import numpy as np
 import scipy.fft
 
@@ -627,54 +626,31 @@ def _replace_rows(placed: PlacedTiles, rows: np.ndarray, update: PlacedTiles, *,
                                                      descriptor=descriptor))
 
 
-@numba.njit(cache=True, nogil=True)
-def _placement_maps_into(maps: np.ndarray, offsets: np.ndarray, linear: np.ndarray, curvature: np.ndarray,
-                         curved: bool) -> None:
-    """Fill ``maps`` (2, K, N, N) float32 with the source row and column of tiles placed at ``o + L u + q(u)``.
-
-    Each value is ``((L_i0 u_r + L_i1 u_c) + o_i) + (((Q_i00 u_r) u_r + (2 Q_i01 u_r) u_c) + (Q_i11 u_c) u_c)``,
-    every product and sum rounded to float32 in this order (the curvature term only when ``curved``),
-    ``u = (r, c) - (N - 1) / 2``: the values NumPy's broadcast operations give, computed in one pass.
-
-    Parameters
-    ----------
-    maps : (2, K, N, N) float32 ndarray
-        Written.
-    offsets : (K, 2) float32 ndarray
-    linear : (K, 2, 2) float32 ndarray
-    curvature : (K, 2, 2, 2) float32 ndarray
-        Read only when ``curved``.
-    curved : bool
-    """
-    n = maps.shape[-1]
-    half = np.float32((n - 1) / 2.0)
-    two = np.float32(2.0)
-    for t in range(maps.shape[1]):
-        for i in range(2):
-            l0, l1, o = linear[t, i, 0], linear[t, i, 1], offsets[t, i]
-            q00, q01, q11 = curvature[t, i, 0, 0], two * curvature[t, i, 0, 1], curvature[t, i, 1, 1]
-            for r in range(n):
-                u_r = np.float32(r) - half
-                row_term, cross_term, square_term = l0 * u_r, q01 * u_r, q00 * u_r * u_r
-                for c in range(n):
-                    u_c = np.float32(c) - half
-                    value = (row_term + l1 * u_c) + o
-                    if curved:
-                        value = value + ((square_term + cross_term * u_c) + q11 * u_c * u_c)
-                    maps[i, t, r, c] = value
-
-
 def _placement_maps(n: int, offsets: np.ndarray, linear: np.ndarray,
                     curvature: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """Source ``(row, col)`` maps ``(K N, N)`` float32 of tiles placed at ``o + L u + q(u)``
-    (:func:`_placement_maps_into`: float32 throughout, in a fixed order of operations)."""
+    """Source ``(row, col)`` maps ``(K N, N)`` float32 of tiles placed at ``o + L u + q(u)``.
+
+    Each map is ``((L_i0 u_r + L_i1 u_c) + o_i) + ((Q_i00 u_r^2 + 2 Q_i01 u_r u_c) + Q_i11 u_c^2)``
+    in float32, summed in this order into preallocated arrays: two full-size passes per map
+    (six with curvature) and no full-size temporaries.
+    """
     f32 = np.float32
-    count = len(offsets)
-    maps = np.empty((2, count, n, n), dtype=f32)
-    curved = curvature is not None
-    quadratic = np.asarray(curvature, dtype=f32) if curved else np.zeros((count, 2, 2, 2), dtype=f32)
-    _placement_maps_into(maps, np.ascontiguousarray(offsets, dtype=f32), np.ascontiguousarray(linear, dtype=f32),
-                         np.ascontiguousarray(quadratic), curved)
+    g = np.arange(n, dtype=f32) - f32((n - 1) / 2.0)
+    lin = np.asarray(linear, dtype=f32)
+    off = np.asarray(offsets, dtype=f32)
+    gr, gc = g[None, :, None], g[None, None, :]
+    maps = np.empty((2, len(off), n, n), dtype=f32)
+    q = None if curvature is None else np.asarray(curvature, dtype=f32)
+    term = None if q is None else np.empty((len(off), n, n), dtype=f32)
+    for i in (0, 1):
+        out = maps[i]
+        np.add(lin[:, i, 0, None, None] * gr, lin[:, i, 1, None, None] * gc, out=out)
+        out += off[:, i, None, None]
+        if q is not None:
+            np.multiply(2 * q[:, i, 0, 1, None, None] * gr, gc, out=term)
+            np.add(q[:, i, 0, 0, None, None] * gr * gr, term, out=term)
+            term += q[:, i, 1, 1, None, None] * gc * gc
+            out += term
     return maps[0].reshape(-1, n), maps[1].reshape(-1, n)
 
 
