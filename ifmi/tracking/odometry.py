@@ -378,7 +378,7 @@ class Tracker:
         return replace(options, noise_prior_rms_rad=_median_of_ascending(self._noise_rms),
                        noise_prior_measurements=_median_of_ascending(self._noise_measurements))
 
-    def _keep_noise_evidence(self, info) -> None:
+    def _keep_pair_evidence(self, info) -> None:
         """Add a solved pair's own evidence to the priors': its noise (``ModelSelection.noise_rms_rad``)
         and, with both models fitted, whether it showed translation without a prior."""
         selection = getattr(info, "selection", None)
@@ -528,7 +528,7 @@ class Tracker:
                 inliers = np.asarray(info.inlier_mask, dtype=bool)
                 self._pair_rays.append((reference.frame, k, corr.rays_a[inliers], corr.rays_b[inliers]))
             self._plane_twins.observe(k, corr, pose, info, threshold_rad=self.pose_options.ransac_threshold_rad)
-            self._keep_noise_evidence(info)
+            self._keep_pair_evidence(info)
             sigma = getattr(info, "rotation_sigma_rad", math.nan)  # a custom pose_solver may not predict it
             record = FrameRecord(k, reference.frame, True, "", info.n_correspondences, info.n_inliers,
                                  0.0, info.model, _angle(pose.rotation), sigma,
